@@ -1,0 +1,55 @@
+"""Typed exceptions.
+
+Every error catgraph raises for a user's mistake is a :class:`CatgraphError`. Each
+subclass also derives from the built-in exception a Python user would expect
+(``ValueError``, ``FileNotFoundError`` …), so ``except ValueError`` keeps working. The
+command line turns any ``CatgraphError`` into one line on stderr and exit code 1.
+
+Messages name the problem *and* the fix, e.g. ``"The 'n_bins' parameter of
+HistogramModel must be an int in the range [2, inf). Got 0 instead."``
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "CatgraphError",
+    "InvalidParameterError",
+    "DataError",
+    "DataNotFoundError",
+    "ShapeMismatchError",
+    "NotFittedError",
+    "MapFileError",
+    "ConfigError",
+]
+
+
+class CatgraphError(Exception):
+    """Base class of every error catgraph raises on purpose."""
+
+
+class InvalidParameterError(CatgraphError, ValueError):
+    """A parameter has the wrong type or is out of its range."""
+
+
+class DataError(CatgraphError, ValueError):
+    """Input data is malformed: NaN, wrong shape, unreadable file, missing column."""
+
+
+class DataNotFoundError(CatgraphError, FileNotFoundError):
+    """A path given by the user does not exist or holds no usable data."""
+
+
+class ShapeMismatchError(DataError):
+    """Two arrays that must agree in shape (query vs reference descriptors) do not."""
+
+
+class NotFittedError(CatgraphError, AttributeError):
+    """A model was used before ``fit``/``partial_fit`` gave it its learned state."""
+
+
+class MapFileError(DataError):
+    """A saved map is corrupt, truncated, tampered with or from a newer version."""
+
+
+class ConfigError(CatgraphError, ValueError):
+    """An experiment configuration has unknown keys or values of the wrong type."""
