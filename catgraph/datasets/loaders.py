@@ -1,0 +1,234 @@
+"""Loaders for the formats users have.
+
+* **Image folders** (``.png``, ``.jpg``, ``.jpeg``): frames sorted by the (last) number in
+  the file name, so ``images-00010.png`` < ``images-00100.png`` whatever the zero
+  padding; greyscale stays ``(n, h, w)``, colour becomes ``(n, h, w, 3)``. ``ids`` holds
+  the file numbers. Nordland's ``32x16/summer`` is such a folder.
+* **UJI Wi-Fi sets**: four CSV files sharing a prefix, e.g. ``db/01/trn01`` →
+  ``trn01rss.csv`` (one column per access point, dBm, +100 = not detected),
+  ``trn01crd.csv`` (x, y, floor), ``trn01tms.csv`` (``yyyymmddHHMMSSfff``), ``trn01ids.csv``.
+  Only ``rss`` is required; the others are used where present and must have one row per
+  fingerprint.
+* **Descriptor arrays**: ``.npy`` (one ``(n, d)`` array) or ``.npz`` with ``descriptors``
+  (or ``frames``) and optional ``positions``, ``floors``, ``timestamps``, ``ids``,
+  ``odometry``; both read with ``allow_pickle=False``.
+
+:func:`load_traverse` picks the loader from the path. Every failure is a typed
+:class:`~catgraph.exceptions.CatgraphError` naming the file and the fix.
+"""
+
+from __future__ import annotations
+
+import re
+import zipfile
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+
+from ..exceptions import DataError, DataNotFoundError
+from ..traverse import Traverse
+
+__all__ = ["IMAGE_SUFFIXES", "load_image_folder", "load_uji", "load_array", "load_traverse"]
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+_NUMBER = re.compile(r"(\d+)")
+
+
+def _image_files(folder: Path) -> list[Path]:
+    return [p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES]
+
+
+def _sort_key(path: Path) -> tuple[int, int, str]:
+    numbers = _NUMBER.findall(path.stem)
+    return (0, int(numbers[-1]), path.name) if numbers else (1, 0, path.name)
+
+
+def load_image_folder(path: str | Path, progress: bool = False) -> Traverse:
+    """Load every PNG/JPG image of a folder, sorted by the number in the file name.
+
+    Returns
+    -------
+    Traverse
+        ``frames`` ``(n, h, w)`` uint8 (greyscale) or ``(n, h, w, 3)`` (colour),
+        ``ids`` = the file numbers (or positions in sorted order where a name has none),
+        ``meta = {"kind": "images", "files": [...]}``.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    folder = Path(path)
+    if not folder.exists():
+        raise DataNotFoundError(f"image folder {folder} does not exist; check the path.")
+    if not folder.is_dir():
+        raise DataError(f"{folder} is not a folder; give a folder of PNG/JPG images.")
+    files = sorted(_image_files(folder), key=_sort_key)
+    if not files:
+        raise DataNotFoundError(f"{folder} holds no PNG or JPG images; give a folder of frames.")
+    iterator = files
+    if progress:
+        from tqdm.auto import tqdm
+
+        iterator = tqdm(files, desc=f"loading {folder.name}", unit="img", leave=False)
+    arrays = []
+    for file in iterator:
+        try:
+            with Image.open(file) as img:
+                img.load()
+                mode = "L" if img.mode in ("L", "I", "I;16", "1", "P") and _is_grey(img) else "RGB"
+                arrays.append(np.asarray(img.convert(mode)))
+        except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
+            raise DataError(f"cannot read image {file}: {exc}. Remove or replace the corrupt file.") from None
+    shapes = {a.shape for a in arrays}
+    if len({s[:2] for s in shapes}) > 1:
+        first = arrays[0].shape
+        odd = next(f for f, a in zip(files, arrays) if a.shape[:2] != first[:2])
+        raise DataError(
+            f"images in {folder} differ in size ({files[0].name}: {first[1]}×{first[0]}, {odd.name}: "
+            f"{arrays[files.index(odd)].shape[1]}×{arrays[files.index(odd)].shape[0]}); resize them to one size first."
+        )
+    if len(shapes) > 1:  # mixed grey and colour: promote grey to RGB
+        arrays = [a if a.ndim == 3 else np.repeat(a[..., None], 3, axis=2) for a in arrays]
+    frames = np.stack(arrays)
+    if frames.ndim == 4 and np.array_equal(frames[..., 0], frames[..., 1]) and np.array_equal(frames[..., 1], frames[..., 2]):
+        frames = np.ascontiguousarray(frames[..., 0])  # grey stored as RGB
+    numbers = [_NUMBER.findall(f.stem) for f in files]
+    ids = np.array([int(n[-1]) if n else k for k, n in enumerate(numbers)], dtype=np.int64)
+    return Traverse(frames, ids=ids, name=folder.name, meta={"kind": "images", "source": str(folder),
+                                                              "files": [f.name for f in files]})
+
+
+def _is_grey(img) -> bool:
+    if img.mode != "P":
+        return True
+    palette = np.asarray(img.convert("RGB"))
+    return bool(np.all(palette[..., 0] == palette[..., 1]) and np.all(palette[..., 1] == palette[..., 2]))
+
+
+def _read_csv(file: Path, name: str, columns: int | None = None) -> np.ndarray:
+    try:
+        rows = [line.strip() for line in file.read_text().splitlines() if line.strip()]
+    except OSError as exc:
+        raise DataError(f"cannot read {file}: {exc}") from None
+    if not rows:
+        raise DataError(f"{file} is empty; every UJI set needs at least one fingerprint.")
+    split = [row.split(",") for row in rows]
+    width = columns if columns is not None else len(split[0])
+    for line_no, cells in enumerate(split, start=1):
+        if len(cells) != width or any(c.strip() == "" for c in cells):
+            found = len([c for c in cells if c.strip() != ""])
+            raise DataError(
+                f"{file}, line {line_no}: expected {width} comma-separated {name} values, found {found}; "
+                "the file has a missing column or a malformed row."
+            )
+    try:
+        return np.array(split, dtype=np.float64)
+    except ValueError:
+        raise DataError(f"{file} holds non-numeric {name} values; expected numbers only.") from None
+
+
+def load_uji(prefix: str | Path) -> Traverse:
+    """Load a UJI-format Wi-Fi set from its common prefix (e.g. ``db/01/trn01``).
+
+    Returns
+    -------
+    Traverse
+        ``frames`` = raw RSS ``(n, n_access_points)`` in dBm (+100 = not detected),
+        ``positions`` (x, y metres) and ``floors`` from ``crd``, ``timestamps`` (seconds
+        since the first fingerprint) from ``tms``, ``ids`` from ``ids``;
+        ``meta = {"kind": "wifi", ...}``.
+    """
+    prefix = Path(prefix)
+    rss_file = Path(f"{prefix}rss.csv")
+    if not rss_file.exists():
+        raise DataNotFoundError(
+            f"no UJI Wi-Fi set at {prefix}: {rss_file.name} not found in {rss_file.parent}. "
+            "Give the common prefix of the rss/crd/tms/ids files, e.g. db/01/trn01."
+        )
+    rss = _read_csv(rss_file, "RSS")
+    n = rss.shape[0]
+    kwargs: dict = {}
+    crd_file = Path(f"{prefix}crd.csv")
+    if crd_file.exists():
+        crd = _read_csv(crd_file, "coordinate (x, y, floor)", columns=3)
+        _check_rows(crd, n, crd_file)
+        kwargs["positions"] = crd[:, :2]
+        kwargs["floors"] = np.rint(crd[:, 2]).astype(np.int64)
+    tms_file = Path(f"{prefix}tms.csv")
+    if tms_file.exists():
+        tms = _read_csv(tms_file, "timestamp", columns=1)
+        _check_rows(tms, n, tms_file)
+        kwargs["timestamps"] = _uji_seconds(tms[:, 0], tms_file)
+    ids_file = Path(f"{prefix}ids.csv")
+    if ids_file.exists():
+        ids = _read_csv(ids_file, "id", columns=1)
+        _check_rows(ids, n, ids_file)
+        kwargs["ids"] = ids[:, 0].astype(np.int64)
+    return Traverse(rss, name=prefix.name, meta={"kind": "wifi", "source": str(prefix), "not_detected": 100.0},
+                    **kwargs)
+
+
+def _check_rows(values: np.ndarray, n: int, file: Path) -> None:
+    if values.shape[0] != n:
+        raise DataError(f"{file} has {values.shape[0]} rows but the RSS file has {n}; the set is incomplete.")
+
+
+def _uji_seconds(stamps: np.ndarray, file: Path) -> np.ndarray:
+    """``yyyymmddHHMMSSfff`` → seconds since the first stamp."""
+    out = np.empty(len(stamps))
+    for k, stamp in enumerate(stamps):
+        text = f"{int(stamp):017d}"
+        try:
+            out[k] = datetime.strptime(text[:14], "%Y%m%d%H%M%S").timestamp() + int(text[14:]) / 1000.0
+        except ValueError:
+            raise DataError(f"{file}, line {k + 1}: {text} is not a yyyymmddHHMMSSfff timestamp.") from None
+    return out - out[0]
+
+
+_NPZ_FIELDS = ("positions", "floors", "timestamps", "ids", "odometry")
+
+
+def load_array(path: str | Path) -> Traverse:
+    """Load descriptors from ``.npy`` or ``.npz`` (never unpickling)."""
+    path = Path(path)
+    if not path.exists():
+        raise DataNotFoundError(f"descriptor file {path} does not exist; check the path.")
+    try:
+        loaded = np.load(path, allow_pickle=False)
+    except ValueError as exc:
+        raise DataError(f"{path} cannot be loaded without pickle ({exc}); save plain numeric arrays.") from None
+    except (OSError, zipfile.BadZipFile, EOFError) as exc:
+        raise DataError(f"{path} is not a readable .npy/.npz file: {exc}") from None
+    kind = {"kind": "descriptors", "source": str(path)}
+    if isinstance(loaded, np.ndarray):
+        return Traverse(loaded, name=path.stem, meta=kind)
+    with loaded:
+        keys = list(loaded.files)
+        main = next((k for k in ("descriptors", "frames") if k in keys), None)
+        if main is None:
+            if len(keys) != 1:
+                raise DataError(
+                    f"{path} holds arrays {keys}; name the descriptor array 'descriptors' (optional: {', '.join(_NPZ_FIELDS)})."
+                )
+            main = keys[0]
+        try:
+            fields = {k: loaded[k] for k in _NPZ_FIELDS if k in keys}
+            frames = loaded[main]
+        except ValueError as exc:
+            raise DataError(f"{path} cannot be loaded without pickle ({exc}); save plain numeric arrays.") from None
+    return Traverse(frames, name=path.stem, meta=kind, **fields)
+
+
+def load_traverse(source: str | Path, progress: bool = False) -> Traverse:
+    """Load a traverse from an image folder, a UJI prefix or a ``.npy``/``.npz`` file."""
+    path = Path(source)
+    if path.suffix.lower() in (".npy", ".npz"):
+        return load_array(path)
+    if path.is_dir():
+        return load_image_folder(path, progress=progress)
+    if Path(f"{path}rss.csv").exists():
+        return load_uji(path)
+    if path.exists():
+        raise DataError(f"{path} is not a folder of images, a UJI prefix or a .npy/.npz file.")
+    raise DataNotFoundError(
+        f"{path} does not exist: give a folder of images, a UJI prefix (e.g. db/01/trn01) or a .npy/.npz file."
+    )

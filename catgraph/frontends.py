@@ -1,0 +1,150 @@
+"""Front-ends: turn raw frames into descriptors.
+
+SeqSLAM image pipeline (Milford & Wyeth 2012; paper 1 §IV)
+    greyscale → optional crop → resize (e.g. 32×16) → *patch normalisation*: the image
+    is cut into non-overlapping P×P patches (edge patches may be smaller) and each patch
+    has its mean subtracted and is divided by its standard deviation. A flat patch
+    (standard deviation 0 — tunnels, over-exposed sky) becomes all zeros, never NaN.
+    Descriptors are flattened to ``(n, h*w) float32`` and compared with SAD.
+
+Wi-Fi fingerprints
+    UJI-format received signal strengths in dBm, with ``+100`` meaning "access point
+    not detected". Coding "not seen" as +100 would make it the *strongest* signal, so
+    :func:`wifi_vectors` maps each reading to its strength above a noise floor
+    (``rss − floor_dbm``, clipped at 0) and "not seen" to 0 — the same as a reading at
+    the floor. Absent and weak access points then differ little, strong ones a lot.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._validation import check_array, check_scalar
+from .exceptions import DataError
+
+__all__ = ["to_greyscale", "resize_images", "patch_normalise", "seqslam_preprocess", "wifi_vectors"]
+
+
+def to_greyscale(images: np.ndarray) -> np.ndarray:
+    """``(n, h, w)`` or ``(n, h, w, c)`` → ``(n, h, w) float32`` (ITU-R 601 luma for RGB)."""
+    x = np.asarray(images)
+    if x.ndim == 3:
+        return x.astype(np.float32)
+    if x.ndim == 4 and x.shape[-1] in (1, 2, 3, 4):
+        if x.shape[-1] in (1, 2):  # grey or grey + alpha
+            return x[..., 0].astype(np.float32)
+        rgb = x[..., :3].astype(np.float32)
+        return rgb @ np.array([0.299, 0.587, 0.114], dtype=np.float32)
+    raise DataError(f"images must have shape (n, h, w) or (n, h, w, channels); got {x.shape}.")
+
+
+def resize_images(images: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Resize greyscale ``(n, h, w)`` images to ``size = (width, height)`` (area filter)."""
+    from PIL import Image
+
+    width, height = int(size[0]), int(size[1])
+    if width < 1 or height < 1:
+        raise DataError(f"resize size must be two positive ints (width, height); got {size}.")
+    x = np.asarray(images, dtype=np.float32)
+    if x.shape[1:] == (height, width):
+        return x
+    out = np.empty((x.shape[0], height, width), dtype=np.float32)
+    for k, img in enumerate(x):
+        out[k] = np.asarray(Image.fromarray(img, mode="F").resize((width, height), Image.Resampling.BOX))
+    return out
+
+
+def patch_normalise(images: np.ndarray, patch: int = 4) -> np.ndarray:
+    """Normalise each non-overlapping ``patch × patch`` block to zero mean, unit std.
+
+    Parameters
+    ----------
+    images : ndarray, shape (n, h, w)
+    patch : int
+        Patch side in pixels. Edge patches are smaller where ``h`` or ``w`` is not a
+        multiple of ``patch``.
+
+    Returns
+    -------
+    ndarray, shape (n, h, w), float32
+        Flat patches (std 0) are all zeros.
+    """
+    check_scalar(patch, "patch", "patch_normalise", int, 1)
+    x = np.asarray(images, dtype=np.float64)
+    if x.ndim != 3:
+        raise DataError(f"patch_normalise expects greyscale images (n, h, w); got shape {x.shape}.")
+    out = np.empty_like(x)
+    _, h, w = x.shape
+    for r in range(0, h, patch):
+        for c in range(0, w, patch):
+            block = x[:, r : r + patch, c : c + patch]
+            mean = block.mean(axis=(1, 2), keepdims=True)
+            std = block.std(axis=(1, 2), keepdims=True)
+            centred = block - mean
+            safe = np.where(std > 1e-12 * np.maximum(1.0, np.abs(mean)), std, np.inf)
+            out[:, r : r + patch, c : c + patch] = centred / safe
+    return out.astype(np.float32)
+
+
+def seqslam_preprocess(
+    images: np.ndarray,
+    size: tuple[int, int] | None = None,
+    patch: int | None = 4,
+    crop: tuple[int, int, int, int] | None = None,
+) -> np.ndarray:
+    """The SeqSLAM image front-end: greyscale, crop, resize, patch-normalise, flatten.
+
+    Parameters
+    ----------
+    images : ndarray, shape (n, h, w) or (n, h, w, c)
+    size : (width, height), optional
+        Resize target; ``None`` keeps the size.
+    patch : int or None
+        Patch side for patch normalisation; ``None`` or 0 skips it.
+    crop : (top, bottom, left, right), optional
+        Pixels to cut from each side before resizing.
+
+    Returns
+    -------
+    ndarray, shape (n, height*width), float32
+    """
+    x = to_greyscale(check_array(images, "images", ndim=(3, 4), dtype=None))
+    if crop is not None:
+        top, bottom, left, right = (int(v) for v in crop)
+        h, w = x.shape[1:]
+        if min(top, bottom, left, right) < 0 or top + bottom >= h or left + right >= w:
+            raise DataError(f"crop {crop} does not fit images of size {w}×{h}; give (top, bottom, left, right) pixels.")
+        x = x[:, top : h - bottom, left : w - right]
+    if size is not None:
+        x = resize_images(x, size)
+    if patch:
+        x = patch_normalise(x, patch)
+    return x.reshape(x.shape[0], -1).astype(np.float32)
+
+
+def wifi_vectors(rss: np.ndarray, not_detected: float = 100.0, floor_dbm: float = -105.0) -> np.ndarray:
+    """Received-signal-strength fingerprints → non-negative strength vectors.
+
+    Parameters
+    ----------
+    rss : ndarray, shape (n, n_access_points)
+        dBm readings; ``not_detected`` marks an access point that was not seen.
+    not_detected : float
+        The code for "not seen" (UJI: +100).
+    floor_dbm : float
+        Noise floor: readings at or below it count as not seen.
+
+    Returns
+    -------
+    ndarray, shape (n, n_access_points), float32
+        ``max(rss − floor_dbm, 0)``, and 0 where not detected.
+    """
+    x = check_array(rss, "Wi-Fi RSS readings", ndim=2)
+    seen = x != not_detected
+    if np.any(x[seen] > 0):
+        raise DataError(
+            f"Wi-Fi readings must be dBm (≤ 0) or {not_detected:g} for 'not detected'; "
+            f"found {np.count_nonzero(x[seen] > 0)} positive values. Set not_detected to the code your data uses."
+        )
+    out = np.where(seen, np.maximum(x - floor_dbm, 0.0), 0.0)
+    return out.astype(np.float32)
