@@ -1,0 +1,245 @@
+"""Compiled kernels for :mod:`catgraph.sequence` (numba, ``cache=True``).
+
+Importing this module compiles nothing: numba compiles each kernel on its first call
+(or loads it from the on-disk cache), so ``import catgraph`` stays cheap.
+:mod:`catgraph.sequence` imports this module only when a matcher first runs.
+
+The kernels trust their inputs (shapes, dtypes, ranges); the public functions in
+:mod:`catgraph.sequence` validate first. The streaming matcher and the batch function
+call the *same* kernels in the same order, so their results agree bit for bit.
+
+Notation (see :mod:`catgraph.sequence`): ``ring`` is ``(R, N)`` float64 holding the
+last ``R`` diagonal prefix-sum rows ``C_i[j] = d_ij + C_{i-1}[j-1]``; row ``C_i`` sits at
+``ring[i % R]``. ``grid`` holds the candidate window lengths (ascending).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+APPROX_GAUSSIAN = 0
+APPROX_ROBUST = 1
+APPROX_GMM = 2
+
+
+@njit(cache=True)
+def advance(ring, i, d_row):
+    """Write ``C_i`` into ``ring[i % R]`` from ``C_{i-1}`` (zeros when ``i == 0``)."""
+    r = ring.shape[0]
+    n = d_row.shape[0]
+    out = ring[i % r]
+    if i == 0:
+        for j in range(n):
+            out[j] = d_row[j]
+        return
+    prev = ring[(i - 1) % r]
+    # ascending j reads prev[j - 1] before it could be overwritten: prev and out
+    # are different rows because R >= 2.
+    out[0] = d_row[0]
+    for j in range(1, n):
+        out[j] = d_row[j] + prev[j - 1]
+
+
+@njit(cache=True)
+def window_scores(ring, i, length, s):
+    """Scores ``s_ij(L)`` of query frame ``i`` against every reference ``j`` into ``s``.
+
+    Policy: the window uses the ``min(L, i + 1, j + 1)`` diagonal terms that exist
+    (before the query's start and before the reference's start nothing is summed)
+    and divides by that count.
+    """
+    r = ring.shape[0]
+    n = s.shape[0]
+    cur = ring[i % r]
+    if length > i:
+        # no row i - L: the window covers the whole query so far
+        for j in range(n):
+            cnt = j + 1 if j + 1 < i + 1 else i + 1
+            s[j] = cur[j] / cnt
+        return
+    back = ring[(i - length) % r]
+    for j in range(n):
+        if j >= length:
+            s[j] = (cur[j] - back[j - length]) / length
+        else:
+            s[j] = cur[j] / (j + 1)
+
+
+@njit(cache=True)
+def score_at(ring, i, length, j):
+    """One score ``s_ij(L)`` (same policy and arithmetic as :func:`window_scores`)."""
+    r = ring.shape[0]
+    cur = ring[i % r]
+    if length > i:
+        cnt = j + 1 if j + 1 < i + 1 else i + 1
+        return cur[j] / cnt
+    if j >= length:
+        return (cur[j] - ring[(i - length) % r][j - length]) / length
+    return cur[j] / (j + 1)
+
+
+@njit(cache=True)
+def _mean_std(s):
+    n = s.shape[0]
+    total = 0.0
+    for j in range(n):
+        total += s[j]
+    mean = total / n
+    acc = 0.0
+    for j in range(n):
+        dev = s[j] - mean
+        acc += dev * dev
+    return mean, np.sqrt(acc / n)
+
+
+@njit(cache=True)
+def _median_mad(s, work):
+    n = s.shape[0]
+    for j in range(n):
+        work[j] = s[j]
+    med = np.median(work)
+    for j in range(n):
+        work[j] = abs(s[j] - med)
+    mad = np.median(work)
+    return med, 1.4826 * mad
+
+
+@njit(cache=True)
+def _gmm_em(s, mean, std, n_iter, w, mu, sd, resp):
+    """Fit a K-component 1-D Gaussian mixture by ``n_iter`` EM steps.
+
+    Start: equal weights, standard deviations ``std``, means spread evenly over
+    ``mean ± std``. Variances are floored at ``1e-6 * std**2`` (no collapse onto one
+    point). ``resp`` is ``(K, N)`` scratch.
+    """
+    k_count = w.shape[0]
+    n = s.shape[0]
+    for k in range(k_count):
+        w[k] = 1.0 / k_count
+        sd[k] = std
+        if k_count == 1:
+            mu[k] = mean
+        else:
+            mu[k] = mean + std * (2.0 * k / (k_count - 1) - 1.0)
+    if std <= 0.0:
+        return
+    floor = 1e-6 * std * std
+    for _ in range(n_iter):
+        # E step: responsibilities, normalised per point in log space
+        for j in range(n):
+            top = -np.inf
+            for k in range(k_count):
+                z = (s[j] - mu[k]) / sd[k]
+                v = np.log(w[k]) - np.log(sd[k]) - 0.5 * z * z
+                resp[k, j] = v
+                if v > top:
+                    top = v
+            tot = 0.0
+            for k in range(k_count):
+                e = np.exp(resp[k, j] - top)
+                resp[k, j] = e
+                tot += e
+            for k in range(k_count):
+                resp[k, j] /= tot
+        # M step
+        for k in range(k_count):
+            nk = 0.0
+            sx = 0.0
+            for j in range(n):
+                nk += resp[k, j]
+                sx += resp[k, j] * s[j]
+            if nk <= 1e-12:
+                # an empty component keeps its parameters with a negligible weight
+                w[k] = 1e-12
+                continue
+            m = sx / nk
+            sxx = 0.0
+            for j in range(n):
+                dev = s[j] - m
+                sxx += resp[k, j] * dev * dev
+            var = sxx / nk
+            if var < floor:
+                var = floor
+            w[k] = nk / n
+            mu[k] = m
+            sd[k] = np.sqrt(var)
+        tw = 0.0
+        for k in range(k_count):
+            tw += w[k]
+        for k in range(k_count):
+            w[k] /= tw
+
+
+@njit(cache=True)
+def frame_stats(ring, i, grid, approx, n_components, n_iter, radius,
+                best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
+    """Everything the selection rules need for query frame ``i``, per candidate window.
+
+    Outputs (``G = len(grid)``, ``K = n_components``): ``best_j, best_s, second_s, mean,
+    std`` ``(G,)``; ``weights, locs, scales`` ``(G, K)`` — the approximation's components
+    (one component for the Gaussian and robust Gaussian); ``sub`` ``(G, G)`` with
+    ``sub[g, h] = s_{i, best_j[g]}(grid[h])``, the best hypothesis of window ``g`` scored
+    over window ``h``. ``second_s`` is the best score more than ``radius`` places away
+    from ``best_j`` (``+inf`` where none exists).
+    """
+    g_count = grid.shape[0]
+    n = s.shape[0]
+    for g in range(g_count):
+        window_scores(ring, i, grid[g], s)
+        jb = 0
+        vb = s[0]
+        for j in range(1, n):
+            if s[j] < vb:
+                vb = s[j]
+                jb = j
+        best_j[g] = jb
+        best_s[g] = vb
+        v2 = np.inf
+        for j in range(n):
+            if (j < jb - radius or j > jb + radius) and s[j] < v2:
+                v2 = s[j]
+        second_s[g] = v2
+        m, sdv = _mean_std(s)
+        mean[g] = m
+        std[g] = sdv
+        if approx == APPROX_GAUSSIAN:
+            weights[g, 0] = 1.0
+            locs[g, 0] = m
+            scales[g, 0] = sdv
+        elif approx == APPROX_ROBUST:
+            med, mad = _median_mad(s, work)
+            weights[g, 0] = 1.0
+            locs[g, 0] = med
+            scales[g, 0] = mad
+        else:
+            _gmm_em(s, m, sdv, n_iter, weights[g], locs[g], scales[g], resp)
+    for g in range(g_count):
+        for h in range(g_count):
+            sub[g, h] = score_at(ring, i, grid[h], best_j[g])
+
+
+@njit(cache=True)
+def run_batch(d, ring, grid, approx, n_components, n_iter, radius,
+              best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
+    """:func:`advance` then :func:`frame_stats` for every row of ``d``, in order.
+
+    ``ring`` must have at least ``max(grid) + 1`` rows and start as zeros.
+    """
+    for i in range(d.shape[0]):
+        advance(ring, i, d[i])
+        frame_stats(ring, i, grid, approx, n_components, n_iter, radius,
+                    best_j[i], best_s[i], second_s[i], mean[i], std[i], weights[i], locs[i],
+                    scales[i], sub[i], s, work, resp)
+
+
+@njit(cache=True)
+def fixed_scores(d, length):
+    """All scores ``s_ij(L)`` for one fixed ``L``, ``(n_query, N)`` (batch helper)."""
+    n_q, n = d.shape
+    out = np.empty((n_q, n))
+    ring = np.zeros((length + 1, n))
+    for i in range(n_q):
+        advance(ring, i, d[i])
+        window_scores(ring, i, length, out[i])
+    return out

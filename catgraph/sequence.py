@@ -1,0 +1,503 @@
+"""Sequence matching with a fixed or an adaptive window (SeqSLAM, "Look No Further").
+
+Scores
+------
+Given a difference matrix ``d`` of shape ``(n_query, N)`` (query frame ``i`` against
+reference place ``j``; usually per-query normalised, see
+:func:`catgraph.differences.normalise_rows`), the causal window score of length ``L`` is
+the mean difference along the diagonal ending at ``(i, j)``::
+
+    s_ij(L) = (1/L) * sum_{k=0}^{L-1} d_{i-k, j-k}
+
+and the best hypothesis is ``argmin_j s_ij(L)``. With diagonal prefix sums
+``C_i[j] = d_ij + C_{i-1}[j-1]`` (``C_{-1} = 0``, ``C_i[-1] = 0``) every window sum is one
+subtraction, ``C_i[j] - C_{i-L}[j-L]``: ``O(N)`` per query frame and window length, and
+only the last ``L_max + 1`` prefix rows are ever needed (a ring buffer, memory
+``O(N * L_max)``; never an ``N x N`` matrix).
+
+Edges (a documented policy). A window never reaches before the first query frame or
+before the first reference place: it sums the ``min(L, i + 1, j + 1)`` diagonal terms
+that exist and divides by that count. Early query frames (``i < L - 1``) therefore use
+all ``i + 1`` frames seen so far, and the reported ``window_length`` is that effective
+length; places near the start of the reference are scored on their shorter diagonal.
+Every frame gets an output (no abstention), which is what a localiser embedded in a
+navigation stack needs, and what the MTL metric rewards.
+
+Adaptive window
+---------------
+For each query frame the candidate lengths ``L`` (a grid in ``[l_min, l_max]``) are
+scored, the distribution of ``{s_ij(L)}_j`` is approximated, and ``p_i(L)``, the
+probability of drawing a value at most the best score ``min_j s_ij(L)`` from that
+approximation, is computed in log space (``scipy.special.log_ndtr``; the probabilities
+underflow for strong matches)::
+
+    gaussian   N(mean, std)
+    robust     N(median, 1.4826 * MAD)
+    gmm2/gmm3  K-component mixture, 10 EM steps started at equal weights, std ``std`` and
+               means spread over mean ± std;  log p = logsumexp_k(log w_k + log Phi(z_k))
+
+The *literal* rule of the paper (``rule="literal"``) picks ``L_i = argmin_L p_i(L)``.
+Its weakness shows on out-of-order queries: after a jump to another part of the route,
+the hypothesis that continues the *old* diagonal stays very significant for long
+windows, because most of such a window still lies on the old, well-matching segment,
+and the literal rule keeps choosing it for hundreds of frames.
+
+The default rule (``rule="consistent"``) only admits a window whose best hypothesis is
+supported by its own recent past: for every shorter candidate ``l < L`` in the grid, the
+hypothesis' score over its most recent ``l`` frames must lie closer to the window's own
+score than to the mean score of random places at that length,
+
+    s_{i, j*}(l) <= (s_{i, j*}(L) + mean_j s_ij(l)) / 2,
+
+i.e. a likelihood-ratio test between "the recent frames continue the same alignment"
+and "the recent frames are unrelated to it", with no threshold to tune. A window that
+reaches back across a discontinuity fails the test for the sub-windows that lie after
+the discontinuity. Among the admitted windows (the shortest is always admitted) the one
+with the smallest ``p_i(L)`` is chosen, as in the paper.
+
+Confidence
+----------
+``confidence="gap"`` (default) is the SeqSLAM-style margin between the best hypothesis
+and the best one more than ``radius`` places away, in units of the score spread at the
+chosen window: ``(s_second - s_best) / std``. ``"neglogp"`` is ``-log p_i(L_i)``; ``"z"``
+is ``(mean - s_best) / std``. Larger is more confident for all three.
+
+Two forms
+---------
+:class:`SequenceMatcher` is the streaming form (one :meth:`~SequenceMatcher.step` per
+query frame; time per step independent of how many frames came before) and
+:func:`match_sequences` the batch form. Both call the same compiled kernels in the same
+order, so they return identical numbers.
+"""
+
+from __future__ import annotations
+
+import numbers
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from scipy.special import log_ndtr
+
+from ._validation import check_array, check_scalar
+from .exceptions import InvalidParameterError, ShapeMismatchError
+
+__all__ = [
+    "SequenceMatch",
+    "SequenceResult",
+    "SequenceMatcher",
+    "match_sequences",
+    "window_grid",
+    "fixed_window_scores",
+    "APPROXIMATIONS",
+    "RULES",
+    "CONFIDENCES",
+]
+
+APPROXIMATIONS = ("gaussian", "robust", "gmm2", "gmm3")
+RULES = ("consistent", "literal")
+CONFIDENCES = ("gap", "neglogp", "z")
+EM_ITERATIONS = 10
+
+
+def _kernels():
+    # numba kernels are imported (and compiled or loaded from cache) on first use only
+    from . import _sequence_kernels
+
+    return _sequence_kernels
+
+
+# ---------------------------------------------------------------------------------------
+# results
+
+
+@dataclass(frozen=True)
+class SequenceMatch:
+    """The outcome of one streaming step.
+
+    Attributes
+    ----------
+    match : int
+        Best reference place (``-1`` = no output; not produced by the current rules).
+    score : float
+        ``s_ij(L)`` of the match at the chosen window (lower is better).
+    confidence : float
+        Larger is more confident (see the module docstring).
+    window_length : int
+        Effective window length used (``min(L, frames seen)``).
+    log_p : ndarray, shape (G,), optional
+        ``log p_i(L)`` for every candidate in ``window_grid`` (on request).
+    window_grid : ndarray of int, shape (G,), optional
+        The candidate window lengths (with ``log_p``).
+    """
+
+    match: int
+    score: float
+    confidence: float
+    window_length: int
+    log_p: np.ndarray | None = None
+    window_grid: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class SequenceResult:
+    """Batch results, one entry per query frame in processing order.
+
+    Attributes
+    ----------
+    match : ndarray of int, shape (n_query,)
+        Best reference place per frame (``-1`` = no output).
+    score, confidence : ndarray of float, shape (n_query,)
+    window_length : ndarray of int, shape (n_query,)
+        Effective window length used per frame.
+    log_p : ndarray, shape (n_query, G), optional
+        ``log p_i(L)`` curves (on request).
+    window_grid : ndarray of int, shape (G,)
+        The candidate window lengths.
+    """
+
+    match: np.ndarray
+    score: np.ndarray
+    confidence: np.ndarray
+    window_length: np.ndarray
+    window_grid: np.ndarray
+    log_p: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return int(self.match.shape[0])
+
+
+# ---------------------------------------------------------------------------------------
+# parameters
+
+
+def window_grid(l_min: int = 10, l_max: int = 500, grid: str | int | Sequence[int] = "geometric") -> np.ndarray:
+    """Candidate window lengths, ascending, unique, ``(G,) int64``.
+
+    Parameters
+    ----------
+    l_min, l_max : int
+        Range of window lengths (inclusive).
+    grid : "geometric", "all", int or sequence of int
+        ``"geometric"``: 32 lengths spaced geometrically from ``l_min`` to ``l_max``
+        (rounded, duplicates removed); an int ``G``: ``G`` geometric lengths; ``"all"``:
+        every integer in ``[l_min, l_max]``; a sequence: those lengths.
+
+    Examples
+    --------
+    >>> window_grid(10, 500, 5).tolist()
+    [10, 27, 71, 188, 500]
+    """
+    owner = "window_grid"
+    check_scalar(l_min, "l_min", owner, int, 1)
+    check_scalar(l_max, "l_max", owner, int, l_min)
+    if isinstance(grid, str):
+        if grid == "all":
+            return np.arange(l_min, l_max + 1, dtype=np.int64)
+        if grid != "geometric":
+            raise InvalidParameterError(
+                f"The 'grid' parameter of {owner} must be 'geometric', 'all', an int or a sequence of ints. Got {grid!r} instead."
+            )
+        grid = 32
+    if isinstance(grid, numbers.Integral) and not isinstance(grid, bool):
+        check_scalar(grid, "grid", owner, int, 1)
+        if grid == 1 or l_min == l_max:
+            return np.array([l_min] if grid == 1 else [l_min], dtype=np.int64)
+        values = np.rint(np.geomspace(l_min, l_max, int(grid))).astype(np.int64)
+        return np.unique(values)
+    values = np.asarray(grid)
+    if values.ndim != 1 or values.size == 0 or values.dtype.kind not in "iu" or values.min() < 1:
+        raise InvalidParameterError(
+            f"A window grid given as a sequence must be a non-empty 1-D list of positive ints. Got {grid!r} instead."
+        )
+    return np.unique(values.astype(np.int64))
+
+
+@dataclass(frozen=True)
+class _Config:
+    grid: np.ndarray
+    approx_code: int
+    n_components: int
+    rule: str
+    confidence: str
+    radius: int
+    fixed: bool
+
+
+def _config(owner, window, approximation, rule, confidence, l_min, l_max, grid, radius) -> _Config:
+    if approximation not in APPROXIMATIONS:
+        raise InvalidParameterError(
+            f"The 'approximation' parameter of {owner} must be one of {APPROXIMATIONS}. Got {approximation!r} instead."
+        )
+    if rule not in RULES:
+        raise InvalidParameterError(f"The 'rule' parameter of {owner} must be one of {RULES}. Got {rule!r} instead.")
+    if confidence not in CONFIDENCES:
+        raise InvalidParameterError(
+            f"The 'confidence' parameter of {owner} must be one of {CONFIDENCES}. Got {confidence!r} instead."
+        )
+    check_scalar(radius, "radius", owner, int, 0)
+    if isinstance(window, str):
+        if window != "adaptive":
+            raise InvalidParameterError(
+                f"The 'window' parameter of {owner} must be 'adaptive' or a positive int. Got {window!r} instead."
+            )
+        check_scalar(l_min, "l_min", owner, int, 1)
+        check_scalar(l_max, "l_max", owner, int, l_min)
+        values = window_grid(l_min, l_max, grid)
+        fixed = False
+    else:
+        check_scalar(window, "window", owner, int, 1)
+        values = np.array([int(window)], dtype=np.int64)
+        fixed = True
+    code = {"gaussian": 0, "robust": 1, "gmm2": 2, "gmm3": 2}[approximation]
+    k = {"gaussian": 1, "robust": 1, "gmm2": 2, "gmm3": 3}[approximation]
+    return _Config(values, code, k, rule, confidence, int(radius), fixed)
+
+
+# ---------------------------------------------------------------------------------------
+# statistics -> decision (vectorised over frames; the same code serves both forms)
+
+
+class _Stats:
+    """Per-frame, per-window statistics produced by the kernels (leading axis: frames)."""
+
+    def __init__(self, n: int, g: int, k: int):
+        self.best_j = np.zeros((n, g), dtype=np.int64)
+        self.best_s = np.zeros((n, g))
+        self.second_s = np.zeros((n, g))
+        self.mean = np.zeros((n, g))
+        self.std = np.zeros((n, g))
+        self.weights = np.zeros((n, g, k))
+        self.locs = np.zeros((n, g, k))
+        self.scales = np.zeros((n, g, k))
+        self.sub = np.zeros((n, g, g))
+
+
+def _log_p(st: _Stats) -> np.ndarray:
+    """``log p_i(L)``, ``(n, G)``: log probability of a draw at most the best score."""
+    best = st.best_s[:, :, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(st.scales > 0, (best - st.locs) / st.scales, np.where(best < st.locs, -np.inf, np.inf))
+        terms = np.log(st.weights) + log_ndtr(z)
+    if terms.shape[2] == 1:
+        return terms[:, :, 0]
+    top = terms.max(axis=2, keepdims=True)
+    top = np.where(np.isfinite(top), top, 0.0)
+    return (top + np.log(np.exp(terms - top).sum(axis=2, keepdims=True)))[:, :, 0]
+
+
+def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool):
+    n, g_count = st.best_s.shape
+    log_p = _log_p(st)
+    if cfg.fixed or cfg.rule == "literal" or g_count == 1:
+        admissible = np.ones((n, g_count), dtype=bool)
+    else:
+        # consistent: every shorter sub-window of the best hypothesis must lie closer to
+        # the window's own score than to the mean of random places at that length
+        mid = 0.5 * (st.best_s[:, :, None] + st.mean[:, None, :])  # (n, g, h)
+        ok = st.sub <= mid
+        lower = np.tril(np.ones((g_count, g_count), dtype=bool), k=-1)  # h < g
+        admissible = np.all(ok | ~lower[None], axis=2)
+        admissible[:, 0] = True
+    masked = np.where(admissible, log_p, np.inf)
+    chosen = np.argmin(masked, axis=1)
+    rows = np.arange(n)
+    best = st.best_s[rows, chosen]
+    std = st.std[rows, chosen]
+    if cfg.confidence == "gap":
+        with np.errstate(divide="ignore", invalid="ignore"):
+            conf = np.where(std > 0, (st.second_s[rows, chosen] - best) / std, 0.0)
+        conf = np.where(np.isfinite(conf), conf, 0.0)
+    elif cfg.confidence == "neglogp":
+        conf = -log_p[rows, chosen]
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            conf = np.where(std > 0, (st.mean[rows, chosen] - best) / std, 0.0)
+    match = st.best_j[rows, chosen]
+    length = np.minimum(cfg.grid[chosen], frame_index + 1)
+    return match, best, conf, length, (log_p if want_curves else None)
+
+
+# ---------------------------------------------------------------------------------------
+# batch form
+
+
+def fixed_window_scores(differences: np.ndarray, window: int) -> np.ndarray:
+    """All window scores ``s_ij(L)`` for one fixed ``L``, ``(n_query, N) float64``.
+
+    Uses the edge policy of the module docstring. Memory is the output itself plus
+    ``O(N * L)``; for long queries prefer :func:`match_sequences`, which never stores
+    the scores.
+    """
+    d = check_array(differences, "difference matrix", ndim=2)
+    check_scalar(window, "window", "fixed_window_scores", int, 1)
+    return _kernels().fixed_scores(np.ascontiguousarray(d), int(window))
+
+
+def match_sequences(
+    differences: np.ndarray,
+    window: int | str = "adaptive",
+    approximation: str = "gaussian",
+    rule: str = "consistent",
+    confidence: str = "gap",
+    l_min: int = 10,
+    l_max: int = 500,
+    grid: str | int | Sequence[int] = "geometric",
+    radius: int = 10,
+    return_curves: bool = False,
+) -> SequenceResult:
+    """Match every query frame (rows of ``differences``, in processing order).
+
+    Parameters
+    ----------
+    differences : ndarray, shape (n_query, N)
+        Difference matrix (lower = more similar), rows in the order the query frames
+        are processed (e.g. a shuffled query's order). Usually per-query normalised.
+    window : int or "adaptive"
+        A fixed window length, or ``"adaptive"`` to choose one per frame.
+    approximation : {"gaussian", "robust", "gmm2", "gmm3"}
+        Approximation of the score distribution used for ``p_i(L)``.
+    rule : {"consistent", "literal"}
+        Window choice: the paper's ``argmin_L p_i(L)`` ("literal"), or the same among
+        windows whose hypothesis is supported by its recent frames (default).
+    confidence : {"gap", "neglogp", "z"}
+        Confidence given to each match (see the module docstring).
+    l_min, l_max : int
+        Range of candidate window lengths (adaptive only).
+    grid : "geometric", "all", int or sequence of int
+        Candidate lengths, see :func:`window_grid`.
+    radius : int
+        Places either side of the best match excluded when looking for the second best
+        (``confidence="gap"``).
+    return_curves : bool
+        Also return ``log p_i(L)`` for every frame and candidate length.
+
+    Returns
+    -------
+    SequenceResult
+    """
+    cfg = _config("match_sequences", window, approximation, rule, confidence, l_min, l_max, grid, radius)
+    d = np.ascontiguousarray(check_array(differences, "difference matrix", ndim=2))
+    n_q, n = d.shape
+    k = _kernels()
+    g = cfg.grid.shape[0]
+    st = _Stats(n_q, g, cfg.n_components)
+    ring = np.zeros((int(cfg.grid[-1]) + 1, n))
+    s = np.empty(n)
+    work = np.empty(n)
+    resp = np.empty((cfg.n_components, n))
+    k.run_batch(d, ring, cfg.grid, cfg.approx_code, cfg.n_components, EM_ITERATIONS, cfg.radius,
+                st.best_j, st.best_s, st.second_s, st.mean, st.std, st.weights, st.locs, st.scales,
+                st.sub, s, work, resp)
+    match, score, conf, length, log_p = _decide(st, cfg, np.arange(n_q), return_curves)
+    return SequenceResult(match=match, score=score, confidence=conf, window_length=length,
+                          window_grid=cfg.grid.copy(), log_p=log_p)
+
+
+# ---------------------------------------------------------------------------------------
+# streaming form
+
+
+class SequenceMatcher:
+    """Streaming sequence matcher: one :meth:`step` per query frame.
+
+    Parameters are those of :func:`match_sequences`. The constructor only stores them;
+    the first :meth:`step` fixes the number of reference places ``N`` and allocates the
+    ring buffer of the last ``max(grid) + 1`` diagonal prefix-sum rows (``8 * N *
+    (l_max + 1)`` bytes). Time per step is ``O(N * G)`` (``G`` candidate lengths), however
+    many frames came before.
+
+    Attributes
+    ----------
+    n_reference_ : int
+        ``N``, set by the first step.
+    n_steps_ : int
+        Frames processed so far.
+    window_grid_ : ndarray of int, shape (G,)
+        Candidate window lengths.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(0)
+    >>> d = rng.normal(size=(30, 50))
+    >>> matcher = SequenceMatcher(window=5)
+    >>> out = [matcher.step(row) for row in d]
+    >>> batch = match_sequences(d, window=5)
+    >>> bool(np.all(batch.match == [o.match for o in out]))
+    True
+    """
+
+    def __init__(
+        self,
+        window: int | str = "adaptive",
+        approximation: str = "gaussian",
+        rule: str = "consistent",
+        confidence: str = "gap",
+        l_min: int = 10,
+        l_max: int = 500,
+        grid: str | int | Sequence[int] = "geometric",
+        radius: int = 10,
+    ) -> None:
+        self.window = window
+        self.approximation = approximation
+        self.rule = rule
+        self.confidence = confidence
+        self.l_min = l_min
+        self.l_max = l_max
+        self.grid = grid
+        self.radius = radius
+
+    def reset(self) -> "SequenceMatcher":
+        """Forget all frames (the next step starts a new query)."""
+        for name in ("n_reference_", "n_steps_", "window_grid_", "_cfg", "_ring", "_buffers", "_stats"):
+            self.__dict__.pop(name, None)
+        return self
+
+    def _start(self, n: int) -> None:
+        cfg = _config(type(self).__name__, self.window, self.approximation, self.rule, self.confidence,
+                      self.l_min, self.l_max, self.grid, self.radius)
+        self._cfg = cfg
+        self.window_grid_ = cfg.grid.copy()
+        self.n_reference_ = n
+        self.n_steps_ = 0
+        self._ring = np.zeros((int(cfg.grid[-1]) + 1, n))
+        self._buffers = (np.empty(n), np.empty(n), np.empty((cfg.n_components, n)))
+        self._stats = _Stats(1, cfg.grid.shape[0], cfg.n_components)
+
+    def step(self, difference_row: np.ndarray, return_curve: bool = False) -> SequenceMatch:
+        """Process one query frame.
+
+        Parameters
+        ----------
+        difference_row : ndarray, shape (N,)
+            Differences of this query frame to every reference place.
+        return_curve : bool
+            Also return ``log p_i(L)`` over the candidate lengths.
+
+        Returns
+        -------
+        SequenceMatch
+        """
+        row = np.ascontiguousarray(check_array(difference_row, "difference row", ndim=1))
+        if not hasattr(self, "_ring"):
+            self._start(row.shape[0])
+        elif row.shape[0] != self.n_reference_:
+            raise ShapeMismatchError(
+                f"difference row has {row.shape[0]} reference places but the matcher was started with "
+                f"{self.n_reference_}; call reset() before matching against another reference."
+            )
+        k = _kernels()
+        cfg, st, i = self._cfg, self._stats, self.n_steps_
+        s, work, resp = self._buffers
+        k.advance(self._ring, i, row)
+        k.frame_stats(self._ring, i, cfg.grid, cfg.approx_code, cfg.n_components, EM_ITERATIONS, cfg.radius,
+                      st.best_j[0], st.best_s[0], st.second_s[0], st.mean[0], st.std[0], st.weights[0],
+                      st.locs[0], st.scales[0], st.sub[0], s, work, resp)
+        self.n_steps_ = i + 1
+        match, score, conf, length, log_p = _decide(st, cfg, np.array([i]), return_curve)
+        return SequenceMatch(
+            match=int(match[0]), score=float(score[0]), confidence=float(conf[0]), window_length=int(length[0]),
+            log_p=None if log_p is None else log_p[0].copy(),
+            window_grid=self.window_grid_.copy() if return_curve else None,
+        )

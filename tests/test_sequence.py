@@ -1,0 +1,231 @@
+"""Tests for catgraph.sequence: compiled kernels against slow, obviously-correct loops."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.special import log_ndtr, logsumexp
+
+from catgraph.exceptions import InvalidParameterError, ShapeMismatchError
+from catgraph.sequence import (
+    APPROXIMATIONS,
+    SequenceMatcher,
+    fixed_window_scores,
+    match_sequences,
+    window_grid,
+)
+
+# ------------------------------------------------------------------ slow references
+
+
+def slow_scores(d: np.ndarray, length: int) -> np.ndarray:
+    """s_ij(L) by a double loop: mean of the diagonal terms that exist (edge policy)."""
+    n_q, n = d.shape
+    out = np.empty((n_q, n))
+    for i in range(n_q):
+        for j in range(n):
+            terms = [d[i - k, j - k] for k in range(length) if i - k >= 0 and j - k >= 0]
+            out[i, j] = sum(terms) / len(terms)
+    return out
+
+
+def slow_em(x: np.ndarray, k: int, n_iter: int = 10):
+    """Textbook EM for a 1-D mixture, started like the kernel (numpy, no tricks)."""
+    mean, std = x.mean(), x.std()
+    w = np.full(k, 1.0 / k)
+    mu = mean + std * np.linspace(-1.0, 1.0, k) if k > 1 else np.array([mean])
+    sd = np.full(k, std)
+    for _ in range(n_iter):
+        logr = np.log(w)[:, None] - np.log(sd)[:, None] - 0.5 * ((x[None, :] - mu[:, None]) / sd[:, None]) ** 2
+        r = np.exp(logr - logr.max(axis=0))
+        r /= r.sum(axis=0)
+        nk = r.sum(axis=1)
+        mu = (r * x).sum(axis=1) / nk
+        var = (r * (x[None, :] - mu[:, None]) ** 2).sum(axis=1) / nk
+        sd = np.sqrt(np.maximum(var, 1e-6 * std**2))
+        w = nk / x.size
+        w /= w.sum()
+    return w, mu, sd
+
+
+def slow_log_p(s: np.ndarray, approximation: str) -> float:
+    best = s.min()
+    if approximation == "gaussian":
+        return float(log_ndtr((best - s.mean()) / s.std()))
+    if approximation == "robust":
+        med = np.median(s)
+        return float(log_ndtr((best - med) / (1.4826 * np.median(np.abs(s - med)))))
+    w, mu, sd = slow_em(s, {"gmm2": 2, "gmm3": 3}[approximation])
+    return float(logsumexp(np.log(w) + log_ndtr((best - mu) / sd)))
+
+
+def slow_literal(d: np.ndarray, grid: np.ndarray, approximation: str):
+    """Literal adaptive rule: argmin_L p_i(L); returns match, effective L, log p curves."""
+    n_q = d.shape[0]
+    scores = {int(L): slow_scores(d, int(L)) for L in grid}
+    match = np.empty(n_q, dtype=int)
+    length = np.empty(n_q, dtype=int)
+    curves = np.empty((n_q, len(grid)))
+    for i in range(n_q):
+        for g, L in enumerate(grid):
+            curves[i, g] = slow_log_p(scores[int(L)][i], approximation)
+        g = int(np.argmin(curves[i]))
+        match[i] = int(np.argmin(scores[int(grid[g])][i]))
+        length[i] = min(int(grid[g]), i + 1)
+    return match, length, curves
+
+
+def planted(n_q=120, n_ref=150, seed=0):
+    """Normalised-looking differences with a planted diagonal (query i ~ reference i + 20)."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(n_q, n_ref))
+    for i in range(n_q):
+        if i + 20 < n_ref:
+            d[i, i + 20] -= 2.5
+    return d
+
+
+# ------------------------------------------------------------------ fixed windows
+
+
+@pytest.mark.parametrize("length", [1, 3, 7, 40])
+def test_fixed_window_scores_match_double_loop(length):
+    d = np.random.default_rng(length).normal(size=(25, 31))
+    np.testing.assert_allclose(fixed_window_scores(d, length), slow_scores(d, length), rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("length", [1, 5, 12])
+def test_fixed_window_batch_matches_reference(length):
+    d = np.random.default_rng(1).normal(size=(40, 60))
+    result = match_sequences(d, window=length)
+    expected = slow_scores(d, length)
+    np.testing.assert_array_equal(result.match, expected.argmin(axis=1))
+    np.testing.assert_allclose(result.score, expected.min(axis=1), rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(result.window_length, np.minimum(length, np.arange(40) + 1))
+
+
+def test_fixed_window_recovers_planted_diagonal():
+    d = planted()
+    result = match_sequences(d, window=10)
+    assert np.mean(result.match[10:] == np.arange(10, 120) + 20) > 0.95
+
+
+def test_fixed_window_gap_confidence_matches_definition():
+    d = np.random.default_rng(2).normal(size=(30, 80))
+    result = match_sequences(d, window=4, radius=3, confidence="gap")
+    s = slow_scores(d, 4)
+    for i in range(30):
+        j = int(np.argmin(s[i]))
+        far = np.abs(np.arange(80) - j) > 3
+        assert result.confidence[i] == pytest.approx((s[i][far].min() - s[i, j]) / s[i].std(), rel=1e-9)
+
+
+# ------------------------------------------------------------------ streaming = batch
+
+
+@pytest.mark.parametrize("window", [6, "adaptive"])
+@pytest.mark.parametrize("approximation", APPROXIMATIONS)
+@pytest.mark.parametrize("rule", ["literal", "consistent"])
+def test_streaming_equals_batch_exactly(window, approximation, rule):
+    d = planted(60, 70, seed=3)
+    kwargs = dict(window=window, approximation=approximation, rule=rule, l_min=3, l_max=30, grid=8)
+    batch = match_sequences(d, return_curves=True, **kwargs)
+    matcher = SequenceMatcher(**kwargs)
+    steps = [matcher.step(row, return_curve=True) for row in d]
+    np.testing.assert_array_equal(batch.match, [s.match for s in steps])
+    np.testing.assert_array_equal(batch.score, [s.score for s in steps])
+    np.testing.assert_array_equal(batch.confidence, [s.confidence for s in steps])
+    np.testing.assert_array_equal(batch.window_length, [s.window_length for s in steps])
+    np.testing.assert_array_equal(batch.log_p, np.array([s.log_p for s in steps]))
+    assert matcher.n_steps_ == 60
+
+
+def test_streaming_memory_is_a_ring_of_l_max_plus_one_rows():
+    matcher = SequenceMatcher(window="adaptive", l_min=2, l_max=9, grid="all")
+    for row in np.random.default_rng(0).normal(size=(40, 13)):
+        matcher.step(row)
+    assert matcher._ring.shape == (10, 13)
+
+
+def test_streaming_reset_and_shape_check():
+    matcher = SequenceMatcher(window=3)
+    matcher.step(np.zeros(5))
+    with pytest.raises(ShapeMismatchError, match="reset"):
+        matcher.step(np.zeros(6))
+    matcher.reset()
+    assert matcher.step(np.arange(6.0)).match == 0
+
+
+# ------------------------------------------------------------------ adaptive
+
+
+@pytest.mark.parametrize("approximation", APPROXIMATIONS)
+def test_literal_adaptive_matches_slow_reference(approximation):
+    d = planted(45, 50, seed=4)
+    grid = window_grid(3, 20, 6)
+    result = match_sequences(d, "adaptive", approximation, rule="literal", l_min=3, l_max=20, grid=6,
+                             return_curves=True)
+    match, length, curves = slow_literal(d, grid, approximation)
+    np.testing.assert_allclose(result.log_p, curves, rtol=1e-7, atol=1e-9)
+    np.testing.assert_array_equal(result.match, match)
+    np.testing.assert_array_equal(result.window_length, length)
+
+
+def test_every_integer_grid():
+    np.testing.assert_array_equal(window_grid(10, 15, "all"), np.arange(10, 16))
+    g = window_grid(10, 500)
+    assert g[0] == 10 and g[-1] == 500 and np.all(np.diff(g) > 0)
+
+
+def test_consistent_rule_shortens_window_after_a_jump():
+    """After a jump to another part of the route the default rule drops the old alignment
+    sooner than the literal rule does."""
+    rng = np.random.default_rng(5)
+    n_ref = 400
+    d = rng.normal(size=(200, n_ref))
+    truth = np.r_[np.arange(50, 150), np.arange(300, 400)]  # a jump at frame 100
+    d[np.arange(200), truth] -= 1.5
+    common = dict(window="adaptive", l_min=5, l_max=100, grid=16)
+    literal = match_sequences(d, rule="literal", **common)
+    consistent = match_sequences(d, rule="consistent", **common)
+    after = slice(100, 200)
+
+    def first_correct(res):
+        return int(np.flatnonzero(res.match[after] == truth[after])[0])
+
+    assert first_correct(consistent) < first_correct(literal)
+    assert np.mean(consistent.match[after] == truth[after]) >= np.mean(literal.match[after] == truth[after])
+
+
+def test_log_p_is_finite_for_very_strong_matches():
+    d = np.random.default_rng(6).normal(size=(60, 80))
+    d[np.arange(60), np.arange(60)] = -40.0
+    result = match_sequences(d, "adaptive", l_min=5, l_max=50, return_curves=True)
+    assert np.all(np.isfinite(result.log_p))
+    assert result.log_p.min() < -40  # p below 1e-17, kept in log space
+
+
+def test_constant_rows_do_not_produce_nan():
+    d = np.zeros((20, 30))
+    for approximation in APPROXIMATIONS:
+        result = match_sequences(d, "adaptive", approximation, l_min=2, l_max=10, return_curves=True)
+        assert np.all(np.isfinite(result.confidence)) and not np.any(np.isnan(result.log_p))
+
+
+# ------------------------------------------------------------------ validation
+
+
+@pytest.mark.parametrize(
+    "kwargs, text",
+    [
+        (dict(window=0), "'window'"),
+        (dict(window="long"), "'window'"),
+        (dict(approximation="gmm4"), "'approximation'"),
+        (dict(rule="best"), "'rule'"),
+        (dict(l_min=20, l_max=10), "'l_max'"),
+        (dict(confidence="ratio"), "'confidence'"),
+    ],
+)
+def test_bad_parameters_raise_typed_errors(kwargs, text):
+    with pytest.raises(InvalidParameterError, match=text):
+        match_sequences(np.zeros((3, 4)), **kwargs)
