@@ -1,0 +1,54 @@
+"""``catgraph`` command line: one parser, one error boundary.
+
+Each sub-command is a thin function that parses its options, calls the public API and
+prints or writes the result. :func:`main` is the only place that catches errors: a
+:class:`~catgraph.exceptions.CatgraphError` (a user's mistake: a missing folder, a bad
+value) becomes one line on stderr and exit code 1 — never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from ..exceptions import CatgraphError
+from . import commands
+
+__all__ = ["main", "build_parser"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="catgraph",
+        description="Probabilistic, appearance-based localisation along known routes.",
+    )
+    from .. import __version__
+
+    parser.add_argument("--version", action="version", version=f"catgraph {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for register in commands.REGISTRY:
+        register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; return the exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except CatgraphError as exc:
+        print(f"catgraph: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("catgraph: interrupted", file=sys.stderr)
+        return 130
+    except OSError as exc:  # writing an output file: permission denied, disk full …
+        print(f"catgraph: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

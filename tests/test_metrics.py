@@ -1,0 +1,82 @@
+import numpy as np
+import pytest
+
+from catgraph.metrics import auc, evaluate, max_time_to_localisation, pr_curve, recall_at_precision
+from catgraph.traverse import ExplicitGroundTruth, FrameTolerance
+
+
+def test_pr_curve_hand_computed():
+    # confidences 0.9 (correct), 0.8 (wrong), 0.7 (correct), no output, 4 positives
+    correct = np.array([True, False, True, False])
+    has_output = np.array([True, True, True, False])
+    conf = np.array([0.9, 0.8, 0.7, np.nan])
+    curve = pr_curve(correct, has_output, conf, n_positive=4)
+    np.testing.assert_allclose(curve.thresholds, [0.9, 0.8, 0.7])
+    np.testing.assert_allclose(curve.precision, [1.0, 0.5, 2 / 3])
+    np.testing.assert_allclose(curve.recall, [0.25, 0.25, 0.5])
+    # trapezoid from (0, 1): 0.25*1 + 0 + 0.25*(0.5+2/3)/2
+    assert auc(curve) == pytest.approx(0.25 + 0.25 * (0.5 + 2 / 3) / 2)
+    assert recall_at_precision(curve, 1.0) == 0.25
+    assert recall_at_precision(curve, 0.6) == 0.5
+    assert recall_at_precision(curve, 0.99) == 0.25
+
+
+def test_ties_enter_together_whatever_the_order():
+    correct = np.array([False, True, True])
+    conf = np.array([0.5, 0.5, 0.2])
+    a = pr_curve(correct, np.ones(3, bool), conf, 3)
+    b = pr_curve(correct[[1, 0, 2]], np.ones(3, bool), conf[[1, 0, 2]], 3)
+    np.testing.assert_allclose(a.precision, [0.5, 2 / 3])
+    np.testing.assert_allclose(a.precision, b.precision)
+    np.testing.assert_allclose(a.recall, b.recall)
+    assert recall_at_precision(a, 1.0) == 0.0
+
+
+def test_mtl_counts_frames_without_output_and_runs():
+    assert max_time_to_localisation(np.array([True, False, False, True, False])) == 2
+    assert max_time_to_localisation(np.array([False, False, False])) == 3
+    assert max_time_to_localisation(np.array([True, True])) == 0
+    assert max_time_to_localisation(np.array([], bool)) == 0
+    assert max_time_to_localisation(np.array([False, True, False, False, False])) == 3
+
+
+def test_evaluate_end_to_end_frame_tolerance():
+    gt = FrameTolerance(n_reference=10, tolerance=1)
+    q = np.array([0, 1, 2, 3, 4])
+    match = np.array([1, 5, -1, 3, 9])  # correct, wrong, none, correct, wrong
+    conf = np.array([0.9, 0.95, 0.0, 0.5, 0.1])
+    ev = evaluate(q, match, conf, gt)
+    np.testing.assert_array_equal(ev.correct, [True, False, False, True, False])
+    m = ev.metrics
+    assert m.n_queries == 5
+    assert m.accuracy == pytest.approx(2 / 5)
+    assert m.mtl == 2
+    # sorted: .95 wrong, .9 right, .5 right, .1 wrong -> precision 0, .5, 2/3, .5 ; recall 0, .2, .4, .4
+    np.testing.assert_allclose(ev.curve.precision, [0, 0.5, 2 / 3, 0.5])
+    np.testing.assert_allclose(ev.curve.recall, [0, 0.2, 0.4, 0.4])
+    assert m.recall_at_100p == 0.0
+    assert m.recall_at_90p == 0.0
+    assert m.auc == pytest.approx(0.2 * 0.25 + 0.2 * (0.5 + 2 / 3) / 2)
+
+
+def test_recall_denominator_excludes_frames_without_true_match():
+    gt = ExplicitGroundTruth.from_pairs([[0, 0], [1, 1]], n_query=3, n_reference=3)  # query 2 is a new place
+    ev = evaluate(np.array([0, 1, 2]), np.array([0, 1, 2]), np.array([3.0, 2.0, 1.0]), gt)
+    assert ev.metrics.accuracy == 1.0
+    assert ev.metrics.recall_at_100p == 1.0
+    assert ev.metrics.mtl == 1
+
+
+def test_all_frames_without_output():
+    ev = evaluate(np.arange(3), np.full(3, -1), np.zeros(3), FrameTolerance(3, 0))
+    assert ev.metrics.auc == 0.0 and ev.metrics.mtl == 3 and ev.metrics.accuracy == 0.0
+
+
+def test_nan_confidence_with_output_is_an_error():
+    with pytest.raises(ValueError, match="finite"):
+        evaluate(np.arange(2), np.arange(2), np.array([np.nan, 1.0]), FrameTolerance(2, 0))
+
+
+def test_shape_mismatch_is_an_error():
+    with pytest.raises(ValueError, match="one length"):
+        evaluate(np.arange(3), np.arange(2), np.zeros(3), FrameTolerance(3, 0))
