@@ -1,0 +1,99 @@
+import json
+
+import numpy as np
+import pytest
+
+from catgraph.cli.main import main
+from catgraph.metrics import evaluate
+from catgraph.traverse import FrameTolerance, MetricTolerance
+from catgraph.datasets import load_traverse
+
+from .conftest import NORDLAND, UJI, needs_nordland, needs_uji, write_images
+
+
+def recheck(payload, ground_truth):
+    """Recompute the metrics from the frames section alone."""
+    f = payload["frames"]
+    match = np.array([-1 if m is None else m for m in f["match"]])
+    conf = np.array([0.0 if c is None else c for c in f["confidence"]])
+    ev = evaluate(np.array(f["query_index"]), match, conf, ground_truth)
+    assert [bool(c) for c in ev.correct] == f["correct"]
+    for key, value in ev.metrics.as_dict().items():
+        assert payload["metrics"][key] == pytest.approx(value), key
+
+
+@pytest.fixture
+def image_pair(tmp_path):
+    rng = np.random.default_rng(1)
+    base = rng.integers(0, 255, (40, 8, 16))
+    noisy = np.clip(base + rng.normal(0, 20, base.shape), 0, 255)
+    return write_images(tmp_path / "ref", base), write_images(tmp_path / "qry", noisy)
+
+
+def test_match_writes_json_that_rechecks(image_pair, tmp_path, capsys):
+    ref, qry = image_pair
+    out = tmp_path / "x.json"
+    assert main(["match", str(ref), str(qry), "--window", "1", "--tolerance", "1", "--output", str(out), "-q"]) == 0
+    payload = json.loads(out.read_text())
+    assert set(payload) >= {"method", "params", "metrics", "frames"}
+    assert set(payload["metrics"]) == {"auc", "recall_at_100p", "recall_at_99p", "recall_at_90p", "mtl", "accuracy",
+                                       "n_queries"}
+    assert payload["metrics"]["accuracy"] > 0.8
+    recheck(payload, FrameTolerance(40, 1))
+    assert capsys.readouterr().out == ""  # --quiet
+
+
+def test_match_shuffled_query_indices_refer_to_loaded_order(image_pair, tmp_path):
+    ref, qry = image_pair
+    out = tmp_path / "s.json"
+    assert main(["match", str(ref), str(qry), "--tolerance", "0", "--shuffle", "0", "-o", str(out), "-q"]) == 0
+    f = json.loads(out.read_text())["frames"]
+    assert sorted(f["query_index"]) == list(range(40)) and f["query_index"] != list(range(40))
+    recheck(json.loads(out.read_text()), FrameTolerance(40, 0))
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["match", "MISSING", "MISSING", "--tolerance", "1"], "does not exist"),
+    (["match", "EMPTY", "EMPTY", "--tolerance", "1"], "no PNG or JPG"),
+    (["match", "REF", "QRY"], "no ground truth"),
+    (["match", "REF", "QRY", "--tolerance-m", "2"], "positions"),
+    (["match", "REF", "SMALL", "--tolerance", "1"], "values per descriptor"),
+    (["match", "NPY", "NAN", "--tolerance", "1"], "NaN"),
+    (["match", "REF", "CORRUPT", "--tolerance", "1"], "cannot read image"),
+])
+def test_user_mistakes_give_one_line_and_exit_1(args, needle, image_pair, tmp_path, capsys):
+    ref, qry = image_pair
+    (tmp_path / "empty").mkdir()
+    small = write_images(tmp_path / "small", np.zeros((3, 4, 8)))
+    corrupt = write_images(tmp_path / "corrupt", np.zeros((2, 8, 16)))
+    (corrupt / "img-00030.png").write_bytes(b"broken")
+    np.save(tmp_path / "d.npy", np.ones((3, 4)))
+    np.save(tmp_path / "nan.npy", np.array([[1.0, np.nan, 1, 1]] * 3))
+    paths = {"MISSING": str(tmp_path / "missing"), "EMPTY": str(tmp_path / "empty"), "REF": str(ref),
+             "QRY": str(qry), "SMALL": str(small), "NPY": str(tmp_path / "d.npy"), "NAN": str(tmp_path / "nan.npy"),
+             "CORRUPT": str(corrupt)}
+    code = main([paths.get(a, a) for a in args] + ["-q"])
+    err = capsys.readouterr().err.strip()
+    assert code == 1
+    assert err.startswith("catgraph: error:") and needle in err
+    assert "\n" not in err and "Traceback" not in err
+
+
+@needs_nordland
+def test_nordland_match_end_to_end(tmp_path):
+    out = tmp_path / "n.json"
+    assert main(["match", str(NORDLAND / "summer"), str(NORDLAND / "winter"), "--window", "1", "--tolerance", "2",
+                 "--output", str(out), "-q"]) == 0
+    payload = json.loads(out.read_text())
+    assert payload["metrics"]["n_queries"] == 3576
+    recheck(payload, FrameTolerance(3576, 2))
+
+
+@needs_uji
+def test_wifi_match_end_to_end(tmp_path):
+    out = tmp_path / "w.json"
+    ref, qry = UJI / "01" / "trn01", UJI / "02" / "tst01"
+    assert main(["match", str(ref), str(qry), "--tolerance-m", "3", "--output", str(out), "-q"]) == 0
+    payload = json.loads(out.read_text())
+    recheck(payload, MetricTolerance.between(load_traverse(qry), load_traverse(ref), 3.0))
+    assert payload["metrics"]["accuracy"] > 0.3

@@ -1,0 +1,107 @@
+import numpy as np
+import pytest
+
+from catgraph.datasets import load_array, load_image_folder, load_traverse, load_uji
+from catgraph.exceptions import DataError, DataNotFoundError
+
+from .conftest import NORDLAND, UJI, needs_nordland, needs_uji, write_images, write_uji
+
+
+def test_image_folder_sorted_by_number_not_text(tmp_path, rng):
+    imgs = rng.integers(0, 255, (3, 8, 12))
+    write_images(tmp_path / "f", imgs, names=["a-100.png", "a-20.png", "a-3.png"])
+    t = load_image_folder(tmp_path / "f")
+    np.testing.assert_array_equal(t.ids, [3, 20, 100])
+    np.testing.assert_array_equal(t.frames[0], imgs[2])
+    assert t.frames.shape == (3, 8, 12) and t.meta["kind"] == "images"
+
+
+def test_rgb_images_kept_and_grey_rgb_collapsed(tmp_path, rng):
+    rgb = rng.integers(0, 255, (2, 4, 5, 3))
+    write_images(tmp_path / "rgb", rgb)
+    assert load_image_folder(tmp_path / "rgb").frames.shape == (2, 4, 5, 3)
+    grey = np.repeat(rng.integers(0, 255, (2, 4, 5, 1)), 3, axis=3)
+    write_images(tmp_path / "grey", grey, suffix=".jpg")
+    assert load_traverse(tmp_path / "grey").frames.ndim in (3, 4)
+
+
+def test_missing_and_empty_folder(tmp_path):
+    with pytest.raises(DataNotFoundError, match="does not exist"):
+        load_traverse(tmp_path / "nope")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(DataNotFoundError, match="no PNG or JPG"):
+        load_traverse(tmp_path / "empty")
+
+
+def test_corrupt_image_named(tmp_path, rng):
+    write_images(tmp_path / "f", rng.integers(0, 255, (2, 4, 4)))
+    (tmp_path / "f" / "img-00030.png").write_bytes(b"not a png at all")
+    with pytest.raises(DataError, match="img-00030.png"):
+        load_image_folder(tmp_path / "f")
+
+
+def test_images_of_different_sizes(tmp_path, rng):
+    write_images(tmp_path / "f", [rng.integers(0, 255, (4, 4))], names=["a1.png"])
+    write_images(tmp_path / "f", [rng.integers(0, 255, (5, 4))], names=["a2.png"])
+    with pytest.raises(DataError, match="differ in size"):
+        load_image_folder(tmp_path / "f")
+
+
+def test_uji_roundtrip_and_not_detected(tmp_path):
+    rss = np.array([[100, -60, -80], [-70, 100, 100]])
+    prefix = write_uji(tmp_path / "db" / "trn01", rss, crd=[[1.0, 2.0, 3], [4.0, 5.0, 3]],
+                       tms=[20160101120000000, 20160101120001500], ids=[7, 8])
+    t = load_uji(prefix)
+    np.testing.assert_array_equal(t.frames, rss)
+    np.testing.assert_allclose(t.positions, [[1, 2], [4, 5]])
+    np.testing.assert_array_equal(t.floors, [3, 3])
+    np.testing.assert_allclose(t.timestamps, [0, 1.5])
+    np.testing.assert_array_equal(t.ids, [7, 8])
+    assert load_traverse(prefix).meta["kind"] == "wifi"
+
+
+def test_uji_missing_column(tmp_path):
+    prefix = write_uji(tmp_path / "trn01", np.array([[100, -60], [-70, 100]]))
+    (tmp_path / "trn01crd.csv").write_text("1.0,2.0,3\n4.0,5.0\n")
+    with pytest.raises(DataError, match=r"trn01crd.csv, line 2: expected 3"):
+        load_uji(prefix)
+    (tmp_path / "trn01rss.csv").write_text("100,-60\n-70\n")
+    with pytest.raises(DataError, match="missing column"):
+        load_uji(prefix)
+
+
+def test_uji_row_count_mismatch(tmp_path):
+    prefix = write_uji(tmp_path / "trn01", np.array([[100, -60], [-70, 100]]), crd=[[1.0, 2.0, 3]])
+    with pytest.raises(DataError, match="1 rows but the RSS file has 2"):
+        load_uji(prefix)
+
+
+def test_arrays_npy_npz_and_no_pickle(tmp_path, rng):
+    x = rng.random((5, 3))
+    np.save(tmp_path / "a.npy", x)
+    np.testing.assert_array_equal(load_traverse(tmp_path / "a.npy").frames, x)
+    np.savez(tmp_path / "b.npz", descriptors=x, positions=rng.random((5, 2)))
+    t = load_array(tmp_path / "b.npz")
+    assert t.positions.shape == (5, 2)
+    np.save(tmp_path / "o.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    with pytest.raises(DataError, match="pickle"):
+        load_array(tmp_path / "o.npy")
+    np.save(tmp_path / "nan.npy", np.array([[1.0, np.nan]]))
+    with pytest.raises(DataError, match="NaN"):
+        load_array(tmp_path / "nan.npy")
+    (tmp_path / "bad.npz").write_bytes(b"PK\x03\x04 truncated")
+    with pytest.raises(DataError):
+        load_array(tmp_path / "bad.npz")
+
+
+@needs_nordland
+def test_nordland_folder():
+    t = load_traverse(NORDLAND / "summer")
+    assert t.frames.shape == (3576, 16, 32)
+    assert t.ids[0] == 10 and t.ids[-1] == 35760
+
+
+@needs_uji
+def test_uji_real_set():
+    t = load_traverse(UJI / "01" / "trn01")
+    assert t.frames.shape[1] == 620 and len(t) == len(t.positions)
