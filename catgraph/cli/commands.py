@@ -10,10 +10,29 @@ from ..exceptions import InvalidParameterError
 
 REGISTRY = []
 
+# modules that add sub-commands with ``@register`` when imported
+COMMAND_MODULES = ("report_cmd", "map_cmd", "bench_cmd")
 
-def _register(fn):
-    REGISTRY.append(fn)
+
+def register(fn):
+    """Decorator: ``fn(subparsers)`` adds one sub-command."""
+    if fn not in REGISTRY:
+        REGISTRY.append(fn)
     return fn
+
+
+_register = register
+
+
+def load_command_modules() -> None:
+    import importlib
+
+    for name in COMMAND_MODULES:
+        try:
+            importlib.import_module(f"{__package__}.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"{__package__}.{name}":
+                raise
 
 
 def _size(text: str) -> tuple[int, int]:
