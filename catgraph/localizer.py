@@ -1,0 +1,374 @@
+"""The CAT-Graph particle filter: one step as a few named calls.
+
+State
+-----
+``n_particles`` particles on the :class:`~catgraph.graph.PlaceGraph` (edge, fraction,
+log-weight; :class:`~catgraph.particles.ParticleSet`) carry the posterior over places
+*given that the robot is in the map*; one scalar ``P(new)`` carries the probability that
+it is somewhere the map does not cover (CAT-Graph's new-place particle). The joint
+posterior is ``P(new)`` on the new place and ``(1 − P(new)) · w_i`` on particle ``i``.
+
+One step (:meth:`Localizer.step`), as in ``particles.SMC.__next__``::
+
+    observation = model.observe(row)       # r_j, r_new from the frame
+    move(odometry)                         # motion model: predict
+    inject(observation)                    # a few particles re-drawn from a proposal
+    reweight(observation)                  # w_i ∝ w_i · exp(ℓ_i), update P(new)
+    resample_if_degenerate()               # ESS < ess_threshold · n
+    return summarise()                     # Estimate
+
+Reweighting. Particle ``i`` on edge ``a → b`` at fraction ``α`` gains
+``ℓ_i = (1 − α) r_a + α r_b`` (:mod:`catgraph.observation`). The new-place hypothesis
+has a two-state Markov prior — the robot enters unmapped space with probability
+``new_place_prior`` per step and stays there with probability ``new_place_stay`` —
+and gains ``r_new``::
+
+    π_k   = new_place_stay · P_{k−1}(new) + new_place_prior · (1 − P_{k−1}(new))
+    E_map = Σ_i w_i exp(ℓ_i)                    (weights normalised before the update)
+    P_k(new) = π_k e^{r_new} / (π_k e^{r_new} + (1 − π_k) E_map)
+
+so the new place takes part in the normalisation with the map particles, as in paper 2
+(eq. 10). Everything is in log space.
+
+Recovery. Every step a fraction ``redraw_fraction`` of the particles (chosen at random)
+is replaced by draws from a proposal — ``"best"``: places among the ``proposal_top_k``
+best single-frame log-ratios, ``"uniform"``: any place — each given the mean weight of
+the cloud before reweighting (mixture Monte Carlo localisation). This lets the filter
+recover after a jump to another part of the route (shuffled queries, kidnapping), at the
+price of a small bias towards the current frame's best matches.
+
+Estimate. Posterior mass per place ``m_j = (1 − P(new)) Σ_{i: place(i) = j} w_i``
+(``np.bincount``; a particle belongs to the nearer of its two places); the answer is
+``argmax_j m_j``, its confidence the mass within ``± confidence_radius`` places (along the
+reference index), or within ``confidence_radius_m`` metres where the graph has positions
+and that is given. A loop closure is declared when confidence ≥ a threshold; sweeping
+it gives the PR curve.
+
+Cost. A step is O(n_particles · hops + n_places): the motion kernel is compiled, the
+rest is vectorised numpy; memory is fixed at construction. Same seed, same output:
+every random draw comes from the one ``numpy.random.Generator`` made from ``seed``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._validation import as_generator, check_array, check_scalar
+from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
+from .graph import PlaceGraph
+from .motion import FrameMotion, MotionModel, OdometryMotion
+from .observation import Observation, ObservationModel
+from .particles import ParticleSet, effective_sample_size, get_resampler, log_sum_exp, place_to_edges
+
+__all__ = ["Estimate", "LocalizationResult", "Localizer"]
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The filter's answer after one query frame.
+
+    Attributes
+    ----------
+    place : int
+        Most likely reference place (index as loaded).
+    position : ndarray, shape (2|3,) or None
+        Metric position of ``place`` where the graph has positions.
+    confidence : float
+        Posterior mass within the tolerance of ``place`` (in [0, 1]).
+    new_place_probability : float
+        ``P(new place | Z^k)``.
+    ess : float
+        Effective sample size after reweighting (before any resampling).
+    resampled : bool
+        Whether this step resampled.
+    """
+
+    place: int
+    position: np.ndarray | None
+    confidence: float
+    new_place_probability: float
+    ess: float
+    resampled: bool
+
+
+@dataclass
+class LocalizationResult:
+    """Per-frame outputs of :meth:`Localizer.run`, in processing order.
+
+    Attributes
+    ----------
+    place : ndarray of int64, shape (n,)
+    confidence, new_place_probability, ess : ndarray of float64, shape (n,)
+    position : ndarray, shape (n, 2|3) or None
+    query_index : ndarray of int64, shape (n,)
+    seconds_per_frame : float
+        Mean wall time of a step, observation model included.
+    """
+
+    place: np.ndarray
+    confidence: np.ndarray
+    new_place_probability: np.ndarray
+    ess: np.ndarray
+    position: np.ndarray | None
+    query_index: np.ndarray
+    seconds_per_frame: float
+
+    @property
+    def match(self) -> np.ndarray:
+        """Alias of ``place`` (the name :func:`catgraph.metrics.evaluate` uses)."""
+        return self.place
+
+
+class Localizer:
+    """CAT-Graph particle filter over a place graph.
+
+    Parameters
+    ----------
+    graph : PlaceGraph
+    model : ObservationModel
+        E.g. :class:`~catgraph.observation.HistogramObservation`; reset by :meth:`reset`.
+    n_particles : int
+    motion : MotionModel, optional
+        Default: :class:`~catgraph.motion.OdometryMotion` for steps given odometry,
+        :class:`~catgraph.motion.FrameMotion` otherwise.
+    resampler : {"systematic", "stratified", "residual", "multinomial"}
+    ess_threshold : float in [0, 1]
+        Resample when ESS < ``ess_threshold · n_particles``.
+    redraw_fraction : float in [0, 1)
+        Fraction of particles re-drawn from the proposal each step.
+    proposal : {"best", "uniform"}
+    proposal_top_k : int
+        Number of best places the ``"best"`` proposal draws from.
+    new_place_prior : float in [0, 1)
+        Per-step probability of entering unmapped space (0 disables the new place).
+    new_place_stay : float in [0, 1)
+        Per-step probability of staying in unmapped space.
+    confidence_radius : int
+        Places either side of the answer counted in its confidence.
+    confidence_radius_m : float, optional
+        Use a metric radius instead (needs graph positions).
+    seed : int, Generator or None
+
+    Attributes
+    ----------
+    particles_ : ParticleSet
+    new_place_probability_ : float
+    n_steps_ : int
+    """
+
+    def __init__(self, graph: PlaceGraph, model: ObservationModel, n_particles: int = 2000,
+                 motion: MotionModel | None = None, resampler: str = "systematic", ess_threshold: float = 0.5,
+                 redraw_fraction: float = 0.02, proposal: str = "best", proposal_top_k: int = 10,
+                 new_place_prior: float = 0.05, new_place_stay: float = 0.8, confidence_radius: int = 2,
+                 confidence_radius_m: float | None = None, seed: int | np.random.Generator | None = 0) -> None:
+        self.graph = graph
+        self.model = model
+        self.n_particles = n_particles
+        self.motion = motion
+        self.resampler = resampler
+        self.ess_threshold = ess_threshold
+        self.redraw_fraction = redraw_fraction
+        self.proposal = proposal
+        self.proposal_top_k = proposal_top_k
+        self.new_place_prior = new_place_prior
+        self.new_place_stay = new_place_stay
+        self.confidence_radius = confidence_radius
+        self.confidence_radius_m = confidence_radius_m
+        self.seed = seed
+
+    # ------------------------------------------------------------------ setup
+    def _validate(self) -> None:
+        owner = type(self).__name__
+        if not isinstance(self.graph, PlaceGraph):
+            raise InvalidParameterError(f"The 'graph' parameter of {owner} must be a PlaceGraph. Got {type(self.graph).__name__}.")
+        if not hasattr(self.model, "observe") or not hasattr(self.model, "reset"):
+            raise InvalidParameterError(
+                f"The 'model' parameter of {owner} must be an ObservationModel (reset(), observe(row)). Got {self.model!r}."
+            )
+        check_scalar(self.n_particles, "n_particles", owner, int, 1)
+        check_scalar(self.ess_threshold, "ess_threshold", owner, float, 0.0, 1.0)
+        check_scalar(self.redraw_fraction, "redraw_fraction", owner, float, 0.0, 1.0, True, False)
+        check_scalar(self.proposal_top_k, "proposal_top_k", owner, int, 1)
+        check_scalar(self.new_place_prior, "new_place_prior", owner, float, 0.0, 1.0, True, False)
+        check_scalar(self.new_place_stay, "new_place_stay", owner, float, 0.0, 1.0, True, False)
+        check_scalar(self.confidence_radius, "confidence_radius", owner, int, 0)
+        if self.proposal not in ("best", "uniform"):
+            raise InvalidParameterError(f"The 'proposal' parameter of {owner} must be 'best' or 'uniform'. Got {self.proposal!r} instead.")
+        if self.confidence_radius_m is not None:
+            check_scalar(self.confidence_radius_m, "confidence_radius_m", owner, float, 0.0)
+            if self.graph.positions is None:
+                raise DataError("confidence_radius_m needs a place graph with positions; use confidence_radius (places).")
+        self._resample = get_resampler(self.resampler)
+
+    def reset(self) -> "Localizer":
+        """Start afresh: particles uniform over the graph, ``P(new) = 0``, model reset."""
+        self._validate()
+        self._rng = as_generator(self.seed) if not isinstance(self.seed, np.random.Generator) else self.seed
+        self.particles_ = ParticleSet.uniform(self.graph, self.n_particles, self._rng)
+        self.new_place_probability_ = 0.0
+        self.n_steps_ = 0
+        self._motions = (self.motion or FrameMotion(), self.motion or OdometryMotion())
+        self.model.reset()
+        if self.confidence_radius_m is not None:
+            from scipy.spatial import cKDTree
+
+            self._tree = cKDTree(self.graph.positions)
+        return self
+
+    # ------------------------------------------------------------------ one step
+    def step(self, observation: np.ndarray, odometry: float | None = None) -> Estimate:
+        """Process one query frame.
+
+        Parameters
+        ----------
+        observation : ndarray, shape (n_places,)
+            The frame's difference to every reference place (what the model observes).
+        odometry : float, optional
+            Distance travelled since the previous frame (graph units).
+
+        Returns
+        -------
+        Estimate
+        """
+        if not hasattr(self, "particles_"):
+            self.reset()
+        row = check_array(observation, "observation", ndim=1)
+        if len(row) != self.graph.n_places:
+            raise ShapeMismatchError(
+                f"the observation has {len(row)} places but the graph has {self.graph.n_places}; "
+                "give the frame's difference to every reference place of the map."
+            )
+        obs = self.model.observe(row)
+        self._move(odometry)
+        self._inject(obs)
+        ess = self._reweight(obs)
+        resampled = self._resample_if_degenerate(ess)
+        self.n_steps_ += 1
+        return self._summarise(ess, resampled)
+
+    def _move(self, odometry: float | None) -> None:
+        if self.n_steps_ == 0:
+            return  # the first frame: nothing has moved yet
+        motion = self._motions[0] if odometry is None else self._motions[1]
+        motion.move(self.particles_, self.graph, self._rng, odometry)
+
+    def _inject(self, obs: Observation) -> None:
+        n_new = int(round(self.redraw_fraction * self.n_particles))
+        if n_new == 0 or not obs.informative:
+            return
+        p, rng = self.particles_, self._rng
+        who = rng.choice(self.n_particles, size=n_new, replace=False)
+        if self.proposal == "best":
+            k = min(self.proposal_top_k, self.graph.n_places)
+            top = np.argpartition(-obs.log_ratio, k - 1)[:k]
+            places = top[rng.integers(0, k, size=n_new)]
+        else:
+            places = rng.integers(0, self.graph.n_places, size=n_new)
+        p.edge[who], p.fraction[who] = place_to_edges(self.graph, places, rng)
+        p.log_weight[who] = log_sum_exp(p.log_weight) - math.log(self.n_particles)
+
+    def _reweight(self, obs: Observation) -> float:
+        p, g = self.particles_, self.graph
+        lw = p.log_weight - log_sum_exp(p.log_weight)
+        if obs.informative:
+            a, b = g.source[p.edge], g.target[p.edge]
+            ell = (1.0 - p.fraction) * obs.log_ratio[a] + p.fraction * obs.log_ratio[b]
+            lw = lw + ell
+        log_map = log_sum_exp(lw)
+        p.log_weight = lw - log_map
+        if obs.informative:
+            prior = self.new_place_stay * self.new_place_probability_ + self.new_place_prior * (
+                1.0 - self.new_place_probability_)
+            if prior > 0.0:
+                a_new = math.log(prior) + obs.new_place_log_ratio
+                a_map = math.log1p(-prior) + log_map
+                self.new_place_probability_ = float(math.exp(a_new - np.logaddexp(a_new, a_map)))
+            else:
+                self.new_place_probability_ = 0.0
+        return effective_sample_size(p.log_weight)
+
+    def _resample_if_degenerate(self, ess: float) -> bool:
+        if ess >= self.ess_threshold * self.n_particles:
+            return False
+        idx = self._resample(np.exp(self.particles_.log_weight), self._rng)
+        self.particles_ = self.particles_.take(idx)
+        return True
+
+    def _summarise(self, ess: float, resampled: bool) -> Estimate:
+        g, p = self.graph, self.particles_
+        mass = np.bincount(p.places(g), weights=np.exp(p.log_weight), minlength=g.n_places)
+        mass *= 1.0 - self.new_place_probability_
+        best = int(np.argmax(mass))
+        if self.confidence_radius_m is not None:
+            near = self._tree.query_ball_point(g.positions[best], self.confidence_radius_m)
+            confidence = float(mass[near].sum())
+        else:
+            r = self.confidence_radius
+            confidence = float(mass[max(0, best - r): best + r + 1].sum())
+        position = None if g.positions is None else g.positions[best].copy()
+        return Estimate(best, position, min(confidence, 1.0), self.new_place_probability_, ess, resampled)
+
+    # ------------------------------------------------------------------ batch
+    def run(self, observations, odometry: np.ndarray | None = None, query_index: np.ndarray | None = None,
+            reference=None, progress: bool = False) -> LocalizationResult:
+        """Reset, then :meth:`step` through a whole query.
+
+        Parameters
+        ----------
+        observations : ndarray, shape (n_query, n_places), or Traverse
+            Difference matrix (rows in processing order), or a query
+            :class:`~catgraph.traverse.Traverse` — then ``reference`` (a Traverse) is
+            needed, the differences come from :func:`catgraph.pipeline.differences`
+            (normalised per query), and the query's odometry and index are used unless
+            given.
+        odometry : ndarray, shape (n_query,), optional
+            Per-frame odometry (``odometry[0]`` is ignored).
+        query_index : ndarray of int, shape (n_query,), optional
+            Index of each frame as loaded (default ``arange``).
+        reference : Traverse, optional
+        progress : bool
+            Show a tqdm progress bar.
+
+        Returns
+        -------
+        LocalizationResult
+        """
+        from .traverse import Traverse
+
+        if isinstance(observations, Traverse):
+            if reference is None:
+                raise DataError("Localizer.run(query_traverse) needs reference=<reference Traverse> to compute differences.")
+            from .pipeline import differences
+
+            query = observations
+            observations = differences(reference, query)
+            odometry = query.odometry if odometry is None else odometry
+            query_index = query.index if query_index is None else query_index
+        d = check_array(observations, "difference matrix", ndim=2)
+        n = len(d)
+        if odometry is not None:
+            odometry = check_array(odometry, "odometry", ndim=1)
+            if len(odometry) != n:
+                raise ShapeMismatchError(f"odometry has {len(odometry)} entries for {n} query frames; give one per frame.")
+        qi = np.arange(n) if query_index is None else np.asarray(query_index, dtype=np.int64)
+        self.reset()
+        place = np.empty(n, dtype=np.int64)
+        conf, p_new, ess = np.empty(n), np.empty(n), np.empty(n)
+        pos = None if self.graph.positions is None else np.empty((n, self.graph.positions.shape[1]))
+        rows = range(n)
+        if progress:
+            from tqdm import tqdm
+
+            rows = tqdm(rows, desc="localising", unit="frame")
+        start = time.perf_counter()
+        for k in rows:
+            est = self.step(d[k], None if odometry is None else float(odometry[k]))
+            place[k], conf[k], p_new[k], ess[k] = est.place, est.confidence, est.new_place_probability, est.ess
+            if pos is not None:
+                pos[k] = est.position
+        seconds = (time.perf_counter() - start) / max(n, 1)
+        return LocalizationResult(place, conf, p_new, ess, pos, qi, seconds)
