@@ -25,8 +25,32 @@ def _single_frame(params, *, reference, query, differences, ground_truth) -> Run
     return match_single_frames(differences, query.index, exclusion=int(params.get("exclusion", 10)))
 
 
+_SEQUENCE_KEYS = ("window", "approximation", "rule", "confidence", "l_min", "l_max", "grid", "radius")
+
+
+def _sequence(params, *, reference, query, differences, ground_truth) -> RunResult:
+    """SeqSLAM sequence matching, fixed (``window`` int) or adaptive (``"adaptive"``)."""
+    import time
+
+    from .sequence import match_sequences
+
+    unknown = set(params) - set(_SEQUENCE_KEYS)
+    if unknown:
+        raise InvalidParameterError(f"unknown sequence-matching parameters {sorted(unknown)}; "
+                                    f"allowed: {', '.join(_SEQUENCE_KEYS)}.")
+    kwargs = {k: v for k, v in params.items() if v is not None}
+    kwargs.setdefault("window", "adaptive")
+    start = time.perf_counter()
+    res = match_sequences(differences, **kwargs)
+    seconds = time.perf_counter() - start
+    name = "adaptive" if kwargs["window"] == "adaptive" else f"sequence-L{kwargs['window']}"
+    return RunResult(name, dict(kwargs), np.asarray(query.index), res.match, res.confidence,
+                     extra={"window_length": res.window_length}, seconds=seconds)
+
+
 METHODS: dict[str, Callable[..., RunResult]] = {
     "single-frame": _single_frame,
+    "sequence": _sequence,
 }
 
 

@@ -134,6 +134,13 @@ def register_match(sub) -> None:
                        description="Match each query frame to a reference place and evaluate the result.")
     add_common_inputs(p)
     p.add_argument("--window", type=_window, default=1, help="sequence length in frames, or 'adaptive' (default 1)")
+    p.add_argument("--approximation", choices=["gaussian", "robust", "gmm2", "gmm3"], default="gaussian",
+                   help="adaptive window: approximation of the score distribution (default gaussian)")
+    p.add_argument("--rule", choices=["consistent", "literal"], default="consistent",
+                   help="adaptive window: 'literal' = the paper's argmin p(L); 'consistent' (default) also "
+                        "requires the hypothesis to hold over the window's recent frames")
+    p.add_argument("--l-min", type=int, default=10, help="adaptive window: shortest window (default 10)")
+    p.add_argument("--l-max", type=int, default=500, help="adaptive window: longest window (default 500)")
     p.add_argument("--exclusion", type=int, default=10,
                    help="confidence = margin to the best match outside ± this many places (default 10)")
     p.set_defaults(func=cmd_match)
@@ -145,9 +152,15 @@ def cmd_match(args) -> int:
     reference, query, ground_truth = load_inputs(args)
     frontend = frontend_from(args)
     diff = differences(reference, query, frontend)
-    if args.window != 1:
-        raise InvalidParameterError("only --window 1 (single-frame matching) is available in this version.")
-    result = match_single_frames(diff, query.index, exclusion=args.exclusion)
+    from ..methods import run_method
+
+    if args.window == 1:
+        result = match_single_frames(diff, query.index, exclusion=args.exclusion)
+    else:
+        params = {"window": args.window, "radius": args.exclusion}
+        if args.window == "adaptive":
+            params.update(approximation=args.approximation, rule=args.rule, l_min=args.l_min, l_max=args.l_max)
+        result = run_method("sequence", params, reference=reference, query=query, differences=diff)
     extra = {"reference": str(args.reference), "query": str(args.query), "shuffle": args.shuffle,
              "frontend": frontend.as_dict(), "ground_truth": ground_truth.describe()}
     return finish(args, result, ground_truth, extra)
