@@ -1,0 +1,492 @@
+"""Saved maps: one versioned, checksummed ``.npz`` file per reference route.
+
+A *map* is everything localisation needs from the reference traverse, computed once:
+the reference descriptors (after the front-end), the front-end settings and the metric
+that produced them, the place graph the particle filter moves on, what the reference
+knew about its frames (positions, floors, ids) and, optionally, learned histogram
+models of ``P(d|L)`` and ``P(d|¬L)``. :func:`save_map` writes a :class:`CatgraphMap`,
+:func:`load_map` reads it back bit for bit.
+
+File layout
+-----------
+A plain NumPy ``.npz`` archive (a zip of ``.npy`` members), readable with
+``numpy.load(path, allow_pickle=False)`` — nothing in it is ever unpickled:
+
+=====================  ===============================================================
+member                 content
+=====================  ===============================================================
+``__format__``         ``"catgraph-map"`` (0-d unicode array)
+``__version__``        format version, 0-d int64 (:data:`FORMAT_VERSION`)
+``__metadata__``       UTF-8 JSON as a uint8 array: name, metric, front-end, graph and
+                       histogram parameters, user metadata
+``__sha256__``         hex SHA-256 digest (0-d unicode array), see below
+``descriptors``        ``(N, D)`` reference descriptors
+``positions`` …        optional ``(N, 2|3)`` positions, ``(N,)`` floors, ``(N,)`` ids
+``graph.*``            place graph as flat arrays: ``source``, ``target``, ``length``,
+                       ``kind`` ``(E,)``, ``route_distance`` ``(N,)``, optional
+                       ``positions`` ``(N, 2|3)``
+``histogram.NAME.*``   learned state of histogram model ``NAME``: arrays such as
+                       ``counts_same_``, ``bin_edges_``, and 0-d arrays for scalars
+=====================  ===============================================================
+
+The graph is stored as its edge list and rebuilt with
+:meth:`~catgraph.graph.PlaceGraph.from_edges`, which recomputes the CSR offsets and the
+``reverse``/``straight`` edge tables; the edge list is already sorted and de-duplicated,
+so the rebuilt graph equals the saved one array for array.
+
+Integrity
+---------
+The digest is SHA-256 over the metadata bytes and then, for every other member in
+sorted name order, its name, dtype, shape and raw bytes (C order)::
+
+    h = sha256(b"catgraph-map\\0" + version + metadata)
+    for name in sorted(arrays): h.update(name, dtype.str, shape, array.tobytes())
+
+so any change to an array or to the metadata — a flipped byte, an array replaced by
+``numpy.savez``, an edited parameter — is detected on load, on top of the zip
+container's own CRC-32 per member (which catches most accidental corruption). The
+checksum detects modification, it does not authenticate the author: anyone can write
+a valid map.
+
+Writing is atomic: the archive is written to a temporary file in the destination
+folder, flushed to disk and renamed over the destination (``os.replace``), so a crash
+never leaves a half-written map under the final name.
+
+Versions
+--------
+:data:`FORMAT_VERSION` grows by one whenever the layout changes incompatibly. A reader
+refuses files from a newer version with a message that says to upgrade catgraph, and
+keeps reading every older version it knows.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .exceptions import DataError, DataNotFoundError, MapFileError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .graph import PlaceGraph
+    from .pipeline import FrontEnd
+    from .traverse import Traverse
+
+__all__ = [
+    "CatgraphMap",
+    "save_map",
+    "load_map",
+    "build_map",
+    "reference_from_map",
+    "query_differences",
+    "FORMAT_NAME",
+    "FORMAT_VERSION",
+]
+
+#: Value of the ``__format__`` member of every map file.
+FORMAT_NAME = "catgraph-map"
+#: Version of the layout this catgraph writes (and the newest it reads).
+FORMAT_VERSION = 1
+
+_RESERVED = ("__format__", "__version__", "__metadata__", "__sha256__")
+_GRAPH_ARRAYS = ("source", "target", "length", "kind", "route_distance")
+
+
+@dataclass(frozen=True, eq=False)
+class CatgraphMap:
+    """A reference route ready for localisation.
+
+    Parameters
+    ----------
+    descriptors : ndarray, shape (N, D)
+        Reference descriptors after the front-end (float32 for images and Wi-Fi,
+        bool for binary descriptors).
+    metric : str
+        Difference metric the descriptors are compared with (``"sad"``, ``"cosine"`` …).
+    frontend : dict
+        Front-end settings, as :meth:`catgraph.pipeline.FrontEnd.as_dict` gives them.
+    graph : PlaceGraph, optional
+        The place graph over the ``N`` reference places.
+    positions : ndarray, shape (N, 2|3), optional
+        Metric positions of the reference frames.
+    floors : ndarray of int64, shape (N,), optional
+    ids : ndarray, shape (N,), optional
+        Identifiers from the source (numbers or strings; never objects).
+    histograms : dict of str → HistogramLikelihood
+        Learned histogram models, by name (e.g. ``"image"``).
+    name : str
+        Human-readable name (the reference's).
+    meta : dict
+        JSON-ready extra information (source path, data kind …).
+    """
+
+    descriptors: np.ndarray
+    metric: str
+    frontend: dict
+    graph: "PlaceGraph | None" = None
+    positions: np.ndarray | None = None
+    floors: np.ndarray | None = None
+    ids: np.ndarray | None = None
+    histograms: dict = field(default_factory=dict)
+    name: str = ""
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        d = np.asarray(self.descriptors)
+        if d.ndim != 2:
+            raise DataError(f"map descriptors must have shape (N, D), one row per place; got shape {d.shape}.")
+        object.__setattr__(self, "descriptors", d)
+        n = d.shape[0]
+        for key in ("positions", "floors", "ids"):
+            value = getattr(self, key)
+            if value is None:
+                continue
+            value = np.asarray(value)
+            if value.dtype == object:
+                value = value.astype(str)
+            if value.shape[0] != n:
+                raise DataError(f"map {key} has {value.shape[0]} rows for {n} places; give one per place.")
+            object.__setattr__(self, key, value)
+        if self.graph is not None and self.graph.n_places != n:
+            raise DataError(f"the place graph has {self.graph.n_places} places but the map {n}; build it from the "
+                            "same reference.")
+
+    @property
+    def n_places(self) -> int:
+        """Number of reference places ``N``."""
+        return int(self.descriptors.shape[0])
+
+    def frontend_settings(self) -> "FrontEnd":
+        """The stored front-end settings as a :class:`~catgraph.pipeline.FrontEnd`."""
+        from .pipeline import FrontEnd
+
+        f = dict(self.frontend)
+        if f.get("size"):
+            f["size"] = tuple(f["size"])
+        return FrontEnd(**f)
+
+    def __repr__(self) -> str:
+        return (f"CatgraphMap(name={self.name!r}, n_places={self.n_places}, descriptor_dim={self.descriptors.shape[1]}, "
+                f"metric={self.metric!r}, graph={self.graph is not None}, histograms={sorted(self.histograms)})")
+
+
+# ---------------------------------------------------------------------------- building
+def build_map(reference: "Traverse", frontend: "FrontEnd | None" = None, *, junction_radius_m: float | None = None,
+              graph: bool = True, histograms: dict | None = None, meta: dict | None = None) -> CatgraphMap:
+    """Describe a reference traverse and build its map.
+
+    Parameters
+    ----------
+    reference : Traverse
+        The reference (images, Wi-Fi or descriptors).
+    frontend : FrontEnd, optional
+        Front-end settings (default ``FrontEnd()``).
+    junction_radius_m : float, optional
+        Add junction edges between places within this many metres (needs positions);
+        see :meth:`catgraph.graph.PlaceGraph.from_traverse`.
+    graph : bool
+        Build the place graph (default ``True``).
+    histograms : dict of str → HistogramLikelihood, optional
+        Learned models to store with the map.
+    meta : dict, optional
+        Extra JSON-ready metadata.
+
+    Returns
+    -------
+    CatgraphMap
+    """
+    from .pipeline import FrontEnd, _kind, describe
+
+    frontend = FrontEnd() if frontend is None else frontend
+    descriptors, metric = describe(reference, frontend)
+    place_graph = None
+    if graph:
+        from .graph import PlaceGraph
+
+        place_graph = PlaceGraph.from_traverse(reference, junction_radius_m=junction_radius_m)
+    info = {"kind": _kind(reference), "n_frames": len(reference)}
+    if "source" in reference.meta:
+        info["source"] = str(reference.meta["source"])
+    info.update(meta or {})
+    return CatgraphMap(np.ascontiguousarray(descriptors), metric, frontend.as_dict(), place_graph,
+                       reference.positions, reference.floors, reference.ids, dict(histograms or {}),
+                       reference.name, info)
+
+
+def reference_from_map(catgraph_map: CatgraphMap) -> "Traverse":
+    """The map's reference as a :class:`~catgraph.traverse.Traverse` of descriptors.
+
+    Its frames are the stored descriptors, already through the front-end; compare a
+    query with them through :func:`query_differences` (which applies the map's
+    front-end to the query only), not through :func:`catgraph.pipeline.differences`.
+    Positions, floors and ids come along, so metric ground truth works as with the
+    original reference.
+    """
+    from .traverse import Traverse
+
+    meta = dict(catgraph_map.meta)
+    meta.update({"kind": "descriptors", "described": True, "metric": catgraph_map.metric,
+                 "frontend": dict(catgraph_map.frontend)})
+    return Traverse(catgraph_map.descriptors, positions=catgraph_map.positions, floors=catgraph_map.floors,
+                    ids=catgraph_map.ids, name=catgraph_map.name, meta=meta)
+
+
+def query_differences(catgraph_map: CatgraphMap, query: "Traverse") -> np.ndarray:
+    """The ``(n_query, N)`` difference matrix of a query against a map.
+
+    The query goes through the map's front-end; the stored metric and normalisation
+    are used, so the result equals :func:`catgraph.pipeline.differences` on the
+    original reference.
+    """
+    from .differences import difference_matrix
+    from .exceptions import ShapeMismatchError
+    from .pipeline import describe
+
+    frontend = catgraph_map.frontend_settings()
+    q, _ = describe(query, frontend)
+    if q.shape[1] != catgraph_map.descriptors.shape[1]:
+        raise ShapeMismatchError(
+            f"query frames give {q.shape[1]} values per descriptor but the map holds {catgraph_map.descriptors.shape[1]}; "
+            f"the map was built with front-end {catgraph_map.frontend}: use query data of the same kind and size."
+        )
+    return difference_matrix(q, catgraph_map.descriptors, catgraph_map.metric, normalise=frontend.normalise)
+
+
+# ---------------------------------------------------------------------------- encoding
+def _histogram_state(model: Any) -> tuple[dict, dict[str, np.ndarray]]:
+    """Constructor parameters (JSON) and learned state (arrays) of a histogram model."""
+    params = model.get_params()
+    params = {k: (list(v) if isinstance(v, tuple) else v) for k, v in params.items()}
+    arrays: dict[str, np.ndarray] = {}
+    for key, value in vars(model).items():
+        if not key.endswith("_") or key.startswith("_"):
+            continue
+        if isinstance(value, np.ndarray):
+            arrays[key] = value
+        elif isinstance(value, (bool, int, float, np.integer, np.floating, np.bool_)):
+            arrays[key] = np.asarray(value)
+        else:
+            raise MapFileError(f"cannot store the learned attribute {key!r} of {type(model).__name__} "
+                               f"(type {type(value).__name__}); only arrays and numbers are stored.")
+    return {"class": type(model).__name__, "params": params}, arrays
+
+
+def _histogram_from_state(info: dict, arrays: dict[str, np.ndarray], name: str) -> Any:
+    from . import likelihood
+
+    cls = getattr(likelihood, str(info.get("class")), None)
+    if cls is None:
+        raise MapFileError(f"histogram model {name!r} has unknown class {info.get('class')!r}; "
+                           "it may need a newer catgraph.")
+    params = dict(info.get("params") or {})
+    if isinstance(params.get("range"), list):
+        params["range"] = tuple(params["range"])
+    model = cls(**params)
+    for key, value in arrays.items():
+        setattr(model, key, value.item() if value.ndim == 0 else value)
+    return model
+
+
+def _encode(m: CatgraphMap) -> tuple[dict, dict[str, np.ndarray]]:
+    arrays: dict[str, np.ndarray] = {"descriptors": m.descriptors}
+    for key in ("positions", "floors", "ids"):
+        value = getattr(m, key)
+        if value is not None:
+            arrays[key] = value
+    metadata: dict[str, Any] = {"name": m.name, "metric": m.metric, "frontend": m.frontend,
+                                "n_places": m.n_places, "meta": m.meta}
+    if m.graph is not None:
+        g = m.graph
+        for key in _GRAPH_ARRAYS:
+            arrays[f"graph.{key}"] = getattr(g, key)
+        if g.positions is not None:
+            arrays["graph.positions"] = g.positions
+        metadata["graph"] = {"n_places": g.n_places, "unit": g.unit}
+    else:
+        metadata["graph"] = None
+    metadata["histograms"] = {}
+    for name, model in m.histograms.items():
+        if "." in name or not name:
+            raise MapFileError(f"histogram names must be non-empty and contain no '.'; got {name!r}.")
+        info, state = _histogram_state(model)
+        info["arrays"] = sorted(state)
+        metadata["histograms"][name] = info
+        arrays.update({f"histogram.{name}.{k}": v for k, v in state.items()})
+    for key, value in arrays.items():
+        if value.dtype == object:
+            raise MapFileError(f"map array {key!r} holds Python objects; store numbers or strings.")
+    return metadata, arrays
+
+
+def _metadata_bytes(metadata: dict) -> bytes:
+    try:
+        text = json.dumps(metadata, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    except (TypeError, ValueError) as exc:
+        raise MapFileError(f"map metadata must be JSON-ready (no NaN, no objects): {exc}") from None
+    return text.encode("utf-8")
+
+
+def _digest(version: int, metadata: bytes, arrays: dict[str, np.ndarray]) -> str:
+    h = hashlib.sha256()
+    h.update(FORMAT_NAME.encode() + b"\0" + str(int(version)).encode() + b"\0")
+    h.update(len(metadata).to_bytes(8, "little") + metadata)
+    for name in sorted(arrays):
+        a = np.require(arrays[name], requirements="C")
+        header = f"{name}\0{a.dtype.str}\0{a.shape}\0".encode()
+        h.update(len(header).to_bytes(8, "little") + header)
+        h.update(a.nbytes.to_bytes(8, "little"))
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def save_map(path: str | os.PathLike, catgraph_map: CatgraphMap, compress: bool = True) -> Path:
+    """Write a map atomically to ``path`` (conventionally ``*.npz``).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        Destination; its folder is created if needed. Written exactly under this name
+        (no suffix is added).
+    catgraph_map : CatgraphMap
+    compress : bool
+        Deflate the archive members (smaller, slower to write).
+
+    Returns
+    -------
+    Path
+        The path written.
+    """
+    path = Path(path)
+    metadata, arrays = _encode(catgraph_map)
+    meta_bytes = _metadata_bytes(metadata)
+    members = {
+        "__format__": np.array(FORMAT_NAME),
+        "__version__": np.array(FORMAT_VERSION, dtype=np.int64),
+        "__metadata__": np.frombuffer(meta_bytes, dtype=np.uint8),
+        "__sha256__": np.array(_digest(FORMAT_VERSION, meta_bytes, arrays)),
+    }
+    members.update({k: np.require(v, requirements="C") for k, v in arrays.items()})
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            (np.savez_compressed if compress else np.savez)(fh, **members)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+# ---------------------------------------------------------------------------- decoding
+def _read_members(path: Path) -> dict[str, np.ndarray]:
+    try:
+        archive = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise MapFileError(f"{path} is not a readable map file (corrupt or truncated: {exc}); "
+                           "rebuild it with `catgraph build-map`.") from None
+    if isinstance(archive, np.ndarray):
+        raise MapFileError(f"{path} holds a single array, not a catgraph map; build one with `catgraph build-map`.")
+    try:
+        with archive:
+            names = list(archive.files)
+            if "__format__" not in names:
+                raise MapFileError(f"{path} is not a catgraph map (it holds arrays {sorted(names)[:8]}); "
+                                   "build one with `catgraph build-map`.")
+            return {name: archive[name] for name in names}
+    except MapFileError:
+        raise
+    except ValueError as exc:
+        if "pickle" in str(exc).lower():
+            raise MapFileError(f"{path} contains pickled objects, which catgraph never loads; "
+                               "it was not written by catgraph.") from None
+        raise MapFileError(f"{path} is corrupt ({exc}); rebuild it with `catgraph build-map`.") from None
+    except (OSError, EOFError, zipfile.BadZipFile, zipfile.LargeZipFile, KeyError) as exc:
+        raise MapFileError(f"{path} is corrupt or truncated ({exc}); rebuild it with `catgraph build-map`.") from None
+
+
+def _scalar(members: dict, name: str, path: Path, kind: str):
+    value = members.get(name)
+    if value is None or value.ndim != 0 or value.dtype.kind != kind:
+        raise MapFileError(f"{path} has a malformed {name} entry; it was not written by catgraph or is damaged.")
+    return value.item()
+
+
+def load_map(path: str | os.PathLike) -> CatgraphMap:
+    """Read a map written by :func:`save_map`, checking format, version and checksum.
+
+    Raises
+    ------
+    DataNotFoundError
+        ``path`` does not exist.
+    MapFileError
+        The file is not a map, is corrupt, truncated or modified since it was written,
+        or was written by a newer catgraph.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise DataNotFoundError(f"map file {path} does not exist; build one with `catgraph build-map REFERENCE "
+                                f"--out {path.name}`.")
+    if path.is_dir():
+        raise MapFileError(f"{path} is a folder, not a map file.")
+    members = _read_members(path)
+    fmt = _scalar(members, "__format__", path, "U")
+    if fmt != FORMAT_NAME:
+        raise MapFileError(f"{path} is a {fmt!r} file, not a catgraph map.")
+    version = _scalar(members, "__version__", path, "i")
+    if version > FORMAT_VERSION:
+        raise MapFileError(f"{path} was written by a newer catgraph (format {version} > {FORMAT_VERSION}); "
+                           "upgrade catgraph to read it.")
+    if version < 1:
+        raise MapFileError(f"{path} has an invalid format version {version}.")
+    meta_raw = members.get("__metadata__")
+    if meta_raw is None or meta_raw.dtype != np.uint8 or meta_raw.ndim != 1:
+        raise MapFileError(f"{path} has no readable metadata; it is damaged.")
+    meta_bytes = meta_raw.tobytes()
+    stored = _scalar(members, "__sha256__", path, "U")
+    arrays = {k: v for k, v in members.items() if k not in _RESERVED}
+    if _digest(version, meta_bytes, arrays) != stored:
+        raise MapFileError(f"{path} failed its checksum: the arrays or metadata were modified after it was written "
+                           "(tampered or corrupted); rebuild it with `catgraph build-map`.")
+    try:
+        metadata = json.loads(meta_bytes.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise MapFileError(f"{path} has unreadable metadata ({exc}).") from None
+    return _decode(metadata, arrays, path)
+
+
+def _decode(metadata: dict, arrays: dict[str, np.ndarray], path: Path) -> CatgraphMap:
+    try:
+        graph = None
+        if metadata.get("graph") is not None:
+            from .graph import PlaceGraph
+
+            g = {k: arrays[f"graph.{k}"] for k in _GRAPH_ARRAYS}
+            graph = PlaceGraph.from_edges(
+                int(metadata["graph"]["n_places"]), np.stack([g["source"], g["target"]], axis=1).reshape(-1, 2),
+                g["length"], g["kind"], positions=arrays.get("graph.positions"),
+                route_distance=g["route_distance"], unit=metadata["graph"]["unit"],
+            )
+        histograms = {}
+        for name, info in (metadata.get("histograms") or {}).items():
+            state = {k: arrays[f"histogram.{name}.{k}"] for k in info.get("arrays", [])}
+            histograms[name] = _histogram_from_state(info, state, name)
+        return CatgraphMap(arrays["descriptors"], metadata["metric"], metadata["frontend"], graph,
+                           arrays.get("positions"), arrays.get("floors"), arrays.get("ids"), histograms,
+                           metadata.get("name", ""), metadata.get("meta") or {})
+    except MapFileError:
+        raise
+    except KeyError as exc:
+        raise MapFileError(f"{path} lacks the entry {exc}; it is incomplete.") from None
+    except (DataError, TypeError, ValueError) as exc:
+        raise MapFileError(f"{path} holds an inconsistent map: {exc}") from None
