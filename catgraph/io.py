@@ -380,6 +380,8 @@ def save_map(path: str | os.PathLike, catgraph_map: CatgraphMap, compress: bool 
             (np.savez_compressed if compress else np.savez)(fh, **members)
             fh.flush()
             os.fsync(fh.fileno())
+        # mkstemp creates the file private (0600); give it the mode an ordinary file would get
+        os.chmod(tmp, path.stat().st_mode & 0o777 if path.exists() else 0o644)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

@@ -182,3 +182,21 @@ def test_missing_file(tmp_path):
 def test_graph_must_match_descriptors(rng):
     with pytest.raises(CatgraphError, match="place graph has 4 places"):
         CatgraphMap(rng.random((5, 2)), "sad", {}, graph=PlaceGraph.chain(4))
+
+
+def test_build_map_command(tmp_path, rng, capsys):
+    from catgraph.cli.main import main
+
+    n = 30
+    frames = rng.normal(size=(n, 16)).astype(np.float32)
+    positions = np.stack([np.arange(n) * 2.0, np.zeros(n)], 1)
+    np.savez(tmp_path / "ref.npz", descriptors=frames, positions=positions)
+    out = tmp_path / "map.npz"
+    assert main(["build-map", str(tmp_path / "ref.npz"), "--out", str(out), "--metric", "sad"]) == 0
+    assert "wrote" in capsys.readouterr().out
+    m = load_map(out)
+    assert m.metric == "sad" and m.n_places == n and m.graph.unit == "m"
+    assert np.array_equal(m.descriptors, frames) and np.array_equal(m.positions, positions)
+    assert m.meta["source"] == str(tmp_path / "ref.npz")
+    assert main(["build-map", str(tmp_path / "missing"), "--out", str(out), "-q"]) == 1
+    assert "does not exist" in capsys.readouterr().err

@@ -1,0 +1,56 @@
+"""``catgraph build-map``: describe a reference once and save it as a map file.
+
+    catgraph build-map REFERENCE --out map.npz [--size WxH] [--patch P] [--metric M]
+                       [--junction-radius-m R] [--no-graph] [--quiet]
+
+REFERENCE is anything the other commands accept (image folder, UJI prefix,
+``.npy``/``.npz``, ``synthetic:SEED``). The map holds the descriptors, the front-end
+settings, the place graph (chain plus junctions within R metres when positions exist)
+and the reference's positions, floors and ids; see :mod:`catgraph.io`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .commands import _size, register
+
+
+@register
+def register_build_map(sub) -> None:
+    p = sub.add_parser("build-map", help="describe a reference traverse once and save it as a map file (.npz)",
+                       description="Describe a reference traverse with the front-end, build its place graph and "
+                                   "save everything as one checksummed .npz map file.")
+    p.add_argument("reference", help="reference traverse: image folder, UJI prefix (db/01/trn01), .npy/.npz "
+                                     "or synthetic:SEED")
+    p.add_argument("--out", "-o", type=Path, required=True, metavar="FILE", help="map file to write (map.npz)")
+    p.add_argument("--size", type=_size, metavar="WxH", help="resize images to WxH before patch normalisation")
+    p.add_argument("--patch", type=int, default=4, help="patch-normalisation patch side in pixels (0 = off)")
+    p.add_argument("--metric", choices=["sad", "ssd", "cosine", "hamming"], help="difference metric")
+    p.add_argument("--junction-radius-m", type=float, metavar="METRES",
+                   help="join places of different parts of the route within METRES (needs positions)")
+    p.add_argument("--no-graph", action="store_true", help="store no place graph")
+    p.add_argument("--quiet", "-q", action="store_true", help="print nothing")
+    p.set_defaults(func=cmd_build_map)
+
+
+def cmd_build_map(args) -> int:
+    from ..exceptions import InvalidParameterError
+    from ..experiment import load_input
+    from ..io import build_map, save_map
+    from ..pipeline import FrontEnd
+
+    if args.patch < 0:
+        raise InvalidParameterError(f"--patch must be ≥ 0 pixels (0 = off); got {args.patch}.")
+    if args.junction_radius_m is not None and args.no_graph:
+        raise InvalidParameterError("--junction-radius-m adds edges to the place graph; drop --no-graph.")
+    reference = load_input(args.reference, "reference")
+    frontend = FrontEnd(size=args.size, patch=args.patch, metric=args.metric)
+    m = build_map(reference, frontend, junction_radius_m=args.junction_radius_m, graph=not args.no_graph,
+                  meta={"source": str(args.reference)})
+    path = save_map(args.out, m)
+    if not args.quiet:
+        graph = "no graph" if m.graph is None else (
+            f"{m.graph.n_edges} edges, {len(m.graph.junction_pairs())} junctions, unit {m.graph.unit}")
+        print(f"wrote {path}: {m.n_places} places × {m.descriptors.shape[1]} values ({m.metric}), {graph}")
+    return 0
