@@ -1,0 +1,350 @@
+"""Tests for catgraph.likelihood: histogram model, online samples, recogniser."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from catgraph.exceptions import DataError, InvalidParameterError, NotFittedError, ShapeMismatchError
+from catgraph.likelihood import (
+    HistogramLikelihood,
+    HistogramPlaceRecogniser,
+    labelled_samples,
+    online_samples,
+    reference_samples,
+)
+from catgraph.traverse import FrameTolerance
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+# ---------------------------------------------------------------- slow references
+def reference_log_tables(d_same, d_diff, edges, eps, prior=None):
+    """Obviously-correct per-bin log P(b|L), log P(b|¬L), log P(b), by explicit loops."""
+    s = len(edges) - 1
+
+    def which(v):
+        for b in range(s):
+            if v < edges[b + 1]:
+                return max(b, 0) if v >= edges[b] or b == 0 else b
+        return s - 1
+
+    def probs(values):
+        counts = [0] * s
+        for v in values:
+            counts[which(v)] += 1
+        n = len(values)
+        return [1.0 / s if n == 0 else (1 - eps) * c / n + eps / s for c in counts]
+
+    ps, pd = probs(list(d_same)), probs(list(d_diff))
+    p_l = len(d_same) / (len(d_same) + len(d_diff)) if prior is None else prior
+    pm = [a * p_l + b * (1 - p_l) for a, b in zip(ps, pd)]
+    return np.log(ps), np.log(pd), np.log(pm), which
+
+
+def test_hand_computed_fixed_range_with_empty_bins():
+    # 4 bins over [0, 4): same = {0.5, 0.7} (bin 0), different = {2.5, 3.5, 3.6} (bins 2, 3, 3)
+    eps = 0.2
+    m = HistogramLikelihood(n_bins=4, range=(0.0, 4.0), smoothing=eps).fit([0.5, 0.7], [2.5, 3.5, 3.6])
+    np.testing.assert_array_equal(m.counts_same_, [2, 0, 0, 0])
+    np.testing.assert_array_equal(m.counts_different_, [0, 0, 1, 2])
+    np.testing.assert_allclose(m.bin_edges_, [0, 1, 2, 3, 4])
+    assert m.prior_same_ == pytest.approx(2 / 5)
+    # bin 0: P(b|L) = 0.8 * 1 + 0.05 = 0.85 ; P(b|¬L) = 0.05 ; P(b) = 0.4*0.85 + 0.6*0.05
+    assert m.log_prob_same(0.1) == pytest.approx(math.log(0.85))
+    assert m.log_prob_different(0.1) == pytest.approx(math.log(0.05))
+    assert m.log_likelihood_ratio(0.1) == pytest.approx(math.log(0.85 / (0.4 * 0.85 + 0.6 * 0.05)))
+    # bin 1 is empty in both: no evidence either way
+    assert m.log_likelihood_ratio(1.5) == pytest.approx(0.0, abs=1e-12)
+    # bin 3: P(b|¬L) = 0.8 * 2/3 + 0.05
+    p_d = 0.8 * 2 / 3 + 0.05
+    assert m.log_likelihood_ratio(3.9) == pytest.approx(math.log(0.05 / (0.4 * 0.05 + 0.6 * p_d)))
+    assert m.prob_same_given(0.1) == pytest.approx(0.4 * 0.85 / (0.4 * 0.85 + 0.6 * 0.05))
+    # densities divide by the bin width 1 here; with width 0.5 they double
+    m2 = HistogramLikelihood(n_bins=4, range=(0.0, 2.0), smoothing=eps).fit([0.1], [1.9])
+    assert m2.log_prob_same(0.1) == pytest.approx(math.log((0.8 + 0.05) / 0.5))
+
+
+def test_against_slow_reference_fixed_range():
+    rng = np.random.default_rng(1)
+    same, diff = rng.normal(1, 0.5, 40), rng.normal(3, 1, 300)
+    edges = np.linspace(0.0, 5.0, 11)
+    m = HistogramLikelihood(n_bins=10, range=(0.0, 5.0), smoothing=0.05).fit(same, diff)
+    ls, ld, lm, which = reference_log_tables(same, diff, edges, 0.05)
+    query = rng.uniform(-2, 7, 50)
+    # evaluation clips into the range of the samples seen
+    both = np.concatenate([same, diff])
+    b = np.array([which(v) for v in np.clip(query, both.min(), both.max())])
+    np.testing.assert_allclose(m.log_likelihood_ratio(query), ls[b] - lm[b])
+    np.testing.assert_allclose(m.log_prob(query), lm[b] - np.log(0.5))
+
+
+def test_out_of_range_values_are_clipped_into_edge_bins():
+    m = HistogramLikelihood(n_bins=5, range=(0.0, 1.0)).fit([-10.0, 0.1], [5.0, 0.95, np.float64(1e300)])
+    np.testing.assert_array_equal(m.counts_same_, [2, 0, 0, 0, 0])
+    np.testing.assert_array_equal(m.counts_different_, [0, 0, 0, 0, 3])
+    assert m.log_likelihood_ratio(-1e9) == m.log_likelihood_ratio(0.0)
+    assert m.log_likelihood_ratio(1e9) == m.log_likelihood_ratio(0.99)
+
+
+def test_adaptive_range_grows_and_keeps_all_data():
+    m = HistogramLikelihood(n_bins=8).partial_fit([0.1, 0.2], [0.3])
+    first = m.bin_edges_.copy()
+    assert first[0] <= 0.1 and first[-1] > 0.3
+    m.partial_fit(None, [100.0, -50.0])
+    assert m.bin_edges_[0] <= -50.0 and m.bin_edges_[-1] > 100.0
+    assert m.counts_same_.sum() == 2 and m.counts_different_.sum() == 3
+    widths = np.diff(m.bin_edges_)
+    assert np.allclose(widths, widths[0]) and math.log2(widths[0]).is_integer()
+
+
+def test_constant_input_no_nan():
+    m = HistogramLikelihood().fit(np.full(50, 3.7), np.full(20, 3.7))
+    values = [m.log_likelihood_ratio(v) for v in (3.7, -1e6, 1e6)]
+    assert np.all(np.isfinite(values))
+    assert np.isfinite(m.new_place_log_likelihood())
+    lp, ln = m.log_posterior(np.full(10, 3.7), new_place_prior=0.1)
+    assert m.prior_same_ == pytest.approx(50 / 70)
+    assert np.all(np.isfinite(lp)) and np.isfinite(ln)
+    np.testing.assert_allclose(np.exp(lp), 0.09)  # all places equal; new place keeps its prior
+    # a single class only, all-identical
+    m1 = HistogramLikelihood(range=(0.0, 1.0)).fit([], np.zeros(5))
+    assert np.isfinite(m1.log_likelihood_ratio(0.0))
+
+
+def chunks_strategy():
+    values = st.lists(st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False), min_size=0, max_size=40)
+    return st.tuples(values, values, st.integers(1, 5), st.integers(2, 30))
+
+
+@settings(max_examples=60, deadline=None)
+@given(chunks_strategy())
+def test_partial_fit_in_chunks_equals_one_fit(args):
+    same, diff, n_chunks, n_bins = args
+    full = HistogramLikelihood(n_bins=n_bins).fit(same, diff)
+    part = HistogramLikelihood(n_bins=n_bins)
+    cs, cd = np.array_split(np.asarray(same), n_chunks), np.array_split(np.asarray(diff), n_chunks)
+    for a, b in zip(cs, cd):
+        part.partial_fit(a, b)
+    np.testing.assert_array_equal(full.counts_same_, part.counts_same_)
+    np.testing.assert_array_equal(full.counts_different_, part.counts_different_)
+    np.testing.assert_array_equal(full.bin_edges_, part.bin_edges_)
+    q = np.linspace(-1100, 1100, 17)
+    np.testing.assert_array_equal(full.log_likelihood_ratio(q), part.log_likelihood_ratio(q))
+
+
+def test_partial_fit_chunks_fixed_range():
+    rng = np.random.default_rng(3)
+    same, diff = rng.normal(0, 1, 100), rng.normal(2, 2, 1000)
+    full = HistogramLikelihood(range=(-1.0, 4.0)).fit(same, diff)
+    part = HistogramLikelihood(range=(-1.0, 4.0))
+    for i in range(10):
+        part.partial_fit(same[i * 10 : (i + 1) * 10], diff[i * 100 : (i + 1) * 100])
+    np.testing.assert_array_equal(full.counts_same_, part.counts_same_)
+    np.testing.assert_array_equal(full.counts_different_, part.counts_different_)
+
+
+def test_adaptive_bins_match_slow_reference():
+    rng = np.random.default_rng(2)
+    same, diff = rng.normal(-3, 1, 200), rng.normal(0, 1, 2000)
+    m = HistogramLikelihood(n_bins=50, smoothing=0.02).fit(same, diff)
+    ls, ld, lm, which = reference_log_tables(same, diff, m.bin_edges_, 0.02)
+    inside = rng.uniform(m.bin_edges_[0], m.bin_edges_[-1], 100)
+    both = np.concatenate([same, diff])
+    b = np.array([which(v) for v in np.clip(inside, both.min(), both.max())])
+    np.testing.assert_allclose(m.log_likelihood_ratio(inside), ls[b] - lm[b])
+    np.testing.assert_array_equal(m.counts_same_, np.histogram(same, m.bin_edges_)[0])
+
+
+def test_vectorised_over_any_shape():
+    m = HistogramLikelihood().fit([0.0, 0.1], [1.0, 2.0])
+    d = np.random.default_rng(0).uniform(-1, 3, (2, 3, 4))
+    out = m.log_likelihood_ratio(d)
+    assert out.shape == d.shape
+    np.testing.assert_array_equal(out.ravel(), [m.log_likelihood_ratio(v) for v in d.ravel()])
+    assert isinstance(m.log_likelihood_ratio(0.5), float)
+
+
+def test_prior_same_and_ratio_bound():
+    m = HistogramLikelihood(prior_same=0.01).fit(np.zeros(10), np.ones(1000))
+    assert m.prior_same_ == 0.01
+    assert m.log_likelihood_ratio(0.0) <= -math.log(0.01) + 1e-12
+    assert m.log_likelihood_ratio(0.0) > 4.0
+
+
+def test_new_place_likelihood_exact_and_sampled():
+    rng = np.random.default_rng(5)
+    m = HistogramLikelihood(n_bins=20).fit(rng.normal(-2, 1, 300), rng.normal(1, 1, 3000))
+    exact = m.new_place_log_likelihood()
+    ls, ld, lm, _ = m._log_tables()
+    assert exact == pytest.approx(math.log(np.sum(np.exp(ld) * np.exp(ls - lm))))
+    sampled = m.new_place_log_likelihood(n_samples=20000, rng=0)
+    assert sampled == pytest.approx(exact, abs=0.05)
+    assert m.new_place_log_likelihood(n_samples=50, rng=1) == m.new_place_log_likelihood(n_samples=50, rng=1)
+
+
+def test_log_posterior_eq2():
+    m = HistogramLikelihood(n_bins=10, range=(0.0, 10.0), prior_same=0.1).fit([0.5, 1.5], [5.5, 6.5, 7.5, 8.5])
+    d = np.array([0.5, 5.5, 9.5])
+    prior = np.log([0.2, 0.5, 0.3])
+    lp, ln = m.log_posterior(d, log_prior=prior)
+    w = np.exp(m.log_likelihood_ratio(d)) * np.exp(prior)
+    np.testing.assert_allclose(np.exp(lp), w / w.sum())
+    assert ln == -np.inf
+    lp2, ln2 = m.log_posterior(d, log_prior=prior, new_place_prior=0.2)
+    wn = 0.2 * np.exp(m.new_place_log_likelihood())
+    total = 0.8 * w.sum() + wn
+    np.testing.assert_allclose(np.exp(lp2), 0.8 * w / total)
+    assert math.exp(ln2) == pytest.approx(wn / total)
+    # batched rows
+    lpb, lnb = m.log_posterior(np.stack([d, d[::-1]]), new_place_prior=0.2)
+    assert lpb.shape == (2, 3) and lnb.shape == (2,)
+    np.testing.assert_allclose(np.exp(lpb).sum(1) + np.exp(lnb), 1.0)
+
+
+def test_errors():
+    with pytest.raises(NotFittedError, match="fit"):
+        HistogramLikelihood().log_likelihood_ratio(0.0)
+    with pytest.raises(InvalidParameterError, match="The 'n_bins' parameter of HistogramLikelihood must be an int"):
+        HistogramLikelihood(n_bins=1).fit([0.0], [1.0])
+    with pytest.raises(InvalidParameterError, match="'smoothing'"):
+        HistogramLikelihood(smoothing=0.0).fit([0.0], [1.0])
+    with pytest.raises(InvalidParameterError, match="'range'"):
+        HistogramLikelihood(range=(1.0, 0.0)).fit([0.0], [1.0])
+    with pytest.raises(InvalidParameterError, match="'prior_same'"):
+        HistogramLikelihood(prior_same=1.0).fit([0.0], [1.0])
+    with pytest.raises(DataError, match="NaN"):
+        HistogramLikelihood().fit([np.nan], [1.0])
+    m = HistogramLikelihood().fit([0.0], [1.0])
+    with pytest.raises(ShapeMismatchError):
+        m.log_posterior([0.0, 1.0], log_prior=[0.0])
+
+
+def test_constructor_only_stores_params():
+    m = HistogramLikelihood(n_bins=-3, smoothing="bad")
+    assert m.n_bins == -3 and not hasattr(m, "counts_same_")
+    assert "n_bins=-3" in repr(m)
+
+
+# ---------------------------------------------------------------- online samples
+def test_online_samples_excludes_neighbourhood():
+    d = np.array([5.0, 4.0, 1.0, 0.5, 0.9, 3.0, 2.0, 6.0])
+    s = online_samples(d, exclusion_radius=1)
+    assert (s.best, s.d_min, s.d_other) == (3, 0.5, 2.0)
+    s0 = online_samples(d, exclusion_radius=0)
+    assert s0.d_other == 0.9
+    assert math.isnan(online_samples(d[:3], exclusion_radius=5).d_other)
+
+
+# ---------------------------------------------------------------- recogniser
+def synthetic_differences(n_query=300, n_ref=200, seed=0, unseen=()):
+    """Rows: N(0,1) noise, the true place (query i ↔ reference i mod n_ref) 5 lower."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(0.0, 1.0, (n_query, n_ref))
+    truth = np.arange(n_query) % n_ref
+    for i in range(n_query):
+        if i not in unseen:
+            d[i, truth[i]] -= 5.0
+    return d, truth
+
+
+def test_recogniser_online_follows_the_paper():
+    d, truth = synthetic_differences()
+    rec = HistogramPlaceRecogniser(n_init=50, exclusion_radius=2)
+    out = rec.run(d)
+    assert out.initialising[:50].all() and not out.initialising[50:].any()
+    assert np.all(out.confidence[:50] == 0)
+    model = rec.model_
+    # initialisation: one ¬L sample per frame; afterwards one L and one ¬L per frame
+    assert model.n_same_ == 250 and model.n_different_ == 300
+    assert (model.counts_same_ > 0).any()
+    good = out.match[50:] == truth[50:]
+    # right matches are given far more confidence than wrong ones
+    conf = out.confidence[50:]
+    assert conf[good].mean() > 2 * conf[~good].mean()
+    assert good[conf >= np.quantile(conf, 0.5)].mean() > 0.98
+    assert np.all((out.confidence >= 0) & (out.confidence <= 1))
+    assert np.all((out.new_place_probability >= 0) & (out.new_place_probability <= 1))
+
+
+def test_recogniser_step_equals_run_and_update_matches():
+    d, _ = synthetic_differences(60, 40)
+    a = HistogramPlaceRecogniser(n_init=10).run(d)
+    rec = HistogramPlaceRecogniser(n_init=10)
+    steps = [rec.step(row) for row in d]
+    np.testing.assert_array_equal(a.confidence, [s.confidence for s in steps])
+    # update() alone learns the same histograms as step()
+    learner = HistogramPlaceRecogniser(n_init=10)
+    for row in d:
+        learner.update(row)
+    np.testing.assert_array_equal(learner.model_.counts_same_, rec.model_.counts_same_)
+    np.testing.assert_array_equal(learner.model_.counts_different_, rec.model_.counts_different_)
+
+
+def test_recogniser_new_place_probability_higher_for_unseen_places():
+    unseen = set(range(200, 260))
+    d, _ = synthetic_differences(300, 200, seed=1, unseen=unseen)
+    out = HistogramPlaceRecogniser(n_init=50).run(d)
+    idx = np.arange(300)
+    seen = (idx >= 50) & ~np.isin(idx, list(unseen))
+    unseen = list(unseen)
+    assert out.new_place_probability[unseen].mean() > 2 * out.new_place_probability[seen].mean()
+    assert out.confidence[unseen].mean() < 0.5 * out.confidence[seen].mean()
+
+
+def test_recogniser_trained_and_bootstrap_modes():
+    d, truth = synthetic_differences(200, 200, seed=2)
+    gt = FrameTolerance(200, tolerance=0)
+    d_same, d_diff = labelled_samples(d, gt, max_different=5000, seed=0)
+    assert d_same.size == 200 and d_diff.size == 5000
+    trained = HistogramLikelihood().fit(d_same, d_diff)
+    fixed = HistogramPlaceRecogniser(trained, n_init=0, learn=False)
+    out = fixed.run(d)
+    assert not out.initialising.any()
+    np.testing.assert_array_equal(fixed.model_.counts_same_, trained.counts_same_)  # not modified
+    assert (out.match == truth)[out.confidence > 0.9].mean() > 0.95
+    # bootstrap: ¬L from reference pairs far apart
+    r = np.random.default_rng(4).normal(0, 1, (200, 200))
+    s, nd = reference_samples(r, gap=10, max_different=3000, seed=0)
+    assert s.size == 0 and nd.size == 3000
+    s2, _ = reference_samples(r, gap=10, max_different=10, same_radius=2)
+    assert s2.size == 2 * (199 + 198)
+    boot = HistogramPlaceRecogniser(HistogramLikelihood().fit(s, nd), n_init=0)
+    out_b = boot.run(d)
+    assert out_b.confidence[0] > 0 and boot.model_.n_same_ == 200
+    assert boot.model_.prior_same == pytest.approx(1 / 200)  # "per-place" default
+    model_prior = HistogramPlaceRecogniser(HistogramLikelihood(prior_same=0.3).fit(s, nd), n_init=0, prior_same="model")
+    model_prior.step(d[0])
+    assert model_prior.model_.prior_same_ == 0.3
+
+
+def test_reference_samples_respect_gap():
+    n = 30
+    r = np.abs(np.subtract.outer(np.arange(n), np.arange(n))).astype(float)  # d = |j − j'|
+    _, nd = reference_samples(r, gap=7, max_different=2000, seed=1)
+    assert nd.min() > 7 and nd.max() <= n - 1
+    # all offsets are used, more often the short ones (more pairs)
+    counts = np.bincount(nd.astype(int), minlength=n)
+    assert counts[8] > counts[n - 1] > 0
+
+
+def test_recogniser_errors():
+    with pytest.raises(InvalidParameterError, match="n_init"):
+        HistogramPlaceRecogniser(n_init=-1).step(np.zeros(5))
+    with pytest.raises(InvalidParameterError, match="learn=False"):
+        HistogramPlaceRecogniser(learn=False).step(np.zeros(5))
+    with pytest.raises(NotFittedError):
+        HistogramPlaceRecogniser(n_init=0, learn=False).step(np.zeros(5))
+    with pytest.raises(InvalidParameterError, match="prior_same"):
+        HistogramPlaceRecogniser(prior_same="often").step(np.zeros(5))
+    rec = HistogramPlaceRecogniser(n_init=1)
+    rec.step(np.zeros(5))
+    with pytest.raises(ShapeMismatchError):
+        rec.step(np.zeros(6))
+    with pytest.raises(DataError):
+        rec.step(np.array([0.0, np.inf]))
