@@ -157,6 +157,49 @@ class HistogramObservation:
         self.new_place_samples = new_place_samples
         self.seed = seed
 
+    @classmethod
+    def bootstrap(cls, reference_differences: np.ndarray, gap: int | None = None, max_different: int = 100_000,
+                  seed: int | None = 0, **kwargs) -> "HistogramObservation":
+        """A model whose ``¬L`` histogram starts from the reference map itself.
+
+        Parameters
+        ----------
+        reference_differences : ndarray, shape (n_places, n_places)
+            Reference-vs-reference differences, normalised like the query rows will be.
+        gap : int, optional
+            Reference frames more than ``gap`` apart are different places (default
+            ``max(10, n_places // 100)``).
+        max_different : int
+            ``¬L`` samples drawn.
+        seed : int or None
+        **kwargs
+            Further constructor parameters (``temperature`` …).
+        """
+        from .likelihood import HistogramLikelihood, reference_samples
+
+        r = check_array(reference_differences, "reference differences", ndim=2)
+        gap = max(10, len(r) // 100) if gap is None else gap
+        same, different = reference_samples(r, gap=min(gap, len(r) - 2), max_different=max_different, seed=seed)
+        return cls(mode="bootstrap", likelihood=HistogramLikelihood().fit(same, different), **kwargs)
+
+    @classmethod
+    def trained(cls, differences: np.ndarray, ground_truth, query_index: np.ndarray | None = None,
+                seed: int | None = 0, **kwargs) -> "HistogramObservation":
+        """A fixed model fitted on a labelled traverse (paper 2's "trained" baseline).
+
+        Parameters
+        ----------
+        differences : ndarray, shape (n_query, n_places)
+            Training query vs reference differences.
+        ground_truth : GroundTruth
+        query_index : ndarray of int, optional
+        seed : int or None
+        """
+        from .likelihood import HistogramLikelihood, labelled_samples
+
+        same, different = labelled_samples(differences, ground_truth, query_index, seed=seed)
+        return cls(mode="trained", likelihood=HistogramLikelihood().fit(same, different), **kwargs)
+
     def reset(self) -> None:
         self.__dict__.pop("recogniser_", None)
         self.__dict__.pop("_rng", None)

@@ -1,0 +1,221 @@
+"""The particle filter: invariances, junction splits, kidnapping, new places, seeding."""
+
+import numpy as np
+import pytest
+
+from catgraph.exceptions import InvalidParameterError, ShapeMismatchError
+from catgraph.graph import PlaceGraph
+from catgraph.localizer import Localizer
+from catgraph.observation import CombinedObservation, Observation
+from catgraph.particles import log_sum_exp
+from catgraph.traverse import Traverse
+
+
+class PeakModel:
+    """Stand-in observation model: log-ratio ``-(d / scale)`` of the given row, so a row
+    with a low difference at place j says "near j"; ``new`` for the new place."""
+
+    def __init__(self, scale=1.0, new=-2.0, offset=0.0):
+        self.scale, self.new, self.offset = scale, new, offset
+
+    def reset(self):
+        pass
+
+    def observe(self, row):
+        return Observation(-np.asarray(row) / self.scale + self.offset, self.new + self.offset, True)
+
+
+def _rows_along(path, n_places, sharpness=3.0, noise=0.0, rng=None):
+    """Difference rows for a query at places ``path`` (lower near the true place)."""
+    j = np.arange(n_places)
+    rows = []
+    for k, p in enumerate(path):
+        d = sharpness * np.minimum(np.abs(j - p), 6) / 6.0
+        if noise:
+            d = d + noise * rng.standard_normal(n_places)
+        rows.append(d)
+    return np.array(rows)
+
+
+def test_reweighting_matches_a_slow_reference():
+    g = PlaceGraph.chain(20)
+    loc = Localizer(g, PeakModel(), n_particles=50, redraw_fraction=0.0, ess_threshold=0.0, new_place_prior=0.0,
+                    seed=1).reset()
+    before = loc.particles_.copy()
+    row = np.random.default_rng(0).random(20)
+    loc.n_steps_ = 0  # first frame: no motion
+    loc.step(row)
+    r = -row
+    want = []
+    for e, f, lw in zip(before.edge, before.fraction, before.log_weight):
+        want.append(lw + (1 - f) * r[g.source[e]] + f * r[g.target[e]])
+    want = np.array(want)
+    np.testing.assert_allclose(loc.particles_.log_weight, want - log_sum_exp(want), atol=1e-12)
+
+
+def test_shifting_log_ratios_by_a_constant_changes_nothing_but_p_new_consistently():
+    g = PlaceGraph.chain(60)
+    rows = _rows_along(range(10, 40), 60, noise=0.2, rng=np.random.default_rng(0))
+    outs = []
+    for offset in (0.0, 37.0, -500.0):
+        loc = Localizer(g, PeakModel(offset=offset), n_particles=300, seed=3)
+        res = loc.run(rows)
+        outs.append(res)
+    for res in outs[1:]:
+        np.testing.assert_array_equal(res.place, outs[0].place)
+        np.testing.assert_allclose(res.confidence, outs[0].confidence, atol=1e-9)
+        np.testing.assert_allclose(res.new_place_probability, outs[0].new_place_probability, atol=1e-9)
+
+
+def test_same_seed_same_output_and_different_seed_differs():
+    g = PlaceGraph.chain(80)
+    rows = _rows_along(list(range(5, 45)), 80, noise=0.5, rng=np.random.default_rng(1))
+    a = Localizer(g, PeakModel(), n_particles=200, seed=7).run(rows)
+    b = Localizer(g, PeakModel(), n_particles=200, seed=7).run(rows)
+    c = Localizer(g, PeakModel(), n_particles=200, seed=8).run(rows)
+    np.testing.assert_array_equal(a.place, b.place)
+    np.testing.assert_array_equal(a.confidence, b.confidence)
+    assert not np.array_equal(a.confidence, c.confidence)
+
+
+def test_tracks_a_forward_drive_and_confidence_grows():
+    g = PlaceGraph.chain(100)
+    rng = np.random.default_rng(2)
+    path = list(range(20, 80))
+    res = Localizer(g, PeakModel(), n_particles=1000, seed=0).run(_rows_along(path, 100, noise=0.3, rng=rng))
+    assert np.all(np.abs(res.place[10:] - np.array(path[10:])) <= 2)
+    assert res.confidence[-10:].mean() > 0.8
+    assert res.confidence[-10:].mean() > res.confidence[0]
+
+
+def _y_graph():
+    """Stem 0..9, then at 9 two branches: 10..19 (chain) and 20..29 (junction 9->20)."""
+    n = 30
+    e, kinds = [], []
+    for a in list(range(0, 19)) + list(range(20, 29)):
+        if a == 9:
+            continue
+        e.append((a, a + 1))
+        kinds.append("chain")
+    e += [(9, 10), (9, 20)]
+    kinds += ["chain", "junction"]
+    return PlaceGraph.from_edges(n, np.array(e), kinds=kinds), n
+
+
+def test_posterior_splits_at_a_junction_and_reconverges():
+    g, n = _y_graph()
+    # both branches look alike for 3 frames after the junction, then branch B wins
+    j = np.arange(n)
+    rows = []
+    for k in range(10):  # along the stem
+        rows.append(3.0 * np.minimum(np.abs(j - k), 4) / 4)
+    ambiguous = []
+    for k in range(1, 4):
+        d = np.full(n, 3.0)
+        d[10 + k - 1] = d[20 + k - 1] = 0.0
+        rows.append(d)
+        ambiguous.append(len(rows) - 1)
+    for k in range(4, 9):
+        d = 3.0 * np.minimum(np.abs(j - (20 + k - 1)), 4) / 4
+        d[:20] = 3.0
+        rows.append(d)
+    loc = Localizer(g, PeakModel(), n_particles=2000, redraw_fraction=0.0, new_place_prior=0.0, seed=0)
+    loc.reset()
+    split_seen = False
+    for k, row in enumerate(rows):
+        est = loc.step(row)
+        w = np.exp(loc.particles_.log_weight)
+        places = loc.particles_.places(g)
+        mass_a = w[(places >= 10) & (places < 20)].sum()
+        mass_b = w[places >= 20].sum()
+        if k in ambiguous[1:]:
+            assert 0.25 < mass_a / (mass_a + mass_b) < 0.75  # split
+            split_seen = True
+    assert split_seen
+    assert est.place >= 24 and mass_b > 0.95  # re-converged on branch B
+
+
+def test_kidnapped_robot_relocalises_on_the_synthetic_world():
+    pytest.importorskip("catgraph.datasets.synthetic")
+    from catgraph.datasets.synthetic import make_world
+    from catgraph.observation import HistogramObservation
+    from catgraph.pipeline import differences
+
+    w = make_world(1, blocks=(3, 3), new_place_blocks=0, reverse_fraction=0.0)
+    ref = w.reference
+    g = PlaceGraph.from_traverse(ref, junctions=w.reference_junctions())
+    # a query that follows the reference from place 40 for 60 frames, then is carried
+    # away (kidnapped) to place 300 and drives on from there
+    n_ref = len(ref)
+    assert n_ref > 420
+    path = np.r_[np.arange(40, 100), np.arange(300, 380)]
+    noise = 1.0 * np.random.default_rng(0).standard_normal((len(path), ref.frames.shape[1]))
+    query = Traverse(frames=(ref.frames[path] + noise).astype(np.float32))
+    D = differences(ref, query)
+    odo = np.r_[0.0, ref.odometry[path[1:]]]
+    odo[60] = ref.odometry[301]  # the kidnap is not in the odometry
+    model = HistogramObservation(n_init=20)
+    res = Localizer(g, model, n_particles=2000, seed=0).run(D, odometry=odo)
+    pos = ref.positions
+    err = np.linalg.norm(pos[res.place] - pos[path], axis=1)
+    assert np.median(err[30:60]) < w.tolerance_m  # localised before the kidnap
+    relocalised = 60 + np.flatnonzero(err[60:] <= w.tolerance_m)
+    assert len(relocalised) > 0
+    first = relocalised[0] - 60
+    assert first <= 25, f"took {first} frames to relocalise"
+    assert np.mean(err[60 + first + 10:] <= w.tolerance_m) > 0.8
+
+
+def test_new_place_probability_rises_in_unmapped_places():
+    g = PlaceGraph.chain(100)
+    rng = np.random.default_rng(4)
+    in_map = _rows_along(range(10, 50), 100, noise=0.2, rng=rng)
+    away = 3.0 + 0.2 * rng.standard_normal((15, 100))  # nothing in the map looks alike
+    back = _rows_along(range(50, 70), 100, noise=0.2, rng=rng)
+    rows = np.concatenate([in_map, away, back])
+    res = Localizer(g, PeakModel(new=-1.5), n_particles=1000, seed=0).run(rows)
+    p = res.new_place_probability
+    assert p[20:40].max() < 0.2
+    assert p[45:55].min() > 0.8
+    assert p[-5:].max() < 0.2
+
+
+def test_new_place_on_the_synthetic_world():
+    from catgraph.datasets.synthetic import make_world
+    from catgraph.observation import HistogramObservation
+    from catgraph.pipeline import differences
+
+    w = make_world(0, reverse_fraction=0.0)
+    g = PlaceGraph.from_traverse(w.reference, junctions=w.reference_junctions())
+    from catgraph.differences import difference_matrix
+    from catgraph.pipeline import describe
+
+    D = differences(w.reference, w.query)
+    r, metric = describe(w.reference)
+    model = HistogramObservation.bootstrap(difference_matrix(r, r, metric, normalise=True))
+    res = Localizer(g, model, n_particles=1000, seed=0).run(D, odometry=w.query.odometry)
+    new = np.asarray(w.query.meta["new_place"])
+    assert new.sum() > 10
+    later = np.arange(len(new)) >= 20
+    p = res.new_place_probability
+    assert p[new & later].mean() > p[~new & later].mean() + 0.3
+
+
+def test_combined_model_sums_log_ratios():
+    a, b = PeakModel(scale=1.0, new=-1.0), PeakModel(scale=2.0, new=-3.0)
+    row = np.array([0.0, 1.0, 2.0])
+    out = CombinedObservation([a, b], weights=[1.0, 0.5]).observe(row)
+    np.testing.assert_allclose(out.log_ratio, -row - 0.25 * row)
+    assert out.new_place_log_ratio == pytest.approx(-1.0 - 1.5)
+
+
+def test_errors_name_the_problem():
+    g = PlaceGraph.chain(10)
+    with pytest.raises(ShapeMismatchError, match="10"):
+        Localizer(g, PeakModel()).step(np.zeros(7))
+    with pytest.raises(InvalidParameterError, match="n_particles"):
+        Localizer(g, PeakModel(), n_particles=0).reset()
+    with pytest.raises(InvalidParameterError, match="resampler"):
+        Localizer(g, PeakModel(), resampler="magic").reset()
+    with pytest.raises(InvalidParameterError, match="ObservationModel"):
+        Localizer(g, object()).reset()
