@@ -1,0 +1,176 @@
+import os
+import textwrap
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from catgraph.config import load_config, parse_config, run_file_name
+from catgraph.exceptions import ConfigError, DataNotFoundError
+from catgraph.experiment import SPEC_KEYS
+
+GOOD = """
+name = "demo"
+
+[[dataset]]
+name = "a"
+reference = "ref.npz"
+query = "qry.npz"
+tolerance = 2
+shuffle = [false, 0]
+frontend = { size = "32x16", patch = 0 }
+
+[[dataset]]
+name = "b"
+reference = "synthetic:1"
+query = "synthetic:1"
+
+[[method]]
+name = "sf"
+method = "single-frame"
+grid = { exclusion = [1, 5, 10] }
+
+[[method]]
+method = "single-frame"
+params = { exclusion = 3 }
+datasets = ["b"]
+
+[[run]]
+name = "explicit"
+dataset = "a"
+method = "single-frame"
+shuffle = 4
+
+[[run]]
+reference = "/abs/r.npy"
+query = "q.npy"
+tolerance_m = 2.5
+method = "single-frame"
+"""
+
+
+def write(tmp_path, text, name="config.toml"):
+    path = tmp_path / name
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+def test_expansion_order_names_and_specs(tmp_path):
+    config = load_config(write(tmp_path, GOOD))
+    names = [s["name"] for s in config.specs]
+    assert names == [
+        "a/sf/exclusion=1/in-order", "a/sf/exclusion=1/shuffle=0",
+        "a/sf/exclusion=5/in-order", "a/sf/exclusion=5/shuffle=0",
+        "a/sf/exclusion=10/in-order", "a/sf/exclusion=10/shuffle=0",
+        "b/sf/exclusion=1", "b/sf/exclusion=5", "b/sf/exclusion=10",
+        "b/single-frame",
+        "explicit", "single-frame#2",
+    ]
+    assert config.name == "demo" and len(config) == 12
+    first = config.specs[1]
+    assert set(first) <= SPEC_KEYS
+    assert first["reference"] == os.path.normpath(str(tmp_path / "ref.npz"))  # relative to the file
+    assert first["params"] == {"exclusion": 1} and first["shuffle"] == 0 and first["tolerance"] == 2
+    assert first["frontend"] == {"size": [32, 16], "patch": 0}
+    assert config.specs[6]["reference"] == "synthetic:1" and config.specs[6]["tolerance"] is None
+    assert config.specs[9]["params"] == {"exclusion": 3}
+    explicit = config.specs[10]
+    assert explicit["shuffle"] == 4 and explicit["reference"] == first["reference"] and explicit["tolerance"] == 2
+    assert config.specs[11]["reference"] == "/abs/r.npy" and config.specs[11]["tolerance_m"] == 2.5
+
+
+def test_params_are_copied_not_shared(tmp_path):
+    specs = load_config(write(tmp_path, GOOD)).specs
+    specs[0]["params"]["exclusion"] = 99
+    assert specs[1]["params"]["exclusion"] == 1
+
+
+def test_paths_left_alone_without_base_dir():
+    data = tomllib.loads(GOOD)
+    config = parse_config(data, source="x.toml")
+    assert config.specs[0]["reference"] == "ref.npz"
+
+
+def test_run_file_name():
+    assert run_file_name("a/sf/window=10/shuffle=0") == "a__sf__window=10__shuffle=0"
+    assert run_file_name("x y:z") == "x_y_z"
+
+
+BASE = """
+[[dataset]]
+name = "a"
+reference = "synthetic:0"
+query = "synthetic:0"
+"""
+
+
+@pytest.mark.parametrize("extra, needle", [
+    ('[[method]]\nmethod = "single-frame"\nparams = { window = "ten" }\n[[method]]\nname = "x"\n'
+     'method = "single-frame"\nparams = { window = "ten" }',
+     "config.toml: [[method]] #1 'window' must be an int ≥ 1 or 'adaptive', got 'ten'."),
+    ('[[method]]\nmethod = "single-frame"\n[[method]]\nname = "two"\nmethod = "single-frame"\n'
+     'grid = { exclusion = [1, -2] }',
+     "config.toml: [[method]] #2 'exclusion' must be an int ≥ 0, got -2."),
+    ('[[method]]\nmethod = "single-frame"\nparmas = {}', "[[method]] #1 has unknown key 'parmas'; did you mean 'params'?"),
+    ('[[method]]\nmethod = "single-fram"', "'method' 'single-fram' is not a known method; did you mean 'single-frame'?"),
+    ('[[method]]\nname = "x"', "[[method]] #1 needs the key 'method'."),
+    ('[[method]]\nmethod = "single-frame"\ngrid = { exclusion = 3 }', "'grid.exclusion' must be a non-empty list"),
+    ('[[method]]\nmethod = "single-frame"\nparams = { exclusion = 1 }\ngrid = { exclusion = [1] }',
+     "sets 'exclusion' in both 'params' and 'grid'"),
+    ('[[method]]\nmethod = "single-frame"\ndatasets = ["b"]', "'datasets' names 'b', which no [[dataset]] defines"),
+    ('[[method]]\nmethod = "single-frame"\n[[method]]\nmethod = "single-frame"', "repeats the method name"),
+    ('[[run]]\nmethod = "single-frame"\ndataset = "zzz"', "[[run]] #1 'dataset' names 'zzz'"),
+    ('[[run]]\nmethod = "single-frame"\nreference = "r.npy"', "[[run]] #1 needs the key 'query'"),
+    ('[[run]]\nmethod = "single-frame"\ndataset = "a"\nshuffle = [0]', "one value"),
+    ('[[run]]\nmethod = "single-frame"\ndataset = "a"\ntolerance = 3', "sets 'dataset' and 'tolerance'"),
+    ('[[run]]\nname = "r"\nmethod = "single-frame"\ndataset = "a"\n[[run]]\nname = "r"\nmethod = "single-frame"\n'
+     'dataset = "a"', "two runs are named 'r'"),
+    ('[[metod]]\nmethod = "single-frame"', "top level has unknown key 'metod'; did you mean 'method'?"),
+])
+def test_method_and_run_errors(tmp_path, extra, needle):
+    with pytest.raises(ConfigError) as info:
+        load_config(write(tmp_path, BASE + extra))
+    assert needle in str(info.value)
+
+
+@pytest.mark.parametrize("dataset, needle", [
+    ('name = "d"\nreference = "r"\nquery = "q"', "[[dataset]] #1 needs a ground truth: 'tolerance'"),
+    ('name = "d"\nreference = "r"\nquery = "q"\ntolerance = 1\ntolerance_m = 2.0', "gives both"),
+    ('name = "d"\nreference = "r"\nquery = "q"\ntolerance = 1.5', "'tolerance' must be an int ≥ 0 (frames), got 1.5"),
+    ('name = "d"\nreference = "r"\nquery = "q"\ntolerance = true', "'tolerance' must be an int"),
+    ('name = "d"\nreference = "r"\nquery = "q"\ntolerance = 1\nshuffle = [false, "x"]', "'shuffle' must be false"),
+    ('name = "d"\nreference = "r"\nquery = "q"\ntolerance = 1\nshuffle = [0, 0]', "lists a value twice"),
+    ('name = "d"\nreference = "r"\nquery = "q"\ntolerance = 1\nfrontend = { size = "32by16" }',
+     "'frontend.size' must be 'WIDTHxHEIGHT'"),
+    ('name = "d"\nreference = "r"\nquery = "q"\ntolerance = 1\nfrontend = { patch_size = 4 }',
+     "[[dataset]] #1 frontend has unknown key 'patch_size'; did you mean 'patch'?"),
+    ('name = "d"\nreference = "r"\nquery = "q"\ntolerance = 1\nfrontend = { metric = "l1" }', "'frontend.metric'"),
+    ('name = "d/e"\nreference = "r"\nquery = "q"\ntolerance = 1', "'name' must be a non-empty string without '/'"),
+    ('name = "d"\nreference = "synthetic:x"\nquery = "q"\ntolerance = 1', "'synthetic:SEED'"),
+    ('name = "d"\nquery = "q"\ntolerance = 1', "[[dataset]] #1 needs the key 'reference'."),
+])
+def test_dataset_errors(tmp_path, dataset, needle):
+    text = f"[[dataset]]\n{dataset}\n[[method]]\nmethod = \"single-frame\"\n"
+    with pytest.raises(ConfigError) as info:
+        load_config(write(tmp_path, text))
+    assert needle in str(info.value)
+
+
+def test_file_errors(tmp_path):
+    with pytest.raises(DataNotFoundError, match="does not exist"):
+        load_config(tmp_path / "missing.toml")
+    with pytest.raises(ConfigError, match=r"bad.toml: not valid TOML: .*line 1"):
+        load_config(write(tmp_path, "[[dataset]\n", "bad.toml"))
+    with pytest.raises(ConfigError, match="defines no runs"):
+        load_config(write(tmp_path, BASE))
+    with pytest.raises(ConfigError, match="'dataset' must be an array of tables"):
+        load_config(write(tmp_path, 'dataset = "x"\n'))
+
+
+def test_examples_parse():
+    examples = Path(__file__).resolve().parents[1] / "examples"
+    files = sorted(examples.glob("*.toml"))
+    assert files, "examples/*.toml missing"
+    for path in files:
+        config = load_config(path)
+        assert len(config) >= 1, path.name
