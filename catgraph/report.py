@@ -183,9 +183,10 @@ def run_labels(payloads: Sequence[Mapping[str, Any]]) -> list[str]:
             text = _summary(f, keys)
             if text:
                 labels[k] = f"{name} ({_shorten(text, 40)})"
+    counts = {label: labels.count(label) for label in labels}
     seen: dict[str, int] = {}
     for k, label in enumerate(labels):
-        if labels.count(label) > 1:
+        if counts[label] > 1:
             seen[label] = seen.get(label, 0) + 1
             labels[k] = f"{label} #{seen[label]}"
     return labels
