@@ -1,0 +1,115 @@
+"""``catgraph bench``: run an experiment configuration as a sweep and write its results.
+
+    catgraph bench CONFIG.toml [--out DIR] [--scheduler ADDRESS] [--processes N] [--list] [--quiet]
+
+Writes into DIR (default ``results/NAME``, NAME the configuration's name):
+
+* ``RUN.json`` per run — the result payload plus the ``spec`` that reproduces it
+  (``RUN`` is the run name with ``/`` as ``__``);
+* ``summary.md`` — the metrics table in markdown, failed runs listed below it;
+* ``summary.json`` — name, metrics, seconds and spec of every run (or its error);
+* ``index.html`` and ``results.md`` — the HTML report (:func:`catgraph.report.write_report`).
+
+A failing run does not stop the others (they are recorded); the command then exits
+with status 1 and names the failed runs.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .commands import register
+
+
+@register
+def register_bench(sub) -> None:
+    p = sub.add_parser("bench", help="run an experiment configuration (TOML) as a sweep, locally or on Dask",
+                       description="Expand an experiment configuration into runs, run them in parallel (local "
+                                   "processes or a Dask cluster) and write every result, a summary table and an "
+                                   "HTML report.")
+    p.add_argument("config", type=Path, help="experiment configuration (.toml); see docs/maps_and_sweeps.md")
+    p.add_argument("--out", "-o", type=Path, metavar="DIR", help="output folder (default results/NAME)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="Dask scheduler address (tcp://host:8786); needs pip install \"catgraph[dask]\"")
+    p.add_argument("--processes", type=int, metavar="N", help="local worker processes (default: CPUs; 1 = serial)")
+    p.add_argument("--list", action="store_true", help="only list the runs the configuration expands to")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar or table")
+    p.set_defaults(func=cmd_bench)
+
+
+def _summary_markdown(config, payloads: list[dict], failed: list[dict]) -> str:
+    try:
+        from ..report import markdown_table
+    except ImportError:  # the report module is optional here
+        markdown_table = None
+    lines = []
+    if payloads and markdown_table is not None:
+        lines.append(markdown_table(payloads, title=config.name).rstrip("\n"))
+    else:
+        lines += [f"# {config.name}", "", "| run | AUC | R@100P | R@99P | R@90P | MTL | accuracy | n |",
+                  "|:--|--:|--:|--:|--:|--:|--:|--:|"]
+        for p in payloads:
+            m = p["metrics"]
+            lines.append(f"| {p['name']} | {m['auc']:.3f} | {m['recall_at_100p']:.3f} | {m['recall_at_99p']:.3f} | "
+                         f"{m['recall_at_90p']:.3f} | {m['mtl']} | {m['accuracy']:.3f} | {m['n_queries']} |")
+    if config.description:
+        lines[1:1] = ["", config.description]
+    if failed:
+        lines += ["", "Failed runs:", ""] + [f"- `{f['name']}`: {f['error'].splitlines()[0]}" for f in failed]
+    return "\n".join(lines) + "\n"
+
+
+def cmd_bench(args) -> int:
+    from ..config import load_config, run_file_name
+    from ..exceptions import CatgraphError, InvalidParameterError
+    from ..results import write_json_atomic
+    from ..sweep import run_sweep
+    from .commands import print_metrics_table
+
+    config = load_config(args.config)
+    if args.list:
+        for spec in config.specs:
+            shuffle = "" if spec["shuffle"] is None else f" shuffle={spec['shuffle']}"
+            print(f"{spec['name']}: {spec['method']} {spec['params']}{shuffle}")
+        print(f"{len(config.specs)} runs")
+        return 0
+    if args.processes is not None and args.processes < 1:
+        raise InvalidParameterError(f"--processes must be ≥ 1; got {args.processes}.")
+    out = args.out if args.out is not None else Path("results") / run_file_name(config.name)
+    if out.exists() and not out.is_dir():
+        raise InvalidParameterError(f"--out {out} is a file; give a folder (it is created if missing).")
+    results = run_sweep(config.specs, scheduler=args.scheduler, processes=args.processes,
+                        progress=not args.quiet, errors="record")
+    payloads, failed, rows = [], [], []
+    for spec, result in zip(config.specs, results):
+        if "error" in result:
+            failed.append(result)
+            rows.append({"name": spec["name"], "error": result["error"], "spec": spec})
+            continue
+        result = dict(result, name=spec["name"], spec=spec)
+        file = f"{run_file_name(spec['name'])}.json"
+        write_json_atomic(out / file, result)
+        payloads.append(result)
+        rows.append({"name": spec["name"], "file": file, "metrics": result["metrics"],
+                     "seconds": result.get("seconds"), "spec": spec})
+    out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out / "summary.json", {"name": config.name, "description": config.description,
+                                             "config": str(args.config), "runs": rows})
+    (out / "summary.md").write_text(_summary_markdown(config, payloads, failed))
+    report = None
+    if payloads:
+        try:
+            from ..report import write_report
+        except ImportError:
+            write_report = None
+        if write_report is not None:
+            report = write_report(payloads, out, title=config.name)
+    if not args.quiet:
+        print_metrics_table([(p["name"], p["metrics"], p.get("seconds", float("nan"))) for p in payloads])
+        print(f"wrote {len(payloads)} results, summary.md" + (f" and {report.name}" if report else "") + f" to {out}")
+    if failed:
+        listed = "; ".join(f"{f['name']} ({f['error'].splitlines()[0]})" for f in failed[:5])
+        more = f" and {len(failed) - 5} more" if len(failed) > 5 else ""
+        raise CatgraphError(f"{len(failed)} of {len(config.specs)} runs failed: {listed}{more}. "
+                            f"The other results are in {out}.")
+    return 0
