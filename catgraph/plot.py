@@ -486,7 +486,7 @@ def plot_window_curves(
     ax = new_axes(ax)
     for f, color in zip(frames, method_colors(len(frames))):
         row = np.where(np.isfinite(lp[f]), lp[f], np.nan)
-        line, = ax.plot(grid, row, color=color, linewidth=1.2, label=f"frame {f}")
+        ax.plot(grid, row, color=color, linewidth=1.2, label=f"frame {f}")
         if np.isfinite(row).any():
             k = int(np.nanargmin(row))
             ax.plot(grid[k], row[k], "o", color=color, markersize=5)
@@ -642,7 +642,9 @@ def plot_localisation_timeline(
         if isinstance(item, Mapping):
             frames = item.get("frames") or {}
             if "correct" not in frames:
-                raise DataError(f"result '{item.get('method')}' has no per-frame 'correct'; evaluate it with ground truth.")
+                raise DataError(
+                    f"result '{item.get('method')}' has no per-frame 'correct'; evaluate it with ground truth."
+                )
             ok = _vector(frames["correct"], "correct", dtype=bool)
             has = np.array([m is not None and m >= 0 for m in frames.get("match", [True] * ok.size)], dtype=bool)
         else:
@@ -761,7 +763,9 @@ def plot_place_graph(
     if e.size == 0:
         e = np.zeros((0, 2), dtype=np.int64)
     if e.ndim != 2 or e.shape[1] != 2 or e.dtype.kind not in "iu":
-        raise DataError(f"edges must be an (E, 2) integer array of place indices; got shape {e.shape}, dtype {e.dtype}.")
+        raise DataError(
+            f"edges must be an (E, 2) integer array of place indices; got shape {e.shape}, dtype {e.dtype}."
+        )
     if e.size and (e.min() < 0 or e.max() >= n):
         raise DataError(f"edges refer to places outside 0..{n - 1}.")
     undirected = np.unique(np.sort(e, axis=1), axis=0) if e.size else e

@@ -491,7 +491,9 @@ def write_report(
     payloads = load_results(results)
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
-        raise InvalidParameterError(f"the report folder {out} is a file; give a folder path (it is created if missing).")
+        raise InvalidParameterError(
+            f"the report folder {out} is a file; give a folder path (it is created if missing)."
+        )
     title = str(title)
     figures = _standard_figures(payloads, run_labels(payloads)) + _extra_figures(extra_figures)
     page = _html_page(title, payloads, figures)
