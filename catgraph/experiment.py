@@ -68,7 +68,7 @@ def run_experiment(spec: dict[str, Any]) -> dict[str, Any]:
     frontend = FrontEnd(**{k: (tuple(v) if k == "size" and v else v) for k, v in (spec.get("frontend") or {}).items()})
     diff = differences(reference, query, frontend)
     result = run_method(spec["method"], dict(spec.get("params") or {}), reference=reference, query=query,
-                        differences=diff, ground_truth=ground_truth)
+                        differences=diff, ground_truth=ground_truth, frontend=frontend)
     result.params.update({"reference": str(spec["reference"]), "query": str(spec["query"]),
                           "shuffle": spec.get("shuffle"), "frontend": frontend.as_dict(),
                           "ground_truth": ground_truth.describe()})

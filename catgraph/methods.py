@@ -21,14 +21,14 @@ from .traverse import GroundTruth, Traverse
 __all__ = ["METHODS", "run_method"]
 
 
-def _single_frame(params, *, reference, query, differences, ground_truth) -> RunResult:
+def _single_frame(params, *, reference, query, differences, ground_truth, frontend=None) -> RunResult:
     return match_single_frames(differences, query.index, exclusion=int(params.get("exclusion", 10)))
 
 
 _SEQUENCE_KEYS = ("window", "approximation", "rule", "confidence", "l_min", "l_max", "grid", "radius")
 
 
-def _sequence(params, *, reference, query, differences, ground_truth) -> RunResult:
+def _sequence(params, *, reference, query, differences, ground_truth, frontend=None) -> RunResult:
     """SeqSLAM sequence matching, fixed (``window`` int) or adaptive (``"adaptive"``)."""
     import time
 
@@ -48,16 +48,68 @@ def _sequence(params, *, reference, query, differences, ground_truth) -> RunResu
                      extra={"window_length": res.window_length}, seconds=seconds)
 
 
+_HISTOGRAM_KEYS = ("learning", "n_init", "exclusion_radius", "confidence_radius", "new_place_prior", "n_bins", "gap",
+                   "max_different", "seed")
+
+
+def _histogram(params, *, reference, query, differences, ground_truth, frontend=None) -> RunResult:
+    """Single-frame recognition with the histogram model P(d|L), P(d|¬L) (paper 2).
+
+    ``learning``: ``"online"`` (training-free, the paper), ``"bootstrap"`` (¬L from
+    reference pairs more than ``gap`` places apart, so no initialisation wait) or
+    ``"trained"`` (fitted from the labelled query itself: an oracle baseline).
+    """
+    import time
+
+    from .likelihood import HistogramLikelihood, HistogramPlaceRecogniser, labelled_samples, reference_samples
+
+    unknown = set(params) - set(_HISTOGRAM_KEYS)
+    if unknown:
+        raise InvalidParameterError(f"unknown histogram-model parameters {sorted(unknown)}; "
+                                    f"allowed: {', '.join(_HISTOGRAM_KEYS)}.")
+    p = {"learning": "online", "n_init": 100, "exclusion_radius": 5, "confidence_radius": 2,
+         "new_place_prior": 0.01, "n_bins": 100, "gap": 50, "max_different": 100_000, "seed": 0}
+    p.update({k: v for k, v in params.items() if v is not None})
+    start = time.perf_counter()
+    model = HistogramLikelihood(n_bins=int(p["n_bins"]))
+    common = {"exclusion_radius": int(p["exclusion_radius"]), "confidence_radius": int(p["confidence_radius"]),
+              "new_place_prior": float(p["new_place_prior"])}
+    if p["learning"] == "online":
+        recogniser = HistogramPlaceRecogniser(model, n_init=int(p["n_init"]), **common)
+    elif p["learning"] == "bootstrap":
+        from .pipeline import FrontEnd, differences as diff_of
+
+        rr = diff_of(reference, reference, frontend or FrontEnd())
+        model.fit(*reference_samples(rr, int(p["gap"]), max_different=int(p["max_different"]), seed=int(p["seed"])))
+        recogniser = HistogramPlaceRecogniser(model, n_init=0, **common)
+    elif p["learning"] == "trained":
+        if ground_truth is None:
+            raise InvalidParameterError("the trained histogram model needs ground truth to fit from.")
+        model.fit(*labelled_samples(differences, ground_truth, np.asarray(query.index),
+                                    max_different=int(p["max_different"]), seed=int(p["seed"])))
+        recogniser = HistogramPlaceRecogniser(model, n_init=0, learn=False, **common)
+    else:
+        raise InvalidParameterError(f"unknown learning {p['learning']!r}; choose online, trained or bootstrap.")
+    rec = recogniser.run(differences)
+    return RunResult(f"histogram-{p['learning']}", p, np.asarray(query.index), rec.match, rec.confidence,
+                     extra={"p_new_place": rec.new_place_probability}, seconds=time.perf_counter() - start)
+
+
 METHODS: dict[str, Callable[..., RunResult]] = {
     "single-frame": _single_frame,
     "sequence": _sequence,
+    "histogram": _histogram,
 }
 
 
 def run_method(name: str, params: dict, *, reference: Traverse, query: Traverse, differences: np.ndarray,
-               ground_truth: GroundTruth | None = None) -> RunResult:
-    """Run method ``name`` with ``params``; see :data:`METHODS` for the names."""
+               ground_truth: GroundTruth | None = None, frontend=None) -> RunResult:
+    """Run method ``name`` with ``params``; see :data:`METHODS` for the names.
+
+    ``frontend`` (a :class:`~catgraph.pipeline.FrontEnd`) is needed by methods that
+    compare reference frames with each other (bootstrapped histograms, the filter).
+    """
     if name not in METHODS:
         raise InvalidParameterError(f"unknown method {name!r}; choose one of {', '.join(sorted(METHODS))}.")
     return METHODS[name](params, reference=reference, query=query, differences=differences,
-                         ground_truth=ground_truth)
+                         ground_truth=ground_truth, frontend=frontend)

@@ -97,3 +97,25 @@ def test_wifi_match_end_to_end(tmp_path):
     payload = json.loads(out.read_text())
     recheck(payload, MetricTolerance.between(load_traverse(qry), load_traverse(ref), 3.0))
     assert payload["metrics"]["accuracy"] > 0.3
+
+
+@pytest.mark.parametrize("extra", [
+    ["--window", "5"],
+    ["--window", "adaptive", "--l-min", "2", "--l-max", "12"],
+    ["--window", "adaptive", "--rule", "literal", "--approximation", "robust", "--l-min", "2", "--l-max", "12"],
+    ["--model", "histogram", "--learning", "online", "--init-frames", "5"],
+    ["--model", "histogram", "--learning", "bootstrap"],
+    ["--model", "histogram", "--learning", "trained"],
+])
+def test_match_methods_write_rechecking_json(extra, image_pair, tmp_path):
+    ref, qry = image_pair
+    out = tmp_path / "m.json"
+    assert main(["match", str(ref), str(qry), "--tolerance", "1", "--shuffle", "2", "-o", str(out), "-q"] + extra) == 0
+    payload = json.loads(out.read_text())
+    recheck(payload, FrameTolerance(40, 1))
+    if "adaptive" in extra:
+        lengths = payload["frames"]["window_length"]
+        assert len(lengths) == 40 and all(1 <= v <= 12 for v in lengths)
+    if "histogram" in extra:
+        p_new = payload["frames"]["p_new_place"]
+        assert all(0.0 <= v <= 1.0 for v in p_new)

@@ -141,6 +141,12 @@ def register_match(sub) -> None:
                         "requires the hypothesis to hold over the window's recent frames")
     p.add_argument("--l-min", type=int, default=10, help="adaptive window: shortest window (default 10)")
     p.add_argument("--l-max", type=int, default=500, help="adaptive window: longest window (default 500)")
+    p.add_argument("--model", choices=["sequence", "histogram"], default="sequence",
+                   help="'sequence' (SeqSLAM; --window 1 = single frame) or 'histogram' (P(d|L), P(d|¬L) model)")
+    p.add_argument("--learning", choices=["online", "trained", "bootstrap"], default="online",
+                   help="histogram model: online (training-free), trained (fit on the labelled query: an "
+                        "upper-bound baseline) or bootstrap (from the reference map)")
+    p.add_argument("--init-frames", type=int, default=100, help="histogram model, online: T_init (default 100)")
     p.add_argument("--exclusion", type=int, default=10,
                    help="confidence = margin to the best match outside ± this many places (default 10)")
     p.set_defaults(func=cmd_match)
@@ -154,7 +160,11 @@ def cmd_match(args) -> int:
     diff = differences(reference, query, frontend)
     from ..methods import run_method
 
-    if args.window == 1:
+    if args.model == "histogram":
+        params = {"learning": args.learning, "n_init": args.init_frames}
+        result = run_method("histogram", params, reference=reference, query=query, differences=diff,
+                            ground_truth=ground_truth, frontend=frontend)
+    elif args.window == 1:
         result = match_single_frames(diff, query.index, exclusion=args.exclusion)
     else:
         params = {"window": args.window, "radius": args.exclusion}
