@@ -42,18 +42,17 @@ def _summary_markdown(config, payloads: list[dict], failed: list[dict]) -> str:
         from ..report import markdown_table
     except ImportError:  # the report module is optional here
         markdown_table = None
-    lines = []
+    lines = [f"# {config.name}", ""]
+    if config.description:
+        lines += [config.description, ""]
     if payloads and markdown_table is not None:
-        lines.append(markdown_table(payloads, title=config.name).rstrip("\n"))
+        lines.append(markdown_table(payloads).rstrip("\n"))
     else:
-        lines += [f"# {config.name}", "", "| run | AUC | R@100P | R@99P | R@90P | MTL | accuracy | n |",
-                  "|:--|--:|--:|--:|--:|--:|--:|--:|"]
+        lines += ["| run | AUC | R@100P | R@99P | R@90P | MTL | accuracy | n |", "|:--|--:|--:|--:|--:|--:|--:|--:|"]
         for p in payloads:
             m = p["metrics"]
             lines.append(f"| {p['name']} | {m['auc']:.3f} | {m['recall_at_100p']:.3f} | {m['recall_at_99p']:.3f} | "
                          f"{m['recall_at_90p']:.3f} | {m['mtl']} | {m['accuracy']:.3f} | {m['n_queries']} |")
-    if config.description:
-        lines[1:1] = ["", config.description]
     if failed:
         lines += ["", "Failed runs:", ""] + [f"- `{f['name']}`: {f['error'].splitlines()[0]}" for f in failed]
     return "\n".join(lines) + "\n"
