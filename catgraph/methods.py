@@ -68,7 +68,7 @@ def _histogram(params, *, reference, query, differences, ground_truth, frontend=
         raise InvalidParameterError(f"unknown histogram-model parameters {sorted(unknown)}; "
                                     f"allowed: {', '.join(_HISTOGRAM_KEYS)}.")
     p = {"learning": "online", "n_init": 100, "exclusion_radius": 5, "confidence_radius": 2,
-         "new_place_prior": 0.01, "n_bins": 100, "gap": 50, "max_different": 100_000, "seed": 0}
+         "new_place_prior": 0.01, "n_bins": 100, "gap": None, "max_different": 100_000, "seed": 0}
     p.update({k: v for k, v in params.items() if v is not None})
     start = time.perf_counter()
     model = HistogramLikelihood(n_bins=int(p["n_bins"]))
@@ -80,6 +80,8 @@ def _histogram(params, *, reference, query, differences, ground_truth, frontend=
         from .pipeline import FrontEnd, differences as diff_of
 
         rr = diff_of(reference, reference, frontend or FrontEnd())
+        if p["gap"] is None:  # "far apart along the route": 50 places, or a fifth of a short route
+            p["gap"] = min(50, max(1, len(reference) // 5))
         model.fit(*reference_samples(rr, int(p["gap"]), max_different=int(p["max_different"]), seed=int(p["seed"])))
         recogniser = HistogramPlaceRecogniser(model, n_init=0, **common)
     elif p["learning"] == "trained":

@@ -72,6 +72,7 @@ class RunResult:
         }
         if evaluation is not None:
             frames["correct"] = [bool(v) for v in evaluation.correct]
+            frames["has_true_match"] = [bool(v) for v in evaluation.has_true_match]
         for key, values in self.extra.items():
             frames[key] = [_json_scalar(v) for v in np.asarray(values).tolist()]
         out: dict[str, Any] = {"method": self.method, "params": _jsonable(self.params)}
@@ -119,6 +120,7 @@ def write_json_atomic(path: str | os.PathLike, payload: dict) -> Path:
         with os.fdopen(fd, "w") as fh:
             json.dump(payload, fh, indent=None, separators=(",", ":"), allow_nan=False)
             fh.write("\n")
+        os.chmod(tmp, 0o644)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
