@@ -10,7 +10,8 @@ call the *same* kernels in the same order, so their results agree bit for bit.
 
 Notation (see :mod:`catgraph.sequence`): ``ring`` is ``(R, N)`` float64 holding the
 last ``R`` diagonal prefix-sum rows ``C_i[j] = d_ij + C_{i-1}[j-1]``; row ``C_i`` sits at
-``ring[i % R]``. ``grid`` holds the candidate window lengths (ascending).
+``ring[i % R]``, and ``mring[i % R]`` holds ``M_i``, the running sum of the
+rows' mean differences (used to fill terms before the reference's start). ``grid`` holds the candidate window lengths (ascending).
 """
 
 from __future__ import annotations
@@ -24,73 +25,83 @@ APPROX_GMM = 2
 
 
 @njit(cache=True)
-def advance(ring, i, d_row):
-    """Write ``C_i`` into ``ring[i % R]`` from ``C_{i-1}`` (zeros when ``i == 0``)."""
+def advance(ring, mring, i, d_row):
+    """Write ``C_i`` into ``ring[i % R]`` (from ``C_{i-1}``; zeros before the start) and
+    the running sum of row means ``M_i = M_{i-1} + mean_j d_ij`` into ``mring[i % R]``."""
     r = ring.shape[0]
     n = d_row.shape[0]
     out = ring[i % r]
+    total = 0.0
+    for j in range(n):
+        total += d_row[j]
     if i == 0:
         for j in range(n):
             out[j] = d_row[j]
+        mring[0] = total / n
         return
     prev = ring[(i - 1) % r]
-    # ascending j reads prev[j - 1] before it could be overwritten: prev and out
-    # are different rows because R >= 2.
+    # prev and out are different rows because R >= 2
     out[0] = d_row[0]
     for j in range(1, n):
         out[j] = d_row[j] + prev[j - 1]
+    mring[i % r] = mring[(i - 1) % r] + total / n
 
 
 @njit(cache=True)
-def window_scores(ring, i, length, s):
-    """Scores ``s_ij(L)`` of query frame ``i`` against every reference ``j`` into ``s``.
+def _window(ring, mring, i, length, j):
+    r = ring.shape[0]
+    eff = length if length <= i + 1 else i + 1
+    v = ring[i % r][j]
+    if j >= eff:
+        if i >= eff:
+            v -= ring[(i - eff) % r][j - eff]
+    elif j < eff - 1:
+        # the window runs off the start of the reference: terms k = j+1 .. eff-1 are
+        # filled with their query row's mean difference, M_{i-j-1} - M_{i-eff}
+        v += mring[(i - j - 1) % r]
+        if i >= eff:
+            v -= mring[(i - eff) % r]
+    return v / eff
 
-    Policy: the window uses the ``min(L, i + 1, j + 1)`` diagonal terms that exist
-    (before the query's start and before the reference's start nothing is summed)
-    and divides by that count.
+
+@njit(cache=True)
+def window_scores(ring, mring, i, length, s):
+    """Scores ``s_ij(L)`` of query frame ``i`` against every reference ``j`` into ``s``;
+    returns their sum.
+
+    Policy: the window has ``L_eff = min(L, i + 1)`` terms (before the query's start
+    there is nothing to sum); terms before the reference's start are filled with their
+    query row's mean difference (no evidence either way); the sum is divided by
+    ``L_eff``. Same arithmetic as :func:`score_at`.
     """
-    r = ring.shape[0]
     n = s.shape[0]
-    cur = ring[i % r]
-    if length > i:
-        # no row i - L: the window covers the whole query so far
-        for j in range(n):
-            cnt = j + 1 if j + 1 < i + 1 else i + 1
-            s[j] = cur[j] / cnt
-        return
-    back = ring[(i - length) % r]
-    for j in range(n):
-        if j >= length:
-            s[j] = (cur[j] - back[j - length]) / length
-        else:
-            s[j] = cur[j] / (j + 1)
-
-
-@njit(cache=True)
-def score_at(ring, i, length, j):
-    """One score ``s_ij(L)`` (same policy and arithmetic as :func:`window_scores`)."""
     r = ring.shape[0]
-    cur = ring[i % r]
-    if length > i:
-        cnt = j + 1 if j + 1 < i + 1 else i + 1
-        return cur[j] / cnt
-    if j >= length:
-        return (cur[j] - ring[(i - length) % r][j - length]) / length
-    return cur[j] / (j + 1)
-
-
-@njit(cache=True)
-def _mean_std(s):
-    n = s.shape[0]
+    eff = length if length <= i + 1 else i + 1
+    head = eff if eff < n else n
     total = 0.0
-    for j in range(n):
-        total += s[j]
-    mean = total / n
-    acc = 0.0
-    for j in range(n):
-        dev = s[j] - mean
-        acc += dev * dev
-    return mean, np.sqrt(acc / n)
+    for j in range(head):
+        v = _window(ring, mring, i, length, j)
+        s[j] = v
+        total += v
+    cur = ring[i % r]
+    if i >= eff:
+        back = ring[(i - eff) % r]
+        for j in range(head, n):
+            v = (cur[j] - back[j - eff]) / eff
+            s[j] = v
+            total += v
+    else:
+        for j in range(head, n):
+            v = cur[j] / eff
+            s[j] = v
+            total += v
+    return total
+
+
+@njit(cache=True)
+def score_at(ring, mring, i, length, j):
+    """One score ``s_ij(L)`` (same policy and arithmetic as :func:`window_scores`)."""
+    return _window(ring, mring, i, length, j)
 
 
 @njit(cache=True)
@@ -172,7 +183,7 @@ def _gmm_em(s, mean, std, n_iter, w, mu, sd, resp):
 
 
 @njit(cache=True)
-def frame_stats(ring, i, grid, approx, n_components, n_iter, radius,
+def frame_stats(ring, mring, i, grid, approx, n_components, n_iter, radius,
                 best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
     """Everything the selection rules need for query frame ``i``, per candidate window.
 
@@ -186,21 +197,31 @@ def frame_stats(ring, i, grid, approx, n_components, n_iter, radius,
     g_count = grid.shape[0]
     n = s.shape[0]
     for g in range(g_count):
-        window_scores(ring, i, grid[g], s)
+        total = window_scores(ring, mring, i, grid[g], s)
+        m = total / n
         jb = 0
         vb = s[0]
-        for j in range(1, n):
-            if s[j] < vb:
-                vb = s[j]
+        acc = 0.0
+        for j in range(n):
+            v = s[j]
+            if v < vb:
+                vb = v
                 jb = j
+            dev = v - m
+            acc += dev * dev
+        sdv = np.sqrt(acc / n)
         best_j[g] = jb
         best_s[g] = vb
         v2 = np.inf
-        for j in range(n):
-            if (j < jb - radius or j > jb + radius) and s[j] < v2:
+        lo = jb - radius
+        hi = jb + radius
+        for j in range(0, lo if lo < n else n):
+            if s[j] < v2:
+                v2 = s[j]
+        for j in range(hi + 1 if hi + 1 > 0 else 0, n):
+            if s[j] < v2:
                 v2 = s[j]
         second_s[g] = v2
-        m, sdv = _mean_std(s)
         mean[g] = m
         std[g] = sdv
         if approx == APPROX_GAUSSIAN:
@@ -216,19 +237,19 @@ def frame_stats(ring, i, grid, approx, n_components, n_iter, radius,
             _gmm_em(s, m, sdv, n_iter, weights[g], locs[g], scales[g], resp)
     for g in range(g_count):
         for h in range(g_count):
-            sub[g, h] = score_at(ring, i, grid[h], best_j[g])
+            sub[g, h] = score_at(ring, mring, i, grid[h], best_j[g])
 
 
 @njit(cache=True)
-def run_batch(d, ring, grid, approx, n_components, n_iter, radius,
+def run_batch(d, ring, mring, grid, approx, n_components, n_iter, radius,
               best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
     """:func:`advance` then :func:`frame_stats` for every row of ``d``, in order.
 
-    ``ring`` must have at least ``max(grid) + 1`` rows and start as zeros.
+    ``ring``/``mring`` must have at least ``max(grid) + 1`` rows and start as zeros.
     """
     for i in range(d.shape[0]):
-        advance(ring, i, d[i])
-        frame_stats(ring, i, grid, approx, n_components, n_iter, radius,
+        advance(ring, mring, i, d[i])
+        frame_stats(ring, mring, i, grid, approx, n_components, n_iter, radius,
                     best_j[i], best_s[i], second_s[i], mean[i], std[i], weights[i], locs[i],
                     scales[i], sub[i], s, work, resp)
 
@@ -239,7 +260,8 @@ def fixed_scores(d, length):
     n_q, n = d.shape
     out = np.empty((n_q, n))
     ring = np.zeros((length + 1, n))
+    mring = np.zeros(length + 1)
     for i in range(n_q):
-        advance(ring, i, d[i])
-        window_scores(ring, i, length, out[i])
+        advance(ring, mring, i, d[i])
+        window_scores(ring, mring, i, length, out[i])
     return out

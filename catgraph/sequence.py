@@ -15,13 +15,18 @@ subtraction, ``C_i[j] - C_{i-L}[j-L]``: ``O(N)`` per query frame and window leng
 only the last ``L_max + 1`` prefix rows are ever needed (a ring buffer, memory
 ``O(N * L_max)``; never an ``N x N`` matrix).
 
-Edges (a documented policy). A window never reaches before the first query frame or
-before the first reference place: it sums the ``min(L, i + 1, j + 1)`` diagonal terms
-that exist and divides by that count. Early query frames (``i < L - 1``) therefore use
-all ``i + 1`` frames seen so far, and the reported ``window_length`` is that effective
-length; places near the start of the reference are scored on their shorter diagonal.
+Edges (a documented policy). Early query frames (``i < L - 1``) use the
+``L_eff = min(L, i + 1)`` frames seen so far; the reported ``window_length`` is that
+effective length. A window that would reach before the first reference place has its
+missing terms filled with their query row's mean difference ``mean_j d_{i-k, j}`` — the
+expected difference of an unrelated place (0 for per-query normalised rows), i.e. *no
+evidence either way* — and is divided by the full ``L_eff``. Averaging only the terms
+that exist instead gives the short diagonals near the start of the reference a larger
+spread, so they win by chance (and, on data with featureless frames at the start of the
+reference, by a lot); excluding them would make the first ``L - 1`` places unmatchable.
 Every frame gets an output (no abstention), which is what a localiser embedded in a
-navigation stack needs, and what the MTL metric rewards.
+navigation stack needs, and what the MTL metric rewards. With the running sum of row
+means ``M_i`` the fill is ``M_{i-j-1} - M_{i-L_eff}``, still ``O(1)`` per score.
 
 Adaptive window
 ---------------
@@ -43,17 +48,22 @@ windows, because most of such a window still lies on the old, well-matching segm
 and the literal rule keeps choosing it for hundreds of frames.
 
 The default rule (``rule="consistent"``) only admits a window whose best hypothesis is
-supported by its own recent past: for every shorter candidate ``l < L`` in the grid, the
-hypothesis' score over its most recent ``l`` frames must lie closer to the window's own
-score than to the mean score of random places at that length,
+supported by its own recent past: for every shorter candidate ``l`` in the grid with
+``recent_fraction * L <= l < L`` (default ``L/8``), the hypothesis' score over its most
+recent ``l`` frames must lie closer to the window's own score than to the mean score
+of random places at that length,
 
     s_{i, j*}(l) <= (s_{i, j*}(L) + mean_j s_ij(l)) / 2,
 
 i.e. a likelihood-ratio test between "the recent frames continue the same alignment"
-and "the recent frames are unrelated to it", with no threshold to tune. A window that
-reaches back across a discontinuity fails the test for the sub-windows that lie after
-the discontinuity. Among the admitted windows (the shortest is always admitted) the one
-with the smallest ``p_i(L)`` is chosen, as in the paper.
+and "the recent frames are unrelated to it" with equal spreads, and no threshold. A
+window that reaches back across a discontinuity fails it once more than about half of
+a tested sub-window lies after the discontinuity, so the old alignment is dropped
+after roughly ``L/16`` frames instead of ``~L/2``. Sub-windows shorter than ``L/8``
+are not tested: on real data they are too noisy, and testing them rejects correct long
+windows (measured on Nordland: see ``docs/sequence.md``). Among the admitted windows (the
+shortest is always admitted) the one with the smallest ``p_i(L)`` is chosen, as in the
+paper.
 
 Confidence
 ----------
@@ -222,9 +232,10 @@ class _Config:
     confidence: str
     radius: int
     fixed: bool
+    recent_fraction: float
 
 
-def _config(owner, window, approximation, rule, confidence, l_min, l_max, grid, radius) -> _Config:
+def _config(owner, window, approximation, rule, confidence, l_min, l_max, grid, radius, recent_fraction) -> _Config:
     if approximation not in APPROXIMATIONS:
         raise InvalidParameterError(
             f"The 'approximation' parameter of {owner} must be one of {APPROXIMATIONS}. Got {approximation!r} instead."
@@ -236,6 +247,7 @@ def _config(owner, window, approximation, rule, confidence, l_min, l_max, grid, 
             f"The 'confidence' parameter of {owner} must be one of {CONFIDENCES}. Got {confidence!r} instead."
         )
     check_scalar(radius, "radius", owner, int, 0)
+    check_scalar(recent_fraction, "recent_fraction", owner, float, 0.0, 1.0)
     if isinstance(window, str):
         if window != "adaptive":
             raise InvalidParameterError(
@@ -251,7 +263,7 @@ def _config(owner, window, approximation, rule, confidence, l_min, l_max, grid, 
         fixed = True
     code = {"gaussian": 0, "robust": 1, "gmm2": 2, "gmm3": 2}[approximation]
     k = {"gaussian": 1, "robust": 1, "gmm2": 2, "gmm3": 3}[approximation]
-    return _Config(values, code, k, rule, confidence, int(radius), fixed)
+    return _Config(values, code, k, rule, confidence, int(radius), fixed, float(recent_fraction))
 
 
 # ---------------------------------------------------------------------------------------
@@ -296,8 +308,9 @@ def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool
         # the window's own score than to the mean of random places at that length
         mid = 0.5 * (st.best_s[:, :, None] + st.mean[:, None, :])  # (n, g, h)
         ok = st.sub <= mid
-        lower = np.tril(np.ones((g_count, g_count), dtype=bool), k=-1)  # h < g
-        admissible = np.all(ok | ~lower[None], axis=2)
+        lengths = cfg.grid.astype(np.float64)
+        tested = (lengths[None, :] < lengths[:, None]) & (lengths[None, :] >= cfg.recent_fraction * lengths[:, None])
+        admissible = np.all(ok | ~tested[None], axis=2)
         admissible[:, 0] = True
     masked = np.where(admissible, log_p, np.inf)
     chosen = np.argmin(masked, axis=1)
@@ -344,6 +357,7 @@ def match_sequences(
     l_max: int = 500,
     grid: str | int | Sequence[int] = "geometric",
     radius: int = 10,
+    recent_fraction: float = 0.125,
     return_curves: bool = False,
 ) -> SequenceResult:
     """Match every query frame (rows of ``differences``, in processing order).
@@ -369,6 +383,9 @@ def match_sequences(
     radius : int
         Places either side of the best match excluded when looking for the second best
         (``confidence="gap"``).
+    recent_fraction : float
+        ``rule="consistent"``: a window of length ``L`` is tested on its recent
+        sub-windows of length ``l`` in the grid with ``recent_fraction * L <= l < L``.
     return_curves : bool
         Also return ``log p_i(L)`` for every frame and candidate length.
 
@@ -376,17 +393,19 @@ def match_sequences(
     -------
     SequenceResult
     """
-    cfg = _config("match_sequences", window, approximation, rule, confidence, l_min, l_max, grid, radius)
+    cfg = _config("match_sequences", window, approximation, rule, confidence, l_min, l_max, grid, radius,
+                  recent_fraction)
     d = np.ascontiguousarray(check_array(differences, "difference matrix", ndim=2))
     n_q, n = d.shape
     k = _kernels()
     g = cfg.grid.shape[0]
     st = _Stats(n_q, g, cfg.n_components)
     ring = np.zeros((int(cfg.grid[-1]) + 1, n))
+    mring = np.zeros(int(cfg.grid[-1]) + 1)
     s = np.empty(n)
     work = np.empty(n)
     resp = np.empty((cfg.n_components, n))
-    k.run_batch(d, ring, cfg.grid, cfg.approx_code, cfg.n_components, EM_ITERATIONS, cfg.radius,
+    k.run_batch(d, ring, mring, cfg.grid, cfg.approx_code, cfg.n_components, EM_ITERATIONS, cfg.radius,
                 st.best_j, st.best_s, st.second_s, st.mean, st.std, st.weights, st.locs, st.scales,
                 st.sub, s, work, resp)
     match, score, conf, length, log_p = _decide(st, cfg, np.arange(n_q), return_curves)
@@ -438,6 +457,7 @@ class SequenceMatcher:
         l_max: int = 500,
         grid: str | int | Sequence[int] = "geometric",
         radius: int = 10,
+        recent_fraction: float = 0.125,
     ) -> None:
         self.window = window
         self.approximation = approximation
@@ -447,21 +467,23 @@ class SequenceMatcher:
         self.l_max = l_max
         self.grid = grid
         self.radius = radius
+        self.recent_fraction = recent_fraction
 
     def reset(self) -> "SequenceMatcher":
         """Forget all frames (the next step starts a new query)."""
-        for name in ("n_reference_", "n_steps_", "window_grid_", "_cfg", "_ring", "_buffers", "_stats"):
+        for name in ("n_reference_", "n_steps_", "window_grid_", "_cfg", "_ring", "_mring", "_buffers", "_stats"):
             self.__dict__.pop(name, None)
         return self
 
     def _start(self, n: int) -> None:
         cfg = _config(type(self).__name__, self.window, self.approximation, self.rule, self.confidence,
-                      self.l_min, self.l_max, self.grid, self.radius)
+                      self.l_min, self.l_max, self.grid, self.radius, self.recent_fraction)
         self._cfg = cfg
         self.window_grid_ = cfg.grid.copy()
         self.n_reference_ = n
         self.n_steps_ = 0
         self._ring = np.zeros((int(cfg.grid[-1]) + 1, n))
+        self._mring = np.zeros(int(cfg.grid[-1]) + 1)
         self._buffers = (np.empty(n), np.empty(n), np.empty((cfg.n_components, n)))
         self._stats = _Stats(1, cfg.grid.shape[0], cfg.n_components)
 
@@ -490,8 +512,8 @@ class SequenceMatcher:
         k = _kernels()
         cfg, st, i = self._cfg, self._stats, self.n_steps_
         s, work, resp = self._buffers
-        k.advance(self._ring, i, row)
-        k.frame_stats(self._ring, i, cfg.grid, cfg.approx_code, cfg.n_components, EM_ITERATIONS, cfg.radius,
+        k.advance(self._ring, self._mring, i, row)
+        k.frame_stats(self._ring, self._mring, i, cfg.grid, cfg.approx_code, cfg.n_components, EM_ITERATIONS, cfg.radius,
                       st.best_j[0], st.best_s[0], st.second_s[0], st.mean[0], st.std[0], st.weights[0],
                       st.locs[0], st.scales[0], st.sub[0], s, work, resp)
         self.n_steps_ = i + 1

@@ -19,13 +19,15 @@ from catgraph.sequence import (
 
 
 def slow_scores(d: np.ndarray, length: int) -> np.ndarray:
-    """s_ij(L) by a double loop: mean of the diagonal terms that exist (edge policy)."""
+    """s_ij(L) by a double loop. Edge policy: ``min(L, i + 1)`` terms; a term before
+    the reference's start is its query row's mean difference."""
     n_q, n = d.shape
     out = np.empty((n_q, n))
     for i in range(n_q):
+        eff = min(length, i + 1)
         for j in range(n):
-            terms = [d[i - k, j - k] for k in range(length) if i - k >= 0 and j - k >= 0]
-            out[i, j] = sum(terms) / len(terms)
+            terms = [d[i - k, j - k] if j - k >= 0 else d[i - k].mean() for k in range(eff)]
+            out[i, j] = sum(terms) / eff
     return out
 
 
