@@ -49,9 +49,9 @@ Appearance (descriptors)
     in the two directions but still shares the ``φ_C`` part.
 
 Condition change (query only: day → night)
-    ``x' = c·M x + o + ε``: a fixed random mixing ``M = (1 − m) I + m Q`` (``Q`` a
-    random orthogonal matrix, ``m = night_mixing``), lower contrast ``c =
-    night_contrast``, a fixed offset ``o ~ N(0, night_offset²)`` per dimension and i.i.d.
+    ``x' = c·M x + o + ε``: a fixed random mixing ``M ∝ (1 − m) I + m G/√d`` (``G``
+    i.i.d. N(0, 1), ``m = night_mixing``, scaled to keep the mean squared norm), lower
+    contrast ``c = night_contrast``, a fixed offset ``o ~ N(0, night_offset²)`` per dimension and i.i.d.
     noise ``ε ~ N(0, query_noise²)``. The reference gets i.i.d. ``N(0,
     reference_noise²)`` noise only.
 
@@ -60,8 +60,9 @@ Images (``as_images=True``)
     ``h × w`` patterns (white noise blurred over the pixel grid): the left façade in
     the left of the image, the right façade in the right, the street in the middle,
     over a fixed sky-to-road brightness gradient. Night images are darker, have less
-    contrast, a headlight glow at the bottom centre, the same mixing of field
-    channels, and pixel noise; both are ``uint8`` ``(n, h, w)``.
+    contrast, a headlight glow at the bottom centre, are softer (``M`` is a blend
+    ``(1 − m)·x + m·blur(x)`` of the image with a Gaussian-blurred copy, σ = 1.5 px)
+    and have pixel noise; both are ``uint8`` ``(n, h, w)``.
 
 Odometry and ground truth
     ``odometry[k]`` is the distance driven since frame ``k − 1`` (0 for the first
@@ -91,7 +92,7 @@ NEW_PLACE = -2
 
 # tuned so that single-frame nearest-neighbour matching is right about half the time
 _DEFAULT_QUERY_NOISE = 1.8
-_DEFAULT_QUERY_NOISE_IMAGES = 1.4
+_DEFAULT_QUERY_NOISE_IMAGES = 0.6
 
 
 # --------------------------------------------------------------------------------------
@@ -366,7 +367,7 @@ def _smooth_readout(rng: np.random.Generator, n_features: int, shape: tuple[int,
     from scipy.ndimage import gaussian_filter
 
     noise = rng.standard_normal((n_features, *shape))
-    blurred = gaussian_filter(noise, sigma=(0.0, 1.2, 1.2), mode="wrap")
+    blurred = gaussian_filter(noise, sigma=(0.0, 2.0, 2.0), mode="wrap")
     blurred /= blurred.std(axis=0, keepdims=True) + 1e-12
     return (blurred * mask).reshape(n_features, -1)
 
@@ -421,11 +422,17 @@ class _Appearance:
 
 
 def _random_mixing(rng: np.random.Generator, d: int, mixing: float) -> np.ndarray:
-    q, r = np.linalg.qr(rng.standard_normal((d, d)))
-    q *= np.sign(np.diag(r))
-    m = (1.0 - mixing) * np.eye(d) + mixing * q
-    # keep the overall scale: rescale so that M preserves the mean squared norm
+    """``M = (1 − m) I + m G/√d`` (``G`` i.i.d. N(0, 1)), rescaled to keep the mean squared norm."""
+    m = (1.0 - mixing) * np.eye(d) + mixing * rng.standard_normal((d, d)) / np.sqrt(d)
     return m / np.sqrt(np.mean(np.sum(m**2, axis=0)))
+
+
+def _blur_mixing(x: np.ndarray, shape: tuple[int, int], mixing: float) -> np.ndarray:
+    """Images: ``(1 − m)·x + m·blur(x)`` — the softer look of a low-light exposure."""
+    from scipy.ndimage import gaussian_filter
+
+    blurred = gaussian_filter(x.reshape(-1, *shape), sigma=(0.0, 1.5, 1.5), mode="nearest").reshape(x.shape)
+    return (1.0 - mixing) * x + mixing * blurred
 
 
 # --------------------------------------------------------------------------------------
@@ -524,11 +531,12 @@ def make_world(
         noise-free field has unit variance per dimension; images: the same units,
         before the brightness mapping).
     query_noise : float, optional
-        The query's; default 1.8 for descriptors and 1.4 for images, tuned so that
+        The query's; default 1.8 for descriptors and 0.6 for images, tuned so that
         single-frame nearest-neighbour matching is right about half the time (see
         ``docs/synthetic.md``).
     night_contrast, night_mixing, night_offset : float
-        The day → night transform ``x' = c·M x + o``.
+        The day → night transform ``x' = c·M x + o`` (images: ``M`` blends in a
+        blurred copy instead of mixing channels).
     odometry_scale_noise, odometry_noise : float
         Query odometry noise: multiplicative (fraction) and additive (metres) standard
         deviations.
@@ -616,12 +624,15 @@ def make_world(
     look = _Appearance(look_rng, n_out=n_out, length_scale=length_scale, block_length=block_length,
                        aliasing=aliasing, direction_weight=direction_weight, street_half_width=street_half_width,
                        n_features=n_features, image_shape=image_shape if as_images else None)
-    mixing = _random_mixing(look_rng, n_out, night_mixing)
     offset = look_rng.normal(0.0, night_offset, size=n_out)
     x_ref = look(ref["positions"], ref["heading"])
     x_qry = look(qry["positions"], qry["heading"])
+    if as_images:
+        x_qry = _blur_mixing(x_qry, image_shape, night_mixing)
+    else:
+        x_qry = x_qry @ _random_mixing(look_rng, n_out, night_mixing).T
     x_ref = x_ref + noise_rng.normal(0.0, reference_noise, size=x_ref.shape)
-    x_qry = night_contrast * (x_qry @ mixing.T) + offset + noise_rng.normal(0.0, query_noise, size=x_qry.shape)
+    x_qry = night_contrast * x_qry + offset + noise_rng.normal(0.0, query_noise, size=x_qry.shape)
     if as_images:
         h, w = image_shape
         rows = (np.arange(h) + 0.5) / h
@@ -629,7 +640,7 @@ def make_world(
         cols = (np.arange(w) + 0.5) / w
         glow = (np.exp(-(((cols[None] - 0.5) / 0.2) ** 2) - (((rows[:, None] - 1.0) / 0.3) ** 2))).ravel()
         ref_frames = np.clip(sky + 28.0 * x_ref, 0, 255)
-        qry_frames = np.clip(0.45 * sky + 28.0 * x_qry + 60.0 * glow - 10.0, 0, 255)
+        qry_frames = np.clip(0.45 * sky + 14.0 * x_qry + 60.0 * glow + 10.0, 0, 255)
         ref_frames = np.rint(ref_frames).astype(np.uint8).reshape(-1, h, w)
         qry_frames = np.rint(qry_frames).astype(np.uint8).reshape(-1, h, w)
     else:
