@@ -309,6 +309,16 @@ class PlaceGraph:
 
     # ------------------------------------------------------------------ queries
     @property
+    def frame_spacing(self) -> float:
+        """Mean length of the chain edges (1 on a frame graph): one frame's travel."""
+        cached = self.__dict__.get("_frame_spacing")
+        if cached is None:
+            chain = self.length[self.kind == _CHAIN]
+            cached = float(chain.mean()) if chain.size else 1.0
+            object.__setattr__(self, "_frame_spacing", cached)
+        return cached
+
+    @property
     def n_edges(self) -> int:
         """Number of directed edges ``E``."""
         return int(len(self.source))

@@ -55,6 +55,7 @@ import math
 import time
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from ._validation import as_generator, check_array, check_scalar
@@ -62,9 +63,70 @@ from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .graph import PlaceGraph
 from .motion import FrameMotion, MotionModel, OdometryMotion
 from .observation import Observation, ObservationModel
-from .particles import ParticleSet, effective_sample_size, get_resampler, log_sum_exp, place_to_edges
+from .particles import ParticleSet, get_resampler, place_to_edges
 
 __all__ = ["Estimate", "LocalizationResult", "Localizer"]
+
+
+@numba.njit(cache=True)
+def _reweight_kernel(edge, fraction, log_weight, source, target, log_ratio, informative, weight):  # pragma: no cover
+    """In place: ``log_weight += ℓ`` (interpolated log-ratio), normalised; ``weight`` gets
+    the normalised weights. Returns ``(log E_map, ESS)``, ``E_map = Σ w_prior · e^ℓ``
+    with the prior weights normalised."""
+    n = edge.shape[0]
+    m0 = -np.inf
+    for i in range(n):
+        if log_weight[i] > m0:
+            m0 = log_weight[i]
+    s0 = 0.0
+    for i in range(n):
+        s0 += np.exp(log_weight[i] - m0)
+    lse0 = m0 + np.log(s0)
+    m = -np.inf
+    for i in range(n):
+        v = log_weight[i] - lse0
+        if informative:
+            e = edge[i]
+            f = fraction[i]
+            v += (1.0 - f) * log_ratio[source[e]] + f * log_ratio[target[e]]
+        log_weight[i] = v
+        if v > m:
+            m = v
+    if not np.isfinite(m):  # every particle impossible: keep them, uniformly
+        for i in range(n):
+            log_weight[i] = -np.log(n)
+            weight[i] = 1.0 / n
+        return -np.inf, float(n)
+    s = 0.0
+    for i in range(n):
+        s += np.exp(log_weight[i] - m)
+    lse = m + np.log(s)
+    sq = 0.0
+    for i in range(n):
+        log_weight[i] -= lse
+        w = np.exp(log_weight[i])
+        weight[i] = w
+        sq += w * w
+    return lse, 1.0 / sq
+
+
+@numba.njit(cache=True)
+def _top_k(values, k):  # pragma: no cover - compiled
+    """Indices of the ``k`` largest values (any order), one pass with a small buffer."""
+    best_v = np.full(k, -np.inf)
+    best_i = np.full(k, -1, dtype=np.int64)
+    lowest = 0  # slot holding the smallest kept value
+    for j in range(values.shape[0]):
+        v = values[j]
+        if v > best_v[lowest] or best_i[lowest] < 0:
+            best_v[lowest] = v
+            best_i[lowest] = j
+            for s in range(k):
+                if best_i[s] < 0 or best_v[s] < best_v[lowest]:
+                    lowest = s
+                    if best_i[s] < 0:
+                        break
+    return best_i
 
 
 @dataclass(frozen=True)
@@ -211,6 +273,8 @@ class Localizer:
         self.particles_ = ParticleSet.uniform(self.graph, self.n_particles, self._rng)
         self.new_place_probability_ = 0.0
         self.n_steps_ = 0
+        self._weight = np.exp(self.particles_.log_weight)
+        self._no_ratio = np.zeros(self.graph.n_places)
         self._motions = (self.motion or FrameMotion(), self.motion or OdometryMotion())
         self.model.reset()
         if self.confidence_radius_m is not None:
@@ -261,25 +325,22 @@ class Localizer:
         if n_new == 0 or not obs.informative:
             return
         p, rng = self.particles_, self._rng
-        who = rng.choice(self.n_particles, size=n_new, replace=False)
+        who = rng.integers(0, self.n_particles, size=n_new)  # repeats are harmless
         if self.proposal == "best":
             k = min(self.proposal_top_k, self.graph.n_places)
-            top = np.argpartition(-obs.log_ratio, k - 1)[:k]
+            top = _top_k(obs.log_ratio, k)
             places = top[rng.integers(0, k, size=n_new)]
         else:
             places = rng.integers(0, self.graph.n_places, size=n_new)
         p.edge[who], p.fraction[who] = place_to_edges(self.graph, places, rng)
-        p.log_weight[who] = log_sum_exp(p.log_weight) - math.log(self.n_particles)
+        p.log_weight[who] = -math.log(self.n_particles)  # the mean weight (log-weights are normalised)
 
     def _reweight(self, obs: Observation) -> float:
         p, g = self.particles_, self.graph
-        lw = p.log_weight - log_sum_exp(p.log_weight)
-        if obs.informative:
-            a, b = g.source[p.edge], g.target[p.edge]
-            ell = (1.0 - p.fraction) * obs.log_ratio[a] + p.fraction * obs.log_ratio[b]
-            lw = lw + ell
-        log_map = log_sum_exp(lw)
-        p.log_weight = lw - log_map
+        log_ratio = obs.log_ratio if obs.informative else self._no_ratio
+        log_map, ess = _reweight_kernel(p.edge, p.fraction, p.log_weight, g.source, g.target,
+                                        np.ascontiguousarray(log_ratio, dtype=np.float64), bool(obs.informative),
+                                        self._weight)
         if obs.informative:
             prior = self.new_place_stay * self.new_place_probability_ + self.new_place_prior * (
                 1.0 - self.new_place_probability_)
@@ -289,18 +350,19 @@ class Localizer:
                 self.new_place_probability_ = float(math.exp(a_new - np.logaddexp(a_new, a_map)))
             else:
                 self.new_place_probability_ = 0.0
-        return effective_sample_size(p.log_weight)
+        return float(ess)
 
     def _resample_if_degenerate(self, ess: float) -> bool:
         if ess >= self.ess_threshold * self.n_particles:
             return False
-        idx = self._resample(np.exp(self.particles_.log_weight), self._rng)
+        idx = self._resample(self._weight, self._rng)
         self.particles_ = self.particles_.take(idx)
+        self._weight = np.full(self.n_particles, 1.0 / self.n_particles)
         return True
 
     def _summarise(self, ess: float, resampled: bool) -> Estimate:
         g, p = self.graph, self.particles_
-        mass = np.bincount(p.places(g), weights=np.exp(p.log_weight), minlength=g.n_places)
+        mass = np.bincount(p.places(g), weights=self._weight, minlength=g.n_places)
         mass *= 1.0 - self.new_place_probability_
         best = int(np.argmax(mass))
         if self.confidence_radius_m is not None:

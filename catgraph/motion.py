@@ -155,7 +155,19 @@ class MotionModel:
         self.dead_end = dead_end
         self.max_hops = max_hops
 
-    def _check(self) -> None:
+    def _params(self) -> tuple:
+        return tuple(sorted((k, v) for k, v in vars(self).items() if not k.startswith("_")))
+
+    def _check(self) -> bool:
+        """Validate the parameters; False when they were already validated unchanged."""
+        key = self._params()
+        if getattr(self, "_checked", None) == key:
+            return False
+        self._validate_params()
+        self._checked = key
+        return True
+
+    def _validate_params(self) -> None:
         name = type(self).__name__
         check_scalar(self.straight_preference, "straight_preference", name, float, 0.0, 1.0)
         check_scalar(self.reverse_probability, "reverse_probability", name, float, 0.0, 1.0)
@@ -171,6 +183,7 @@ class MotionModel:
 
     def move(self, particles: ParticleSet, graph, rng: np.random.Generator, odometry: float | None = None) -> None:
         """Advance ``particles`` in place by one step."""
+        self._check()
         d = self.distances(len(particles), graph, odometry, rng)
         advance(particles, graph, d, rng, self.straight_preference, self.reverse_probability,
                 self.dead_end, self.max_hops)
@@ -203,11 +216,10 @@ class OdometryMotion(MotionModel):
         eps = rng.standard_normal((2, n))
         return np.maximum(0.0, u * (1.0 + self.relative_noise * eps[0]) + self.absolute_noise * eps[1])
 
-    def move(self, particles, graph, rng, odometry=None):
-        self._check()
+    def _validate_params(self) -> None:
+        super()._validate_params()
         check_scalar(self.relative_noise, "relative_noise", "OdometryMotion", float, 0.0)
         check_scalar(self.absolute_noise, "absolute_noise", "OdometryMotion", float, 0.0)
-        super().move(particles, graph, rng, odometry)
 
 
 class FrameMotion(MotionModel):
@@ -229,12 +241,10 @@ class FrameMotion(MotionModel):
         self.speed_noise = speed_noise
 
     def distances(self, n, graph, odometry, rng):
-        chain = graph.length[graph.kind == 0]
-        spacing = float(chain.mean()) if chain.size else 1.0
+        spacing = graph.frame_spacing
         return spacing * np.maximum(0.0, self.speed + self.speed_noise * rng.standard_normal(n))
 
-    def move(self, particles, graph, rng, odometry=None):
-        self._check()
+    def _validate_params(self) -> None:
+        super()._validate_params()
         check_scalar(self.speed, "speed", "FrameMotion", float, 0.0)
         check_scalar(self.speed_noise, "speed_noise", "FrameMotion", float, 0.0)
-        super().move(particles, graph, rng, odometry)
