@@ -248,7 +248,6 @@ def _covering_walk(mapped: nx.Graph, start: int, rng: np.random.Generator) -> li
 
 def _query_route(
     mapped: nx.Graph,
-    roads: nx.Graph,
     reference_route: list[int],
     rng: np.random.Generator,
     chunk_streets: tuple[int, int],
@@ -440,12 +439,12 @@ def _blur_mixing(x: np.ndarray, shape: tuple[int, int], mixing: float) -> np.nda
 # --------------------------------------------------------------------------------------
 
 
-def _check_pair(value, name: str, kind, low, high=None, strictly_increasing=False) -> tuple:
+def _check_pair(value, name: str, kind, low, high=None) -> tuple:
     if not isinstance(value, (tuple, list)) or len(value) != 2:
         raise InvalidParameterError(f"The '{name}' parameter of make_world must be a pair (low, high). Got {value!r} instead.")
     a = check_scalar(value[0], name, "make_world", kind, low, high)
     b = check_scalar(value[1], name, "make_world", kind, low, high)
-    if b < a or (strictly_increasing and b == a):
+    if b < a:
         raise InvalidParameterError(
             f"The '{name}' parameter of make_world must be a pair (low, high) with low <= high. Got {value!r} instead."
         )
@@ -614,7 +613,7 @@ def make_world(
     start = sorted(mapped.nodes)[int(route_rng.integers(mapped.number_of_nodes()))]
     ref_nodes = _covering_walk(mapped, start, route_rng)
     q_nodes, q_section, q_reversed = _query_route(
-        mapped, roads, ref_nodes, route_rng, chunk_streets, query_coverage, reverse_fraction,
+        mapped, ref_nodes, route_rng, chunk_streets, query_coverage, reverse_fraction,
         new_place_blocks, bx, by,
     )
     ref = _sample_route(roads, ref_nodes, spacing, frame_rng)
