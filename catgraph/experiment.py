@@ -18,6 +18,7 @@ worker and compare.
 
 from __future__ import annotations
 
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -30,14 +31,27 @@ __all__ = ["load_input", "run_experiment", "SPEC_KEYS"]
 SPEC_KEYS = {"reference", "query", "method", "params", "tolerance", "tolerance_m", "shuffle", "frontend", "name"}
 
 
+@lru_cache(maxsize=4)
+def synthetic_world(seed: int):
+    """The built-in synthetic world for ``seed`` (cached: it is immutable)."""
+    from .datasets.synthetic import make_world
+
+    return make_world(seed=seed)
+
+
+def _synthetic_seed(text: str) -> int:
+    _, _, seed = text.partition(":")
+    try:
+        return int(seed or 0)
+    except ValueError:
+        raise ConfigError(f"{text!r}: write the synthetic world as 'synthetic' or 'synthetic:SEED'.") from None
+
+
 def load_input(source: str | Path, role: str) -> Traverse:
     """A traverse from a path, or from ``"synthetic[:SEED]"`` (the built-in world)."""
     text = str(source)
     if text.startswith("synthetic"):
-        from .datasets.synthetic import make_world
-
-        _, _, seed = text.partition(":")
-        world = make_world(seed=int(seed or 0))
+        world = synthetic_world(_synthetic_seed(text))
         return world.reference if role == "reference" else world.query
     from .datasets import load_traverse
 
@@ -59,9 +73,7 @@ def run_experiment(spec: dict[str, Any]) -> dict[str, Any]:
     tolerance, tolerance_m = spec.get("tolerance"), spec.get("tolerance_m")
     if tolerance is None and tolerance_m is None and reference.positions is not None and query.positions is not None \
             and str(spec["reference"]).startswith("synthetic"):
-        from .datasets.synthetic import make_world
-
-        tolerance_m = make_world(seed=int(str(spec["reference"]).partition(":")[2] or 0)).tolerance_m
+        tolerance_m = synthetic_world(_synthetic_seed(str(spec["reference"]))).tolerance_m
     ground_truth = ground_truth_for(reference, query, tolerance, tolerance_m)
     if spec.get("shuffle") is not None:
         query = shuffle_segments(query, seed=int(spec["shuffle"]))

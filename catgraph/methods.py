@@ -97,10 +97,33 @@ def _histogram(params, *, reference, query, differences, ground_truth, frontend=
                      extra={"p_new_place": rec.new_place_probability}, seconds=time.perf_counter() - start)
 
 
+_FILTER_KEYS = ("n_particles", "seed", "window", "junction_radius_m", "edge_length", "use_odometry",
+                "confidence_radius", "confidence_radius_m", "resampler", "ess_threshold", "redraw_fraction",
+                "proposal", "new_place_prior")
+
+
+def _filter(model: str):
+    """The CAT-Graph particle filter with observation model ``model``."""
+
+    def run(params, *, reference, query, differences, ground_truth, frontend=None) -> RunResult:
+        from .compare import localize
+
+        unknown = set(params) - set(_FILTER_KEYS)
+        if unknown:
+            raise InvalidParameterError(f"unknown particle-filter parameters {sorted(unknown)}; "
+                                        f"allowed: {', '.join(_FILTER_KEYS)}.")
+        kwargs = {k: v for k, v in params.items() if v is not None}
+        return localize(reference, query, model=model, differences=differences, frontend=frontend, **kwargs)
+
+    run.__doc__ = f"Particle filter with the {model!r} observation model."
+    return run
+
+
 METHODS: dict[str, Callable[..., RunResult]] = {
     "single-frame": _single_frame,
     "sequence": _sequence,
     "histogram": _histogram,
+    **{f"filter-{m}": _filter(m) for m in ("histogram", "histogram-bootstrap", "sequence", "adaptive", "combined")},
 }
 
 

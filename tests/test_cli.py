@@ -119,3 +119,49 @@ def test_match_methods_write_rechecking_json(extra, image_pair, tmp_path):
     if "histogram" in extra:
         p_new = payload["frames"]["p_new_place"]
         assert all(0.0 <= v <= 1.0 for v in p_new)
+
+
+def test_localize_and_compare_on_the_synthetic_world(tmp_path, capsys):
+    out = tmp_path / "l.json"
+    assert main(["localize", "synthetic:3", "synthetic:3", "--model", "histogram", "--particles", "300",
+                 "-o", str(out), "-q"]) == 0
+    payload = json.loads(out.read_text())
+    from catgraph.experiment import synthetic_world
+
+    world = synthetic_world(3)
+    recheck(payload, world.ground_truth())
+    p_new = np.array(payload["frames"]["p_new_place"])
+    assert p_new.shape == (len(world.query),) and np.all((p_new >= 0) & (p_new <= 1))
+    assert main(["compare", "synthetic:3", "synthetic:3", "--particles", "200", "-o", str(tmp_path / "c.json")]) == 0
+    table = capsys.readouterr().out
+    for name in ("single-frame", "adaptive", "particle-filter/histogram", "particle-filter/combined", "ms/frame"):
+        assert name in table
+    assert len(json.loads((tmp_path / "c.json").read_text())["runs"]) == 9
+
+
+def test_saved_map_gives_the_same_result_as_the_reference(image_pair, tmp_path):
+    ref, qry = image_pair
+    assert main(["build-map", str(ref), "--out", str(tmp_path / "m.npz"), "-q"]) == 0
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    assert main(["match", str(ref), str(qry), "--window", "3", "--tolerance", "1", "-o", str(a), "-q"]) == 0
+    assert main(["match", str(qry), "--map", str(tmp_path / "m.npz"), "--window", "3", "--tolerance", "1",
+                 "-o", str(b), "-q"]) == 0
+    fa, fb = json.loads(a.read_text()), json.loads(b.read_text())
+    assert fa["frames"] == fb["frames"] and fa["metrics"] == fb["metrics"]
+
+
+def test_map_with_two_inputs_is_a_clear_error(image_pair, tmp_path, capsys):
+    ref, qry = image_pair
+    assert main(["build-map", str(ref), "--out", str(tmp_path / "m.npz"), "-q"]) == 0
+    assert main(["match", str(ref), str(qry), "--map", str(tmp_path / "m.npz"), "--tolerance", "1", "-q"]) == 1
+    assert "only when --map" in capsys.readouterr().err
+
+
+def test_demo_writes_a_report(tmp_path, capsys):
+    assert main(["demo", "--out", str(tmp_path / "demo"), "--particles", "500"]) == 0
+    out = capsys.readouterr().out
+    assert "particle-filter/histogram" in out and "adaptive" in out
+    html = (tmp_path / "demo" / "index.html").read_text()
+    assert html.count("data:image/png;base64") >= 5
+    assert (tmp_path / "demo" / "results.md").exists()
+    assert len(list((tmp_path / "demo").glob("*.json"))) == 4

@@ -56,8 +56,10 @@ def _window(text: str):
 
 
 def add_common_inputs(p: argparse.ArgumentParser) -> None:
-    p.add_argument("reference", help="reference traverse: image folder, UJI prefix (db/01/trn01) or .npy/.npz")
-    p.add_argument("query", help="query traverse, in the same form as the reference")
+    p.add_argument("inputs", nargs="+", metavar="REFERENCE QUERY",
+                   help="reference and query traverses: image folders, UJI prefixes (db/01/trn01), .npy/.npz "
+                        "files or synthetic:SEED; with --map, only QUERY")
+    p.add_argument("--map", type=Path, metavar="MAP", help="a saved map (catgraph build-map) as the reference")
     gt = p.add_mutually_exclusive_group()
     gt.add_argument("--tolerance", type=int, metavar="FRAMES", help="ground truth: same index ± FRAMES")
     gt.add_argument("--tolerance-m", type=float, metavar="METRES", help="ground truth: positions within METRES")
@@ -69,33 +71,72 @@ def add_common_inputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bars or tables")
 
 
-def load_inputs(args):
-    """Load reference and query, shuffle the query if asked, build ground truth."""
-    from ..datasets import load_traverse
-    from ..pipeline import ground_truth_for
+class Inputs:
+    """Loaded inputs of an evaluating command."""
+
+    def __init__(self, reference, query, ground_truth, differences, frontend, graph=None, sources=None):
+        self.reference, self.query, self.ground_truth = reference, query, ground_truth
+        self.differences, self.frontend, self.graph, self.sources = differences, frontend, graph, sources or {}
+
+
+def load_inputs(args) -> Inputs:
+    """Load reference (or map) and query, shuffle the query if asked, build ground truth and differences."""
+    from ..experiment import load_input, synthetic_world
+    from ..pipeline import differences, ground_truth_for
     from ..traverse import shuffle_segments
 
-    reference = load_traverse(args.reference, progress=not args.quiet)
-    query = load_traverse(args.query, progress=not args.quiet)
-    if args.tolerance is None and args.tolerance_m is None:
+    expected = 1 if args.map is not None else 2
+    if len(args.inputs) != expected:
         raise InvalidParameterError(
-            "no ground truth given: add --tolerance FRAMES (same index = same place) "
-            "or --tolerance-m METRES (for data with positions)."
+            "give QUERY only when --map is used" if args.map is not None else
+            f"give REFERENCE and QUERY (got {len(args.inputs)} path{'s' if len(args.inputs) != 1 else ''})."
         )
     if args.tolerance is not None and args.tolerance < 0:
         raise InvalidParameterError(f"--tolerance must be ≥ 0 frames; got {args.tolerance}.")
     if args.tolerance_m is not None and args.tolerance_m < 0:
         raise InvalidParameterError(f"--tolerance-m must be ≥ 0 metres; got {args.tolerance_m}.")
-    ground_truth = ground_truth_for(reference, query, args.tolerance, args.tolerance_m)
-    if args.shuffle is not None:
-        query = shuffle_segments(query, seed=args.shuffle)
-    return reference, query, ground_truth
+    query_source = args.inputs[-1]
+    tolerance_m = args.tolerance_m
+    if args.tolerance is None and tolerance_m is None and str(query_source).startswith("synthetic"):
+        tolerance_m = synthetic_world(int(str(query_source).partition(":")[2] or 0)).tolerance_m
+    if args.tolerance is None and tolerance_m is None:
+        raise InvalidParameterError(
+            "no ground truth given: add --tolerance FRAMES (same index = same place) "
+            "or --tolerance-m METRES (for data with positions)."
+        )
+    query = load_input(query_source, "query")
+    graph = None
+    if args.map is not None:
+        from ..io import load_map, query_differences, reference_from_map
+
+        saved = load_map(args.map)
+        reference, frontend, graph = reference_from_map(saved), saved.frontend_settings(), saved.graph
+        ground_truth = ground_truth_for(reference, query, args.tolerance, tolerance_m)
+        if args.shuffle is not None:
+            query = shuffle_segments(query, seed=args.shuffle)
+        diff = query_differences(saved, query)
+        sources = {"map": str(args.map), "query": str(query_source)}
+    else:
+        reference = load_input(args.inputs[0], "reference")
+        frontend = frontend_from(args)
+        ground_truth = ground_truth_for(reference, query, args.tolerance, tolerance_m)
+        if args.shuffle is not None:
+            query = shuffle_segments(query, seed=args.shuffle)
+        diff = differences(reference, query, frontend)
+        sources = {"reference": str(args.inputs[0]), "query": str(query_source)}
+    return Inputs(reference, query, ground_truth, diff, frontend, graph, sources)
 
 
 def frontend_from(args):
     from ..pipeline import FrontEnd
 
     return FrontEnd(size=args.size, patch=args.patch, metric=args.metric)
+
+
+def run_params(args, inputs: "Inputs") -> dict:
+    """The parameters every result file records about its inputs."""
+    return {**inputs.sources, "shuffle": args.shuffle, "frontend": inputs.frontend.as_dict(),
+            "ground_truth": inputs.ground_truth.describe()}
 
 
 def finish(args, result, ground_truth, extra_params=None) -> int:
@@ -114,14 +155,19 @@ def finish(args, result, ground_truth, extra_params=None) -> int:
     return 0
 
 
-def print_metrics_table(rows) -> None:
-    """rows: (name, metrics dict, seconds) → an aligned text table on stdout."""
-    header = ["method", "AUC", "R@100P", "R@99P", "R@90P", "MTL", "accuracy", "n", "seconds"]
+def print_metrics_table(rows, per_frame: int | None = None) -> None:
+    """rows: (name, metrics dict, seconds) → an aligned text table on stdout.
+
+    With ``per_frame`` (the number of frames) the last column is milliseconds per frame.
+    """
+    header = ["method", "AUC", "R@100P", "R@99P", "R@90P", "MTL", "accuracy", "n",
+              "ms/frame" if per_frame else "seconds"]
     lines = [header]
     for name, m, seconds in rows:
         lines.append([name, f"{m['auc']:.3f}", f"{m['recall_at_100p']:.3f}", f"{m['recall_at_99p']:.3f}",
                       f"{m['recall_at_90p']:.3f}", str(m["mtl"]), f"{m['accuracy']:.3f}", str(m["n_queries"]),
-                      f"{seconds:.2f}" if seconds == seconds else "-"])
+                      "-" if seconds != seconds else
+                      f"{1000 * seconds / per_frame:.2f}" if per_frame else f"{seconds:.2f}"])
     widths = [max(len(row[k]) for row in lines) for k in range(len(header))]
     for row in lines:
         print("  ".join(cell.ljust(w) if k == 0 else cell.rjust(w) for k, (cell, w) in enumerate(zip(row, widths))))
@@ -153,24 +199,140 @@ def register_match(sub) -> None:
 
 
 def cmd_match(args) -> int:
-    from ..pipeline import differences, match_single_frames
-
-    reference, query, ground_truth = load_inputs(args)
-    frontend = frontend_from(args)
-    diff = differences(reference, query, frontend)
     from ..methods import run_method
+    from ..pipeline import match_single_frames
 
+    inputs = load_inputs(args)
+    common = {"reference": inputs.reference, "query": inputs.query, "differences": inputs.differences,
+              "frontend": inputs.frontend}
     if args.model == "histogram":
         params = {"learning": args.learning, "n_init": args.init_frames}
-        result = run_method("histogram", params, reference=reference, query=query, differences=diff,
-                            ground_truth=ground_truth, frontend=frontend)
+        result = run_method("histogram", params, ground_truth=inputs.ground_truth, **common)
     elif args.window == 1:
-        result = match_single_frames(diff, query.index, exclusion=args.exclusion)
+        result = match_single_frames(inputs.differences, inputs.query.index, exclusion=args.exclusion)
     else:
         params = {"window": args.window, "radius": args.exclusion}
         if args.window == "adaptive":
             params.update(approximation=args.approximation, rule=args.rule, l_min=args.l_min, l_max=args.l_max)
-        result = run_method("sequence", params, reference=reference, query=query, differences=diff)
-    extra = {"reference": str(args.reference), "query": str(args.query), "shuffle": args.shuffle,
-             "frontend": frontend.as_dict(), "ground_truth": ground_truth.describe()}
-    return finish(args, result, ground_truth, extra)
+        result = run_method("sequence", params, **common)
+    return finish(args, result, inputs.ground_truth, run_params(args, inputs))
+
+
+FILTER_MODELS = {"histogram": "histogram", "histogram-bootstrap": "histogram-bootstrap", "sequence": "sequence",
+                 "adaptive": "adaptive", "combined": "combined"}
+
+
+def add_filter_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--particles", type=int, default=2000, help="number of particles (default 2000)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the filter (default 0)")
+    p.add_argument("--window", type=int, default=50, help="window of the fixed sequence model (default 50)")
+    p.add_argument("--junction-radius-m", type=float, metavar="METRES",
+                   help="join places of different parts of the route within METRES (needs positions)")
+
+
+@_register
+def register_localize(sub) -> None:
+    p = sub.add_parser("localize", help="localise the query with the CAT-Graph particle filter",
+                       description="Run the particle filter on a place graph built from the reference (or a saved "
+                                   "map) with the chosen observation model, and evaluate it.")
+    add_common_inputs(p)
+    p.add_argument("--model", choices=sorted(FILTER_MODELS), default="histogram",
+                   help="observation model (default histogram: online, training-free)")
+    add_filter_options(p)
+    p.set_defaults(func=cmd_localize)
+
+
+def cmd_localize(args) -> int:
+    from ..compare import localize
+
+    if args.particles < 1:
+        raise InvalidParameterError(f"--particles must be ≥ 1; got {args.particles}.")
+    inputs = load_inputs(args)
+    result = localize(inputs.reference, inputs.query, model=FILTER_MODELS[args.model], n_particles=args.particles,
+                      seed=args.seed, window=args.window, graph=inputs.graph,
+                      junction_radius_m=args.junction_radius_m, differences=inputs.differences,
+                      frontend=inputs.frontend)
+    return finish(args, result, inputs.ground_truth, run_params(args, inputs))
+
+
+@_register
+def register_compare(sub) -> None:
+    p = sub.add_parser("compare", help="run every observation model on the same input and print one table",
+                       description="Run the standalone sequence matchers and the particle filter with every "
+                                   "observation model on one reference/query pair; print one table.")
+    add_common_inputs(p)
+    add_filter_options(p)
+    p.set_defaults(func=cmd_compare)
+
+
+def cmd_compare(args) -> int:
+    from ..methods import run_method
+    from ..results import write_json_atomic
+
+    inputs = load_inputs(args)
+    common = {"reference": inputs.reference, "query": inputs.query, "differences": inputs.differences,
+              "frontend": inputs.frontend, "ground_truth": inputs.ground_truth}
+    filter_params = {"n_particles": args.particles, "seed": args.seed, "window": args.window,
+                     "junction_radius_m": args.junction_radius_m}
+    plan = [("single-frame", {}), ("sequence", {"window": args.window}), ("sequence", {"window": "adaptive"}),
+            ("histogram", {"learning": "online"})]
+    plan += [(f"filter-{m}", dict(filter_params)) for m in FILTER_MODELS]
+    rows, payloads = [], []
+    for name, params in progress_iter(plan, args.quiet, "methods"):
+        if inputs.graph is not None and name.startswith("filter-"):
+            from ..compare import localize
+
+            result = localize(inputs.reference, inputs.query, model=name[7:], graph=inputs.graph,
+                              differences=inputs.differences, frontend=inputs.frontend,
+                              **{k: v for k, v in params.items() if k != "junction_radius_m"})
+        else:
+            result = run_method(name, params, **common)
+        result.params.update(run_params(args, inputs))
+        evaluation = result.evaluate(inputs.ground_truth)
+        payloads.append(result.to_dict(evaluation))
+        rows.append((result.method, evaluation.metrics.as_dict(), result.seconds))
+    if not args.quiet:
+        print_metrics_table(rows, per_frame=len(inputs.query))
+    if args.output is not None:
+        write_json_atomic(args.output, {"runs": payloads})
+        if not args.quiet:
+            print(f"wrote {args.output}")
+    return 0
+
+
+def progress_iter(items, quiet: bool, desc: str):
+    if quiet:
+        yield from items
+        return
+    from tqdm.auto import tqdm
+
+    bar = tqdm(items, desc=desc, leave=False, file=sys.stderr)
+    for item in bar:
+        bar.set_postfix_str(item[0] if isinstance(item, tuple) else str(item))
+        yield item
+
+
+@_register
+def register_demo(sub) -> None:
+    p = sub.add_parser("demo", help="run everything on the built-in synthetic world and write a report",
+                       description="Localise an out-of-order night drive through a synthetic city against a day "
+                                   "map with single-frame matching, the adaptive sequence matcher and the particle "
+                                   "filter; print a table and write an HTML report.")
+    p.add_argument("--out", type=Path, default=Path("catgraph-demo"), help="report folder (default catgraph-demo/)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the world and the filter (default 0)")
+    p.add_argument("--particles", type=int, default=2000, help="particles in the filter (default 2000)")
+    p.add_argument("--quiet", "-q", action="store_true", help="print nothing but errors")
+    p.set_defaults(func=cmd_demo)
+
+
+def cmd_demo(args) -> int:
+    from ..demo import run_demo
+
+    if args.seed < 0:
+        raise InvalidParameterError(f"--seed must be ≥ 0; got {args.seed}.")
+    log = (lambda *a: None) if args.quiet else print
+    report, payloads = run_demo(args.out, seed=args.seed, n_particles=args.particles, progress=not args.quiet, log=log)
+    if not args.quiet:
+        print_metrics_table([(p["method"], p["metrics"], p.get("seconds", float("nan"))) for p in payloads])
+        print(f"report: {report}")
+    return 0
