@@ -117,15 +117,15 @@ def _median_mad(s, work):
 
 
 @njit(cache=True)
-def _gmm_em(s, mean, std, n_iter, w, mu, sd, resp):
-    """Fit a K-component 1-D Gaussian mixture by ``n_iter`` EM steps.
+def _gmm_em(s, stride, mean, std, n_iter, w, mu, sd, resp, coef, inv):
+    """Fit a K-component 1-D Gaussian mixture to ``s[::stride]`` by ``n_iter`` EM steps.
 
     Start: equal weights, standard deviations ``std``, means spread evenly over
     ``mean ± std``. Variances are floored at ``1e-6 * std**2`` (no collapse onto one
-    point). ``resp`` is ``(K, N)`` scratch.
+    point). ``resp`` is ``(K, N)`` scratch, ``coef``/``inv`` ``(K,)`` scratch.
     """
     k_count = w.shape[0]
-    n = s.shape[0]
+    n = (s.shape[0] + stride - 1) // stride
     for k in range(k_count):
         w[k] = 1.0 / k_count
         sd[k] = std
@@ -137,38 +137,42 @@ def _gmm_em(s, mean, std, n_iter, w, mu, sd, resp):
         return
     floor = 1e-6 * std * std
     for _ in range(n_iter):
+        for k in range(k_count):
+            coef[k] = np.log(w[k]) - np.log(sd[k])
+            inv[k] = 1.0 / sd[k]
         # E step: responsibilities, normalised per point in log space
-        for j in range(n):
+        for t in range(n):
+            x = s[t * stride]
             top = -np.inf
             for k in range(k_count):
-                z = (s[j] - mu[k]) / sd[k]
-                v = np.log(w[k]) - np.log(sd[k]) - 0.5 * z * z
-                resp[k, j] = v
+                z = (x - mu[k]) * inv[k]
+                v = coef[k] - 0.5 * z * z
+                resp[k, t] = v
                 if v > top:
                     top = v
             tot = 0.0
             for k in range(k_count):
-                e = np.exp(resp[k, j] - top)
-                resp[k, j] = e
+                e = np.exp(resp[k, t] - top)
+                resp[k, t] = e
                 tot += e
             for k in range(k_count):
-                resp[k, j] /= tot
+                resp[k, t] /= tot
         # M step
         for k in range(k_count):
             nk = 0.0
             sx = 0.0
-            for j in range(n):
-                nk += resp[k, j]
-                sx += resp[k, j] * s[j]
+            for t in range(n):
+                nk += resp[k, t]
+                sx += resp[k, t] * s[t * stride]
             if nk <= 1e-12:
                 # an empty component keeps its parameters with a negligible weight
                 w[k] = 1e-12
                 continue
             m = sx / nk
             sxx = 0.0
-            for j in range(n):
-                dev = s[j] - m
-                sxx += resp[k, j] * dev * dev
+            for t in range(n):
+                dev = s[t * stride] - m
+                sxx += resp[k, t] * dev * dev
             var = sxx / nk
             if var < floor:
                 var = floor
@@ -183,19 +187,21 @@ def _gmm_em(s, mean, std, n_iter, w, mu, sd, resp):
 
 
 @njit(cache=True)
-def frame_stats(ring, mring, i, grid, approx, n_components, n_iter, radius,
+def frame_stats(ring, mring, i, grid, approx, n_components, n_iter, em_stride, radius,
                 best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
     """Everything the selection rules need for query frame ``i``, per candidate window.
 
     Outputs (``G = len(grid)``, ``K = n_components``): ``best_j, best_s, second_s, mean,
     std`` ``(G,)``; ``weights, locs, scales`` ``(G, K)`` — the approximation's components
-    (one component for the Gaussian and robust Gaussian); ``sub`` ``(G, G)`` with
+    (one component for the Gaussian and robust Gaussian); ``sub`` ``(G, G)`` (or ``(G, 0)`` when not needed) with
     ``sub[g, h] = s_{i, best_j[g]}(grid[h])``, the best hypothesis of window ``g`` scored
-    over window ``h``. ``second_s`` is the best score more than ``radius`` places away
+    over window ``h``. Mixtures are fitted to every ``em_stride``-th score. ``second_s`` is the best score more than ``radius`` places away
     from ``best_j`` (``+inf`` where none exists).
     """
     g_count = grid.shape[0]
     n = s.shape[0]
+    coef = np.empty(n_components)
+    inv = np.empty(n_components)
     for g in range(g_count):
         total = window_scores(ring, mring, i, grid[g], s)
         m = total / n
@@ -234,24 +240,28 @@ def frame_stats(ring, mring, i, grid, approx, n_components, n_iter, radius,
             locs[g, 0] = med
             scales[g, 0] = mad
         else:
-            _gmm_em(s, m, sdv, n_iter, weights[g], locs[g], scales[g], resp)
-    for g in range(g_count):
-        for h in range(g_count):
-            sub[g, h] = score_at(ring, mring, i, grid[h], best_j[g])
+            _gmm_em(s, em_stride, m, sdv, n_iter, weights[g], locs[g], scales[g], resp, coef, inv)
+    if sub.shape[1] == g_count:  # only the consistent rule needs them
+        for g in range(g_count):
+            for h in range(g_count):
+                sub[g, h] = score_at(ring, mring, i, grid[h], best_j[g])
 
 
 @njit(cache=True)
-def run_batch(d, ring, mring, grid, approx, n_components, n_iter, radius,
+def run_batch(d, start, ring, mring, grid, approx, n_components, n_iter, em_stride, radius,
               best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
-    """:func:`advance` then :func:`frame_stats` for every row of ``d``, in order.
+    """:func:`advance` then :func:`frame_stats` for every row of ``d``, in order; row
+    ``t`` of ``d`` is query frame ``start + t``.
 
-    ``ring``/``mring`` must have at least ``max(grid) + 1`` rows and start as zeros.
+    ``ring``/``mring`` must have at least ``max(grid) + 1`` rows, start as zeros and
+    carry over from the previous block.
     """
-    for i in range(d.shape[0]):
-        advance(ring, mring, i, d[i])
-        frame_stats(ring, mring, i, grid, approx, n_components, n_iter, radius,
-                    best_j[i], best_s[i], second_s[i], mean[i], std[i], weights[i], locs[i],
-                    scales[i], sub[i], s, work, resp)
+    for t in range(d.shape[0]):
+        i = start + t
+        advance(ring, mring, i, d[t])
+        frame_stats(ring, mring, i, grid, approx, n_components, n_iter, em_stride, radius,
+                    best_j[t], best_s[t], second_s[t], mean[t], std[t], weights[t], locs[t],
+                    scales[t], sub[t], s, work, resp)
 
 
 @njit(cache=True)

@@ -39,7 +39,9 @@ underflow for strong matches)::
     gaussian   N(mean, std)
     robust     N(median, 1.4826 * MAD)
     gmm2/gmm3  K-component mixture, 10 EM steps started at equal weights, std ``std`` and
-               means spread over mean ± std;  log p = logsumexp_k(log w_k + log Phi(z_k))
+               means spread over mean ± std;  log p = logsumexp_k(log w_k + log Phi(z_k)).
+               EM runs on every ``ceil(N / 1024)``-th score (a deterministic subsample:
+               the fit costs ``O(1024 K)`` per window instead of ``O(N K)``).
 
 The *literal* rule of the paper (``rule="literal"``) picks ``L_i = argmin_L p_i(L)``.
 Its weakness shows on out-of-order queries: after a jump to another part of the route,
@@ -108,6 +110,7 @@ APPROXIMATIONS = ("gaussian", "robust", "gmm2", "gmm3")
 RULES = ("consistent", "literal")
 CONFIDENCES = ("gap", "neglogp", "z")
 EM_ITERATIONS = 10
+EM_MAX_POINTS = 1024
 
 
 def _kernels():
@@ -266,6 +269,18 @@ def _config(owner, window, approximation, rule, confidence, l_min, l_max, grid, 
     return _Config(values, code, k, rule, confidence, int(radius), fixed, float(recent_fraction))
 
 
+_BLOCK_VALUES = 4_000_000
+
+
+def _needs_sub(cfg: _Config) -> bool:
+    return not cfg.fixed and cfg.rule == "consistent" and cfg.grid.shape[0] > 1
+
+
+def _em_stride(n: int) -> int:
+    """Mixtures are fitted to every ``stride``-th score, at most ~``EM_MAX_POINTS``."""
+    return max(1, -(-n // EM_MAX_POINTS))
+
+
 # ---------------------------------------------------------------------------------------
 # statistics -> decision (vectorised over frames; the same code serves both forms)
 
@@ -273,7 +288,7 @@ def _config(owner, window, approximation, rule, confidence, l_min, l_max, grid, 
 class _Stats:
     """Per-frame, per-window statistics produced by the kernels (leading axis: frames)."""
 
-    def __init__(self, n: int, g: int, k: int):
+    def __init__(self, n: int, g: int, k: int, with_sub: bool = True):
         self.best_j = np.zeros((n, g), dtype=np.int64)
         self.best_s = np.zeros((n, g))
         self.second_s = np.zeros((n, g))
@@ -282,7 +297,7 @@ class _Stats:
         self.weights = np.zeros((n, g, k))
         self.locs = np.zeros((n, g, k))
         self.scales = np.zeros((n, g, k))
-        self.sub = np.zeros((n, g, g))
+        self.sub = np.zeros((n, g, g if with_sub else 0))
 
 
 def _log_p(st: _Stats) -> np.ndarray:
@@ -399,16 +414,23 @@ def match_sequences(
     n_q, n = d.shape
     k = _kernels()
     g = cfg.grid.shape[0]
-    st = _Stats(n_q, g, cfg.n_components)
     ring = np.zeros((int(cfg.grid[-1]) + 1, n))
     mring = np.zeros(int(cfg.grid[-1]) + 1)
     s = np.empty(n)
     work = np.empty(n)
     resp = np.empty((cfg.n_components, n))
-    k.run_batch(d, ring, mring, cfg.grid, cfg.approx_code, cfg.n_components, EM_ITERATIONS, cfg.radius,
-                st.best_j, st.best_s, st.second_s, st.mean, st.std, st.weights, st.locs, st.scales,
-                st.sub, s, work, resp)
-    match, score, conf, length, log_p = _decide(st, cfg, np.arange(n_q), return_curves)
+    # rows are processed in blocks so that the (block, G, G) sub-window scores stay small
+    block = max(1, min(n_q, _BLOCK_VALUES // (g * g)))
+    parts = []
+    for start in range(0, n_q, block):
+        stop = min(n_q, start + block)
+        st = _Stats(stop - start, g, cfg.n_components, _needs_sub(cfg))
+        k.run_batch(d[start:stop], start, ring, mring, cfg.grid, cfg.approx_code, cfg.n_components, EM_ITERATIONS,
+                    _em_stride(n), cfg.radius, st.best_j, st.best_s, st.second_s, st.mean, st.std, st.weights,
+                    st.locs, st.scales, st.sub, s, work, resp)
+        parts.append(_decide(st, cfg, np.arange(start, stop), return_curves))
+    match, score, conf, length = (np.concatenate([p[c] for p in parts]) for c in range(4))
+    log_p = np.concatenate([p[4] for p in parts]) if return_curves else None
     return SequenceResult(match=match, score=score, confidence=conf, window_length=length,
                           window_grid=cfg.grid.copy(), log_p=log_p)
 
@@ -485,7 +507,7 @@ class SequenceMatcher:
         self._ring = np.zeros((int(cfg.grid[-1]) + 1, n))
         self._mring = np.zeros(int(cfg.grid[-1]) + 1)
         self._buffers = (np.empty(n), np.empty(n), np.empty((cfg.n_components, n)))
-        self._stats = _Stats(1, cfg.grid.shape[0], cfg.n_components)
+        self._stats = _Stats(1, cfg.grid.shape[0], cfg.n_components, _needs_sub(cfg))
 
     def step(self, difference_row: np.ndarray, return_curve: bool = False) -> SequenceMatch:
         """Process one query frame.
@@ -513,7 +535,8 @@ class SequenceMatcher:
         cfg, st, i = self._cfg, self._stats, self.n_steps_
         s, work, resp = self._buffers
         k.advance(self._ring, self._mring, i, row)
-        k.frame_stats(self._ring, self._mring, i, cfg.grid, cfg.approx_code, cfg.n_components, EM_ITERATIONS, cfg.radius,
+        k.frame_stats(self._ring, self._mring, i, cfg.grid, cfg.approx_code, cfg.n_components, EM_ITERATIONS,
+                      _em_stride(self.n_reference_), cfg.radius,
                       st.best_j[0], st.best_s[0], st.second_s[0], st.mean[0], st.std[0], st.weights[0],
                       st.locs[0], st.scales[0], st.sub[0], s, work, resp)
         self.n_steps_ = i + 1

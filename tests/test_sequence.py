@@ -31,9 +31,9 @@ def slow_scores(d: np.ndarray, length: int) -> np.ndarray:
     return out
 
 
-def slow_em(x: np.ndarray, k: int, n_iter: int = 10):
+def slow_em(x: np.ndarray, k: int, n_iter: int = 10, start=None):
     """Textbook EM for a 1-D mixture, started like the kernel (numpy, no tricks)."""
-    mean, std = x.mean(), x.std()
+    mean, std = (x.mean(), x.std()) if start is None else start
     w = np.full(k, 1.0 / k)
     mu = mean + std * np.linspace(-1.0, 1.0, k) if k > 1 else np.array([mean])
     sd = np.full(k, std)
@@ -231,3 +231,26 @@ def test_constant_rows_do_not_produce_nan():
 def test_bad_parameters_raise_typed_errors(kwargs, text):
     with pytest.raises(InvalidParameterError, match=text):
         match_sequences(np.zeros((3, 4)), **kwargs)
+
+
+def test_blocked_batch_equals_single_block(monkeypatch):
+    import catgraph.sequence as sequence
+
+    d = planted(50, 60, seed=7)
+    kwargs = dict(window="adaptive", l_min=3, l_max=25, grid=7, return_curves=True)
+    whole = match_sequences(d, **kwargs)
+    monkeypatch.setattr(sequence, "_BLOCK_VALUES", 7 * 7 * 3)  # blocks of 3 rows
+    blocked = match_sequences(d, **kwargs)
+    np.testing.assert_array_equal(whole.match, blocked.match)
+    np.testing.assert_array_equal(whole.log_p, blocked.log_p)
+
+
+def test_mixture_fit_uses_a_strided_subsample_for_large_references():
+    """Above EM_MAX_POINTS scores the mixture is fitted to every stride-th score."""
+    d = np.random.default_rng(8).normal(size=(4, 2500))
+    result = match_sequences(d, window=3, approximation="gmm2", return_curves=True)
+    s = slow_scores(d[:, :], 3)[3 - 1]
+    stride = 3  # ceil(2500 / 1024)
+    w, mu, sd = slow_em(s[::stride], 2, start=(s.mean(), s.std()))
+    expected = logsumexp(np.log(w) + log_ndtr((s.min() - mu) / sd))
+    assert result.log_p[2, 0] == pytest.approx(expected, rel=1e-7)
