@@ -133,8 +133,10 @@ def localize(reference: Traverse, query: Traverse, model: str | ObservationModel
     Returns
     -------
     RunResult
-        ``match`` = most likely place, ``confidence``; ``extra`` holds
-        ``p_new_place`` and ``ess``; ``seconds`` the filter's wall time.
+        ``match`` = most likely place; ``confidence`` = the log-odds of the posterior
+        mass within the tolerance (ranks frames even where the mass rounds to 1);
+        ``extra`` holds ``posterior_mass``, ``p_new_place`` and ``ess``; ``seconds`` the
+        filter's wall time.
     """
     from .pipeline import FrontEnd
     from .pipeline import differences as pipeline_differences
@@ -154,8 +156,9 @@ def localize(reference: Traverse, query: Traverse, model: str | ObservationModel
               "junction_radius_m": junction_radius_m, "edge_length": edge_length,
               "odometry": odometry is not None, "confidence_radius": confidence_radius,
               "confidence_radius_m": confidence_radius_m, **localizer_params}
-    return RunResult(f"particle-filter/{name}", params, np.asarray(query.index), res.place, res.confidence,
-                     extra={"p_new_place": res.new_place_probability, "ess": res.ess}, seconds=seconds)
+    return RunResult(f"particle-filter/{name}", params, np.asarray(query.index), res.place, res.log_odds,
+                     extra={"posterior_mass": res.confidence, "p_new_place": res.new_place_probability,
+                            "ess": res.ess}, seconds=seconds)
 
 
 def compare_models(reference: Traverse, query: Traverse, ground_truth: GroundTruth,

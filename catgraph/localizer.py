@@ -147,6 +147,9 @@ class Estimate:
         Effective sample size after reweighting (before any resampling).
     resampled : bool
         Whether this step resampled.
+    log_odds : float
+        ``log(confidence / (1 − confidence))`` computed in log space, so it keeps ordering
+        frames where ``confidence`` rounds to 1.0 (use it to rank frames for PR curves).
     """
 
     place: int
@@ -155,6 +158,7 @@ class Estimate:
     new_place_probability: float
     ess: float
     resampled: bool
+    log_odds: float = 0.0
 
 
 @dataclass
@@ -164,7 +168,7 @@ class LocalizationResult:
     Attributes
     ----------
     place : ndarray of int64, shape (n,)
-    confidence, new_place_probability, ess : ndarray of float64, shape (n,)
+    confidence, new_place_probability, ess, log_odds : ndarray of float64, shape (n,)
     position : ndarray, shape (n, 2|3) or None
     query_index : ndarray of int64, shape (n,)
     seconds_per_frame : float
@@ -178,6 +182,7 @@ class LocalizationResult:
     position: np.ndarray | None
     query_index: np.ndarray
     seconds_per_frame: float
+    log_odds: np.ndarray | None = None
 
     @property
     def match(self) -> np.ndarray:
@@ -274,6 +279,7 @@ class Localizer:
         self.new_place_probability_ = 0.0
         self.n_steps_ = 0
         self._weight = np.exp(self.particles_.log_weight)
+        self._log_new, self._log_map = -math.inf, 0.0
         self._no_ratio = np.zeros(self.graph.n_places)
         self._motions = (self.motion or FrameMotion(), self.motion or OdometryMotion())
         self.model.reset()
@@ -347,9 +353,12 @@ class Localizer:
             if prior > 0.0:
                 a_new = math.log(prior) + obs.new_place_log_ratio
                 a_map = math.log1p(-prior) + log_map
-                self.new_place_probability_ = float(math.exp(a_new - np.logaddexp(a_new, a_map)))
+                total = np.logaddexp(a_new, a_map)
+                self._log_new, self._log_map = a_new - total, a_map - total
+                self.new_place_probability_ = float(math.exp(self._log_new))
             else:
                 self.new_place_probability_ = 0.0
+                self._log_new, self._log_map = -math.inf, 0.0
         return float(ess)
 
     def _resample_if_degenerate(self, ess: float) -> bool:
@@ -363,16 +372,21 @@ class Localizer:
     def _summarise(self, ess: float, resampled: bool) -> Estimate:
         g, p = self.graph, self.particles_
         mass = np.bincount(p.places(g), weights=self._weight, minlength=g.n_places)
-        mass *= 1.0 - self.new_place_probability_
         best = int(np.argmax(mass))
         if self.confidence_radius_m is not None:
-            near = self._tree.query_ball_point(g.positions[best], self.confidence_radius_m)
-            confidence = float(mass[near].sum())
+            inside = np.zeros(g.n_places, dtype=bool)
+            inside[self._tree.query_ball_point(g.positions[best], self.confidence_radius_m)] = True
+            w_in, w_out = float(mass[inside].sum()), float(mass[~inside].sum())
         else:
-            r = self.confidence_radius
-            confidence = float(mass[max(0, best - r): best + r + 1].sum())
+            lo, hi = max(0, best - self.confidence_radius), best + self.confidence_radius + 1
+            w_in, w_out = float(mass[lo:hi].sum()), float(mass[:lo].sum() + mass[hi:].sum())
+        # in log space, so that the new-place mass still ranks frames whose map mass is all inside
+        log_in = self._log_map + math.log(w_in) if w_in > 0 else -math.inf
+        log_out = np.logaddexp(self._log_new, self._log_map + math.log(w_out) if w_out > 0 else -math.inf)
+        log_odds = float(log_in - log_out) if np.isfinite(log_in) or np.isfinite(log_out) else 0.0
+        confidence = float(math.exp(log_in)) if np.isfinite(log_in) else 0.0
         position = None if g.positions is None else g.positions[best].copy()
-        return Estimate(best, position, min(confidence, 1.0), self.new_place_probability_, ess, resampled)
+        return Estimate(best, position, min(confidence, 1.0), self.new_place_probability_, ess, resampled, log_odds)
 
     # ------------------------------------------------------------------ batch
     def run(self, observations, odometry: np.ndarray | None = None, query_index: np.ndarray | None = None,
@@ -419,7 +433,7 @@ class Localizer:
         qi = np.arange(n) if query_index is None else np.asarray(query_index, dtype=np.int64)
         self.reset()
         place = np.empty(n, dtype=np.int64)
-        conf, p_new, ess = np.empty(n), np.empty(n), np.empty(n)
+        conf, p_new, ess, log_odds = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
         pos = None if self.graph.positions is None else np.empty((n, self.graph.positions.shape[1]))
         rows = range(n)
         if progress:
@@ -430,7 +444,8 @@ class Localizer:
         for k in rows:
             est = self.step(d[k], None if odometry is None else float(odometry[k]))
             place[k], conf[k], p_new[k], ess[k] = est.place, est.confidence, est.new_place_probability, est.ess
+            log_odds[k] = est.log_odds
             if pos is not None:
                 pos[k] = est.position
         seconds = (time.perf_counter() - start) / max(n, 1)
-        return LocalizationResult(place, conf, p_new, ess, pos, qi, seconds)
+        return LocalizationResult(place, conf, p_new, ess, pos, qi, seconds, log_odds)

@@ -219,3 +219,15 @@ def test_errors_name_the_problem():
         Localizer(g, PeakModel(), resampler="magic").reset()
     with pytest.raises(InvalidParameterError, match="ObservationModel"):
         Localizer(g, object()).reset()
+
+
+def test_log_odds_agree_with_confidence_and_keep_ranking_at_saturation():
+    g = PlaceGraph.chain(60)
+    rows = _rows_along(range(10, 50), 60, sharpness=8.0, noise=0.1, rng=np.random.default_rng(5))
+    res = Localizer(g, PeakModel(), n_particles=500, seed=0).run(rows)
+    unsaturated = (res.confidence > 1e-6) & (res.confidence < 1 - 1e-6)
+    assert unsaturated.any()
+    np.testing.assert_allclose(1 / (1 + np.exp(-res.log_odds[unsaturated])), res.confidence[unsaturated], rtol=1e-6)
+    saturated = res.confidence == 1.0
+    if saturated.any():
+        assert np.all(np.isfinite(res.log_odds[saturated])) and len(np.unique(res.log_odds[saturated])) > 1
