@@ -64,7 +64,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -72,6 +71,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ._atomic import atomic_open
 from .exceptions import DataError, DataNotFoundError, MapFileError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -373,20 +373,8 @@ def save_map(path: str | os.PathLike, catgraph_map: CatgraphMap, compress: bool 
         "__sha256__": np.array(_digest(FORMAT_VERSION, meta_bytes, arrays)),
     }
     members.update({k: np.require(v, requirements="C") for k, v in arrays.items()})
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            (np.savez_compressed if compress else np.savez)(fh, **members)
-            fh.flush()
-            os.fsync(fh.fileno())
-        # mkstemp creates the file private (0600); give it the mode an ordinary file would get
-        os.chmod(tmp, path.stat().st_mode & 0o777 if path.exists() else 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_open(path, "wb") as fh:
+        (np.savez_compressed if compress else np.savez)(fh, **members)
     return path
 
 

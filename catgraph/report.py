@@ -30,11 +30,11 @@ import io
 import json
 import math
 import os
-import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from ._atomic import write_text_atomic
 from .exceptions import DataError, InvalidParameterError
 
 __all__ = ["COLUMNS", "load_results", "run_labels", "markdown_table", "write_report"]
@@ -437,19 +437,6 @@ def _html_page(title: str, payloads: Sequence[dict], figures: Sequence[tuple[str
     return "\n".join(parts) + "\n"
 
 
-def _write_text_atomic(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600; a report is meant to be shared
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def write_report(
     results: Sequence[Mapping[str, Any] | str | os.PathLike],
     out_dir: str | os.PathLike,
@@ -500,6 +487,6 @@ def write_report(
     table = markdown_table(payloads, title=title)
     out.mkdir(parents=True, exist_ok=True)
     index = out / "index.html"
-    _write_text_atomic(index, page)
-    _write_text_atomic(out / "results.md", table)
+    write_text_atomic(index, page)
+    write_text_atomic(out / "results.md", table)
     return index

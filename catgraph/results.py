@@ -20,13 +20,13 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ._atomic import atomic_open
 from .exceptions import DataError, DataNotFoundError
 from .metrics import Evaluation, evaluate
 from .traverse import GroundTruth
@@ -112,21 +112,10 @@ def _jsonable(obj):
 
 def write_json_atomic(path: str | os.PathLike, payload: dict) -> Path:
     """Write ``payload`` as JSON to ``path`` atomically; return the path."""
-    path = Path(path)
-    if path.parent and not path.parent.exists():
-        path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent or ".")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(payload, fh, indent=None, separators=(",", ":"), allow_nan=False)
-            fh.write("\n")
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    with atomic_open(path, "w") as fh:
+        json.dump(payload, fh, indent=None, separators=(",", ":"), allow_nan=False)
+        fh.write("\n")
+    return Path(path)
 
 
 def read_result(path: str | os.PathLike) -> dict:

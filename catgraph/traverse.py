@@ -32,7 +32,7 @@ import scipy.sparse
 from scipy.spatial import cKDTree
 
 from ._validation import as_generator, check_array, check_scalar
-from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
+from .exceptions import DataError, ShapeMismatchError
 
 __all__ = [
     "Traverse",

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from .._atomic import write_text_atomic
 from .commands import register
 
 
@@ -94,7 +95,7 @@ def cmd_bench(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out / "summary.json", {"name": config.name, "description": config.description,
                                              "config": str(args.config), "runs": rows})
-    (out / "summary.md").write_text(_summary_markdown(config, payloads, failed))
+    write_text_atomic(out / "summary.md", _summary_markdown(config, payloads, failed))
     report = None
     if payloads:
         try:
