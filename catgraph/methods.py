@@ -21,6 +21,12 @@ from .traverse import GroundTruth, Traverse
 __all__ = ["METHODS", "run_method"]
 
 
+def _check_keys(params: dict, allowed: tuple[str, ...], what: str) -> None:
+    unknown = set(params) - set(allowed)
+    if unknown:
+        raise InvalidParameterError(f"unknown {what} parameters {sorted(unknown)}; allowed: {', '.join(allowed)}.")
+
+
 def _single_frame(params, *, reference, query, differences, ground_truth, frontend=None) -> RunResult:
     return match_single_frames(differences, query.index, exclusion=int(params.get("exclusion", 10)))
 
@@ -34,10 +40,7 @@ def _sequence(params, *, reference, query, differences, ground_truth, frontend=N
 
     from .sequence import match_sequences
 
-    unknown = set(params) - set(_SEQUENCE_KEYS)
-    if unknown:
-        raise InvalidParameterError(f"unknown sequence-matching parameters {sorted(unknown)}; "
-                                    f"allowed: {', '.join(_SEQUENCE_KEYS)}.")
+    _check_keys(params, _SEQUENCE_KEYS, "sequence-matching")
     kwargs = {k: v for k, v in params.items() if v is not None}
     kwargs.setdefault("window", "adaptive")
     start = time.perf_counter()
@@ -63,10 +66,7 @@ def _histogram(params, *, reference, query, differences, ground_truth, frontend=
 
     from .likelihood import HistogramLikelihood, HistogramPlaceRecogniser, labelled_samples, reference_samples
 
-    unknown = set(params) - set(_HISTOGRAM_KEYS)
-    if unknown:
-        raise InvalidParameterError(f"unknown histogram-model parameters {sorted(unknown)}; "
-                                    f"allowed: {', '.join(_HISTOGRAM_KEYS)}.")
+    _check_keys(params, _HISTOGRAM_KEYS, "histogram-model")
     p = {"learning": "online", "n_init": 100, "exclusion_radius": 5, "confidence_radius": 2,
          "new_place_prior": 0.01, "n_bins": 100, "gap": None, "max_different": 100_000, "seed": 0}
     p.update({k: v for k, v in params.items() if v is not None})
@@ -108,10 +108,7 @@ def _filter(model: str):
     def run(params, *, reference, query, differences, ground_truth, frontend=None) -> RunResult:
         from .compare import localize
 
-        unknown = set(params) - set(_FILTER_KEYS)
-        if unknown:
-            raise InvalidParameterError(f"unknown particle-filter parameters {sorted(unknown)}; "
-                                        f"allowed: {', '.join(_FILTER_KEYS)}.")
+        _check_keys(params, _FILTER_KEYS, "particle-filter")
         kwargs = {k: v for k, v in params.items() if v is not None}
         return localize(reference, query, model=model, differences=differences, frontend=frontend, **kwargs)
 
