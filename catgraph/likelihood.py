@@ -47,6 +47,16 @@ weighted by the average of ``P(d_s|L)/P(d_s)`` over samples ``d_s`` drawn from
 ``P(d|¬L)`` (eq. 10), computed either by Monte Carlo or exactly as the expectation over
 the ``¬L`` histogram (:meth:`HistogramLikelihood.new_place_log_likelihood`).
 
+Monotone likelihood ratio
+-------------------------
+``d`` is a difference, so a smaller value should never be less evidence of the same
+place: the ratio ``P(d|L) / P(d|¬L)`` is non-increasing. With ``monotone=True`` (default)
+adjacent bins that violate this are pooled: weighted isotonic regression, by pooling
+adjacent violators, of ``q_b = P(b|L) / (P(b|L) + P(b|¬L))`` with weights
+``P(b|L) + P(b|¬L)`` on the smoothed tables; inside a block the ratio is
+``Σ P(b|L) / Σ P(b|¬L)`` and each block keeps its mass under both classes. The pooling
+does not depend on ``P(L)``, and it acts only on evaluation (the counts are unchanged).
+
 Bins and range
 --------------
 ``range=(lo, hi)`` fixes ``s`` equal bins over ``[lo, hi]``; values outside are clipped
@@ -69,7 +79,12 @@ Three ways to learn it
   frame adds ``d_min`` to ``L`` and the smallest difference *outside* ``± exclusion_radius``
   reference indices of the best match (the "second-smallest difference not from the same
   location") to ``¬L``, and then localises with the histograms of that moment. The
-  reference map is given, so ``d_min`` is over all reference places.
+  reference map is given, so ``d_min`` is over all reference places. By default each
+  frame also adds the differences to ``n_random_different`` places drawn at random
+  outside the match's location to ``¬L``: eq. (2) weighs every place, most of which have
+  typical differences, and the second-smallest difference alone only describes the low
+  tail of ``P(d|¬L)``. With ``reference_positions`` the match's location is every place
+  within a distance of it (routes that pass a place twice) instead of an index radius.
 * **trained** (:func:`labelled_samples`): ``L`` from every (query, reference) pair the
   ground truth calls a true match, ``¬L`` from a seeded subsample of the other pairs.
 * **bootstrapped** from the reference map (:func:`reference_samples`): ``¬L`` from
@@ -138,6 +153,34 @@ def _smallest_exponent(lo: float, hi: float, n_bins: int, start: int) -> int:
     return e
 
 
+def _monotone_tables(log_same: np.ndarray, log_diff: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pool adjacent bins until ``P(b|L)/P(b|¬L)`` is non-increasing in ``b``.
+
+    Weighted isotonic (non-increasing) regression, by pooling adjacent violators, of
+    ``q_b = f_b / (f_b + g_b)`` with weights ``m_b = f_b + g_b`` (``f = P(b|L)``,
+    ``g = P(b|¬L)``, both smoothed, so every ``m_b > 0``); then
+    ``f'_b = q'_b m_b`` and ``g'_b = (1 − q'_b) m_b``. Inside a pooled block the ratio
+    is the block's ``Σf / Σg``; each block keeps its mass under both classes, so both
+    tables still sum to one. Inputs and outputs are ``(n_bins,)`` logs.
+    """
+    f, g = np.exp(log_same), np.exp(log_diff)
+    # blocks as (Σf, Σg, size); q of a block = Σf / (Σf + Σg), its weight Σf + Σg
+    blocks: list[list[float]] = []
+    for fb, gb in zip(f.tolist(), g.tolist()):
+        blocks.append([fb, gb, 1])
+        while len(blocks) > 1 and blocks[-2][0] * blocks[-1][1] < blocks[-1][0] * blocks[-2][1]:
+            f2, g2, n2 = blocks.pop()
+            blocks[-1][0] += f2
+            blocks[-1][1] += g2
+            blocks[-1][2] += n2
+    sums = np.asarray(blocks, dtype=np.float64)
+    sizes = sums[:, 2].astype(np.intp)
+    log_m = np.log(f + g)
+    log_q = np.repeat(np.log(sums[:, 0]) - np.log(sums[:, 0] + sums[:, 1]), sizes)
+    log_1mq = np.repeat(np.log(sums[:, 1]) - np.log(sums[:, 0] + sums[:, 1]), sizes)
+    return log_q + log_m, log_1mq + log_m
+
+
 class HistogramLikelihood:
     """Histogram model of ``P(d|L)``, ``P(d|¬L)`` and ``P(d)`` for whole-image differences.
 
@@ -156,6 +199,11 @@ class HistogramLikelihood:
         (``N_L / (N_L + N_¬L)``; ``0.5`` before any sample).
     min_bin_width : float, default 1e-6
         Smallest bin width of the adaptive range (used when every difference is equal).
+    monotone : bool, default True
+        Constrain the likelihood ratio ``P(d|L)/P(d|¬L)`` to be non-increasing in ``d``
+        (a smaller difference is never less evidence of the same place) by pooling
+        adjacent violating bins (see the module docstring). ``False``: the raw
+        smoothed histograms, as in the paper.
 
     Attributes
     ----------
@@ -186,17 +234,19 @@ class HistogramLikelihood:
         smoothing: float = 0.01,
         prior_same: float | None = None,
         min_bin_width: float = 1e-6,
+        monotone: bool = True,
     ) -> None:
         self.n_bins = n_bins
         self.range = range
         self.smoothing = smoothing
         self.prior_same = prior_same
         self.min_bin_width = min_bin_width
+        self.monotone = monotone
 
     # ------------------------------------------------------------------ parameters
     def get_params(self) -> dict[str, Any]:
         """Constructor parameters (scikit-learn convention)."""
-        return {k: getattr(self, k) for k in ("n_bins", "range", "smoothing", "prior_same", "min_bin_width")}
+        return {k: getattr(self, k) for k in ("n_bins", "range", "smoothing", "prior_same", "min_bin_width", "monotone")}
 
     def __repr__(self) -> str:
         args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
@@ -208,6 +258,10 @@ class HistogramLikelihood:
         if self.prior_same is not None:
             check_scalar(self.prior_same, "prior_same", _OWNER, float, 0.0, 1.0, False, False)
         check_scalar(self.min_bin_width, "min_bin_width", _OWNER, float, 0.0, low_inclusive=False)
+        if not isinstance(self.monotone, (bool, np.bool_)):
+            raise InvalidParameterError(
+                f"The 'monotone' parameter of {_OWNER} must be a bool. Got {self.monotone!r} instead."
+            )
         if self.range is not None:
             ok = (
                 isinstance(self.range, (tuple, list, np.ndarray))
@@ -351,12 +405,27 @@ class HistogramLikelihood:
             return np.full(s, -math.log(s))
         return np.log((1.0 - eps) * (counts / total) + eps / s)
 
-    def _log_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Per-bin ``log P(b|L)``, ``log P(b|¬L)``, ``log P(b)`` and ``log w_b``."""
-        self._check_fitted()
+    def _log_class_tables(self) -> tuple[np.ndarray, np.ndarray]:
+        """Smoothed per-bin ``log P(b|L)``, ``log P(b|¬L)`` (pooled when ``monotone``)."""
         log_same = self._log_bin_probabilities(self.counts_same_, self.n_same_)
         log_diff = self._log_bin_probabilities(self.counts_different_, self.n_different_)
+        if self.monotone and self.n_same_ and self.n_different_:
+            log_same, log_diff = _monotone_tables(log_same, log_diff)
+        return log_same, log_diff
+
+    def _log_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Per-bin ``log P(b|L)``, ``log P(b|¬L)``, ``log P(b)`` and ``log w_b`` (cached
+        until the counts, bins or parameters change)."""
+        self._check_fitted()
         p = self.prior_same_
+        key = (
+            self.n_same_, self.n_different_, p, bool(self.monotone), float(self.smoothing),
+            float(self.bin_edges_[0]), float(self.bin_edges_[-1]),
+        )
+        cached = getattr(self, "_tables_cache", None)
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        log_same, log_diff = self._log_class_tables()
         if p <= 0.0:
             log_marg = log_diff
         elif p >= 1.0:
@@ -364,7 +433,9 @@ class HistogramLikelihood:
         else:
             log_marg = np.logaddexp(log_same + math.log(p), log_diff + math.log1p(-p))
         log_width = np.log(np.diff(self.bin_edges_))
-        return log_same, log_diff, log_marg, log_width
+        tables = (log_same, log_diff, log_marg, log_width)
+        self._tables_cache = (key, tables)
+        return tables
 
     def _lookup(self, d: Any, which: int, per_density: bool) -> np.ndarray | float:
         tables = self._log_tables()
@@ -496,14 +567,20 @@ class OnlineSamples:
     d_other : float
         Smallest difference outside ``best ± exclusion_radius`` (to ``¬L``); NaN when
         every place lies in that neighbourhood.
+    d_random : tuple of float
+        Differences to places drawn uniformly outside that neighbourhood (also to
+        ``¬L``; empty unless the recogniser asks for them).
     """
 
     best: int
     d_min: float
     d_other: float
+    d_random: tuple[float, ...] = ()
 
 
-def online_samples(differences: np.ndarray, exclusion_radius: int) -> OnlineSamples:
+def online_samples(
+    differences: np.ndarray, exclusion_radius: int, same_place: np.ndarray | None = None
+) -> OnlineSamples:
     """``d_min`` and the smallest difference not from the same location, O(n_ref).
 
     Parameters
@@ -512,8 +589,15 @@ def online_samples(differences: np.ndarray, exclusion_radius: int) -> OnlineSamp
         One frame's difference to every reference place (trusted: finite, 1-D).
     exclusion_radius : int
         Reference indices ``best ± exclusion_radius`` count as the same location.
+    same_place : ndarray of int, optional
+        Indices of the places that count as the best match's location (e.g. every place
+        within some metres of it); replaces ``exclusion_radius`` when given.
     """
     best = int(np.argmin(differences))
+    if same_place is not None:
+        rest = np.delete(differences, same_place)
+        other = rest.min() if rest.size else math.nan
+        return OnlineSamples(best, float(differences[best]), float(other))
     lo, hi = max(0, best - exclusion_radius), best + exclusion_radius + 1
     left, right = differences[:lo], differences[hi:]
     other = min(left.min() if left.size else np.inf, right.min() if right.size else np.inf)
@@ -571,6 +655,8 @@ def reference_samples(
     max_different: int = 100_000,
     same_radius: int = 0,
     seed: int | np.random.Generator | None = 0,
+    reference_positions: Any = None,
+    min_distance: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Bootstrap samples from the reference map alone (reference vs reference).
 
@@ -587,6 +673,11 @@ def reference_samples(
         ``0`` (default): no ``L`` samples, ``P(d|L)`` starts uniform (a weak prior) and
         is learned online. ``r > 0``: the pairs with ``1 ≤ |j − j'| ≤ r`` are ``L``.
     seed : int, Generator or None
+    reference_positions : array_like, shape (n_reference, n_dims), optional
+        Metric positions; with ``min_distance``, pairs closer than that are never
+        ``¬L`` (a route that passes a place twice is far apart in index there).
+    min_distance : float, optional
+        Needed with ``reference_positions``.
 
     Returns
     -------
@@ -607,6 +698,28 @@ def reference_samples(
     j = np.floor(rng.random(max_different) * (n - k)).astype(np.int64)
     flip = rng.random(max_different) < 0.5
     rows, cols = np.where(flip, j + k, j), np.where(flip, j, j + k)
+    if reference_positions is not None:
+        pos = check_array(reference_positions, "reference_positions", ndim=2)
+        if pos.shape[0] != n:
+            raise ShapeMismatchError(f"reference_positions has {pos.shape[0]} rows for {n} reference frames.")
+        if min_distance is None:
+            raise InvalidParameterError("reference_samples with reference_positions needs min_distance.")
+        check_scalar(min_distance, "min_distance", "reference_samples", float, 0.0)
+        keep = np.linalg.norm(pos[rows] - pos[cols], axis=1) > min_distance
+        # top up with further seeded draws among far pairs, a bounded number of rounds
+        for _ in range(50):
+            if keep.sum() >= max_different:
+                break
+            k2 = rng.choice(offsets, size=max_different, p=weights / weights.sum())
+            j2 = np.floor(rng.random(max_different) * (n - k2)).astype(np.int64)
+            far = np.linalg.norm(pos[j2] - pos[j2 + k2], axis=1) > min_distance
+            rows, cols = np.concatenate([rows[keep], j2[far]]), np.concatenate([cols[keep], (j2 + k2)[far]])
+            keep = np.ones(rows.size, dtype=bool)
+        rows, cols = rows[keep][:max_different], cols[keep][:max_different]
+        if rows.size == 0:
+            raise DataError(
+                f"no reference pairs are more than {min_distance} apart and {gap} frames apart; lower min_distance."
+            )
     d_diff = r[rows, cols]
     if same_radius:
         parts = [np.diagonal(r, o) for o in range(1, same_radius + 1)] + [
@@ -692,6 +805,26 @@ class HistogramPlaceRecogniser:
         frequency estimate ``N_L / (N_L + N_¬L)`` would be about 1/2 whatever the map
         size, which caps ``P(d|L)/P(d)`` at about 2 and flattens the posterior.
         ``"model"``: keep the model's own ``prior_same``. A float: that value.
+    n_random_different : int, default 5
+        After initialisation, also add the differences to this many places drawn
+        uniformly (with replacement, seeded) outside the best match's location to
+        ``¬L``. The paper's ``¬L`` sample (the smallest difference not from the same
+        location) only describes the low tail of ``P(d|¬L)``, while eq. (2) weighs
+        *every* place, most of which have typical differences; these samples estimate
+        the whole different-place distribution. ``0``: the paper's scheme exactly.
+    random_state : int, Generator or None, default 0
+        Seed of those draws.
+    reference_positions : array_like, shape (n_ref, n_dims), optional
+        Metric positions of the reference places (add a floor as a coordinate scaled
+        by more than any distance below, to keep floors apart). When given, "the same
+        location" is every place within ``exclusion_distance`` of the best match (for
+        ``¬L`` samples) and confidence is the posterior mass within
+        ``confidence_distance`` of it, instead of the index radii; routes that pass
+        a place twice (out and back) then count both visits as that place.
+    confidence_distance : float, optional
+        Needed with ``reference_positions``.
+    exclusion_distance : float, optional
+        Default: ``confidence_distance``.
 
     Attributes
     ----------
@@ -710,6 +843,11 @@ class HistogramPlaceRecogniser:
         new_place_prior: float = 0.01,
         learn: bool = True,
         prior_same: float | str = "per-place",
+        n_random_different: int = 5,
+        random_state: int | np.random.Generator | None = 0,
+        reference_positions: Any = None,
+        confidence_distance: float | None = None,
+        exclusion_distance: float | None = None,
     ) -> None:
         self.model = model
         self.n_init = n_init
@@ -718,6 +856,11 @@ class HistogramPlaceRecogniser:
         self.new_place_prior = new_place_prior
         self.learn = learn
         self.prior_same = prior_same
+        self.n_random_different = n_random_different
+        self.random_state = random_state
+        self.reference_positions = reference_positions
+        self.confidence_distance = confidence_distance
+        self.exclusion_distance = exclusion_distance
 
     def _start(self) -> None:
         owner = type(self).__name__
@@ -725,6 +868,23 @@ class HistogramPlaceRecogniser:
         check_scalar(self.exclusion_radius, "exclusion_radius", owner, int, 0)
         check_scalar(self.confidence_radius, "confidence_radius", owner, int, 0)
         check_scalar(self.new_place_prior, "new_place_prior", owner, float, 0.0, 1.0, True, False)
+        check_scalar(self.n_random_different, "n_random_different", owner, int, 0)
+        self._tree = None
+        if self.reference_positions is not None:
+            from scipy.spatial import cKDTree
+
+            positions = check_array(self.reference_positions, "reference_positions", ndim=2)
+            if self.confidence_distance is None:
+                raise InvalidParameterError(
+                    f"{owner} with reference_positions needs confidence_distance (the distance within which "
+                    "places count as the match's location)."
+                )
+            check_scalar(self.confidence_distance, "confidence_distance", owner, float, 0.0)
+            if self.exclusion_distance is not None:
+                check_scalar(self.exclusion_distance, "exclusion_distance", owner, float, 0.0)
+            self._positions = positions
+            self._tree = cKDTree(positions)
+        self._rng = as_generator(self.random_state)
         if not isinstance(self.learn, (bool, np.bool_)):
             raise InvalidParameterError(f"The 'learn' parameter of {owner} must be a bool. Got {self.learn!r} instead.")
         if self.model is not None and not isinstance(self.model, HistogramLikelihood):
@@ -758,6 +918,11 @@ class HistogramPlaceRecogniser:
 
     def _row(self, differences: Any) -> np.ndarray:
         row = check_array(differences, "difference row", ndim=1)
+        if self._tree is not None and row.shape[0] != self._positions.shape[0]:
+            raise ShapeMismatchError(
+                f"difference row has {row.shape[0]} places but reference_positions has {self._positions.shape[0]} "
+                "rows; give one position per reference place."
+            )
         if hasattr(self, "n_reference_") and row.shape[0] != self.n_reference_:
             raise ShapeMismatchError(
                 f"difference row has {row.shape[0]} places but earlier rows had {self.n_reference_}; "
@@ -789,13 +954,34 @@ class HistogramPlaceRecogniser:
         row = self._row(differences)
         return self._update(row)
 
+    def _near(self, best: int, distance: float) -> np.ndarray:
+        """Indices of the places within ``distance`` of place ``best`` (positions given)."""
+        return np.asarray(self._tree.query_ball_point(self._positions[best], distance), dtype=np.intp)
+
+    def _same_location(self, best: int) -> np.ndarray | None:
+        if self._tree is None:
+            return None
+        distance = self.confidence_distance if self.exclusion_distance is None else self.exclusion_distance
+        return self._near(best, distance)
+
     def _update(self, row: np.ndarray) -> OnlineSamples:
-        samples = online_samples(row, self.exclusion_radius)
+        best = int(np.argmin(row))
+        same_place = self._same_location(best)
+        samples = online_samples(row, self.exclusion_radius, same_place)
         if self.learn:
             if self.n_steps_ < self.n_init:
                 self.model_.partial_fit(None, [samples.d_min])
             else:
                 other = [] if math.isnan(samples.d_other) else [samples.d_other]
+                if self.n_random_different and not math.isnan(samples.d_other):
+                    outside = np.ones(row.shape[0], dtype=bool)
+                    if same_place is None:
+                        outside[max(0, best - self.exclusion_radius) : best + self.exclusion_radius + 1] = False
+                    else:
+                        outside[same_place] = False
+                    drawn = row[self._rng.choice(np.flatnonzero(outside), self.n_random_different)]
+                    samples = OnlineSamples(samples.best, samples.d_min, samples.d_other, tuple(drawn.tolist()))
+                    other = other + list(samples.d_random)
                 self.model_.partial_fit([samples.d_min], other)
         self.n_steps_ += 1
         return samples
@@ -820,8 +1006,12 @@ class HistogramPlaceRecogniser:
         if was_initialising:
             return Recognition(samples.best, 0.0, 0.0, 0.0, samples.d_min, True)
         log_post, log_new = self.model_.log_posterior(row, new_place_prior=self.new_place_prior)
-        lo = max(0, samples.best - self.confidence_radius)
-        confidence = float(np.exp(logsumexp(log_post[lo : samples.best + self.confidence_radius + 1])))
+        if self._tree is None:
+            lo = max(0, samples.best - self.confidence_radius)
+            near = log_post[lo : samples.best + self.confidence_radius + 1]
+        else:
+            near = log_post[self._near(samples.best, self.confidence_distance)]
+        confidence = float(np.exp(logsumexp(near)))
         prob_same = float(self.model_.prob_same_given(samples.d_min))
         return Recognition(samples.best, min(confidence, 1.0), float(np.exp(log_new)), prob_same, samples.d_min, False)
 

@@ -74,7 +74,7 @@ def test_against_slow_reference_fixed_range():
     rng = np.random.default_rng(1)
     same, diff = rng.normal(1, 0.5, 40), rng.normal(3, 1, 300)
     edges = np.linspace(0.0, 5.0, 11)
-    m = HistogramLikelihood(n_bins=10, range=(0.0, 5.0), smoothing=0.05).fit(same, diff)
+    m = HistogramLikelihood(n_bins=10, range=(0.0, 5.0), smoothing=0.05, monotone=False).fit(same, diff)
     ls, ld, lm, which = reference_log_tables(same, diff, edges, 0.05)
     query = rng.uniform(-2, 7, 50)
     # evaluation clips into the range of the samples seen
@@ -82,6 +82,46 @@ def test_against_slow_reference_fixed_range():
     b = np.array([which(v) for v in np.clip(query, both.min(), both.max())])
     np.testing.assert_allclose(m.log_likelihood_ratio(query), ls[b] - lm[b])
     np.testing.assert_allclose(m.log_prob(query), lm[b] - np.log(0.5))
+
+
+def slow_monotone(f, g):
+    """Brute force: the non-increasing ratio fit by repeatedly merging the first violating pair of blocks."""
+    blocks = [[b] for b in range(len(f))]
+    ratio = lambda blk: sum(f[b] for b in blk) / sum(g[b] for b in blk)  # noqa: E731
+    changed = True
+    while changed:
+        changed = False
+        for k in range(len(blocks) - 1):
+            if ratio(blocks[k]) < ratio(blocks[k + 1]):
+                blocks[k:k + 2] = [blocks[k] + blocks[k + 1]]
+                changed = True
+                break
+    fs, gs = np.empty(len(f)), np.empty(len(f))
+    for blk in blocks:
+        r = ratio(blk)
+        for b in blk:
+            m = f[b] + g[b]
+            fs[b], gs[b] = m * r / (1 + r), m / (1 + r)
+    return fs, gs
+
+
+def test_monotone_ratio_against_slow_reference():
+    rng = np.random.default_rng(3)
+    same, diff = rng.normal(1, 0.7, 60), rng.normal(2.5, 1, 200)
+    plain = HistogramLikelihood(n_bins=12, range=(-1.0, 5.0), monotone=False).fit(same, diff)
+    mono = HistogramLikelihood(n_bins=12, range=(-1.0, 5.0)).fit(same, diff)
+    ls, ld, _, _ = plain._log_tables()
+    f, g = slow_monotone(np.exp(ls), np.exp(ld))
+    ms, md, _, _ = mono._log_tables()
+    np.testing.assert_allclose(np.exp(ms), f, rtol=1e-10)
+    np.testing.assert_allclose(np.exp(md), g, rtol=1e-10)
+    assert np.all(np.diff(ms - md) <= 1e-12)  # non-increasing ratio
+    assert np.exp(ms).sum() == pytest.approx(1.0) and np.exp(md).sum() == pytest.approx(1.0)
+    assert np.any(np.diff(ls - ld) > 0)  # the plain histograms did violate it
+    # the hand-computed example already has a non-increasing ratio: unchanged
+    a = HistogramLikelihood(n_bins=4, range=(0.0, 4.0), smoothing=0.2).fit([0.5, 0.7], [2.5, 3.5, 3.6])
+    b = HistogramLikelihood(n_bins=4, range=(0.0, 4.0), smoothing=0.2, monotone=False).fit([0.5, 0.7], [2.5, 3.5, 3.6])
+    np.testing.assert_allclose(a._log_tables()[0], b._log_tables()[0])
 
 
 def test_out_of_range_values_are_clipped_into_edge_bins():
@@ -152,7 +192,7 @@ def test_partial_fit_chunks_fixed_range():
 def test_adaptive_bins_match_slow_reference():
     rng = np.random.default_rng(2)
     same, diff = rng.normal(-3, 1, 200), rng.normal(0, 1, 2000)
-    m = HistogramLikelihood(n_bins=50, smoothing=0.02).fit(same, diff)
+    m = HistogramLikelihood(n_bins=50, smoothing=0.02, monotone=False).fit(same, diff)
     ls, ld, lm, which = reference_log_tables(same, diff, m.bin_edges_, 0.02)
     inside = rng.uniform(m.bin_edges_[0], m.bin_edges_[-1], 100)
     both = np.concatenate([same, diff])
@@ -255,7 +295,7 @@ def synthetic_differences(n_query=300, n_ref=200, seed=0, unseen=()):
 
 def test_recogniser_online_follows_the_paper():
     d, truth = synthetic_differences()
-    rec = HistogramPlaceRecogniser(n_init=50, exclusion_radius=2)
+    rec = HistogramPlaceRecogniser(n_init=50, exclusion_radius=2, n_random_different=0)
     out = rec.run(d)
     assert out.initialising[:50].all() and not out.initialising[50:].any()
     assert np.all(out.confidence[:50] == 0)
@@ -348,3 +388,30 @@ def test_recogniser_errors():
         rec.step(np.zeros(6))
     with pytest.raises(DataError):
         rec.step(np.array([0.0, np.inf]))
+
+
+def test_recogniser_random_different_samples_and_positions():
+    d, truth = synthetic_differences(120, 60, seed=5)
+    rec = HistogramPlaceRecogniser(n_init=20, exclusion_radius=2, n_random_different=3, random_state=1)
+    rec.run(d)
+    assert rec.model_.n_same_ == 100 and rec.model_.n_different_ == 20 + 100 * 4
+    again = HistogramPlaceRecogniser(n_init=20, exclusion_radius=2, n_random_different=3, random_state=1)
+    again.run(d)
+    np.testing.assert_array_equal(rec.model_.counts_different_, again.model_.counts_different_)  # seeded
+    # a route that comes back: place j and place 59 - j share a position
+    x = np.minimum(np.arange(60), 59 - np.arange(60)).astype(float)
+    positions = np.column_stack([x, np.zeros(60)])
+    rec_p = HistogramPlaceRecogniser(n_init=0, reference_positions=positions, confidence_distance=0.5)
+    rec_i = HistogramPlaceRecogniser(n_init=0, confidence_radius=0)
+    row = np.full(60, 3.0)
+    row[[10, 49]] = -2.0  # the same position seen twice: both visits are near the match
+    for r in (rec_p, rec_i):
+        for k in range(30):
+            r.update(d[k])
+    assert rec_p.step(row).confidence > 1.5 * rec_i.step(row).confidence
+    with pytest.raises(InvalidParameterError, match="confidence_distance"):
+        HistogramPlaceRecogniser(reference_positions=positions).step(row)
+    # bootstrap pairs closer than min_distance are never ¬L
+    r = np.abs(np.subtract.outer(x, x))
+    _, nd = reference_samples(r, gap=2, max_different=300, seed=0, reference_positions=positions, min_distance=3.0)
+    assert nd.size == 300 and nd.min() > 3.0
