@@ -52,7 +52,7 @@ def _sequence(params, *, reference, query, differences, ground_truth, frontend=N
 
 
 _HISTOGRAM_KEYS = ("learning", "n_init", "exclusion_radius", "confidence_radius", "new_place_prior", "n_bins", "gap",
-                   "max_different", "seed")
+                   "max_different", "seed", "confidence_distance", "exclusion_distance")
 
 
 def _histogram(params, *, reference, query, differences, ground_truth, frontend=None) -> RunResult:
@@ -73,7 +73,15 @@ def _histogram(params, *, reference, query, differences, ground_truth, frontend=
     start = time.perf_counter()
     model = HistogramLikelihood(n_bins=int(p["n_bins"]))
     common = {"exclusion_radius": int(p["exclusion_radius"]), "confidence_radius": int(p["confidence_radius"]),
-              "new_place_prior": float(p["new_place_prior"])}
+              "new_place_prior": float(p["new_place_prior"]), "random_state": int(p["seed"])}
+    if p.get("confidence_distance") is not None or p.get("exclusion_distance") is not None:
+        # "the same place" by position (metres; floors 100 m apart) instead of by index
+        if reference.positions is None:
+            raise InvalidParameterError("confidence_distance/exclusion_distance need reference positions.")
+        positions = reference.positions if reference.floors is None else \
+            np.column_stack([reference.positions, 100.0 * reference.floors])
+        common.update(reference_positions=positions, confidence_distance=p.get("confidence_distance"),
+                      exclusion_distance=p.get("exclusion_distance"))
     if p["learning"] == "online":
         recogniser = HistogramPlaceRecogniser(model, n_init=int(p["n_init"]), **common)
     elif p["learning"] == "bootstrap":

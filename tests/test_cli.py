@@ -165,3 +165,16 @@ def test_demo_writes_a_report(tmp_path, capsys):
     assert html.count("data:image/png;base64") >= 5
     assert (tmp_path / "demo" / "results.md").exists()
     assert len(list((tmp_path / "demo").glob("*.json"))) == 4
+
+
+def test_histogram_same_place_by_position(tmp_path, image_pair, capsys):
+    out = tmp_path / "h.json"
+    assert main(["match", "synthetic:2", "synthetic:2", "--model", "histogram", "--same-place-m", "10",
+                 "-o", str(out), "-q"]) == 0
+    from catgraph.experiment import synthetic_world
+
+    recheck(json.loads(out.read_text()), synthetic_world(2).ground_truth())
+    ref, qry = image_pair
+    assert main(["match", str(ref), str(qry), "--tolerance", "1", "--model", "histogram", "--same-place-m", "5",
+                 "-q"]) == 1
+    assert "need reference positions" in capsys.readouterr().err

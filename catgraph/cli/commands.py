@@ -193,6 +193,9 @@ def register_match(sub) -> None:
                    help="histogram model: online (training-free), trained (fit on the labelled query: an "
                         "upper-bound baseline) or bootstrap (from the reference map)")
     p.add_argument("--init-frames", type=int, default=100, help="histogram model, online: T_init (default 100)")
+    p.add_argument("--same-place-m", type=float, metavar="METRES",
+                   help="histogram model: reference places within METRES count as the same place (needs "
+                        "positions; default: ± a few places along the route)")
     p.add_argument("--exclusion", type=int, default=10,
                    help="confidence = margin to the best match outside ± this many places (default 10)")
     p.set_defaults(func=cmd_match)
@@ -207,6 +210,8 @@ def cmd_match(args) -> int:
               "frontend": inputs.frontend}
     if args.model == "histogram":
         params = {"learning": args.learning, "n_init": args.init_frames}
+        if args.same_place_m is not None:
+            params.update(confidence_distance=args.same_place_m, exclusion_distance=args.same_place_m)
         result = run_method("histogram", params, ground_truth=inputs.ground_truth, **common)
     elif args.window == 1:
         result = match_single_frames(inputs.differences, inputs.query.index, exclusion=args.exclusion)
