@@ -26,7 +26,7 @@ Model names (``MODEL_NAMES``):
     :class:`~catgraph.observation.SequenceObservation`, adaptive window.
 ``combined``
     :class:`~catgraph.observation.CombinedObservation` of ``histogram-bootstrap`` and
-    ``adaptive`` (sum of log-ratios).
+    ``adaptive``, each part's log-ratios tempered by its online reliability.
 """
 
 from __future__ import annotations
@@ -133,9 +133,10 @@ def localize(reference: Traverse, query: Traverse, model: str | ObservationModel
     Returns
     -------
     RunResult
-        ``match`` = most likely place; ``confidence`` = the log-odds of the posterior
-        mass within the tolerance (ranks frames even where the mass rounds to 1);
-        ``extra`` holds ``posterior_mass``, ``p_new_place`` and ``ess``; ``seconds`` the
+        ``match`` = most likely place; ``confidence`` = :attr:`Estimate.score`, the
+        log-odds of the posterior mass within the tolerance, capped by the model's
+        recent support at the answer (``confidence_score="joint"``);
+        ``extra`` holds ``posterior_mass``, ``log_odds``, ``p_new_place`` and ``ess``; ``seconds`` the
         filter's wall time.
     """
     from .pipeline import FrontEnd
@@ -156,8 +157,9 @@ def localize(reference: Traverse, query: Traverse, model: str | ObservationModel
               "junction_radius_m": junction_radius_m, "edge_length": edge_length,
               "odometry": odometry is not None, "confidence_radius": confidence_radius,
               "confidence_radius_m": confidence_radius_m, **localizer_params}
-    return RunResult(f"particle-filter/{name}", params, np.asarray(query.index), res.place, res.log_odds,
-                     extra={"posterior_mass": res.confidence, "p_new_place": res.new_place_probability,
+    return RunResult(f"particle-filter/{name}", params, np.asarray(query.index), res.place, res.score,
+                     extra={"posterior_mass": res.confidence, "log_odds": res.log_odds,
+                            "p_new_place": res.new_place_probability,
                             "ess": res.ess}, seconds=seconds)
 
 

@@ -44,6 +44,17 @@ reference index), or within ``confidence_radius_m`` metres where the graph has p
 and that is given. A loop closure is declared when confidence ≥ a threshold; sweeping
 it gives the PR curve.
 
+Score. The posterior log-odds of that mass ranks frames badly at the top: sequence
+observations overlap from frame to frame, so the filter counts the same evidence many
+times and is most sure just after a jump, while the cloud still follows the old stretch
+of route. Models that can say how well the *most recent* frames alone support a place
+(``Observation.support``, e.g. the shortest sequence window) bound it:
+``score = min(log-odds, max_{j near answer} support_j)`` (``confidence_score="joint"``,
+the default) — a frame is only as sure as both its history and its recent evidence.
+Both are in nats. After each step the filter reports the answer's neighbourhood to
+models with a ``feedback(near)`` method (the combined model learns its parts'
+reliability from it).
+
 Cost. A step is O(n_particles · hops + n_places): the motion kernel is compiled, the
 rest is vectorised numpy; memory is fixed at construction. Same seed, same output:
 every random draw comes from the one ``numpy.random.Generator`` made from ``seed``.
@@ -149,7 +160,10 @@ class Estimate:
         Whether this step resampled.
     log_odds : float
         ``log(confidence / (1 − confidence))`` computed in log space, so it keeps ordering
-        frames where ``confidence`` rounds to 1.0 (use it to rank frames for PR curves).
+        frames where ``confidence`` rounds to 1.0.
+    score : float
+        What to rank frames by for PR curves: ``min(log_odds, support)`` where the model
+        gives a recent support (``confidence_score="joint"``), else ``log_odds``.
     """
 
     place: int
@@ -159,6 +173,7 @@ class Estimate:
     ess: float
     resampled: bool
     log_odds: float = 0.0
+    score: float = 0.0
 
 
 @dataclass
@@ -168,7 +183,7 @@ class LocalizationResult:
     Attributes
     ----------
     place : ndarray of int64, shape (n,)
-    confidence, new_place_probability, ess, log_odds : ndarray of float64, shape (n,)
+    confidence, new_place_probability, ess, log_odds, score : ndarray of float64, shape (n,)
     position : ndarray, shape (n, 2|3) or None
     query_index : ndarray of int64, shape (n,)
     seconds_per_frame : float
@@ -183,6 +198,7 @@ class LocalizationResult:
     query_index: np.ndarray
     seconds_per_frame: float
     log_odds: np.ndarray | None = None
+    score: np.ndarray | None = None
 
     @property
     def match(self) -> np.ndarray:
@@ -218,6 +234,10 @@ class Localizer:
         Places either side of the answer counted in its confidence.
     confidence_radius_m : float, optional
         Use a metric radius instead (needs graph positions).
+    confidence_score : {"joint", "posterior"}
+        What :attr:`Estimate.score` ranks by: ``"joint"`` = the smaller of the posterior
+        log-odds and the observation's recent support at the answer (where the model
+        gives one), ``"posterior"`` = the posterior log-odds alone.
     seed : int, Generator or None
 
     Attributes
@@ -231,7 +251,8 @@ class Localizer:
                  motion: MotionModel | None = None, resampler: str = "systematic", ess_threshold: float = 0.5,
                  redraw_fraction: float = 0.02, proposal: str = "best", proposal_top_k: int = 10,
                  new_place_prior: float = 0.05, new_place_stay: float = 0.8, confidence_radius: int = 2,
-                 confidence_radius_m: float | None = None, seed: int | np.random.Generator | None = 0) -> None:
+                 confidence_radius_m: float | None = None, confidence_score: str = "joint",
+                 seed: int | np.random.Generator | None = 0) -> None:
         self.graph = graph
         self.model = model
         self.n_particles = n_particles
@@ -245,6 +266,7 @@ class Localizer:
         self.new_place_stay = new_place_stay
         self.confidence_radius = confidence_radius
         self.confidence_radius_m = confidence_radius_m
+        self.confidence_score = confidence_score
         self.seed = seed
 
     # ------------------------------------------------------------------ setup
@@ -263,6 +285,11 @@ class Localizer:
         check_scalar(self.new_place_prior, "new_place_prior", owner, float, 0.0, 1.0, True, False)
         check_scalar(self.new_place_stay, "new_place_stay", owner, float, 0.0, 1.0, True, False)
         check_scalar(self.confidence_radius, "confidence_radius", owner, int, 0)
+        if self.confidence_score not in ("joint", "posterior"):
+            raise InvalidParameterError(
+                f"The 'confidence_score' parameter of {owner} must be 'joint' or 'posterior'. "
+                f"Got {self.confidence_score!r} instead."
+            )
         if self.proposal not in ("best", "uniform"):
             raise InvalidParameterError(f"The 'proposal' parameter of {owner} must be 'best' or 'uniform'. Got {self.proposal!r} instead.")
         if self.confidence_radius_m is not None:
@@ -280,6 +307,7 @@ class Localizer:
         self.n_steps_ = 0
         self._weight = np.exp(self.particles_.log_weight)
         self._log_new, self._log_map = -math.inf, 0.0
+        self._support = None
         self._no_ratio = np.zeros(self.graph.n_places)
         self._motions = (self.motion or FrameMotion(), self.motion or OdometryMotion())
         self.model.reset()
@@ -316,6 +344,7 @@ class Localizer:
         self._move(odometry)
         self._inject(obs)
         ess = self._reweight(obs)
+        self._support = obs.support if obs.informative else None
         resampled = self._resample_if_degenerate(ess)
         self.n_steps_ += 1
         return self._summarise(ess, resampled)
@@ -377,16 +406,25 @@ class Localizer:
             inside = np.zeros(g.n_places, dtype=bool)
             inside[self._tree.query_ball_point(g.positions[best], self.confidence_radius_m)] = True
             w_in, w_out = float(mass[inside].sum()), float(mass[~inside].sum())
+            near = inside
         else:
             lo, hi = max(0, best - self.confidence_radius), best + self.confidence_radius + 1
             w_in, w_out = float(mass[lo:hi].sum()), float(mass[:lo].sum() + mass[hi:].sum())
+            near = slice(lo, hi)
         # in log space, so that the new-place mass still ranks frames whose map mass is all inside
         log_in = self._log_map + math.log(w_in) if w_in > 0 else -math.inf
         log_out = np.logaddexp(self._log_new, self._log_map + math.log(w_out) if w_out > 0 else -math.inf)
         log_odds = float(log_in - log_out) if np.isfinite(log_in) or np.isfinite(log_out) else 0.0
         confidence = float(math.exp(log_in)) if np.isfinite(log_in) else 0.0
+        feedback = getattr(self.model, "feedback", None)
+        if callable(feedback):
+            feedback(near)
+        score = log_odds
+        if self.confidence_score == "joint" and self._support is not None:
+            score = min(log_odds, float(np.max(self._support[near])))
         position = None if g.positions is None else g.positions[best].copy()
-        return Estimate(best, position, min(confidence, 1.0), self.new_place_probability_, ess, resampled, log_odds)
+        return Estimate(best, position, min(confidence, 1.0), self.new_place_probability_, ess, resampled, log_odds,
+                        score)
 
     # ------------------------------------------------------------------ batch
     def run(self, observations, odometry: np.ndarray | None = None, query_index: np.ndarray | None = None,
@@ -433,7 +471,7 @@ class Localizer:
         qi = np.arange(n) if query_index is None else np.asarray(query_index, dtype=np.int64)
         self.reset()
         place = np.empty(n, dtype=np.int64)
-        conf, p_new, ess, log_odds = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+        conf, p_new, ess, log_odds, score = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
         pos = None if self.graph.positions is None else np.empty((n, self.graph.positions.shape[1]))
         rows = range(n)
         if progress:
@@ -444,8 +482,8 @@ class Localizer:
         for k in rows:
             est = self.step(d[k], None if odometry is None else float(odometry[k]))
             place[k], conf[k], p_new[k], ess[k] = est.place, est.confidence, est.new_place_probability, est.ess
-            log_odds[k] = est.log_odds
+            log_odds[k], score[k] = est.log_odds, est.score
             if pos is not None:
                 pos[k] = est.position
         seconds = (time.perf_counter() - start) / max(n, 1)
-        return LocalizationResult(place, conf, p_new, ess, pos, qi, seconds, log_odds)
+        return LocalizationResult(place, conf, p_new, ess, pos, qi, seconds, log_odds, score)

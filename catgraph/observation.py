@@ -35,10 +35,17 @@ Models (all follow :class:`ObservationModel`: ``reset()``, ``observe(row)``):
     neighbourhood to ``¬L``). So ``r_j = log P(z_j|L) − log P(z_j)``, learned from
     the query itself, no threshold to tune.
 :class:`CombinedObservation`
-    A tempered product of models: ``r = Σ_m w_m r^{(m)}`` (and likewise the new-place
-    ratio), ``w_m = 1`` by default — the sum of log-ratios, exact if the models' errors
-    were independent. They are not (a sequence score averages the same differences
-    the histogram model sees), so weights below 1 temper the product.
+    A tempered product of models: ``r = Σ_m w_m ρ_m r^{(m)}`` (and likewise the
+    new-place ratio), ``w_m = 1`` by default; ``ρ_m`` is each part's reliability,
+    learned online as how often its own best place agrees with the filter's answer
+    (``reliability="online"``, the default; ``None``: ``ρ = 1``, the plain sum of
+    log-ratios, exact if the models' errors were independent). A part that is rarely
+    right on its own is flattened so that it cannot outvote a reliable one.
+
+:class:`SequenceObservation` also reports a *recent support* per place
+(``Observation.support``): ``−log Φ(−z_j)`` of the standardised score at the shortest
+window, the evidence of the most recent frames alone, which caps the filter's
+confidence (:mod:`catgraph.localizer`).
 
 Every model takes a ``temperature`` ``τ`` (``r ← τ r``); values below 1 flatten an
 over-confident model so that one frame cannot wipe out the particle cloud.
@@ -83,11 +90,18 @@ class Observation:
         Log-likelihood ratio of the new-place hypothesis, same scale.
     informative : bool
         False while a model is still initialising (all ratios zero).
+    support : ndarray of float64, shape (n_places,), or None
+        Optional *recent support* of each place: ``−log`` of the probability that an
+        unrelated place would look at least as good over the most recent frames alone
+        (:class:`SequenceObservation`: the shortest window). The filter's confidence is
+        the smaller of its posterior log-odds and this (:mod:`catgraph.localizer`).
+        ``None``: the model has no such measure.
     """
 
     log_ratio: np.ndarray
     new_place_log_ratio: float
     informative: bool = True
+    support: np.ndarray | None = None
 
 
 @runtime_checkable
@@ -288,10 +302,16 @@ class SequenceObservation:
         self.matcher_ = SequenceMatcher(window=self.window, **(self.matcher_params or {}))
         self.recogniser_ = HistogramPlaceRecogniser(n_init=self.n_init, exclusion_radius=self.exclusion_radius)
 
-    def window_scores(self) -> np.ndarray:
-        """``(n_places,)`` scores ``s_kj(L_k)`` of the latest frame at its chosen window."""
+    def window_scores(self, length: int | None = None) -> np.ndarray:
+        """``(n_places,)`` scores ``s_kj(L)`` of the latest frame.
+
+        Parameters
+        ----------
+        length : int, optional
+            Window length ``L`` (default: the matcher's chosen window ``L_k``).
+        """
         m = self.matcher_
-        length = int(self.last_match_.window_length)
+        length = int(self.last_match_.window_length) if length is None else int(length)
         public = getattr(m, "window_scores", None)
         if callable(public):
             return np.asarray(public(length), dtype=np.float64)
@@ -322,26 +342,86 @@ class SequenceObservation:
         tau = float(self.temperature)
         model = rec.model_
         return Observation(tau * np.asarray(model.log_likelihood_ratio(z), dtype=np.float64),
-                           tau * float(model.new_place_log_likelihood()), True)
+                           tau * float(model.new_place_log_likelihood()), True, self._recent_support())
+
+    def _recent_support(self) -> np.ndarray:
+        """``−log Φ(−z_j)``, ``z_j = (mean − s_kj(l)) / std`` at the shortest window ``l``
+        of the matcher's grid (the most recent frames only)."""
+        from scipy.special import log_ndtr
+
+        s = self.window_scores(int(self.matcher_.window_grid_[0]))
+        sd = s.std()
+        z = (s.mean() - s) / sd if sd > 0 else np.zeros_like(s)
+        return -log_ndtr(-z)
 
 
 class CombinedObservation:
-    """Tempered product of observation models: ``r = Σ_m w_m r^{(m)}``.
+    """Tempered product of observation models, each part tempered by its reliability.
+
+    ``r_j = Σ_m w_m ρ_m r^{(m)}_j`` (and likewise the new-place ratio). With
+    ``reliability="online"``, ``ρ_m`` is learned from the query: the filter reports its
+    answer after every step (:meth:`feedback`) and ``ρ_m`` is the posterior mean of a
+    Beta(1, 1) on how often the part's own best place lies within the answer's
+    tolerance. A part that is rarely right on its own (the single-frame histogram on a
+    season change) is flattened towards ratio 1 and can no longer outvote a reliable
+    part; where every part is reliable, ``ρ → 1`` and the plain sum of log-ratios is
+    recovered. Tempering (an exponent) rather than a mixture with an uninformative
+    model keeps a part's negative evidence: a mixture caps it at ``log(1 − ρ)`` while
+    its positive evidence stays unbounded, so one spurious peak could outvote a
+    reliable part and then, through the feedback, keep its reliability.
+    ``reliability=None`` uses ``ρ_m = 1`` (``r = Σ_m w_m r^{(m)}``).
+
+    The feedback is self-referential — the answer it is judged against comes from the
+    combined evidence — so a part that dominates from the start keeps a high ``ρ``:
+    ``ρ`` measures agreement with the filter, which equals reliability only when the
+    filter is mostly right.
 
     Parameters
     ----------
     models : sequence of ObservationModel
     weights : sequence of float, optional
         Exponents ``w_m`` (default all 1).
+    reliability : {"online", None}
+
+    Attributes
+    ----------
+    reliability_ : ndarray of float64, shape (n_models,)
+        Current ``ρ_m``.
     """
 
-    def __init__(self, models: Sequence[ObservationModel], weights: Sequence[float] | None = None) -> None:
+    def __init__(self, models: Sequence[ObservationModel], weights: Sequence[float] | None = None,
+                 reliability: str | None = "online") -> None:
         self.models = models
         self.weights = weights
+        self.reliability = reliability
 
     def reset(self) -> None:
         for m in self.models:
             m.reset()
+        for k in ("reliability_", "_hits", "_trials", "_best"):
+            self.__dict__.pop(k, None)
+
+    def feedback(self, near) -> None:
+        """Learn each part's reliability from the filter's answer.
+
+        Parameters
+        ----------
+        near : slice or ndarray of bool, shape (n_places,)
+            The places within tolerance of the filter's answer for the latest frame.
+        """
+        best = getattr(self, "_best", None)
+        if best is None or self.reliability is None:
+            return
+        for m, b in enumerate(best):
+            if b < 0:
+                continue
+            if isinstance(near, slice):
+                hit = near.start <= b < near.stop
+            else:
+                hit = bool(near[b])
+            self._hits[m] += hit
+            self._trials[m] += 1
+        self.reliability_ = (self._hits + 1.0) / (self._trials + 2.0)
 
     def observe(self, difference_row: np.ndarray) -> Observation:
         if len(self.models) == 0:
@@ -352,12 +432,32 @@ class CombinedObservation:
                 f"The 'weights' parameter of CombinedObservation must give one non-negative float per model "
                 f"({len(self.models)}). Got {self.weights!r} instead."
             )
+        if self.reliability not in ("online", None):
+            raise InvalidParameterError(
+                f"The 'reliability' parameter of CombinedObservation must be 'online' or None. "
+                f"Got {self.reliability!r} instead."
+            )
+        if not hasattr(self, "_hits"):
+            n = len(self.models)
+            self._hits, self._trials = np.zeros(n), np.zeros(n)
+            self.reliability_ = np.full(n, 0.5 if self.reliability else 1.0)
         parts = [m.observe(difference_row) for m in self.models]
-        log_ratio = sum(wi * p.log_ratio for wi, p in zip(w, parts) if p.informative)
-        if isinstance(log_ratio, int):
+        self._best = [int(np.argmax(p.log_ratio)) if p.informative else -1 for p in parts]
+        rho = self.reliability_ if self.reliability else np.ones(len(parts))
+        log_ratio, new, supports = None, 0.0, []
+        for wi, p, r in zip(w, parts, rho):
+            if not p.informative:
+                continue
+            lr, nr = p.log_ratio, p.new_place_log_ratio
+            lr, nr = r * lr, r * nr
+            log_ratio = wi * lr if log_ratio is None else log_ratio + wi * lr
+            new += wi * nr
+            if wi > 0 and p.support is not None:
+                supports.append(p.support)
+        if log_ratio is None:
             return Observation(np.zeros(len(parts[0].log_ratio)), 0.0, False)
-        new = sum(wi * p.new_place_log_ratio for wi, p in zip(w, parts) if p.informative)
-        return Observation(np.asarray(log_ratio, dtype=np.float64), float(new), True)
+        support = None if not supports else (supports[0] if len(supports) == 1 else np.maximum.reduce(supports))
+        return Observation(np.asarray(log_ratio, dtype=np.float64), float(new), True, support)
 
 
 #: Model names understood by :func:`make_model` (and the command line).

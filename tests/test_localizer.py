@@ -204,9 +204,66 @@ def test_new_place_on_the_synthetic_world():
 def test_combined_model_sums_log_ratios():
     a, b = PeakModel(scale=1.0, new=-1.0), PeakModel(scale=2.0, new=-3.0)
     row = np.array([0.0, 1.0, 2.0])
-    out = CombinedObservation([a, b], weights=[1.0, 0.5]).observe(row)
+    out = CombinedObservation([a, b], weights=[1.0, 0.5], reliability=None).observe(row)
     np.testing.assert_allclose(out.log_ratio, -row - 0.25 * row)
     assert out.new_place_log_ratio == pytest.approx(-1.0 - 1.5)
+
+
+def test_combined_reliability_tempers_each_part():
+    a, b = PeakModel(scale=1.0, new=-1.0), PeakModel(scale=2.0, new=-3.0)
+    row = np.array([0.0, 1.0, 2.0])
+    model = CombinedObservation([a, b])
+    out = model.observe(row)  # before any feedback: rho = 1/2 for both parts
+    mix = lambda r, rho: rho * r  # tempered by the reliability
+    np.testing.assert_allclose(out.log_ratio, mix(-row, 0.5) + mix(-row / 2, 0.5))
+    assert out.new_place_log_ratio == pytest.approx(mix(-1.0, 0.5) + mix(-3.0, 0.5))
+    # both parts' best place is 0: three hits when the answer is 0, one miss when it is 2
+    for near in (slice(0, 1), slice(0, 1), slice(0, 1), np.array([False, False, True])):
+        model.observe(row)
+        model.feedback(near)
+    np.testing.assert_allclose(model.reliability_, [(3 + 1) / (4 + 2)] * 2)
+    rho = model.reliability_[0]
+    np.testing.assert_allclose(model.observe(row).log_ratio, mix(-row, rho) + mix(-row / 2, rho))
+
+
+def test_unreliable_part_is_damped_by_the_filter():
+    # part b points at a random place every frame; part a follows the true path
+    rng = np.random.default_rng(0)
+    g = PlaceGraph.chain(80)
+    path = np.arange(5, 65)
+    rows = _rows_along(path, 80, noise=0.1, rng=rng)
+
+    class Liar:
+        def reset(self):
+            self.rng = np.random.default_rng(1)
+
+        def observe(self, row):
+            r = np.zeros(len(row))
+            r[self.rng.integers(len(row))] = 6.0
+            return Observation(r, 0.0, True)
+
+    model = CombinedObservation([PeakModel(scale=0.3), Liar()])
+    res = Localizer(g, model, n_particles=500, seed=0).run(rows)
+    assert model.reliability_[0] > 0.8 and model.reliability_[1] < 0.2
+    assert np.mean(np.abs(res.place - path) <= 2) > 0.9
+
+
+def test_joint_score_is_capped_by_the_recent_support():
+    g = PlaceGraph.chain(60)
+    rows = _rows_along(range(10, 50), 60, sharpness=8.0, noise=0.1, rng=np.random.default_rng(5))
+
+    class Supported(PeakModel):
+        def observe(self, row):
+            o = super().observe(row)
+            return Observation(o.log_ratio, o.new_place_log_ratio, True, np.full(len(row), 1.5))
+
+    joint = Localizer(g, Supported(), n_particles=500, seed=0).run(rows)
+    post = Localizer(g, Supported(), n_particles=500, seed=0, confidence_score="posterior").run(rows)
+    np.testing.assert_array_equal(joint.place, post.place)
+    np.testing.assert_allclose(post.score, post.log_odds)
+    np.testing.assert_allclose(joint.score, np.minimum(joint.log_odds, 1.5))
+    plain = Localizer(g, PeakModel(), n_particles=500, seed=0).run(rows)  # no support: posterior log-odds
+    np.testing.assert_allclose(plain.score, plain.log_odds)
 
 
 def test_errors_name_the_problem():
@@ -219,6 +276,10 @@ def test_errors_name_the_problem():
         Localizer(g, PeakModel(), resampler="magic").reset()
     with pytest.raises(InvalidParameterError, match="ObservationModel"):
         Localizer(g, object()).reset()
+    with pytest.raises(InvalidParameterError, match="confidence_score"):
+        Localizer(g, PeakModel(), confidence_score="max").reset()
+    with pytest.raises(InvalidParameterError, match="reliability"):
+        CombinedObservation([PeakModel()], reliability="always").observe(np.zeros(3))
 
 
 def test_log_odds_agree_with_confidence_and_keep_ranking_at_saturation():
