@@ -312,19 +312,7 @@ class SequenceObservation:
         """
         m = self.matcher_
         length = int(self.last_match_.window_length) if length is None else int(length)
-        public = getattr(m, "window_scores", None)
-        if callable(public):
-            return np.asarray(public(length), dtype=np.float64)
-        # SequenceMatcher keeps the diagonal prefix sums of the last frames in a ring
-        # buffer; the window scores at the chosen length are one subtraction each.
-        from . import _sequence_kernels as kernels
-
-        s = np.empty(m.n_reference_)
-        if hasattr(m, "_mring"):
-            kernels.window_scores(m._ring, m._mring, m.n_steps_ - 1, length, s)
-        else:
-            kernels.window_scores(m._ring, m.n_steps_ - 1, length, s)
-        return s
+        return m.window_scores(length)
 
     def observe(self, difference_row: np.ndarray) -> Observation:
         if not hasattr(self, "matcher_"):

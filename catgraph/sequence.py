@@ -92,7 +92,7 @@ import numpy as np
 from scipy.special import log_ndtr
 
 from ._validation import check_array, check_scalar
-from .exceptions import InvalidParameterError, ShapeMismatchError
+from .exceptions import InvalidParameterError, NotFittedError, ShapeMismatchError
 
 __all__ = [
     "SequenceMatch",
@@ -508,6 +508,20 @@ class SequenceMatcher:
         self._mring = np.zeros(int(cfg.grid[-1]) + 1)
         self._buffers = (np.empty(n), np.empty(n), np.empty((cfg.n_components, n)))
         self._stats = _Stats(1, cfg.grid.shape[0], cfg.n_components, _needs_sub(cfg))
+
+    def window_scores(self, length: int) -> np.ndarray:
+        """``(N,)`` window scores ``s_ij(L)`` of the latest frame ``i`` at length ``L``.
+
+        Same policy and arithmetic as the matcher itself (query start: ``min(L, i+1)``
+        terms; reference start: neutral fill). ``L`` may not exceed ``l_max`` (the ring
+        buffer holds no more).
+        """
+        if not hasattr(self, "n_steps_") or self.n_steps_ == 0:
+            raise NotFittedError("window_scores needs at least one step(); call step(difference_row) first.")
+        check_scalar(length, "length", "SequenceMatcher.window_scores", int, 1, self._ring.shape[0] - 1)
+        s = np.empty(self.n_reference_)
+        _kernels().window_scores(self._ring, self._mring, self.n_steps_ - 1, int(length), s)
+        return s
 
     def step(self, difference_row: np.ndarray, return_curve: bool = False) -> SequenceMatch:
         """Process one query frame.

@@ -254,3 +254,20 @@ def test_mixture_fit_uses_a_strided_subsample_for_large_references():
     w, mu, sd = slow_em(s[::stride], 2, start=(s.mean(), s.std()))
     expected = logsumexp(np.log(w) + log_ndtr((s.min() - mu) / sd))
     assert result.log_p[2, 0] == pytest.approx(expected, rel=1e-7)
+
+
+def test_public_window_scores_equal_fixed_window_scores():
+    from catgraph.exceptions import NotFittedError
+    from catgraph.sequence import SequenceMatcher, fixed_window_scores
+
+    rng = np.random.default_rng(5)
+    d = rng.normal(size=(30, 40))
+    m = SequenceMatcher(window="adaptive", l_min=2, l_max=16)
+    with pytest.raises(NotFittedError):
+        m.window_scores(4)
+    for row in d:
+        m.step(row)
+    for length in (1, 4, 16):
+        np.testing.assert_allclose(m.window_scores(length), fixed_window_scores(d, length)[-1], atol=1e-12)
+    with pytest.raises(ValueError, match="length"):
+        m.window_scores(17)
