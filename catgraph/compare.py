@@ -41,7 +41,7 @@ from .graph import PlaceGraph
 from .localizer import Localizer
 from .observation import CombinedObservation, HistogramObservation, ObservationModel, SequenceObservation
 from .results import RunResult
-from .traverse import GroundTruth, MetricTolerance, Traverse
+from .traverse import GroundTruth, Traverse
 
 __all__ = ["MODEL_NAMES", "build_model", "localize", "compare_models", "format_table"]
 

@@ -57,8 +57,6 @@ comparable across frames and datasets.
 
 from __future__ import annotations
 
-import copy
-import math
 from dataclasses import dataclass
 from typing import Protocol, Sequence, runtime_checkable
 
