@@ -72,21 +72,23 @@ def run_demo(out_dir: str | Path = "catgraph-demo", seed: int = 0, n_particles: 
         payloads.append(payload)
         write_json_atomic(out / f"{result.method.replace('/', '-')}.json", payload)
 
-    figures = _figures(world, diff, graph, payloads)
+    figures = _figures(world, diff, graph, payloads, seed, n_particles)
     report = write_report(payloads, out, title=f"catgraph demo — synthetic city (seed {seed})", extra_figures=figures)
     log(f"finished in {time.perf_counter() - t0:.1f} s")
     return report, payloads
 
 
-def _figures(world, diff, graph, payloads):
+def _figures(world, diff, graph, payloads, seed, n_particles):
     """Figures the report does not draw from result files alone."""
     from matplotlib.figure import Figure
 
     from . import plot
+    from .compare import build_model
+    from .localizer import Localizer
 
     figures = []
     adaptive = next(p for p in payloads if p["method"] == "adaptive")
-    filt = payloads[-1]
+    filt = next(p for p in payloads if p["method"] == "particle-filter/histogram")
     query, reference = world.query, world.reference
 
     fig = Figure(figsize=(9, 4.5), layout="constrained")
@@ -100,15 +102,26 @@ def _figures(world, diff, graph, payloads):
     ax.set_title("differences (query × reference) with ground truth and adaptive-window matches")
     figures.append(("Difference matrix: ground truth and adaptive-window matches", fig))
 
+    fig = Figure(figsize=(9, 4.5), layout="constrained")
+    ax = fig.add_subplot()
+    loc = Localizer(graph, build_model("histogram", reference), n_particles=n_particles, seed=seed,
+                    confidence_radius_m=world.tolerance_m)
+    posterior = loc.run(diff, odometry=query.odometry, return_posterior=True).posterior
+    plot.plot_posterior(posterior, log=True, ax=ax)
+    ax.set_title("particle posterior over the places, log scale (filter + online histogram model)")
+    figures.append(("Posterior mass per place over time: bright diagonals are the filter tracking the route", fig))
+
     fig = Figure(figsize=(9, 3.2), layout="constrained")
     ax = fig.add_subplot()
-    plot.plot_new_place_probability(np.array(filt["frames"]["p_new_place"], dtype=float),
-                                    labels=[filt["method"]], is_new_place=query.meta["new_place"], ax=ax)
+    filters = [p for p in payloads if "p_new_place" in p["frames"]]
+    plot.plot_new_place_probability([np.array(p["frames"]["p_new_place"], dtype=float) for p in filters],
+                                    labels=[p["method"] for p in filters], is_new_place=query.meta["new_place"], ax=ax)
     figures.append(("P(new place) over the query; shaded: frames through unmapped streets", fig))
 
     fig = Figure(figsize=(6.5, 6), layout="constrained")
     ax = fig.add_subplot()
-    k = int(np.argmax(~query.meta["new_place"] & np.array(filt["frames"]["correct"])) + len(query) // 2) % len(query)
+    candidates = np.flatnonzero(np.array(filt["frames"]["correct"]))
+    k = int(candidates[len(candidates) // 2]) if candidates.size else len(query) // 2
     place = filt["frames"]["match"][k]
     plot.plot_place_graph(graph.positions, np.column_stack([graph.source, graph.target]), highlight=place,
                           true_position=query.positions[k], ax=ax)

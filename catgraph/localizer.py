@@ -188,6 +188,8 @@ class LocalizationResult:
     query_index : ndarray of int64, shape (n,)
     seconds_per_frame : float
         Mean wall time of a step, observation model included.
+    posterior : ndarray of float32, shape (n, n_places) or None
+        Posterior mass per place after each frame (``run(return_posterior=True)``).
     """
 
     place: np.ndarray
@@ -199,6 +201,7 @@ class LocalizationResult:
     seconds_per_frame: float
     log_odds: np.ndarray | None = None
     score: np.ndarray | None = None
+    posterior: np.ndarray | None = None
 
     @property
     def match(self) -> np.ndarray:
@@ -401,6 +404,7 @@ class Localizer:
     def _summarise(self, ess: float, resampled: bool) -> Estimate:
         g, p = self.graph, self.particles_
         mass = np.bincount(p.places(g), weights=self._weight, minlength=g.n_places)
+        self.place_posterior_ = mass * (1.0 - self.new_place_probability_)
         best = int(np.argmax(mass))
         if self.confidence_radius_m is not None:
             inside = np.zeros(g.n_places, dtype=bool)
@@ -428,7 +432,7 @@ class Localizer:
 
     # ------------------------------------------------------------------ batch
     def run(self, observations, odometry: np.ndarray | None = None, query_index: np.ndarray | None = None,
-            reference=None, progress: bool = False) -> LocalizationResult:
+            reference=None, progress: bool = False, return_posterior: bool = False) -> LocalizationResult:
         """Reset, then :meth:`step` through a whole query.
 
         Parameters
@@ -446,6 +450,10 @@ class Localizer:
         reference : Traverse, optional
         progress : bool
             Show a tqdm progress bar.
+        return_posterior : bool
+            Also return the posterior mass of every place after every frame
+            (``(n_query, n_places) float32``; memory grows with the query, so off by
+            default).
 
         Returns
         -------
@@ -473,6 +481,7 @@ class Localizer:
         place = np.empty(n, dtype=np.int64)
         conf, p_new, ess, log_odds, score = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
         pos = None if self.graph.positions is None else np.empty((n, self.graph.positions.shape[1]))
+        posterior = np.empty((n, self.graph.n_places), dtype=np.float32) if return_posterior else None
         rows = range(n)
         if progress:
             from tqdm import tqdm
@@ -485,5 +494,7 @@ class Localizer:
             log_odds[k], score[k] = est.log_odds, est.score
             if pos is not None:
                 pos[k] = est.position
+            if posterior is not None:
+                posterior[k] = self.place_posterior_
         seconds = (time.perf_counter() - start) / max(n, 1)
-        return LocalizationResult(place, conf, p_new, ess, pos, qi, seconds, log_odds, score)
+        return LocalizationResult(place, conf, p_new, ess, pos, qi, seconds, log_odds, score, posterior)
