@@ -110,6 +110,17 @@ _FILTER_KEYS = ("n_particles", "seed", "window", "junction_radius_m", "edge_leng
                 "proposal", "new_place_prior")
 
 
+def confidence_from_ground_truth(ground_truth: GroundTruth) -> dict:
+    """The filter's confidence is the posterior mass within the tolerance the evaluation
+    uses (DESIGN §6): ``confidence_radius`` (places) or ``confidence_radius_m`` (metres)."""
+    described = ground_truth.describe()
+    if described.get("type") == "metric":
+        return {"confidence_radius_m": float(described["metres"])}
+    if described.get("type") == "frame":
+        return {"confidence_radius": max(1, int(described["tolerance"]))}
+    return {}
+
+
 def _filter(model: str):
     """The CAT-Graph particle filter with observation model ``model``."""
 
@@ -118,6 +129,8 @@ def _filter(model: str):
 
         _check_keys(params, _FILTER_KEYS, "particle-filter")
         kwargs = {k: v for k, v in params.items() if v is not None}
+        if "confidence_radius" not in kwargs and "confidence_radius_m" not in kwargs and ground_truth is not None:
+            kwargs.update(confidence_from_ground_truth(ground_truth))
         return localize(reference, query, model=model, differences=differences, frontend=frontend, **kwargs)
 
     run.__doc__ = f"Particle filter with the {model!r} observation model."

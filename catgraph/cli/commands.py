@@ -253,10 +253,12 @@ def cmd_localize(args) -> int:
     if args.particles < 1:
         raise InvalidParameterError(f"--particles must be ≥ 1; got {args.particles}.")
     inputs = load_inputs(args)
+    from ..methods import confidence_from_ground_truth
+
     result = localize(inputs.reference, inputs.query, model=FILTER_MODELS[args.model], n_particles=args.particles,
                       seed=args.seed, window=args.window, graph=inputs.graph,
                       junction_radius_m=args.junction_radius_m, differences=inputs.differences,
-                      frontend=inputs.frontend)
+                      frontend=inputs.frontend, **confidence_from_ground_truth(inputs.ground_truth))
     return finish(args, result, inputs.ground_truth, run_params(args, inputs))
 
 
@@ -287,9 +289,12 @@ def cmd_compare(args) -> int:
         if inputs.graph is not None and name.startswith("filter-"):
             from ..compare import localize
 
+            from ..methods import confidence_from_ground_truth
+
             result = localize(inputs.reference, inputs.query, model=name[7:], graph=inputs.graph,
                               differences=inputs.differences, frontend=inputs.frontend,
-                              **{k: v for k, v in params.items() if k != "junction_radius_m"})
+                              **{k: v for k, v in params.items() if k != "junction_radius_m"},
+                              **confidence_from_ground_truth(inputs.ground_truth))
         else:
             result = run_method(name, params, **common)
         result.params.update(run_params(args, inputs))
