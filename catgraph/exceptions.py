@@ -20,6 +20,7 @@ __all__ = [
     "NotFittedError",
     "MapFileError",
     "ConfigError",
+    "MissingDependencyError",
 ]
 
 
@@ -53,3 +54,8 @@ class MapFileError(DataError):
 
 class ConfigError(CatgraphError, ValueError):
     """An experiment configuration has unknown keys or values of the wrong type."""
+
+
+class MissingDependencyError(CatgraphError, ImportError):
+    """An optional dependency needed for the requested feature is not installed
+    (the message names the extra to install, e.g. ``pip install "catgraph[dask]"``)."""

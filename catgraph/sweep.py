@@ -35,13 +35,9 @@ import traceback
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from .exceptions import CatgraphError, InvalidParameterError
+from .exceptions import CatgraphError, InvalidParameterError, MissingDependencyError
 
 __all__ = ["run_sweep", "MissingDependencyError"]
-
-
-class MissingDependencyError(CatgraphError, ImportError):
-    """An optional dependency needed for the requested feature is not installed."""
 
 
 def _run_experiment(spec: dict) -> dict:
