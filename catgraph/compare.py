@@ -100,7 +100,8 @@ def localize(reference: Traverse, query: Traverse, model: str | ObservationModel
              n_particles: int = 2000, seed: int = 0, window: int = 50, graph: PlaceGraph | None = None,
              junction_radius_m: float | None = None, edge_length: str = "auto", use_odometry: bool = True,
              confidence_radius: int = 2, confidence_radius_m: float | None = None, frontend=None,
-             differences: np.ndarray | None = None, **localizer_params: Any) -> RunResult:
+             differences: np.ndarray | None = None, progress: bool = False,
+             **localizer_params: Any) -> RunResult:
     """Localise every query frame with the particle filter.
 
     Parameters
@@ -127,6 +128,8 @@ def localize(reference: Traverse, query: Traverse, model: str | ObservationModel
     frontend : catgraph.pipeline.FrontEnd, optional
     differences : ndarray, shape (n_query, n_reference), optional
         Precomputed difference matrix (normalised like the front-end says).
+    progress : bool
+        Show a progress bar (on stderr) while localising.
     **localizer_params
         Further :class:`~catgraph.localizer.Localizer` parameters.
 
@@ -151,7 +154,7 @@ def localize(reference: Traverse, query: Traverse, model: str | ObservationModel
                     confidence_radius_m=confidence_radius_m, **localizer_params)
     odometry = query.odometry if use_odometry and g.unit == "m" else None
     start = time.perf_counter()
-    res = loc.run(d, odometry=odometry, query_index=query.index)
+    res = loc.run(d, odometry=odometry, query_index=query.index, progress=progress)
     seconds = time.perf_counter() - start
     params = {"model": name, "n_particles": n_particles, "seed": seed, "window": window,
               "junction_radius_m": junction_radius_m, "edge_length": edge_length,

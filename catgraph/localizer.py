@@ -486,7 +486,7 @@ class Localizer:
         if progress:
             from tqdm import tqdm
 
-            rows = tqdm(rows, desc="localising", unit="frame")
+            rows = tqdm(rows, desc="localising", unit="frame", leave=False)
         start = time.perf_counter()
         for k in rows:
             est = self.step(d[k], None if odometry is None else float(odometry[k]))

@@ -258,7 +258,8 @@ def cmd_localize(args) -> int:
     result = localize(inputs.reference, inputs.query, model=FILTER_MODELS[args.model], n_particles=args.particles,
                       seed=args.seed, window=args.window, graph=inputs.graph,
                       junction_radius_m=args.junction_radius_m, differences=inputs.differences,
-                      frontend=inputs.frontend, **confidence_from_ground_truth(inputs.ground_truth))
+                      frontend=inputs.frontend, progress=not args.quiet,
+                      **confidence_from_ground_truth(inputs.ground_truth))
     return finish(args, result, inputs.ground_truth, run_params(args, inputs))
 
 
