@@ -22,7 +22,7 @@ normalisation (``normalise_rows``); every method sees the same input.
 Also writes the learned ``P(d|L)`` and ``P(d|¬L)`` (paper Fig. 1) as a PNG.
 
 Run from the repository root: ``python benchmarks/bench_likelihood.py``. Writes
-``benchmarks/results/likelihood.{md,json}`` and ``likelihood_histograms.png``.
+``benchmarks/results/likelihood.{md,json}`` and ``docs/figures/likelihood_histograms.png``.
 Skips (exit 0) when ``../shared/data`` is absent.
 """
 
@@ -45,6 +45,7 @@ from catgraph.traverse import FrameTolerance, GroundTruth, MetricTolerance, shuf
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
 RESULTS = ROOT / "benchmarks" / "results"
+FIGURES = ROOT / "docs" / "figures"
 PRECISIONS = (1.0, 0.995, 0.99, 0.9)
 METRES = 2.0
 NORDLAND_TOLERANCE = 2
@@ -260,7 +261,8 @@ def main() -> int:
         all_timings[label] = timings
         all_models.update({f"{k} ({label})": v for k, v in models.items() if "normalised" in label})
     RESULTS.mkdir(parents=True, exist_ok=True)
-    figure({k: v for k, v in all_models.items() if "UJI" in k or ": online" in k}, RESULTS / "likelihood_histograms.png")
+    FIGURES.mkdir(parents=True, exist_ok=True)
+    figure({k: v for k, v in all_models.items() if "UJI" in k or ": online" in k}, FIGURES / "likelihood_histograms.png")
     lines = ["# Probabilistic vs raw thresholds (paper 2, Table II style)", "",
              "One global threshold per method and group holds the target precision on every traverse of the "
              "group; recall of each traverse at that threshold (worst in bold, and in its own column). "
