@@ -241,7 +241,7 @@ def frame_stats(ring, mring, i, grid, approx, n_components, n_iter, em_stride, r
             scales[g, 0] = mad
         else:
             _gmm_em(s, em_stride, m, sdv, n_iter, weights[g], locs[g], scales[g], resp, coef, inv)
-    if sub.shape[1] == g_count:  # only the consistent rule needs them
+    if sub.shape[1] == g_count:  # only the consistent and sustained rules need them
         for g in range(g_count):
             for h in range(g_count):
                 sub[g, h] = score_at(ring, mring, i, grid[h], best_j[g])

@@ -49,7 +49,7 @@ the hypothesis that continues the *old* diagonal stays very significant for long
 windows, because most of such a window still lies on the old, well-matching segment,
 and the literal rule keeps choosing it for hundreds of frames.
 
-The default rule (``rule="consistent"``) only admits a window whose best hypothesis is
+The rule ``rule="consistent"`` only admits a window whose best hypothesis is
 supported by its own recent past: for every shorter candidate ``l`` in the grid with
 ``recent_fraction * L <= l < L`` (default ``L/8``), the hypothesis' score over its most
 recent ``l`` frames must lie closer to the window's own score than to the mean score
@@ -66,6 +66,15 @@ are not tested: on real data they are too noisy, and testing them rejects correc
 windows (measured on Nordland: see ``docs/sequence.md``). Among the admitted windows (the
 shortest is always admitted) the one with the smallest ``p_i(L)`` is chosen, as in the
 paper.
+
+The default rule (``rule="sustained"``) admits the same windows but does not take the
+argmin: it takes the *longest* admitted window whose ``log p_i(L)`` is at most
+``SUSTAINED_FRACTION = 0.5`` times the smallest admitted ``log p_i(L)`` (at least half as
+significant, on the log scale). A short window can be the most significant one by
+accident (on Nordland: short diagonals ending on the featureless tunnel frames at the
+start of the reference, which are close to every query); a longer admitted window that
+is nearly as significant carries more frames of evidence and is preferred. After a
+discontinuity the long windows are not admitted, so the choice still shortens.
 
 Confidence
 ----------
@@ -107,8 +116,9 @@ __all__ = [
 ]
 
 APPROXIMATIONS = ("gaussian", "robust", "gmm2", "gmm3")
-RULES = ("consistent", "literal")
+RULES = ("sustained", "consistent", "literal")
 CONFIDENCES = ("gap", "neglogp", "z")
+SUSTAINED_FRACTION = 0.5
 EM_ITERATIONS = 10
 EM_MAX_POINTS = 1024
 
@@ -273,7 +283,7 @@ _BLOCK_VALUES = 4_000_000
 
 
 def _needs_sub(cfg: _Config) -> bool:
-    return not cfg.fixed and cfg.rule == "consistent" and cfg.grid.shape[0] > 1
+    return not cfg.fixed and cfg.rule != "literal" and cfg.grid.shape[0] > 1
 
 
 def _em_stride(n: int) -> int:
@@ -328,7 +338,14 @@ def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool
         admissible = np.all(ok | ~tested[None], axis=2)
         admissible[:, 0] = True
     masked = np.where(admissible, log_p, np.inf)
-    chosen = np.argmin(masked, axis=1)
+    if cfg.rule == "sustained" and not cfg.fixed:
+        # the longest admitted window at least SUSTAINED_FRACTION as significant (in log p)
+        # as the most significant admitted one; the argmin itself always qualifies
+        floor = SUSTAINED_FRACTION * masked.min(axis=1, keepdims=True)
+        qualified = admissible & (log_p <= floor)
+        chosen = g_count - 1 - np.argmax(qualified[:, ::-1], axis=1)
+    else:
+        chosen = np.argmin(masked, axis=1)
     rows = np.arange(n)
     best = st.best_s[rows, chosen]
     std = st.std[rows, chosen]
@@ -366,7 +383,7 @@ def match_sequences(
     differences: np.ndarray,
     window: int | str = "adaptive",
     approximation: str = "gaussian",
-    rule: str = "consistent",
+    rule: str = "sustained",
     confidence: str = "gap",
     l_min: int = 10,
     l_max: int = 500,
@@ -386,9 +403,11 @@ def match_sequences(
         A fixed window length, or ``"adaptive"`` to choose one per frame.
     approximation : {"gaussian", "robust", "gmm2", "gmm3"}
         Approximation of the score distribution used for ``p_i(L)``.
-    rule : {"consistent", "literal"}
-        Window choice: the paper's ``argmin_L p_i(L)`` ("literal"), or the same among
-        windows whose hypothesis is supported by its recent frames (default).
+    rule : {"sustained", "consistent", "literal"}
+        Window choice: the paper's ``argmin_L p_i(L)`` ("literal"); the same among
+        windows whose hypothesis is supported by its recent frames ("consistent");
+        among those, the longest with ``log p`` at most half the smallest (default,
+        "sustained"). See the module docstring.
     confidence : {"gap", "neglogp", "z"}
         Confidence given to each match (see the module docstring).
     l_min, l_max : int
@@ -399,7 +418,7 @@ def match_sequences(
         Places either side of the best match excluded when looking for the second best
         (``confidence="gap"``).
     recent_fraction : float
-        ``rule="consistent"``: a window of length ``L`` is tested on its recent
+        ``rule="consistent"`` or ``"sustained"``: a window of length ``L`` is tested on its recent
         sub-windows of length ``l`` in the grid with ``recent_fraction * L <= l < L``.
     return_curves : bool
         Also return ``log p_i(L)`` for every frame and candidate length.
@@ -473,7 +492,7 @@ class SequenceMatcher:
         self,
         window: int | str = "adaptive",
         approximation: str = "gaussian",
-        rule: str = "consistent",
+        rule: str = "sustained",
         confidence: str = "gap",
         l_min: int = 10,
         l_max: int = 500,

@@ -127,7 +127,7 @@ def test_fixed_window_gap_confidence_matches_definition():
 
 @pytest.mark.parametrize("window", [6, "adaptive"])
 @pytest.mark.parametrize("approximation", APPROXIMATIONS)
-@pytest.mark.parametrize("rule", ["literal", "consistent"])
+@pytest.mark.parametrize("rule", ["literal", "consistent", "sustained"])
 def test_streaming_equals_batch_exactly(window, approximation, rule):
     d = planted(60, 70, seed=3)
     kwargs = dict(window=window, approximation=approximation, rule=rule, l_min=3, l_max=30, grid=8)
@@ -173,6 +173,39 @@ def test_literal_adaptive_matches_slow_reference(approximation):
     np.testing.assert_array_equal(result.window_length, length)
 
 
+def slow_rule(d: np.ndarray, grid: np.ndarray, rule: str, fraction: float = 0.125):
+    """Gaussian adaptive choice by the consistent or sustained rule, from double-loop scores."""
+    scores = {int(L): slow_scores(d, int(L)) for L in grid}
+    match = np.empty(d.shape[0], dtype=int)
+    for i in range(d.shape[0]):
+        best_j = [int(np.argmin(scores[int(L)][i])) for L in grid]
+        log_p = np.array([slow_log_p(scores[int(L)][i], "gaussian") for L in grid])
+        admissible = np.ones(len(grid), dtype=bool)
+        for g, L in enumerate(grid):
+            own = scores[int(L)][i, best_j[g]]
+            for h, length in enumerate(grid):
+                if fraction * L <= length < L:
+                    row = scores[int(length)][i]
+                    if row[best_j[g]] > 0.5 * (own + row.mean()):
+                        admissible[g] = False
+        admissible[0] = True
+        best = min(log_p[g] for g in range(len(grid)) if admissible[g])
+        if rule == "consistent":
+            g = next(g for g in range(len(grid)) if admissible[g] and log_p[g] == best)
+        else:  # sustained: the longest admitted window with log p <= half the best
+            g = max(g for g in range(len(grid)) if admissible[g] and log_p[g] <= 0.5 * best)
+        match[i] = best_j[g]
+    return match
+
+
+@pytest.mark.parametrize("rule", ["consistent", "sustained"])
+def test_consistent_and_sustained_rules_match_slow_reference(rule):
+    d = planted(45, 50, seed=7)
+    grid = window_grid(3, 24, 8)
+    result = match_sequences(d, "adaptive", rule=rule, l_min=3, l_max=24, grid=8)
+    np.testing.assert_array_equal(result.match, slow_rule(d, grid, rule))
+
+
 def test_every_integer_grid():
     np.testing.assert_array_equal(window_grid(10, 15, "all"), np.arange(10, 16))
     g = window_grid(10, 500)
@@ -189,14 +222,15 @@ def test_consistent_rule_shortens_window_after_a_jump():
     d[np.arange(200), truth] -= 1.5
     common = dict(window="adaptive", l_min=5, l_max=100, grid=16)
     literal = match_sequences(d, rule="literal", **common)
-    consistent = match_sequences(d, rule="consistent", **common)
     after = slice(100, 200)
 
     def first_correct(res):
         return int(np.flatnonzero(res.match[after] == truth[after])[0])
 
-    assert first_correct(consistent) < first_correct(literal)
-    assert np.mean(consistent.match[after] == truth[after]) >= np.mean(literal.match[after] == truth[after])
+    for rule in ("consistent", "sustained"):
+        tested = match_sequences(d, rule=rule, **common)
+        assert first_correct(tested) < first_correct(literal)
+        assert np.mean(tested.match[after] == truth[after]) >= np.mean(literal.match[after] == truth[after])
 
 
 def test_log_p_is_finite_for_very_strong_matches():
