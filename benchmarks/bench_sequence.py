@@ -14,8 +14,8 @@ grid of 32) × {gaussian, robust, gmm2, gmm3} × {sustained (default), consisten
 method uses the same confidence (``gap``: best vs best outside ±10 places). Also: the
 geometric grid vs every integer L (Gaussian), and timings (medians of several runs).
 
-Writes ``benchmarks/results/sequence.md``, ``sequence.json``, ``sequence_summary.png``,
-``sequence_window_length.png``. Run from the repository root::
+Writes ``benchmarks/results/sequence.md`` and ``sequence.json``, and the plots
+``docs/figures/sequence_summary.png`` and ``docs/figures/sequence_window_length.png``. Run from the repository root::
 
     python benchmarks/bench_sequence.py [--quick] [--repeats 3]
 
@@ -41,6 +41,7 @@ from catgraph.traverse import FrameTolerance, MetricTolerance, shuffle_segments
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
 RESULTS = ROOT / "benchmarks" / "results"
+FIGURES = ROOT / "docs" / "figures"
 FIXED = (10, 25, 50, 100, 200, 350, 500)
 APPROXIMATIONS = ("gaussian", "robust", "gmm2", "gmm3")
 RULES = ("sustained", "consistent", "literal")
@@ -212,7 +213,8 @@ def _plots(table, lengths, names):
             if r == 0:
                 ax.set_title(dataset)
     fig.tight_layout()
-    fig.savefig(RESULTS / "sequence_summary.png", dpi=110)
+    FIGURES.mkdir(parents=True, exist_ok=True)
+    fig.savefig(FIGURES / "sequence_summary.png", dpi=110)
     plt.close(fig)
     fig, ax = plt.subplots(figsize=(9, 3.5))
     for dataset, series in lengths.items():
@@ -222,7 +224,8 @@ def _plots(table, lengths, names):
     ax.set_title("Adaptive window length (Gaussian, sustained rule)")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(RESULTS / "sequence_window_length.png", dpi=110)
+    FIGURES.mkdir(parents=True, exist_ok=True)
+    fig.savefig(FIGURES / "sequence_window_length.png", dpi=110)
     plt.close(fig)
 
 

@@ -182,9 +182,10 @@ def register_match(sub) -> None:
     p.add_argument("--window", type=_window, default=1, help="sequence length in frames, or 'adaptive' (default 1)")
     p.add_argument("--approximation", choices=["gaussian", "robust", "gmm2", "gmm3"], default="gaussian",
                    help="adaptive window: approximation of the score distribution (default gaussian)")
-    p.add_argument("--rule", choices=["consistent", "literal"], default="consistent",
-                   help="adaptive window: 'literal' = the paper's argmin p(L); 'consistent' (default) also "
-                        "requires the hypothesis to hold over the window's recent frames")
+    p.add_argument("--rule", choices=["sustained", "consistent", "literal"], default="sustained",
+                   help="adaptive window: 'literal' = the paper's argmin p(L); 'consistent' = argmin p(L) among "
+                        "windows whose hypothesis also holds over their recent frames; 'sustained' (default) = "
+                        "the longest such window at least half as significant as the best")
     p.add_argument("--l-min", type=int, default=10, help="adaptive window: shortest window (default 10)")
     p.add_argument("--l-max", type=int, default=500, help="adaptive window: longest window (default 500)")
     p.add_argument("--model", choices=["sequence", "histogram"], default="sequence",
