@@ -62,7 +62,7 @@ def load_results(results: Sequence[Mapping[str, Any] | str | os.PathLike]) -> li
     ----------
     results : sequence of dict or path
         Payloads from :meth:`catgraph.results.RunResult.to_dict`, or paths to the JSON
-        files the commands write.
+        files the commands write (a ``catgraph compare`` file adds all of its runs).
 
     Returns
     -------
@@ -77,7 +77,7 @@ def load_results(results: Sequence[Mapping[str, Any] | str | os.PathLike]) -> li
     DataError
         A file is unreadable, not JSON, or not a catgraph result.
     """
-    from .results import read_result
+    from .results import read_results
 
     if isinstance(results, (str, os.PathLike, Mapping)) or not isinstance(results, Sequence):
         raise InvalidParameterError(
@@ -93,12 +93,15 @@ def load_results(results: Sequence[Mapping[str, Any] | str | os.PathLike]) -> li
             if path.is_dir():
                 raise DataError(f"{path} is a folder; give the result JSON files inside it.")
             try:
-                payload = read_result(path)
+                runs = read_results(path)
             except (PermissionError, IsADirectoryError, OSError) as exc:
                 if isinstance(exc, FileNotFoundError):
                     raise
                 raise DataError(f"cannot read result file {path}: {exc.strerror or exc}.") from None
-            source = str(path)
+            for run in runs:
+                _check_payload(run, str(path))
+            payloads.extend(runs)
+            continue
         elif isinstance(item, Mapping):
             missing = [key for key in ("method", "params", "metrics", "frames") if key not in item]
             if missing:

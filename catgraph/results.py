@@ -31,7 +31,7 @@ from .exceptions import DataError, DataNotFoundError
 from .metrics import Evaluation, evaluate
 from .traverse import GroundTruth
 
-__all__ = ["RunResult", "write_json_atomic", "read_result"]
+__all__ = ["RunResult", "write_json_atomic", "read_result", "read_results"]
 
 
 @dataclass
@@ -120,6 +120,15 @@ def write_json_atomic(path: str | os.PathLike, payload: dict) -> Path:
 
 def read_result(path: str | os.PathLike) -> dict:
     """Read a result JSON written by :meth:`RunResult.to_dict` (checked for its keys)."""
+    results = read_results(path)
+    if len(results) != 1:
+        raise DataError(f"{path} holds {len(results)} runs; read it with read_results.")
+    return results[0]
+
+
+def read_results(path: str | os.PathLike) -> list[dict]:
+    """Read the runs of a result JSON: one payload, or ``{"runs": [...]}`` as
+    ``catgraph compare --output`` writes; each is checked for its keys."""
     path = Path(path)
     if not path.exists():
         raise DataNotFoundError(f"result file {path} does not exist.")
@@ -127,7 +136,9 @@ def read_result(path: str | os.PathLike) -> dict:
         data = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise DataError(f"{path} is not valid JSON: {exc}") from None
-    missing = [k for k in ("method", "params", "metrics", "frames") if not isinstance(data, dict) or k not in data]
-    if missing:
-        raise DataError(f"{path} is not a catgraph result file (missing {', '.join(missing)}).")
-    return data
+    runs = data["runs"] if isinstance(data, dict) and isinstance(data.get("runs"), list) else [data]
+    for run in runs:
+        missing = [k for k in ("method", "params", "metrics", "frames") if not isinstance(run, dict) or k not in run]
+        if missing:
+            raise DataError(f"{path} is not a catgraph result file (missing {', '.join(missing)}).")
+    return runs

@@ -137,6 +137,8 @@ def test_localize_and_compare_on_the_synthetic_world(tmp_path, capsys):
     for name in ("single-frame", "adaptive", "particle-filter/histogram", "particle-filter/combined", "ms/frame"):
         assert name in table
     assert len(json.loads((tmp_path / "c.json").read_text())["runs"]) == 9
+    assert main(["report", str(tmp_path / "c.json"), "--out", str(tmp_path / "rep"), "-q"]) == 0
+    assert (tmp_path / "rep" / "results.md").read_text().count("particle-filter/") == 5
 
 
 def test_saved_map_gives_the_same_result_as_the_reference(image_pair, tmp_path):
