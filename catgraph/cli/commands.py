@@ -21,18 +21,11 @@ def register(fn):
     return fn
 
 
-_register = register
-
-
 def load_command_modules() -> None:
     import importlib
 
     for name in COMMAND_MODULES:
-        try:
-            importlib.import_module(f"{__package__}.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"{__package__}.{name}":
-                raise
+        importlib.import_module(f"{__package__}.{name}")
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -174,7 +167,7 @@ def print_metrics_table(rows, per_frame: int | None = None) -> None:
     sys.stdout.flush()
 
 
-@_register
+@register
 def register_match(sub) -> None:
     p = sub.add_parser("match", help="match every query frame to the reference (single frame or sequences)",
                        description="Match each query frame to a reference place and evaluate the result.")
@@ -224,8 +217,8 @@ def cmd_match(args) -> int:
     return finish(args, result, inputs.ground_truth, run_params(args, inputs))
 
 
-FILTER_MODELS = {"histogram": "histogram", "histogram-bootstrap": "histogram-bootstrap", "sequence": "sequence",
-                 "adaptive": "adaptive", "combined": "combined"}
+# observation models of the particle filter (catgraph.compare.MODEL_NAMES)
+FILTER_MODELS = ("histogram", "histogram-bootstrap", "sequence", "adaptive", "combined")
 
 
 def add_filter_options(p: argparse.ArgumentParser) -> None:
@@ -236,13 +229,13 @@ def add_filter_options(p: argparse.ArgumentParser) -> None:
                    help="join places of different parts of the route within METRES (needs positions)")
 
 
-@_register
+@register
 def register_localize(sub) -> None:
     p = sub.add_parser("localize", help="localise the query with the CAT-Graph particle filter",
                        description="Run the particle filter on a place graph built from the reference (or a saved "
                                    "map) with the chosen observation model, and evaluate it.")
     add_common_inputs(p)
-    p.add_argument("--model", choices=sorted(FILTER_MODELS), default="histogram",
+    p.add_argument("--model", choices=FILTER_MODELS, default="histogram",
                    help="observation model (default histogram: online, training-free)")
     add_filter_options(p)
     p.set_defaults(func=cmd_localize)
@@ -256,7 +249,7 @@ def cmd_localize(args) -> int:
     inputs = load_inputs(args)
     from ..methods import confidence_from_ground_truth
 
-    result = localize(inputs.reference, inputs.query, model=FILTER_MODELS[args.model], n_particles=args.particles,
+    result = localize(inputs.reference, inputs.query, model=args.model, n_particles=args.particles,
                       seed=args.seed, window=args.window, graph=inputs.graph,
                       junction_radius_m=args.junction_radius_m, differences=inputs.differences,
                       frontend=inputs.frontend, progress=not args.quiet,
@@ -264,7 +257,7 @@ def cmd_localize(args) -> int:
     return finish(args, result, inputs.ground_truth, run_params(args, inputs))
 
 
-@_register
+@register
 def register_compare(sub) -> None:
     p = sub.add_parser("compare", help="run every observation model on the same input and print one table",
                        description="Run the standalone sequence matchers and the particle filter with every "
@@ -324,7 +317,7 @@ def progress_iter(items, quiet: bool, desc: str):
         yield item
 
 
-@_register
+@register
 def register_demo(sub) -> None:
     p = sub.add_parser("demo", help="run everything on the built-in synthetic world and write a report",
                        description="Localise an out-of-order night drive through a synthetic city against a day "
