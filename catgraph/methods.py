@@ -27,14 +27,14 @@ def _check_keys(params: dict, allowed: tuple[str, ...], what: str) -> None:
         raise InvalidParameterError(f"unknown {what} parameters {sorted(unknown)}; allowed: {', '.join(allowed)}.")
 
 
-def _single_frame(params, *, reference, query, differences, ground_truth, frontend=None) -> RunResult:
+def _single_frame(params, *, reference, query, differences, ground_truth, frontend=None, graph=None) -> RunResult:
     return match_single_frames(differences, query.index, exclusion=int(params.get("exclusion", 10)))
 
 
 _SEQUENCE_KEYS = ("window", "approximation", "rule", "confidence", "l_min", "l_max", "grid", "radius")
 
 
-def _sequence(params, *, reference, query, differences, ground_truth, frontend=None) -> RunResult:
+def _sequence(params, *, reference, query, differences, ground_truth, frontend=None, graph=None) -> RunResult:
     """SeqSLAM sequence matching, fixed (``window`` int) or adaptive (``"adaptive"``)."""
     import time
 
@@ -55,7 +55,7 @@ _HISTOGRAM_KEYS = ("learning", "n_init", "exclusion_radius", "confidence_radius"
                    "max_different", "seed", "confidence_distance", "exclusion_distance")
 
 
-def _histogram(params, *, reference, query, differences, ground_truth, frontend=None) -> RunResult:
+def _histogram(params, *, reference, query, differences, ground_truth, frontend=None, graph=None) -> RunResult:
     """Single-frame recognition with the histogram model P(d|L), P(d|¬L) (paper 2).
 
     ``learning``: ``"online"`` (training-free, the paper), ``"bootstrap"`` (¬L from
@@ -124,14 +124,17 @@ def confidence_from_ground_truth(ground_truth: GroundTruth) -> dict:
 def _filter(model: str):
     """The CAT-Graph particle filter with observation model ``model``."""
 
-    def run(params, *, reference, query, differences, ground_truth, frontend=None) -> RunResult:
+    def run(params, *, reference, query, differences, ground_truth, frontend=None, graph=None) -> RunResult:
         from .compare import localize
 
         _check_keys(params, _FILTER_KEYS, "particle-filter")
         kwargs = {k: v for k, v in params.items() if v is not None}
         if "confidence_radius" not in kwargs and "confidence_radius_m" not in kwargs and ground_truth is not None:
             kwargs.update(confidence_from_ground_truth(ground_truth))
-        return localize(reference, query, model=model, differences=differences, frontend=frontend, **kwargs)
+        if graph is not None:  # a saved map's graph replaces the one built from the reference
+            kwargs.pop("junction_radius_m", None)
+        return localize(reference, query, model=model, differences=differences, frontend=frontend, graph=graph,
+                        **kwargs)
 
     run.__doc__ = f"Particle filter with the {model!r} observation model."
     return run
@@ -146,13 +149,15 @@ METHODS: dict[str, Callable[..., RunResult]] = {
 
 
 def run_method(name: str, params: dict, *, reference: Traverse, query: Traverse, differences: np.ndarray,
-               ground_truth: GroundTruth | None = None, frontend=None) -> RunResult:
+               ground_truth: GroundTruth | None = None, frontend=None, graph=None) -> RunResult:
     """Run method ``name`` with ``params``; see :data:`METHODS` for the names.
 
     ``frontend`` (a :class:`~catgraph.pipeline.FrontEnd`) is needed by methods that
-    compare reference frames with each other (bootstrapped histograms, the filter).
+    compare reference frames with each other (bootstrapped histograms, the filter);
+    ``graph`` (a :class:`~catgraph.graph.PlaceGraph`, e.g. from a saved map) replaces the
+    place graph the filter methods would build from the reference.
     """
     if name not in METHODS:
         raise InvalidParameterError(f"unknown method {name!r}; choose one of {', '.join(sorted(METHODS))}.")
     return METHODS[name](params, reference=reference, query=query, differences=differences,
-                         ground_truth=ground_truth, frontend=frontend)
+                         ground_truth=ground_truth, frontend=frontend, graph=graph)

@@ -180,3 +180,17 @@ def test_histogram_same_place_by_position(tmp_path, image_pair, capsys):
     assert main(["match", str(ref), str(qry), "--tolerance", "1", "--model", "histogram", "--same-place-m", "5",
                  "-q"]) == 1
     assert "need reference positions" in capsys.readouterr().err
+
+
+def test_compare_and_localize_with_a_saved_map(tmp_path):
+    m = tmp_path / "city.npz"
+    assert main(["build-map", "synthetic:5", "--junction-radius-m", "10", "--out", str(m), "-q"]) == 0
+    assert main(["compare", "--map", str(m), "synthetic:5", "--particles", "100", "-q",
+                 "-o", str(tmp_path / "c.json")]) == 0
+    runs = json.loads((tmp_path / "c.json").read_text())["runs"]
+    assert [r["params"]["map"] for r in runs] == [str(m)] * 9
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    assert main(["localize", "--map", str(m), "synthetic:5", "--particles", "100", "-q", "-o", str(a)]) == 0
+    assert main(["localize", "synthetic:5", "synthetic:5", "--junction-radius-m", "10", "--particles", "100", "-q",
+                 "-o", str(b)]) == 0
+    assert json.loads(a.read_text())["frames"] == json.loads(b.read_text())["frames"]

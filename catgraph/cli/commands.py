@@ -281,17 +281,7 @@ def cmd_compare(args) -> int:
     plan += [(f"filter-{m}", dict(filter_params)) for m in FILTER_MODELS]
     rows, payloads = [], []
     for name, params in progress_iter(plan, args.quiet, "methods"):
-        if inputs.graph is not None and name.startswith("filter-"):
-            from ..compare import localize
-
-            from ..methods import confidence_from_ground_truth
-
-            result = localize(inputs.reference, inputs.query, model=name[7:], graph=inputs.graph,
-                              differences=inputs.differences, frontend=inputs.frontend,
-                              **{k: v for k, v in params.items() if k != "junction_radius_m"},
-                              **confidence_from_ground_truth(inputs.ground_truth))
-        else:
-            result = run_method(name, params, **common)
+        result = run_method(name, params, graph=inputs.graph, **common)
         result.params.update(run_params(args, inputs))
         evaluation = result.evaluate(inputs.ground_truth)
         payloads.append(result.to_dict(evaluation))
