@@ -47,6 +47,13 @@ def _synthetic_seed(text: str) -> int:
         raise ConfigError(f"{text!r}: write the synthetic world as 'synthetic' or 'synthetic:SEED'.") from None
 
 
+def default_tolerance_m(source: str | Path) -> float | None:
+    """The ground-truth tolerance (metres) that goes with a source when none is given:
+    the synthetic world's own; ``None`` for real data (the user must choose)."""
+    text = str(source)
+    return synthetic_world(_synthetic_seed(text)).tolerance_m if text.startswith("synthetic") else None
+
+
 def load_input(source: str | Path, role: str) -> Traverse:
     """A traverse from a path, or from ``"synthetic[:SEED]"`` (the built-in world)."""
     text = str(source)
@@ -71,9 +78,8 @@ def run_experiment(spec: dict[str, Any]) -> dict[str, Any]:
     reference = load_input(spec["reference"], "reference")
     query = load_input(spec["query"], "query")
     tolerance, tolerance_m = spec.get("tolerance"), spec.get("tolerance_m")
-    if tolerance is None and tolerance_m is None and reference.positions is not None and query.positions is not None \
-            and str(spec["reference"]).startswith("synthetic"):
-        tolerance_m = synthetic_world(_synthetic_seed(str(spec["reference"]))).tolerance_m
+    if tolerance is None and tolerance_m is None:
+        tolerance_m = default_tolerance_m(spec["reference"])
     ground_truth = ground_truth_for(reference, query, tolerance, tolerance_m)
     if spec.get("shuffle") is not None:
         query = shuffle_segments(query, seed=int(spec["shuffle"]))

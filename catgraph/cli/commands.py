@@ -74,7 +74,7 @@ class Inputs:
 
 def load_inputs(args) -> Inputs:
     """Load reference (or map) and query, shuffle the query if asked, build ground truth and differences."""
-    from ..experiment import load_input, synthetic_world
+    from ..experiment import default_tolerance_m, load_input
     from ..pipeline import differences, ground_truth_for
     from ..traverse import shuffle_segments
 
@@ -90,8 +90,8 @@ def load_inputs(args) -> Inputs:
         raise InvalidParameterError(f"--tolerance-m must be ≥ 0 metres; got {args.tolerance_m}.")
     query_source = args.inputs[-1]
     tolerance_m = args.tolerance_m
-    if args.tolerance is None and tolerance_m is None and str(query_source).startswith("synthetic"):
-        tolerance_m = synthetic_world(int(str(query_source).partition(":")[2] or 0)).tolerance_m
+    if args.tolerance is None and tolerance_m is None:
+        tolerance_m = default_tolerance_m(query_source)
     if args.tolerance is None and tolerance_m is None:
         raise InvalidParameterError(
             "no ground truth given: add --tolerance FRAMES (same index = same place) "
