@@ -32,7 +32,7 @@ import scipy.sparse
 from scipy.spatial import cKDTree
 
 from ._validation import as_generator, check_array, check_scalar
-from .exceptions import DataError, ShapeMismatchError
+from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 
 __all__ = [
     "Traverse",
@@ -41,6 +41,7 @@ __all__ = [
     "MetricTolerance",
     "ExplicitGroundTruth",
     "shuffle_segments",
+    "segment_order",
 ]
 
 
@@ -134,6 +135,30 @@ class Traverse:
         return replace(self, frames=frames)
 
 
+def segment_order(n: int, seed: int | np.random.Generator | None, min_fraction: float = 0.02,
+                  max_fraction: float = 0.20) -> tuple[np.ndarray, list[tuple[int, int]]]:
+    """Frame order of a segment shuffle and its segments ``(start, stop)`` as they now appear.
+
+    Segment lengths are drawn uniformly from ``[min_fraction, max_fraction]`` of ``n``
+    (at least one frame); the last segment takes what is left; the segments are then
+    permuted. The one implementation behind :func:`catgraph.traverse.shuffle_segments`
+    and :class:`Condition`.
+    """
+    if not (0.0 < min_fraction <= max_fraction <= 1.0):
+        raise InvalidParameterError(
+            f"segment fractions must satisfy 0 < MIN ≤ MAX ≤ 1; got {min_fraction}:{max_fraction}.")
+    rng = as_generator(seed)
+    bounds = [0]
+    while bounds[-1] < n:
+        length = max(1, int(round(rng.uniform(min_fraction, max_fraction) * n)))
+        bounds.append(min(n, bounds[-1] + length))
+    segments = list(zip(bounds[:-1], bounds[1:]))
+    permutation = rng.permutation(len(segments))
+    segments = [segments[k] for k in permutation]
+    order = np.concatenate([np.arange(a, b) for a, b in segments]) if segments else np.zeros(0, np.int64)
+    return order.astype(np.int64), segments
+
+
 def shuffle_segments(
     traverse: Traverse,
     seed: int | np.random.Generator | None = 0,
@@ -155,16 +180,7 @@ def shuffle_segments(
     """
     check_scalar(min_fraction, "min_fraction", "shuffle_segments", float, 0.0, 1.0, low_inclusive=False)
     check_scalar(max_fraction, "max_fraction", "shuffle_segments", float, min_fraction, 1.0)
-    rng = as_generator(seed)
-    n = len(traverse)
-    bounds = [0]
-    while bounds[-1] < n:
-        length = max(1, int(round(rng.uniform(min_fraction, max_fraction) * n)))
-        bounds.append(min(n, bounds[-1] + length))
-    segments = list(zip(bounds[:-1], bounds[1:]))
-    order = rng.permutation(len(segments))
-    segments = [segments[k] for k in order]
-    frame_order = np.concatenate([np.arange(a, b) for a, b in segments])
+    frame_order, segments = segment_order(len(traverse), seed, min_fraction, max_fraction)
     out = traverse.take(frame_order)
     meta = dict(traverse.meta)
     meta["segments"] = segments

@@ -1,0 +1,182 @@
+"""Traversal conditions: the query driven in order, shuffled, reversed, faster or slower.
+
+A method that localises along a route must not depend on the query repeating the
+reference in order, forwards, at the reference's frame rate (DESIGN.md §7). A
+:class:`Condition` turns a query traverse into the traverse a robot would have recorded
+under that condition, by *reordering* its frames:
+
+``in-order``
+    The query as loaded.
+``shuffle``
+    Contiguous segments of ``segment_range`` (fractions of the length, default
+    2–20 %) rearranged at random (seeded): out-of-order traversal, paper 1 §IV.
+``reverse``
+    The query driven backwards: the last frame first.
+``speed``
+    ``factor`` times the reference's speed: frame ``floor(k · factor)`` for
+    ``k = 0, 1, …`` — factor 2 keeps every second frame, 0.5 shows each frame twice.
+
+Every per-frame array, ``index`` included, travels with its frame, so ground truth
+(which speaks of frames *as loaded*) follows. Odometry is recomputed for the new order:
+between frames that stay near each other on the route (at most three frames apart as
+loaded) it is the route distance between them (zero for a repeated frame); across a
+shuffle's jump, where no motion could connect the frames, each frame keeps the step it
+had. Because a condition is only an order, a difference matrix computed once for the
+loaded query serves every condition: ``D[condition.order(n)]``.
+
+:func:`condition_table` lists the conditions every default is chosen on: in order;
+shuffled in segments of 2–20 % and of 0.5–3 % (five seeds each); reversed; speed 2 and
+speed 0.5.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .exceptions import InvalidParameterError
+from .traverse import Traverse, segment_order
+
+__all__ = ["Condition", "CONDITION_KINDS", "condition_table", "segment_order"]
+
+CONDITION_KINDS = ("in-order", "shuffle", "reverse", "speed")
+
+#: frames further apart (as loaded) than this are a jump, not motion
+_MAX_STEP = 3
+
+
+def _odometry(odometry: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """Odometry (metres since the previous frame) of the frames ``order``, see the module."""
+    travelled = np.concatenate([[0.0], np.cumsum(odometry[1:])])  # route distance of each loaded frame
+    out = odometry[order].astype(np.float64)
+    if len(order) > 1:
+        step = np.abs(np.diff(order))
+        near = step <= _MAX_STEP
+        out[1:][near] = np.abs(travelled[order[1:]] - travelled[order[:-1]])[near]
+    return out
+
+
+@dataclass(frozen=True)
+class Condition:
+    """How the query is driven. See the module docstring.
+
+    Parameters
+    ----------
+    kind : {"in-order", "shuffle", "reverse", "speed"}
+    seed : int, optional
+        The shuffle's seed (``kind="shuffle"`` only).
+    segment_range : (float, float)
+        Shuffle segment lengths as fractions of the query length (``kind="shuffle"``).
+    factor : float
+        Speed relative to the recorded query (``kind="speed"``), in ``(0, 100]``.
+    """
+
+    kind: str = "in-order"
+    seed: int | None = None
+    segment_range: tuple[float, float] = (0.02, 0.20)
+    factor: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in CONDITION_KINDS:
+            raise InvalidParameterError(f"unknown condition {self.kind!r}; choose one of {', '.join(CONDITION_KINDS)}.")
+        if self.kind == "shuffle":
+            if self.seed is None or int(self.seed) != self.seed or self.seed < 0:
+                raise InvalidParameterError(f"a shuffle needs a seed ≥ 0 (an int); got {self.seed!r}.")
+            lo, hi = (float(v) for v in self.segment_range)
+            if not (0.0 < lo <= hi <= 1.0):
+                raise InvalidParameterError(
+                    f"the segment range must satisfy 0 < MIN ≤ MAX ≤ 1 (fractions of the query); got {lo}:{hi}.")
+            object.__setattr__(self, "segment_range", (lo, hi))
+        if self.kind == "speed":
+            f = float(self.factor)
+            if not (math.isfinite(f) and 0.0 < f <= 100.0):
+                raise InvalidParameterError(f"the speed factor must be in (0, 100]; got {self.factor!r}.")
+            object.__setattr__(self, "factor", f)
+
+    # -- construction ---------------------------------------------------------------
+    @classmethod
+    def parse(cls, text: str) -> "Condition":
+        """From ``in-order``, ``reverse``, ``speed:F``, ``shuffle:SEED`` or ``shuffle:SEED:MIN:MAX``."""
+        parts = str(text).strip().split(":")
+        kind = parts[0]
+        try:
+            if kind == "shuffle" and len(parts) in (2, 4):
+                rng = (float(parts[2]), float(parts[3])) if len(parts) == 4 else (0.02, 0.20)
+                return cls("shuffle", seed=int(parts[1]), segment_range=rng)
+            if kind == "speed" and len(parts) == 2:
+                return cls("speed", factor=float(parts[1]))
+            if kind in ("in-order", "reverse") and len(parts) == 1:
+                return cls(kind)
+        except ValueError:
+            pass
+        raise InvalidParameterError(
+            f"cannot read condition {text!r}; write in-order, reverse, speed:FACTOR, shuffle:SEED or "
+            "shuffle:SEED:MIN:MAX.")
+
+    @classmethod
+    def from_dict(cls, values: dict | None) -> "Condition":
+        """Inverse of :meth:`as_dict` (``None`` = in order)."""
+        if not values:
+            return cls()
+        unknown = set(values) - {"kind", "seed", "segment_range", "factor"}
+        if unknown:
+            raise InvalidParameterError(f"unknown condition keys {sorted(unknown)}; allowed: kind, seed, "
+                                        "segment_range, factor.")
+        v = dict(values)
+        if "segment_range" in v:
+            v["segment_range"] = tuple(v["segment_range"])
+        return cls(**v)
+
+    def as_dict(self) -> dict:
+        """JSON-ready; only the fields the kind uses."""
+        if self.kind == "shuffle":
+            return {"kind": "shuffle", "seed": int(self.seed), "segment_range": list(self.segment_range)}
+        if self.kind == "speed":
+            return {"kind": "speed", "factor": self.factor}
+        return {"kind": self.kind}
+
+    @property
+    def label(self) -> str:
+        """Short human-readable name, e.g. ``shuffled 2–20 % (seed 0)``."""
+        if self.kind == "shuffle":
+            lo, hi = (100 * v for v in self.segment_range)
+            return f"shuffled {lo:g}–{hi:g} % (seed {self.seed})"
+        if self.kind == "speed":
+            return f"speed {self.factor:g}"
+        return {"in-order": "in order", "reverse": "reversed"}[self.kind]
+
+    # -- application ----------------------------------------------------------------
+    def order(self, n: int) -> np.ndarray:
+        """Indices (into the loaded query of ``n`` frames) in the order they are driven."""
+        if self.kind == "in-order":
+            return np.arange(n, dtype=np.int64)
+        if self.kind == "reverse":
+            return np.arange(n - 1, -1, -1, dtype=np.int64)
+        if self.kind == "speed":
+            count = int(math.ceil(n / self.factor - 1e-9)) if n else 0
+            return np.minimum(np.floor(np.arange(count) * self.factor + 1e-9).astype(np.int64), max(n - 1, 0))
+        return segment_order(n, self.seed, *self.segment_range)[0]
+
+    def apply(self, traverse: Traverse) -> Traverse:
+        """The traverse driven under this condition (see the module docstring)."""
+        if self.kind == "in-order":
+            return traverse
+        order = self.order(len(traverse))
+        out = traverse.take(order)
+        meta = dict(traverse.meta)
+        meta["condition"] = self.as_dict()
+        if self.kind == "shuffle":
+            meta["segments"] = segment_order(len(traverse), self.seed, *self.segment_range)[1]
+        odometry = None if traverse.odometry is None else _odometry(traverse.odometry, order)
+        return replace(out, odometry=odometry, meta=meta, name=f"{traverse.name} ({self.label})")
+
+
+def condition_table(seeds=range(5)) -> list[Condition]:
+    """The conditions every default is chosen on (DESIGN.md §7), in reporting order."""
+    seeds = list(seeds)
+    return ([Condition()]
+            + [Condition("shuffle", seed=s) for s in seeds]
+            + [Condition("shuffle", seed=s, segment_range=(0.005, 0.03)) for s in seeds]
+            + [Condition("reverse"), Condition("speed", factor=2.0), Condition("speed", factor=0.5)])

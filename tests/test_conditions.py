@@ -1,0 +1,68 @@
+import numpy as np
+import pytest
+
+from catgraph.conditions import Condition, condition_table
+from catgraph.exceptions import InvalidParameterError
+from catgraph.traverse import FrameTolerance, Traverse, shuffle_segments
+
+
+def _traverse(n=20):
+    steps = np.arange(1.0, n + 1.0)  # odometry[i]: metres since frame i-1 (odometry[0] unused)
+    return Traverse(frames=np.arange(n * 3, dtype=float).reshape(n, 3), odometry=steps,
+                    positions=np.column_stack([np.cumsum(steps), np.zeros(n)]))
+
+
+def test_orders():
+    assert Condition().order(4).tolist() == [0, 1, 2, 3]
+    assert Condition("reverse").order(4).tolist() == [3, 2, 1, 0]
+    assert Condition("speed", factor=2).order(5).tolist() == [0, 2, 4]
+    assert Condition("speed", factor=0.5).order(3).tolist() == [0, 0, 1, 1, 2, 2]
+    assert Condition("speed", factor=3).order(7).tolist() == [0, 3, 6]
+    order = Condition("shuffle", seed=3, segment_range=(0.1, 0.3)).order(50)
+    assert sorted(order.tolist()) == list(range(50)) and order.tolist() != list(range(50))
+
+
+def test_shuffle_is_shuffle_segments():
+    t = _traverse(40)
+    a = Condition("shuffle", seed=7).apply(t)
+    b = shuffle_segments(t, seed=7)
+    np.testing.assert_array_equal(a.index, b.index)
+    assert a.meta["segments"] == b.meta["segments"]
+
+
+def test_ground_truth_follows_frames():
+    t = _traverse(30)
+    gt = FrameTolerance(30, 0)
+    for cond in condition_table(seeds=[0, 1]):
+        q = cond.apply(t)
+        # frame k of the conditioned query is loaded frame q.index[k]: matching it to that reference is correct
+        assert gt.correct(q.index, q.index).all()
+        np.testing.assert_array_equal(q.frames, t.frames[q.index])
+
+
+def test_odometry_is_route_distance():
+    t = _traverse(10)
+    rev = Condition("reverse").apply(t)
+    # driven backwards, the step into loaded frame i from frame i+1 is odometry[i+1]
+    np.testing.assert_allclose(rev.odometry[1:], t.odometry[1:][::-1])
+    fast = Condition("speed", factor=2).apply(t)
+    np.testing.assert_allclose(fast.odometry[1:], t.odometry[1:-1:2] + t.odometry[2::2])
+    slow = Condition("speed", factor=0.5).apply(t)
+    np.testing.assert_allclose(slow.odometry[1::2], 0.0)
+    np.testing.assert_allclose(slow.odometry[2::2], t.odometry[1:])
+
+
+def test_parse_round_trip_and_errors():
+    for text in ("in-order", "reverse", "speed:2", "speed:0.5", "shuffle:3", "shuffle:1:0.005:0.03"):
+        c = Condition.parse(text)
+        assert Condition.from_dict(c.as_dict()) == c
+    for bad in ("sideways", "speed:0", "speed:-1", "speed:x", "shuffle", "shuffle:-1", "shuffle:1:0.3:0.1",
+                "shuffle:1:0:0.1", "reverse:2"):
+        with pytest.raises(InvalidParameterError):
+            Condition.parse(bad)
+
+
+def test_table():
+    table = condition_table()
+    assert len(table) == 14
+    assert len({c.label for c in table}) == 14
