@@ -1,0 +1,126 @@
+"""Hub references: map frames that are close to every query, and their correction.
+
+Some reference frames look like everything: a flat, textureless image (Nordland's
+tunnels, a white wall, snow) is at a small difference from every query frame, so after
+per-query normalisation its column of the difference matrix is low everywhere and it
+attracts matches that belong elsewhere (a *hub*, as in nearest-neighbour search in high
+dimensions). A correction must come from the reference map alone — no training and no
+query ground truth — and must leave a map without hubs alone.
+
+The map's own difference matrix ``R`` (``N x N``, each reference frame compared with
+every other one and normalised per row exactly like a query, e.g.
+``catgraph.pipeline.differences(reference, reference)``) tells which frames are hubs: a
+reference ``j`` whose *typical* normalised difference to the other map frames,
+
+    h_j = median_{r != j} R[r, j],
+
+is far below the typical ``h`` is close to almost every frame, not only to its own
+place. The median (over ``N - 1`` frames) ignores the few frames of ``j``'s own place,
+however the map was recorded (several scans per point, as in a Wi-Fi survey, or one
+frame per metre). The offsets are
+
+    o_j = h_j - median(h)   if h_j < median(h) - threshold * 1.4826 * MAD(h),   else 0,
+
+so only *outlying* hubs are corrected, by their whole excess. On a map whose ``h`` has no
+outlying low tail (measured: the UJI Wi-Fi survey) every offset is zero and the
+correction changes nothing; on Nordland about 2 % of the frames (the tunnels) are
+corrected. Correcting every column by ``h_j - median(h)`` instead (a plain column
+standardisation) was measured to help Nordland's short windows but to hurt every window
+length on UJI (single-frame AUC 0.39 -> 0.22): there the spread of ``h`` is a property
+of the places, not a defect. See ``docs/sequence.md``.
+
+Applying the offsets (:func:`apply_hub_offsets`) subtracts them from every query row and
+normalises each row again (mean 0, standard deviation 1), so the result is on the same
+scale as the input and can be given to any method that takes a difference matrix.
+
+Public functions (small and stable)::
+
+    hub_offsets(map_differences, threshold=3.0) -> (N,) float64
+    apply_hub_offsets(differences, offsets, renormalise=True) -> (n_query, N) float64
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._validation import check_array, check_scalar
+from .exceptions import ShapeMismatchError
+
+__all__ = ["hub_offsets", "apply_hub_offsets", "HUB_THRESHOLD"]
+
+#: outlying hubs lie more than this many robust standard deviations below the typical frame
+HUB_THRESHOLD = 3.0
+
+
+def hub_offsets(map_differences: np.ndarray, threshold: float = HUB_THRESHOLD) -> np.ndarray:
+    """Per-reference offsets that cancel outlying hubs, ``(N,) float64`` (0 = no correction).
+
+    Parameters
+    ----------
+    map_differences : ndarray, shape (N, N)
+        The reference map against itself, normalised per row like a query's differences
+        (row ``r`` = map frame ``r`` seen as a query). The diagonal is ignored.
+    threshold : float
+        A frame is an outlying hub when its typical difference ``h_j`` lies more than
+        ``threshold`` robust standard deviations (``1.4826 * MAD``) below the median
+        ``h``.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        ``h_j - median(h)`` (negative) for outlying hubs, ``0`` elsewhere.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(0)
+    >>> r = rng.normal(size=(200, 200))
+    >>> r[:, 7] -= 3.0                       # frame 7 is close to everything
+    >>> offsets = hub_offsets(r)
+    >>> int(np.flatnonzero(offsets)[0]), bool(offsets[7] < -2.5)
+    (7, True)
+    """
+    r = check_array(map_differences, "map difference matrix", ndim=2)
+    if r.shape[0] != r.shape[1] or r.shape[0] < 3:
+        raise ShapeMismatchError(
+            f"the map difference matrix must be square (reference x reference) with at least 3 frames; got shape "
+            f"{r.shape}. Compute it as differences(reference, reference).")
+    check_scalar(threshold, "threshold", "hub_offsets", float, 0.0)
+    m = np.array(r, dtype=np.float64, copy=True)
+    np.fill_diagonal(m, np.nan)
+    typical = np.nanmedian(m, axis=0)
+    centre = float(np.median(typical))
+    spread = 1.4826 * float(np.median(np.abs(typical - centre)))
+    hub = typical < centre - threshold * spread
+    return np.where(hub, typical - centre, 0.0)
+
+
+def apply_hub_offsets(differences: np.ndarray, offsets: np.ndarray, renormalise: bool = True) -> np.ndarray:
+    """Subtract the hub offsets from every query row (and normalise each row again).
+
+    Parameters
+    ----------
+    differences : ndarray, shape (n_query, N) or (N,)
+        Query × reference differences (usually per-query normalised).
+    offsets : ndarray, shape (N,)
+        From :func:`hub_offsets`.
+    renormalise : bool
+        Give each corrected row mean 0 and standard deviation 1 again (a constant row
+        stays constant, shifted to 0).
+
+    Returns
+    -------
+    ndarray, same shape as ``differences``, float64
+    """
+    d = check_array(differences, "difference matrix")
+    o = check_array(offsets, "hub offsets", ndim=1)
+    if d.ndim not in (1, 2) or d.shape[-1] != o.shape[0]:
+        raise ShapeMismatchError(
+            f"the difference matrix has {d.shape[-1] if d.ndim else 0} reference places but there are "
+            f"{o.shape[0]} hub offsets; compute the offsets from the same reference map.")
+    out = np.asarray(d, dtype=np.float64) - o
+    if renormalise:
+        mean = out.mean(axis=-1, keepdims=True)
+        std = out.std(axis=-1, keepdims=True)
+        out = (out - mean) / np.where(std > 0, std, 1.0)
+    return out

@@ -1,0 +1,59 @@
+"""Hub offsets from the reference map (catgraph.hubs)."""
+
+import numpy as np
+import pytest
+
+from catgraph.exceptions import CatgraphError, ShapeMismatchError
+from catgraph.hubs import apply_hub_offsets, hub_offsets
+
+
+def _slow_offsets(r, threshold):
+    n = r.shape[0]
+    typical = np.array([np.median([r[i, j] for i in range(n) if i != j]) for j in range(n)])
+    centre = np.median(typical)
+    spread = 1.4826 * np.median(np.abs(typical - centre))
+    return np.array([t - centre if t < centre - threshold * spread else 0.0 for t in typical])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_offsets_match_slow_reference(seed):
+    rng = np.random.default_rng(seed)
+    r = rng.normal(size=(40, 40))
+    r[:, rng.integers(0, 40, size=3)] -= rng.uniform(1, 4, size=3)
+    for threshold in (0.5, 2.0, 3.0):
+        np.testing.assert_allclose(hub_offsets(r, threshold), _slow_offsets(r, threshold))
+
+
+def test_hubs_found_and_map_without_hubs_untouched():
+    rng = np.random.default_rng(3)
+    r = rng.normal(size=(300, 300))
+    assert not np.any(hub_offsets(r, threshold=5.0))  # no outlying column: the correction is the identity
+    d = rng.normal(size=(20, 300))
+    np.testing.assert_allclose(apply_hub_offsets(d, hub_offsets(r, threshold=5.0), renormalise=False), d)
+    r[:, [5, 150]] -= 4.0
+    offsets = hub_offsets(r, threshold=5.0)
+    assert set(np.flatnonzero(offsets)) == {5, 150}
+    assert np.all(offsets[[5, 150]] < -3.0)
+
+
+def test_apply_renormalises_and_demotes_the_hub():
+    rng = np.random.default_rng(4)
+    d = rng.normal(size=(50, 100))
+    d[:, 9] -= 5.0  # the hub wins every row before the correction
+    offsets = np.zeros(100)
+    offsets[9] = -5.0
+    out = apply_hub_offsets(d, offsets)
+    np.testing.assert_allclose(out.mean(axis=1), 0.0, atol=1e-12)
+    np.testing.assert_allclose(out.std(axis=1), 1.0)
+    assert np.all(d.argmin(axis=1) == 9)
+    assert np.mean(out.argmin(axis=1) == 9) < 0.2
+    np.testing.assert_allclose(apply_hub_offsets(d[3], offsets), out[3])
+
+
+def test_typed_errors():
+    with pytest.raises(ShapeMismatchError, match="square"):
+        hub_offsets(np.zeros((4, 5)))
+    with pytest.raises(ShapeMismatchError, match="hub offsets"):
+        apply_hub_offsets(np.zeros((2, 5)), np.zeros(4))
+    with pytest.raises(CatgraphError, match="threshold"):
+        hub_offsets(np.zeros((4, 4)), threshold=-1.0)
