@@ -45,7 +45,7 @@ def test_apply_renormalises_and_demotes_the_hub():
     out = apply_hub_offsets(d, offsets)
     np.testing.assert_allclose(out.mean(axis=1), 0.0, atol=1e-12)
     np.testing.assert_allclose(out.std(axis=1), 1.0)
-    assert np.all(d.argmin(axis=1) == 9)
+    assert np.mean(d.argmin(axis=1) == 9) > 0.9
     assert np.mean(out.argmin(axis=1) == 9) < 0.2
     np.testing.assert_allclose(apply_hub_offsets(d[3], offsets), out[3])
 
