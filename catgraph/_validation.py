@@ -3,18 +3,35 @@
 Public functions validate here and then call private kernels that trust their inputs
 (the networkx pattern). Messages follow scikit-learn's form: what, where, the allowed
 range, what was given.
+
+Arrays (:func:`check_array`) must be numeric and real: an array of Python objects, of
+strings or of complex numbers is refused rather than silently converted (converting a
+complex array to float would drop its imaginary part). Values are checked for NaN and
+infinity *after* the conversion to the requested dtype, so a float64 value too large
+for float32 is reported rather than becoming ``inf`` downstream.
+
+Memory (:func:`check_memory`): a computation whose size follows from the input (an
+``N × N`` matrix, ``n_particles`` arrays) estimates its bytes first and calls
+``check_memory(n_bytes, what, fix)``, which refuses with
+:class:`~catgraph.exceptions.InsufficientMemoryError` when the estimate exceeds the
+memory the machine has available — before allocating, never after the kernel has
+killed the process.
 """
 
 from __future__ import annotations
 
 import numbers
+import os
 from typing import Any
 
 import numpy as np
 
-from .exceptions import DataError, InvalidParameterError
+from .exceptions import DataError, InsufficientMemoryError, InvalidParameterError
 
-__all__ = ["as_generator", "check_array", "check_scalar"]
+__all__ = ["as_generator", "available_memory", "check_array", "check_memory", "check_scalar"]
+
+#: Share of the available memory one computation may plan to use.
+MEMORY_FRACTION = 0.8
 
 
 def as_generator(seed: int | np.random.Generator | None) -> np.random.Generator:
@@ -83,11 +100,23 @@ def check_array(
     contain 3 NaN or infinite values (first at row 12); clean or drop those frames."``).
     """
     try:
-        out = np.asarray(array) if dtype is None else np.asarray(array, dtype=dtype)
+        raw = array if isinstance(array, np.ndarray) else np.asarray(array)
     except (TypeError, ValueError) as exc:
         raise DataError(f"{name} could not be read as a numeric array: {exc}") from None
-    if out.dtype == object:
+    if raw.dtype == object:
         raise DataError(f"{name} must be a numeric array, not an array of Python objects.")
+    if np.issubdtype(raw.dtype, np.complexfloating):
+        raise DataError(
+            f"{name} hold complex numbers (dtype {raw.dtype}); catgraph needs real values. "
+            "Pass the magnitude (np.abs) or the real part (.real) explicitly."
+        )
+    if raw.dtype.kind not in "biuf":
+        raise DataError(f"{name} must be a numeric array; got dtype {raw.dtype}.")
+    if dtype is None:
+        out = raw
+    else:
+        with np.errstate(over="ignore", invalid="ignore"):
+            out = raw.astype(dtype, copy=False)
     if ndim is not None:
         allowed = (ndim,) if isinstance(ndim, int) else tuple(ndim)
         if out.ndim not in allowed:
@@ -97,9 +126,79 @@ def check_array(
     if finite and np.issubdtype(out.dtype, np.floating):
         bad = ~np.isfinite(out)
         if bad.any():
-            first = int(np.argwhere(bad)[0][0])
+            where = f" (first at row {int(np.argwhere(bad)[0][0])})" if out.ndim else ""
+            converted = (
+                f" after conversion to {np.dtype(dtype).name}"
+                if dtype is not None and np.all(np.isfinite(raw)) else ""
+            )
             raise DataError(
-                f"{name} contain {int(bad.sum())} NaN or infinite values (first at row {first}); "
+                f"{name} contain {int(bad.sum())} NaN or infinite values{converted}{where}; "
                 "clean or drop those frames before localising."
             )
     return out
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to a new allocation (Linux ``MemAvailable``), or
+    ``None`` where the platform does not say."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def _human(n_bytes: float) -> str:
+    for unit in ("bytes", "KiB", "MiB", "GiB", "TiB"):
+        if abs(n_bytes) < 1024 or unit == "TiB":
+            return f"{n_bytes:.0f} {unit}" if unit == "bytes" else f"{n_bytes:.1f} {unit}"
+        n_bytes /= 1024
+    return f"{n_bytes:.1f} TiB"  # pragma: no cover
+
+
+def check_memory(n_bytes: float, what: str, fix: str, available: int | None = None) -> None:
+    """Refuse a computation whose memory estimate exceeds what is available.
+
+    Parameters
+    ----------
+    n_bytes : float
+        Estimated bytes the computation will allocate (e.g. ``n * n * 8`` for an
+        ``(n, n)`` float64 matrix).
+    what : str
+        What needs the memory, for the message (``"the (100000, 100000) float64
+        reference difference matrix"``).
+    fix : str
+        How to need less (``"use fewer particles (--particles)"``).
+    available : int, optional
+        Bytes available; by default :func:`available_memory`. A computation may plan
+        to use :data:`MEMORY_FRACTION` of it.
+
+    Raises
+    ------
+    InsufficientMemoryError
+        With the estimate, the memory available and ``fix``.
+
+    Examples
+    --------
+    >>> check_memory(8 * 1000 ** 2, "a (1000, 1000) float64 matrix", "use fewer frames", available=2 ** 30)
+    >>> check_memory(8 * 10 ** 10, "a (100000, 100000) float64 matrix", "use fewer frames", available=2 ** 30)
+    Traceback (most recent call last):
+    ...
+    catgraph.exceptions.InsufficientMemoryError: a (100000, 100000) float64 matrix needs 74.5 GiB but 1.0 GiB of memory is available; use fewer frames.
+    """
+    need = float(n_bytes)
+    if not np.isfinite(need) or need < 0:
+        raise InvalidParameterError(f"a memory estimate must be a finite number of bytes ≥ 0; got {n_bytes!r}.")
+    avail = available_memory() if available is None else int(available)
+    if avail is None:
+        return
+    if need > MEMORY_FRACTION * avail:
+        raise InsufficientMemoryError(
+            f"{what} needs {_human(need)} but {_human(avail)} of memory is available; {fix}."
+        )

@@ -21,6 +21,8 @@ __all__ = [
     "MapFileError",
     "ConfigError",
     "MissingDependencyError",
+    "InsufficientMemoryError",
+    "CatgraphWarning",
 ]
 
 
@@ -59,3 +61,14 @@ class ConfigError(CatgraphError, ValueError):
 class MissingDependencyError(CatgraphError, ImportError):
     """An optional dependency needed for the requested feature is not installed
     (the message names the extra to install, e.g. ``pip install "catgraph[dask]"``)."""
+
+
+class InsufficientMemoryError(CatgraphError, MemoryError):
+    """A computation would need more memory than the machine has available; raised
+    *before* allocating (the message gives the estimate and how to need less)."""
+
+
+class CatgraphWarning(UserWarning):
+    """Something in the input deserves attention but does not stop the run (a frame
+    with no information, a timestamp that cannot be read, an option with no effect on
+    this input). The command line prints each as one line on stderr."""

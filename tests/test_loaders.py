@@ -105,3 +105,62 @@ def test_nordland_folder():
 def test_uji_real_set():
     t = load_traverse(UJI / "01" / "trn01")
     assert t.frames.shape[1] == 620 and len(t) == len(t.positions)
+
+
+def test_uji_timestamps_with_14_or_17_digits(tmp_path):
+    rss = np.array([[100, -60], [-70, 100], [-50, -50]])
+    prefix = write_uji(tmp_path / "a" / "trn01", rss, tms=[20160101120000, 20160101120002, 20160101120103])
+    np.testing.assert_allclose(load_uji(prefix).timestamps, [0, 2, 63])
+    # 17 digits are read as text: a float64 could not hold the milliseconds exactly
+    prefix = write_uji(tmp_path / "b" / "trn01", rss, tms=[20160602155217232, 20160602155220780, 20160602155224321])
+    np.testing.assert_allclose(load_uji(prefix).timestamps, [0, 3.548, 7.089], atol=1e-6)
+
+
+@pytest.mark.parametrize("stamps", ["201601011200,201601011201,201601011202", "x,y,z", "20160101120000\n",
+                                    "20161301120000,20160101120002,20160101120003"])
+def test_uji_bad_timestamps_warn_and_keep_the_fingerprints(tmp_path, stamps):
+    from catgraph.exceptions import CatgraphWarning
+
+    prefix = write_uji(tmp_path / "trn01", np.array([[100, -60], [-70, 100], [-50, -50]]))
+    (tmp_path / "trn01tms.csv").write_text(stamps.replace(",", "\n"))
+    with pytest.warns(CatgraphWarning, match="trn01tms.csv"):
+        t = load_uji(prefix)
+    assert len(t) == 3 and t.timestamps is None
+
+
+def test_uji_bad_ids_warn(tmp_path):
+    from catgraph.exceptions import CatgraphWarning
+
+    prefix = write_uji(tmp_path / "trn01", np.array([[100, -60], [-70, 100]]), ids=[1])
+    with pytest.warns(CatgraphWarning, match="1 rows but the RSS file has 2"):
+        assert load_uji(prefix).ids is None
+
+
+@pytest.mark.parametrize("source", [5, None, 3.5, b"bytes", "", ["a"]])
+def test_load_traverse_needs_a_path(source):
+    from catgraph.exceptions import InvalidParameterError
+
+    with pytest.raises(InvalidParameterError, match="needs a path"):
+        load_traverse(source)
+
+
+@pytest.mark.parametrize("array, message", [
+    (np.array(np.inf), "shape"), (np.array(3.0), "shape"), (np.zeros(4), "shape"), (np.zeros((0, 3)), "empty"),
+    (np.ones((3, 2), dtype=complex), "complex"), (np.array([["a", "b"]]), "numeric"),
+    (np.array([[1.0, np.inf]]), "infinite"),
+])
+def test_odd_arrays_refused_with_a_reason(tmp_path, array, message):
+    np.save(tmp_path / "x.npy", array)
+    with pytest.raises(DataError, match=message):
+        load_traverse(tmp_path / "x.npy")
+    np.savez(tmp_path / "x.npz", descriptors=array)
+    with pytest.raises(DataError, match=message):
+        load_traverse(tmp_path / "x.npz")
+
+
+def test_truncated_npz_member(tmp_path, rng):
+    np.savez(tmp_path / "x.npz", descriptors=rng.random((50, 40)))
+    data = (tmp_path / "x.npz").read_bytes()
+    (tmp_path / "t.npz").write_bytes(data[: len(data) // 2])
+    with pytest.raises(DataError):
+        load_traverse(tmp_path / "t.npz")

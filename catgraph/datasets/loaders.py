@@ -6,9 +6,12 @@
   the file numbers. Nordland's ``32x16/summer`` is such a folder.
 * **UJI Wi-Fi sets**: four CSV files sharing a prefix, e.g. ``db/01/trn01`` →
   ``trn01rss.csv`` (one column per access point, dBm, +100 = not detected),
-  ``trn01crd.csv`` (x, y, floor), ``trn01tms.csv`` (``yyyymmddHHMMSSfff``), ``trn01ids.csv``.
-  Only ``rss`` is required; the others are used where present and must have one row per
-  fingerprint.
+  ``trn01crd.csv`` (x, y, floor), ``trn01tms.csv`` (``yyyymmddHHMMSSfff``, or
+  ``yyyymmddHHMMSS`` at seconds resolution), ``trn01ids.csv``. Only ``rss`` is required;
+  ``crd`` is used where present and must have one row per fingerprint. Timestamps and ids
+  are metadata no method needs: a problem with them (a malformed stamp, a wrong row
+  count) is a :class:`~catgraph.exceptions.CatgraphWarning` and the field is dropped,
+  never a reason to refuse the fingerprints.
 * **Descriptor arrays**: ``.npy`` (one ``(n, d)`` array) or ``.npz`` with ``descriptors``
   (or ``frames``) and optional ``positions``, ``floors``, ``timestamps``, ``ids``,
   ``odometry``; both read with ``allow_pickle=False``.
@@ -19,14 +22,16 @@
 
 from __future__ import annotations
 
+import os
 import re
+import warnings
 import zipfile
 from datetime import datetime
 from pathlib import Path
 
 import numpy as np
 
-from ..exceptions import DataError, DataNotFoundError
+from ..exceptions import CatgraphWarning, DataError, DataNotFoundError, InvalidParameterError
 from ..traverse import Traverse
 
 __all__ = ["IMAGE_SUFFIXES", "load_image_folder", "load_uji", "load_array", "load_traverse"]
@@ -44,6 +49,17 @@ def _sort_key(path: Path) -> tuple[int, int, str]:
     return (0, int(numbers[-1]), path.name) if numbers else (1, 0, path.name)
 
 
+def _as_path(source, owner: str) -> Path:
+    if isinstance(source, (str, os.PathLike)) and not isinstance(source, bytes):
+        text = os.fspath(source)
+        if isinstance(text, str) and text.strip() and "\x00" not in text:
+            return Path(text)
+    raise InvalidParameterError(
+        f"{owner} needs a path (str or pathlib.Path) to an image folder, a UJI prefix or a .npy/.npz file; "
+        f"got {source!r} of type {type(source).__name__}."
+    )
+
+
 def load_image_folder(path: str | Path, progress: bool = False) -> Traverse:
     """Load every PNG/JPG image of a folder, sorted by the number in the file name.
 
@@ -56,7 +72,7 @@ def load_image_folder(path: str | Path, progress: bool = False) -> Traverse:
     """
     from PIL import Image, UnidentifiedImageError
 
-    folder = Path(path)
+    folder = _as_path(path, "load_image_folder")
     if not folder.exists():
         raise DataNotFoundError(f"image folder {folder} does not exist; check the path.")
     if not folder.is_dir():
@@ -107,8 +123,8 @@ def _is_grey(img) -> bool:
 def _read_csv(file: Path, name: str, columns: int | None = None) -> np.ndarray:
     try:
         rows = [line.strip() for line in file.read_text().splitlines() if line.strip()]
-    except OSError as exc:
-        raise DataError(f"cannot read {file}: {exc}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"cannot read {file} as comma-separated text: {exc}") from None
     if not rows:
         raise DataError(f"{file} is empty; every UJI set needs at least one fingerprint.")
     split = [row.split(",") for row in rows]
@@ -137,7 +153,7 @@ def load_uji(prefix: str | Path) -> Traverse:
         since the first fingerprint) from ``tms``, ``ids`` from ``ids``;
         ``meta = {"kind": "wifi", ...}``.
     """
-    prefix = Path(prefix)
+    prefix = _as_path(prefix, "load_uji")
     rss_file = Path(f"{prefix}rss.csv")
     if not rss_file.exists():
         raise DataNotFoundError(
@@ -151,18 +167,20 @@ def load_uji(prefix: str | Path) -> Traverse:
     if crd_file.exists():
         crd = _read_csv(crd_file, "coordinate (x, y, floor)", columns=3)
         _check_rows(crd, n, crd_file)
+        if not np.all(np.isfinite(crd)) or np.any(np.abs(crd[:, 2]) > 2**31):
+            raise DataError(f"{crd_file} holds NaN, infinite or out-of-range coordinates; fix or drop those rows.")
         kwargs["positions"] = crd[:, :2]
         kwargs["floors"] = np.rint(crd[:, 2]).astype(np.int64)
     tms_file = Path(f"{prefix}tms.csv")
     if tms_file.exists():
-        tms = _read_csv(tms_file, "timestamp", columns=1)
-        _check_rows(tms, n, tms_file)
-        kwargs["timestamps"] = _uji_seconds(tms[:, 0], tms_file)
+        seconds = _optional_metadata(lambda: _uji_seconds(_read_stamps(tms_file), tms_file), n, tms_file)
+        if seconds is not None:
+            kwargs["timestamps"] = seconds
     ids_file = Path(f"{prefix}ids.csv")
     if ids_file.exists():
-        ids = _read_csv(ids_file, "id", columns=1)
-        _check_rows(ids, n, ids_file)
-        kwargs["ids"] = ids[:, 0].astype(np.int64)
+        ids = _optional_metadata(lambda: _read_csv(ids_file, "id", columns=1)[:, 0], n, ids_file)
+        if ids is not None:
+            kwargs["ids"] = ids.astype(np.int64)
     return Traverse(rss, name=prefix.name, meta={"kind": "wifi", "source": str(prefix), "not_detected": 100.0},
                     **kwargs)
 
@@ -172,16 +190,45 @@ def _check_rows(values: np.ndarray, n: int, file: Path) -> None:
         raise DataError(f"{file} has {values.shape[0]} rows but the RSS file has {n}; the set is incomplete.")
 
 
-def _uji_seconds(stamps: np.ndarray, file: Path) -> np.ndarray:
-    """``yyyymmddHHMMSSfff`` → seconds since the first stamp."""
+def _optional_metadata(read, n: int, file: Path) -> np.ndarray | None:
+    """Read a metadata column no method needs; on any problem warn and return ``None``."""
+    try:
+        values = read()
+        _check_rows(values, n, file)
+    except DataError as exc:
+        warnings.warn(f"{exc} Ignoring {file.name}; the fingerprints are loaded without it.", CatgraphWarning,
+                      stacklevel=3)
+        return None
+    return values
+
+
+def _read_stamps(file: Path) -> list[str]:
+    """Timestamp cells as text: 17-digit stamps do not fit a float64 exactly."""
+    try:
+        rows = [line.strip() for line in file.read_text().splitlines() if line.strip()]
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"cannot read {file}: {exc}.") from None
+    return [row.split(",")[0].strip() for row in rows]
+
+
+def _uji_seconds(stamps, file: Path) -> np.ndarray:
+    """``yyyymmddHHMMSSfff`` (or ``yyyymmddHHMMSS``) → seconds since the first stamp."""
     out = np.empty(len(stamps))
     for k, stamp in enumerate(stamps):
-        text = f"{int(stamp):017d}"
+        text = str(stamp).strip()
+        if text.endswith(".0"):  # written through a float
+            text = text[:-2]
         try:
-            out[k] = datetime.strptime(text[:14], "%Y%m%d%H%M%S").timestamp() + int(text[14:]) / 1000.0
+            if not text.isdigit() or len(text) not in (14, 17):
+                raise ValueError(text)
+            out[k] = datetime.strptime(text[:14], "%Y%m%d%H%M%S").timestamp() + (int(text[14:]) / 1000.0 if
+                                                                                   len(text) == 17 else 0.0)
         except ValueError:
-            raise DataError(f"{file}, line {k + 1}: {text} is not a yyyymmddHHMMSSfff timestamp.") from None
-    return out - out[0]
+            raise DataError(
+                f"{file}, line {k + 1}: {text!r} is not a yyyymmddHHMMSSfff (17-digit) or yyyymmddHHMMSS "
+                "(14-digit) timestamp."
+            ) from None
+    return out - out[0] if len(out) else out
 
 
 _NPZ_FIELDS = ("positions", "floors", "timestamps", "ids", "odometry")
@@ -189,7 +236,7 @@ _NPZ_FIELDS = ("positions", "floors", "timestamps", "ids", "odometry")
 
 def load_array(path: str | Path) -> Traverse:
     """Load descriptors from ``.npy`` or ``.npz`` (never unpickling)."""
-    path = Path(path)
+    path = _as_path(path, "load_array")
     if not path.exists():
         raise DataNotFoundError(f"descriptor file {path} does not exist; check the path.")
     try:
@@ -198,6 +245,11 @@ def load_array(path: str | Path) -> Traverse:
         raise DataError(f"{path} cannot be loaded without pickle ({exc}); save plain numeric arrays.") from None
     except (OSError, zipfile.BadZipFile, EOFError) as exc:
         raise DataError(f"{path} is not a readable .npy/.npz file: {exc}") from None
+    if isinstance(loaded, np.ndarray) and loaded.ndim < 2:
+        raise DataError(
+            f"{path} holds an array of shape {loaded.shape}; descriptors need one row per frame, "
+            "shape (n_frames, n_values)."
+        )
     kind = {"kind": "descriptors", "source": str(path)}
     if isinstance(loaded, np.ndarray):
         return Traverse(loaded, name=path.stem, meta=kind)
@@ -215,12 +267,19 @@ def load_array(path: str | Path) -> Traverse:
             frames = loaded[main]
         except ValueError as exc:
             raise DataError(f"{path} cannot be loaded without pickle ({exc}); save plain numeric arrays.") from None
+        except (OSError, zipfile.BadZipFile, EOFError, KeyError) as exc:
+            raise DataError(f"{path} is truncated or corrupt ({exc}); write the file again.") from None
+    if frames.ndim < 2:
+        raise DataError(
+            f"{path}: array {main!r} has shape {frames.shape}; descriptors need one row per frame, "
+            "shape (n_frames, n_values)."
+        )
     return Traverse(frames, name=path.stem, meta=kind, **fields)
 
 
 def load_traverse(source: str | Path, progress: bool = False) -> Traverse:
     """Load a traverse from an image folder, a UJI prefix or a ``.npy``/``.npz`` file."""
-    path = Path(source)
+    path = _as_path(source, "load_traverse")
     if path.suffix.lower() in (".npy", ".npz"):
         return load_array(path)
     if path.is_dir():
