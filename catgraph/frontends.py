@@ -13,16 +13,28 @@ Wi-Fi fingerprints
     :func:`wifi_vectors` maps each reading to its strength above a noise floor
     (``rss − floor_dbm``, clipped at 0) and "not seen" to 0 — the same as a reading at
     the floor. Absent and weak access points then differ little, strong ones a lot.
+
+Frames with no information
+    A descriptor whose values are all equal — a black or flat image (all zeros after
+    patch normalisation), a Wi-Fi scan that detected no access point, a zero feature
+    vector — cannot tell places apart. :func:`informative_frames` finds them and
+    :func:`check_information` says so: a query frame with no information gets no match
+    (its difference row is treated as ``σ = 0``, see :mod:`catgraph.matching`), a
+    reference place with no information is reported because it can never be told
+    from its neighbours, and a reference with no informative frame at all is refused.
 """
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
-from ._validation import check_array, check_scalar
-from .exceptions import DataError
+from ._validation import check_array, check_memory, check_scalar
+from .exceptions import CatgraphWarning, DataError
 
-__all__ = ["to_greyscale", "resize_images", "patch_normalise", "seqslam_preprocess", "wifi_vectors"]
+__all__ = ["to_greyscale", "resize_images", "patch_normalise", "seqslam_preprocess", "wifi_vectors",
+           "informative_frames", "check_information"]
 
 
 def to_greyscale(images: np.ndarray) -> np.ndarray:
@@ -46,6 +58,8 @@ def resize_images(images: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     if width < 1 or height < 1:
         raise DataError(f"resize size must be two positive ints (width, height); got {size}.")
     x = np.asarray(images, dtype=np.float32)
+    check_memory(4.0 * x.shape[0] * width * height, f"resizing {x.shape[0]} images to {width}×{height}",
+                 "choose a smaller size")
     if x.shape[1:] == (height, width):
         return x
     out = np.empty((x.shape[0], height, width), dtype=np.float32)
@@ -75,6 +89,11 @@ def patch_normalise(images: np.ndarray, patch: int = 4) -> np.ndarray:
         raise DataError(f"patch_normalise expects greyscale images (n, h, w); got shape {x.shape}.")
     out = np.empty_like(x)
     _, h, w = x.shape
+    if patch > max(h, w):
+        raise DataError(
+            f"the patch side {patch} is larger than the images ({w}×{h} pixels); choose a patch of at most "
+            f"{max(h, w)} pixels (4 is the SeqSLAM default) or 0 to switch patch normalisation off."
+        )
     for r in range(0, h, patch):
         for c in range(0, w, patch):
             block = x[:, r : r + patch, c : c + patch]
@@ -148,3 +167,72 @@ def wifi_vectors(rss: np.ndarray, not_detected: float = 100.0, floor_dbm: float 
         )
     out = np.where(seen, np.maximum(x - floor_dbm, 0.0), 0.0)
     return out.astype(np.float32)
+
+
+def informative_frames(descriptors: np.ndarray) -> np.ndarray:
+    """Which descriptors carry information: not every value equal.
+
+    Parameters
+    ----------
+    descriptors : ndarray, shape (n, d) (or (n, ...), flattened per frame)
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+        ``False`` for constant descriptors (black or flat images, scans with no access
+        point detected, zero vectors).
+
+    Examples
+    --------
+    >>> informative_frames(np.array([[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [2.0, 2.0, 2.0]]))
+    array([False,  True, False])
+    """
+    x = np.asarray(descriptors)
+    if x.ndim == 0 or x.shape[0] == 0:
+        return np.zeros(0 if x.ndim == 0 else x.shape[0], dtype=bool)
+    x = x.reshape(x.shape[0], -1)
+    if x.shape[1] == 0:
+        return np.zeros(x.shape[0], dtype=bool)
+    return np.any(x != x[:, :1], axis=1)
+
+
+def check_information(descriptors: np.ndarray, role: str) -> np.ndarray:
+    """Report the frames of a traverse that carry no information; return the mask.
+
+    Parameters
+    ----------
+    descriptors : ndarray, shape (n, d)
+    role : {"reference", "query"}
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+        :func:`informative_frames`.
+
+    Warns
+    -----
+    CatgraphWarning
+        Some frames carry no information (the count and the first one).
+
+    Raises
+    ------
+    DataError
+        No reference frame carries information (a map of black frames cannot
+        localise anything).
+    """
+    mask = informative_frames(descriptors)
+    n, bad = mask.size, int(mask.size - mask.sum())
+    if n and bad == n and role == "reference":
+        raise DataError(
+            f"none of the {n} reference frames carries information: every descriptor is constant (black or flat "
+            "images, scans with no access point detected, zero vectors). Check the reference data."
+        )
+    if bad:
+        first = int(np.flatnonzero(~mask)[0])
+        consequence = "they get no match" if role == "query" else "matches to them say nothing; check or drop them"
+        warnings.warn(
+            f"{bad} of {n} {role} frames carry no information (constant descriptors: black or flat images, "
+            f"no access point detected, zero vectors; first at frame {first}); {consequence}.",
+            CatgraphWarning, stacklevel=2,
+        )
+    return mask

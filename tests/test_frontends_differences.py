@@ -84,3 +84,77 @@ def test_normalise_rows_finite_zero_mean_unit_std(d):
             assert abs(row.mean()) < 1e-6 and abs(row.std() - 1) < 1e-6
         else:
             assert np.all(np.abs(row) < 1e3)
+
+
+def test_informative_frames_black_flat_undetected_zero():
+    from catgraph.frontends import informative_frames
+
+    rng = np.random.default_rng(1)
+    images = rng.integers(0, 255, (5, 16, 32)).astype(np.uint8)
+    images[1] = 0  # black
+    images[3] = 77  # flat grey
+    d = seqslam_preprocess(images, patch=4)
+    np.testing.assert_array_equal(informative_frames(d), [True, False, True, False, True])
+    wifi = wifi_vectors(np.array([[100, 100, 100], [-60, 100, -80], [-110, 100, -120]]))
+    np.testing.assert_array_equal(informative_frames(wifi), [False, True, False])
+    assert informative_frames(np.zeros((0, 3))).shape == (0,)
+
+
+def test_check_information_warns_for_queries_and_refuses_an_empty_map():
+    from catgraph.exceptions import CatgraphWarning
+    from catgraph.frontends import check_information
+
+    d = np.eye(4)
+    d[2] = 0
+    with pytest.warns(CatgraphWarning, match=r"1 of 4 query frames carry no information.*first at frame 2"):
+        np.testing.assert_array_equal(check_information(d, "query"), [True, True, False, True])
+    with pytest.raises(DataError, match="none of the 3 reference frames"):
+        check_information(np.zeros((3, 5)), "reference")
+
+
+def test_patch_larger_than_the_image_is_refused():
+    with pytest.raises(DataError, match=r"patch side 1000 is larger than the images \(32×16"):
+        seqslam_preprocess(np.zeros((2, 16, 32)), patch=1000)
+    assert seqslam_preprocess(np.random.default_rng(0).random((2, 16, 32)), patch=32).shape == (2, 512)
+
+
+def _best_matches_reference(scores, exclusion):
+    """Slow, obvious: loop over rows and columns."""
+    match, conf = [], []
+    for row in np.asarray(scores, dtype=float):
+        finite = [v for v in row if np.isfinite(v)]
+        if not finite or (len(row) > 1 and max(finite) == min(finite)):
+            match.append(-1)
+            conf.append(0.0)
+            continue
+        j = min((v, k) for k, v in enumerate(row) if np.isfinite(v))[1]
+        outside = [v for k, v in enumerate(row) if abs(k - j) > exclusion and np.isfinite(v)]
+        match.append(j)
+        conf.append(min(outside) - row[j] if outside else 0.0)
+    return np.array(match), np.array(conf)
+
+
+@settings(max_examples=60, deadline=None)
+@given(arrays(np.float64, st.tuples(st.integers(1, 6), st.integers(1, 12)),
+              elements=st.one_of(st.integers(-3, 3).map(float), st.sampled_from([np.nan, np.inf, -np.inf]))),
+       st.integers(0, 4))
+def test_best_matches_against_reference(scores, exclusion):
+    from catgraph.matching import best_matches
+
+    scores = np.where(np.isneginf(scores), np.nan, scores)
+    match, conf = best_matches(scores, exclusion)
+    ref_match, ref_conf = _best_matches_reference(scores, exclusion)
+    np.testing.assert_array_equal(match, ref_match)
+    np.testing.assert_allclose(conf, ref_conf)
+    assert np.all(np.isfinite(conf)) and np.all(conf >= 0)
+
+
+def test_black_query_frames_get_no_match_with_normalised_rows():
+    """A black frame's row, treated as σ = 0, is all zeros after normalisation: no output."""
+    from catgraph.matching import best_matches
+
+    rng = np.random.default_rng(2)
+    diff = normalise_rows(rng.random((4, 30)))
+    diff[1] = normalise_rows(np.full(30, 7.0))
+    match, conf = best_matches(diff)
+    assert match[1] == -1 and conf[1] == 0.0 and np.all(match[[0, 2, 3]] >= 0)
