@@ -1,21 +1,129 @@
-"""numba kernels for difference matrices (imported lazily by :mod:`catgraph.differences`)."""
+"""numba kernels for difference rows and matrices (imported lazily by :mod:`catgraph.differences`).
+
+Two kernels serve every metric, the single streaming row and the batch matrix alike,
+so a row computed for one live frame equals, bit for bit, the same row of a batch
+matrix, of any block of it, and of any shard of the reference on another machine:
+
+:func:`pair_block`
+    ``out[i, j] = Σ_k f(q_ik, r_jk)`` for ``f`` = ``|q − r|`` (SAD, and Hamming on 0/1
+    values), ``(q − r)²`` (SSD) or ``q · r`` (dot product, for cosine). Inputs are
+    float32, terms and sums float32 (vectorised: the compiler keeps one partial sum per
+    SIMD lane, which is also more accurate than one running sum), the result stored
+    as float64. The loop over ``k`` is the same machine code for every pair, so the
+    value of ``out[i, j]`` depends on ``q_i`` and ``r_j`` only — never on which other
+    rows are in the block, how the reference is cut or how many threads run. (Across
+    machines with different SIMD widths, the last bits can differ.) The
+    parallel loop is over *reference blocks* of :data:`PLACE_BLOCK` places, so one
+    query row (a live frame) uses every core, and a block of references (256 × 512
+    float32 = 512 KiB) stays in cache while all query rows of a batch pass over it.
+:func:`chunk_sums`, :func:`scale_rows`
+    Per-row ``(d − μ) / σ`` with ``μ, σ`` over the row. Sums run over fixed chunks of
+    :data:`SUM_CHUNK` values, whose partial sums are then added in chunk order, so a
+    reference shard that is a multiple of ``SUM_CHUNK`` places can return its chunks'
+    partial sums for the same result (:mod:`catgraph.distributed`). These passes are
+    serial: they cost a few ms at a million places, less than waking the threads on
+    a busy machine.
+
+One signature each (float32 descriptors, float64 output, C-contiguous), compiled on
+first use and cached on disk (``cache=True``; see :mod:`catgraph.differences` for the
+cold-start figures).
+"""
 
 from __future__ import annotations
 
 import numba
 import numpy as np
 
+#: Reference places per parallel task of :func:`pair_block`.
+PLACE_BLOCK = 256
+#: Values per partial sum in :func:`normalise_block` (and per shard unit of the
+#: distributed normalisation).
+SUM_CHUNK = 4096
+
+SAD, SSD, DOT = 0, 1, 2
+
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
-def sad_block(query: np.ndarray, reference: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
-    """``out[i, j] = Σ_k |query[i, k] − reference[j, k]|`` (float32 inputs)."""
-    nq, d = query.shape
-    nr = reference.shape[0]
-    for i in numba.prange(nq):
-        q = query[i]
-        for j in range(nr):
-            r = reference[j]
-            acc = np.float32(0.0)
-            for k in range(d):
-                acc += abs(q[k] - r[k])
-            out[i, j] = acc
+def pair_block(query, reference, code, out):  # pragma: no cover - compiled
+    """``out[i, j] = Σ_k f(query[i, k], reference[j, k])`` (see the module docstring).
+
+    ``query (m, d)`` and ``reference (n, d)`` float32, ``out (m, n)`` float64, all
+    C-contiguous; ``code``: 0 = absolute, 1 = squared difference, 2 = product.
+    """
+    m, d = query.shape
+    n = reference.shape[0]
+    n_blocks = (n + PLACE_BLOCK - 1) // PLACE_BLOCK
+    for b in numba.prange(n_blocks):
+        lo = b * PLACE_BLOCK
+        hi = min(n, lo + PLACE_BLOCK)
+        for i in range(m):
+            q = query[i]
+            for j in range(lo, hi):
+                r = reference[j]
+                acc = np.float32(0.0)
+                if code == SAD:
+                    for k in range(d):
+                        acc += abs(q[k] - r[k])
+                elif code == SSD:
+                    for k in range(d):
+                        t = q[k] - r[k]
+                        acc += t * t
+                else:
+                    for k in range(d):
+                        acc += q[k] * r[k]
+                out[i, j] = acc
+
+
+@numba.njit(parallel=True, fastmath=True, cache=True)
+def self_products(x, out):  # pragma: no cover - compiled
+    """``out[j] = Σ_k x[j, k]²`` (float32 sums, as the product of :func:`pair_block`)."""
+    d = x.shape[1]
+    for j in numba.prange(x.shape[0]):
+        r = x[j]
+        acc = np.float32(0.0)
+        for k in range(d):
+            acc += r[k] * r[k]
+        out[j] = acc
+
+
+@numba.njit(cache=True)
+def chunk_sums(d, centre, power, out):  # pragma: no cover - compiled
+    """``out[i, c] = Σ_{j in chunk c} (d[i, j] − centre[i])**power`` (power 1 or 2),
+    chunks of :data:`SUM_CHUNK` values, each summed left to right."""
+    m, n = d.shape
+    n_chunks = out.shape[1]
+    for t in range(m * n_chunks):
+        i = t // n_chunks
+        c = t - i * n_chunks
+        lo = c * SUM_CHUNK
+        hi = min(n, lo + SUM_CHUNK)
+        mu = centre[i]
+        s = 0.0
+        if power == 1:
+            for j in range(lo, hi):
+                s += d[i, j] - mu
+        else:
+            for j in range(lo, hi):
+                v = d[i, j] - mu
+                s += v * v
+        out[i, c] = s
+
+
+@numba.njit(cache=True)
+def scale_rows(d, mean, std, out):  # pragma: no cover - compiled
+    """``out[i, j] = (d[i, j] − mean[i]) / std[i]``, or 0 where ``std[i] == 0``."""
+    m, n = d.shape
+    n_chunks = (n + SUM_CHUNK - 1) // SUM_CHUNK
+    for t in range(m * n_chunks):
+        i = t // n_chunks
+        c = t - i * n_chunks
+        lo = c * SUM_CHUNK
+        hi = min(n, lo + SUM_CHUNK)
+        mu = mean[i]
+        sd = std[i]
+        if sd > 0.0:
+            for j in range(lo, hi):
+                out[i, j] = (d[i, j] - mu) / sd
+        else:
+            for j in range(lo, hi):
+                out[i, j] = 0.0

@@ -1,21 +1,62 @@
 """Whole-descriptor differences between query and reference frames.
 
-Metrics (all "smaller = more alike", ``(n_query, n_reference)``):
+Metrics (all "smaller = more alike", ``(n_query, n_reference)`` float64):
 
-``sad``      sum of absolute differences (SeqSLAM), compiled with numba;
-``ssd``      sum of squared differences, ``|q|² + |r|² − 2 q·r`` clipped at 0;
-``cosine``   ``1 − q·r / (|q| |r|)``; a zero vector has difference 1 to everything;
+``sad``      sum of absolute differences (SeqSLAM);
+``ssd``      sum of squared differences ``Σ (q − r)²`` (computed directly, no
+             cancellation);
+``cosine``   ``1 − q·r / (|q| |r|)``, clipped to ``[0, 2]``; a zero vector has
+             difference 1 to everything;
 ``hamming``  number of differing bits (boolean arrays, or ``uint8`` packed bits).
 
-:func:`difference_matrix` works block by block: at most ``block_rows`` query rows are
-compared at once, so the working memory beyond the result is bounded
-(``block_rows × n_reference``); :func:`iter_difference_blocks` yields the blocks for
-callers that never want the whole matrix, and :func:`difference_row` is the streaming
-form (one query frame against every reference place).
+One arithmetic for every path
+-----------------------------
+A :class:`PreparedReference` holds the reference descriptors validated once, laid out
+for the compiled kernels (C-contiguous float32; bits as 0/1 float32) with the norms the
+metric needs precomputed. Every difference — one live frame (:meth:`~PreparedReference.row`),
+a batch matrix (:func:`difference_matrix`), its blocks (:func:`iter_difference_blocks`),
+a reference shard on a Dask worker (:mod:`catgraph.distributed`) — goes through the
+same kernel (:mod:`catgraph._diff_kernels`), whose value for a pair ``(q_i, r_j)``
+depends on those two descriptors only (float32 terms, summed in SIMD lanes by the
+same machine code for every pair). So the streaming and batch paths agree *bit for
+bit*, and with a slow float64 reference (``numpy``/``scipy``) to float32 rounding:
+``|error| ≤ (d + 3) · 2⁻²⁴ · Σ_k |term_k|`` (a bound; the measured error is far smaller, as
+each lane sums only ``d / lanes`` terms). Float32 sums keep the batch path
+compute-bound at twice the float64 rate; the streaming row is memory-bound either way.
+The kernel runs in parallel over blocks of reference places, so one live frame uses
+every core.
 
-:func:`normalise_rows` is paper 1's per-query normalisation
-``d_ij = (|Q_i − R_j| − μ_i) / σ_i`` with ``μ_i, σ_i`` over all reference ``j``; a row
-with ``σ_i = 0`` (every reference equally far) becomes all zeros.
+Per-query normalisation
+-----------------------
+:func:`normalise_rows` is paper 1's ``d_ij = (|Q_i − R_j| − μ_i) / σ_i`` with ``μ_i, σ_i``
+(population standard deviation) over all reference ``j``, computed in two passes
+(mean, then squared deviations) over fixed chunks of values whose partial sums are
+added in order — thread-count independent, and reproducible from a sharded
+reference. Defined behaviour at the edges, never a warning:
+
+* a row with **zero spread** (every reference equally far, ``σ_i ≤ 1e-12 ·
+  max(1, |μ_i|)``: a blank frame, a scan that saw nothing) becomes **all zeros**:
+  ``0`` is the normalised difference of an *unrelated* place, so the row is "no
+  evidence either way". It cannot look like a confident match: every place ties,
+  the margin between best and second best is 0, and a sequence window summing it
+  gains nothing;
+* a **non-finite** value (``inf``, ``nan``) raises :class:`~catgraph.exceptions.DataError`
+  naming the value and where it is (an infinite difference has no place in a mean);
+* a row with **no reference places** (shape ``(…, 0)``) raises ``DataError``; zero
+  *rows* (shape ``(0, N)``) give an empty result.
+
+Memory
+------
+:func:`difference_matrix` works block by block (at most ``block_rows`` query rows at
+once); :func:`iter_difference_blocks` yields the blocks for callers that never want the
+whole ``n_query × N`` matrix; the live path holds one row.
+
+Cold start
+----------
+The kernels compile once per machine on first use (one signature each) and are
+cached on disk next to this module; where that folder is read-only numba falls back
+to its user cache directory (set ``NUMBA_CACHE_DIR`` to choose one). Measured figures
+are in ``benchmarks/results/live.md``.
 """
 
 from __future__ import annotations
@@ -24,102 +65,268 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from ._validation import check_array, check_scalar
+from ._validation import check_scalar
 from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 
-__all__ = ["METRICS", "difference_matrix", "difference_row", "iter_difference_blocks", "normalise_rows"]
+__all__ = [
+    "METRICS",
+    "PreparedReference",
+    "difference_matrix",
+    "difference_row",
+    "iter_difference_blocks",
+    "normalise_rows",
+]
 
 METRICS = ("sad", "ssd", "cosine", "hamming")
 
+#: float64 values of scratch per block when the query block size is chosen automatically.
+_BLOCK_VALUES = 1 << 22
 
-def _prepare(x, name: str, metric: str) -> np.ndarray:
-    arr = np.asarray(x)
-    if arr.ndim == 1:
+
+def _kernels():
+    from . import _diff_kernels
+
+    return _diff_kernels
+
+
+def _check_finite(x: np.ndarray, name: str, rows: int = 65536) -> None:
+    """Finiteness of a float array, checked in row chunks (bounded scratch memory)."""
+    if x.dtype.kind != "f":
+        return
+    for start in range(0, max(x.shape[0], 1), rows):
+        part = x[start : start + rows]
+        bad = ~np.isfinite(part)
+        if bad.any():
+            where = np.argwhere(bad)[0]
+            value = part[tuple(where)]
+            raise DataError(
+                f"{name} contain {int(bad.sum())}{'+' if x.shape[0] > rows else ''} NaN or infinite values "
+                f"(first {value} at row {start + int(where[0])}); clean or drop those frames before localising."
+            )
+
+
+def _as_descriptors(x, name: str, metric: str, single: bool = False) -> np.ndarray:
+    """``(n, d)`` float32 C-contiguous descriptors (bits as 0/1), validated."""
+    try:
+        arr = np.asarray(x)
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"{name} could not be read as a numeric array: {exc}") from None
+    if arr.dtype == object or arr.dtype.kind not in "biuf":
+        raise DataError(f"{name} must be a numeric or boolean array; got dtype {arr.dtype}.")
+    if single:
+        if arr.ndim != 1:
+            raise DataError(
+                f"{name} must be one descriptor of shape (d,); got shape {arr.shape}. Compare several frames with "
+                "difference_matrix, and turn a raw image or scan into a descriptor with its front-end first "
+                "(catgraph.live.describe_frame)."
+            )
         arr = arr[None, :]
-    if arr.ndim != 2:
-        arr = arr.reshape(arr.shape[0], -1) if arr.ndim > 2 else arr
+    elif arr.ndim == 1:
+        arr = arr[None, :]
+    elif arr.ndim > 2:
+        arr = arr.reshape(arr.shape[0], -1)  # (n, h, w) frames: flattened per frame
+    elif arr.ndim != 2:
+        raise DataError(f"{name} must have shape (n, d); got shape {arr.shape}.")
+    if arr.size == 0:
+        raise DataError(f"{name} is empty (shape {arr.shape}); at least one frame with at least one value is needed.")
     if metric == "hamming":
         if arr.dtype == bool:
-            return arr
+            return np.ascontiguousarray(arr, dtype=np.float32)
         if arr.dtype == np.uint8:
-            return np.unpackbits(arr, axis=1).astype(bool)
+            return np.ascontiguousarray(np.unpackbits(arr, axis=1), dtype=np.float32)
         raise DataError(f"the hamming metric needs boolean or packed uint8 {name}; got dtype {arr.dtype}.")
-    return check_array(arr, name, ndim=2, dtype=np.float32)
+    if arr.dtype.kind == "f":
+        _check_finite(arr, name)
+    with np.errstate(over="ignore"):
+        out = np.ascontiguousarray(arr, dtype=np.float32)
+    if arr.dtype.kind == "f" and arr.dtype != np.float32:
+        try:
+            _check_finite(out, name)
+        except DataError:
+            raise DataError(f"{name} hold values too large for float32 (|x| > 3.4e38); rescale them.") from None
+    return out
 
 
-def _check_pair(query, reference, metric: str) -> tuple[np.ndarray, np.ndarray]:
+class PreparedReference:
+    """Reference descriptors validated once and laid out for the difference kernels.
+
+    Parameters
+    ----------
+    descriptors : array_like, shape (N, d)
+        Reference descriptors (float, or bool / packed uint8 for ``hamming``).
+    metric : {"sad", "ssd", "cosine", "hamming"}
+
+    Attributes
+    ----------
+    descriptors : ndarray of float32, shape (N, d_bits or d)
+        C-contiguous kernel layout (Hamming bits unpacked to 0/1).
+    norms : ndarray of float64, shape (N,) or None
+        ``|r_j|`` (cosine only).
+    n_places, dim : int
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> ref = PreparedReference(np.eye(3), "sad")
+    >>> ref.row(np.array([1.0, 0.0, 0.0])).tolist()
+    [0.0, 2.0, 2.0]
+    """
+
+    def __init__(self, descriptors, metric: str = "sad") -> None:
+        if metric not in METRICS:
+            raise InvalidParameterError(
+                f"Unknown difference metric {metric!r}; choose one of {', '.join(METRICS)}."
+            )
+        self.metric = metric
+        self.descriptors = _as_descriptors(descriptors, "reference descriptors", metric)
+        self.norms = None
+        if metric == "cosine":
+            self.norms = self._self_norms(self.descriptors)
+
+    @staticmethod
+    def _self_norms(x: np.ndarray) -> np.ndarray:
+        # |r|² with the product kernel's arithmetic
+        out = np.empty(x.shape[0])
+        _kernels().self_products(x, out)
+        return np.sqrt(out)
+
+    @property
+    def n_places(self) -> int:
+        """Number of reference places ``N``."""
+        return int(self.descriptors.shape[0])
+
+    @property
+    def dim(self) -> int:
+        """Values per descriptor (after unpacking bits)."""
+        return int(self.descriptors.shape[1])
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held (descriptors and norms)."""
+        return int(self.descriptors.nbytes + (0 if self.norms is None else self.norms.nbytes))
+
+    def prepare_query(self, descriptors, single: bool = False) -> np.ndarray:
+        """Query descriptors validated and laid out like the reference, ``(m, d)`` float32."""
+        q = _as_descriptors(descriptors, "query descriptor" if single else "query descriptors", self.metric, single)
+        if q.shape[1] != self.dim:
+            raise ShapeMismatchError(
+                f"query descriptors have {q.shape[1]} values per frame but reference descriptors have {self.dim}; "
+                "use the same front-end (and image size) for both traverses."
+            )
+        return q
+
+    def _raw(self, q: np.ndarray, out: np.ndarray) -> np.ndarray:
+        k = _kernels()
+        if self.metric in ("sad", "hamming"):
+            k.pair_block(q, self.descriptors, k.SAD, out)
+        elif self.metric == "ssd":
+            k.pair_block(q, self.descriptors, k.SSD, out)
+        else:
+            k.pair_block(q, self.descriptors, k.DOT, out)
+            qn = self._self_norms(q)
+            for i in range(q.shape[0]):  # 1 − dot / (|q| |r|), 1 where a norm is 0
+                row = out[i]
+                denom = qn[i] * self.norms
+                np.divide(row, denom, out=row, where=denom > 0)
+                row[denom <= 0] = 0.0
+                np.subtract(1.0, row, out=row)
+                np.clip(row, 0.0, 2.0, out=row)
+        return out
+
+    def block(self, descriptors, normalise: bool = False, out: np.ndarray | None = None) -> np.ndarray:
+        """Differences of query descriptors ``(m, d)`` to every place, ``(m, N)`` float64.
+
+        Parameters
+        ----------
+        descriptors : array_like, shape (m, d)
+        normalise : bool
+            Apply the per-query normalisation (:func:`normalise_rows`).
+        out : ndarray of float64, shape (m, N), optional
+            Written in place (no allocation per call).
+        """
+        q = self.prepare_query(descriptors)
+        if out is None:
+            out = np.empty((q.shape[0], self.n_places))
+        elif out.shape != (q.shape[0], self.n_places) or out.dtype != np.float64 or not out.flags.c_contiguous:
+            raise ShapeMismatchError(f"out must be a C-contiguous float64 array of shape {(q.shape[0], self.n_places)}.")
+        return self._fill(q, normalise, out)
+
+    def _fill(self, q: np.ndarray, normalise: bool, out: np.ndarray) -> np.ndarray:
+        """Kernel call on prepared query rows (no checks)."""
+        self._raw(q, out)
+        if normalise:
+            _normalise_into(out, out)
+        return out
+
+    def row(self, descriptor, normalise: bool = False, out: np.ndarray | None = None) -> np.ndarray:
+        """One query descriptor ``(d,)`` against every place → ``(N,)`` float64.
+
+        Equal, bit for bit, to the same row of :meth:`block` / :func:`difference_matrix`.
+        """
+        q = self.prepare_query(descriptor, single=True)
+        if out is None:
+            out = np.empty(self.n_places)
+        elif out.shape != (self.n_places,) or out.dtype != np.float64 or not out.flags.c_contiguous:
+            raise ShapeMismatchError(f"out must be a C-contiguous float64 array of shape ({self.n_places},).")
+        view = out.reshape(1, -1)
+        self._raw(q, view)
+        if normalise:
+            _normalise_into(view, view)
+        return out
+
+    def __repr__(self) -> str:
+        return f"PreparedReference(n_places={self.n_places}, dim={self.dim}, metric={self.metric!r})"
+
+
+def _prepared(reference, metric: str) -> PreparedReference:
+    if isinstance(reference, PreparedReference):
+        if reference.metric != metric:
+            raise InvalidParameterError(
+                f"the prepared reference uses metric {reference.metric!r}, not {metric!r}; prepare it again with "
+                f"PreparedReference(descriptors, {metric!r})."
+            )
+        return reference
     if metric not in METRICS:
         raise InvalidParameterError(f"Unknown difference metric {metric!r}; choose one of {', '.join(METRICS)}.")
-    q = _prepare(query, "query descriptors", metric)
-    r = _prepare(reference, "reference descriptors", metric)
-    if q.shape[1] != r.shape[1]:
-        raise ShapeMismatchError(
-            f"query descriptors have {q.shape[1]} values per frame but reference descriptors have {r.shape[1]}; "
-            "use the same front-end (and image size) for both traverses."
-        )
-    return q, r
+    return PreparedReference(reference, metric)
 
 
-def _block(q: np.ndarray, r: np.ndarray, metric: str, r_sq: np.ndarray | None) -> np.ndarray:
-    if metric == "sad":
-        from ._diff_kernels import sad_block
-
-        out = np.empty((q.shape[0], r.shape[0]), dtype=np.float32)
-        sad_block(np.ascontiguousarray(q), np.ascontiguousarray(r), out)
-        return out.astype(np.float64)
-    if metric == "ssd":
-        q64 = q.astype(np.float64)
-        out = (q64 * q64).sum(1)[:, None] + r_sq[None, :] - 2.0 * (q64 @ r.astype(np.float64).T)
-        return np.maximum(out, 0.0)
-    if metric == "cosine":
-        q64 = q.astype(np.float64)
-        qn = np.linalg.norm(q64, axis=1)
-        denom = qn[:, None] * r_sq[None, :]
-        dot = q64 @ r.astype(np.float64).T
-        with np.errstate(invalid="ignore", divide="ignore"):
-            sim = np.where(denom > 0, dot / np.where(denom > 0, denom, 1.0), 0.0)
-        return np.clip(1.0 - sim, 0.0, 2.0)
-    # hamming on booleans: q(1-r) + (1-q) r
-    qf = q.astype(np.float32)
-    rf = r.astype(np.float32)
-    return (qf @ (1.0 - rf).T + (1.0 - qf) @ rf.T).astype(np.float64)
-
-
-def _reference_aux(r: np.ndarray, metric: str) -> np.ndarray | None:
-    if metric == "ssd":
-        r64 = r.astype(np.float64)
-        return (r64 * r64).sum(1)
-    if metric == "cosine":
-        return np.linalg.norm(r.astype(np.float64), axis=1)
-    return None
+def _auto_rows(n_places: int) -> int:
+    return max(1, _BLOCK_VALUES // max(n_places, 1))
 
 
 def iter_difference_blocks(
-    query: np.ndarray, reference: np.ndarray, metric: str = "sad", block_rows: int = 256
+    query: np.ndarray, reference, metric: str = "sad", block_rows: int | None = 256, normalise: bool = False
 ) -> Iterator[tuple[int, np.ndarray]]:
     """Yield ``(start, block)`` with ``block = D[start:start + block_rows]`` (float64).
 
-    Only one block of ``block_rows × n_reference`` values is held at a time.
+    Only one block of ``block_rows × n_reference`` values is held at a time
+    (``block_rows=None``: about 32 MiB per block). ``reference`` may be a
+    :class:`PreparedReference`.
     """
+    ref = _prepared(reference, metric)
+    if block_rows is None:
+        block_rows = _auto_rows(ref.n_places)
     check_scalar(block_rows, "block_rows", "iter_difference_blocks", int, 1)
-    q, r = _check_pair(query, reference, metric)
-    aux = _reference_aux(r, metric)
+    q = ref.prepare_query(query)
     for start in range(0, q.shape[0], block_rows):
-        yield start, _block(q[start : start + block_rows], r, metric, aux)
+        part = q[start : start + block_rows]
+        yield start, ref._fill(part, normalise, np.empty((part.shape[0], ref.n_places)))
 
 
 def difference_matrix(
-    query: np.ndarray, reference: np.ndarray, metric: str = "sad", block_rows: int = 256, normalise: bool = False
+    query: np.ndarray, reference, metric: str = "sad", block_rows: int | None = 256, normalise: bool = False
 ) -> np.ndarray:
     """Differences between every query and every reference descriptor.
 
     Parameters
     ----------
     query : ndarray, shape (n_query, d)
-    reference : ndarray, shape (n_reference, d)
+        (``(n, h, w)`` frames are flattened per frame.)
+    reference : ndarray, shape (n_reference, d), or PreparedReference
     metric : {"sad", "ssd", "cosine", "hamming"}
-    block_rows : int
-        Query rows computed at once (bounds the working memory).
+    block_rows : int or None
+        Query rows computed at once (bounds the working memory; ``None``: ~32 MiB).
     normalise : bool
         Apply :func:`normalise_rows` to each block as it is computed.
 
@@ -127,27 +334,108 @@ def difference_matrix(
     -------
     ndarray, shape (n_query, n_reference), float64
     """
-    q, r = _check_pair(query, reference, metric)
-    out = np.empty((q.shape[0], r.shape[0]), dtype=np.float64)
-    for start, block in iter_difference_blocks(q, r, metric, block_rows):
-        out[start : start + block.shape[0]] = normalise_rows(block) if normalise else block
+    ref = _prepared(reference, metric)
+    if block_rows is None:
+        block_rows = _auto_rows(ref.n_places)
+    check_scalar(block_rows, "block_rows", "difference_matrix", int, 1)
+    q = ref.prepare_query(query)
+    out = np.empty((q.shape[0], ref.n_places), dtype=np.float64)
+    for start in range(0, q.shape[0], block_rows):
+        ref._fill(q[start : start + block_rows], normalise, out[start : start + block_rows])
     return out
 
 
-def difference_row(descriptor: np.ndarray, reference: np.ndarray, metric: str = "sad") -> np.ndarray:
-    """One query descriptor ``(d,)`` against every reference descriptor → ``(n_reference,)``."""
-    q, r = _check_pair(np.asarray(descriptor)[None, ...].reshape(1, -1), reference, metric)
-    return _block(q, r, metric, _reference_aux(r, metric))[0]
+def difference_row(descriptor: np.ndarray, reference, metric: str = "sad", normalise: bool = False) -> np.ndarray:
+    """One query descriptor ``(d,)`` against every reference descriptor → ``(n_reference,)``.
+
+    ``reference`` may be a :class:`PreparedReference` — do that when calling once per
+    frame: raw descriptors are validated (and, for cosine, their norms computed) on
+    every call. Anything but a 1-D descriptor is refused (``DataError``).
+    """
+    return _prepared(reference, metric).row(descriptor, normalise=normalise)
+
+
+# ---------------------------------------------------------------------------------------
+# per-query normalisation
+
+
+def _zero_spread(std: np.ndarray, mean: np.ndarray) -> np.ndarray:
+    return ~(std > 1e-12 * np.maximum(1.0, np.abs(mean)))
+
+
+def _combine(partials: np.ndarray) -> np.ndarray:
+    """Row totals from per-chunk partial sums ``(m, n_chunks)``, added in chunk order."""
+    total = np.zeros(partials.shape[0])
+    for c in range(partials.shape[1]):
+        total += partials[:, c]
+    return total
+
+
+def row_statistics(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(mean, std)`` per row of a C-contiguous float64 ``(m, N)`` array, as
+    :func:`normalise_rows` computes them (``std = 0`` for rows with zero spread)."""
+    k = _kernels()
+    m, n = d.shape
+    n_chunks = -(-n // k.SUM_CHUNK)
+    parts = np.empty((m, n_chunks))
+    k.chunk_sums(d, np.zeros(m), 1, parts)
+    mean = _combine(parts) / n
+    k.chunk_sums(d, mean, 2, parts)
+    std = np.sqrt(_combine(parts) / n)
+    std[_zero_spread(std, mean)] = 0.0
+    return mean, std
+
+
+def _normalise_into(d: np.ndarray, out: np.ndarray) -> np.ndarray:
+    if d.shape[0] == 0:
+        return out
+    mean, std = row_statistics(d)
+    _kernels().scale_rows(d, mean, std, out)
+    return out
 
 
 def normalise_rows(differences: np.ndarray) -> np.ndarray:
     """Per-query normalisation ``(d_ij − μ_i) / σ_i`` over the reference axis.
 
-    Works on ``(n_reference,)`` rows or ``(n_query, n_reference)`` matrices; rows with
-    zero spread become zeros (not NaN).
+    Parameters
+    ----------
+    differences : array_like, shape (N,) or (n_query, N)
+
+    Returns
+    -------
+    ndarray of float64, same shape
+        Rows with zero spread become all zeros ("no evidence", see the module
+        docstring); shape ``(0, N)`` gives an empty array.
+
+    Raises
+    ------
+    DataError
+        A value is NaN or infinite, there are no reference places (``N = 0``), or the
+        input is not 1-D or 2-D.
+
+    Examples
+    --------
+    >>> normalise_rows([1.0, 2.0, 3.0]).round(4).tolist()
+    [-1.2247, 0.0, 1.2247]
+    >>> normalise_rows([5.0, 5.0, 5.0]).tolist()
+    [0.0, 0.0, 0.0]
     """
-    d = np.asarray(differences, dtype=np.float64)
-    mean = d.mean(axis=-1, keepdims=True)
-    std = d.std(axis=-1, keepdims=True)
-    ok = std > 1e-12 * np.maximum(1.0, np.abs(mean))
-    return np.where(ok, (d - mean) / np.where(ok, std, 1.0), 0.0)
+    try:
+        d = np.asarray(differences, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"differences could not be read as a numeric array: {exc}") from None
+    if d.ndim not in (1, 2):
+        raise DataError(f"differences must be one row (N,) or a matrix (n_query, N); got shape {d.shape}.")
+    if d.shape[-1] == 0:
+        raise DataError(f"differences have no reference places (shape {d.shape}); normalising needs at least one.")
+    bad = ~np.isfinite(d)
+    if bad.any():
+        where = tuple(int(v) for v in np.argwhere(bad)[0])
+        raise DataError(
+            f"differences contain {int(bad.sum())} non-finite values (first {d[where]} at index "
+            f"{where if d.ndim > 1 else where[0]}); a difference must be a finite number — check the descriptors."
+        )
+    two = np.ascontiguousarray(d.reshape(-1, d.shape[-1]))
+    out = np.empty_like(two)
+    _normalise_into(two, out)
+    return out.reshape(d.shape)

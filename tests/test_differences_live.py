@@ -1,0 +1,153 @@
+"""Difference rows and matrices: one arithmetic for streaming and batch, edge cases."""
+
+import warnings
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.distance import cdist
+
+from catgraph.differences import (
+    PreparedReference,
+    difference_matrix,
+    difference_row,
+    iter_difference_blocks,
+    normalise_rows,
+)
+from catgraph.exceptions import DataError, InvalidParameterError, ShapeMismatchError
+
+SCIPY = {"sad": "cityblock", "ssd": "sqeuclidean", "cosine": "cosine"}
+
+
+def _slow(q, r, metric):
+    """Obviously correct float64 reference."""
+    q64, r64 = q.astype(np.float64), r.astype(np.float64)
+    if metric == "sad":
+        return np.abs(q64[:, None, :] - r64[None]).sum(-1)
+    if metric == "ssd":
+        return ((q64[:, None, :] - r64[None]) ** 2).sum(-1)
+    if metric == "cosine":
+        qn, rn = np.linalg.norm(q64, axis=1), np.linalg.norm(r64, axis=1)
+        denom = qn[:, None] * rn[None]
+        sim = np.divide(q64 @ r64.T, denom, out=np.zeros_like(denom), where=denom > 0)
+        return np.clip(1 - sim, 0, 2)
+    return (q64[:, None, :] != r64[None]).sum(-1).astype(float)
+
+
+@pytest.mark.parametrize("metric", ["sad", "ssd", "cosine"])
+@pytest.mark.parametrize("dim", [1, 7, 16, 33])
+def test_kernel_within_float32_bound_of_slow_reference(metric, dim, rng):
+    q = rng.normal(size=(5, dim)).astype(np.float32)
+    r = rng.normal(size=(600, dim)).astype(np.float32)
+    fast, slow = difference_matrix(q, r, metric), _slow(q, r, metric)
+    if metric == "cosine":
+        bound = (dim + 6) * 2.0**-24 * 2  # |terms| of unit vectors sum to ≤ 1, plus the norms
+    else:
+        terms = np.abs(q[:, None, :].astype(float) - r[None]) ** (1 if metric == "sad" else 2)
+        bound = (dim + 3) * 2.0**-24 * terms.sum(-1)
+    assert np.all(np.abs(fast - slow) <= bound + 1e-12)
+    np.testing.assert_allclose(fast, cdist(q.astype(float), r.astype(float), SCIPY[metric]), rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("metric", ["sad", "ssd", "cosine", "hamming"])
+def test_row_block_and_matrix_agree_bit_for_bit(metric, rng):
+    if metric == "hamming":
+        q, r = rng.random((9, 40)) > 0.5, rng.random((1000, 40)) > 0.5
+    else:
+        q, r = rng.normal(size=(9, 40)).astype(np.float32), rng.normal(size=(1000, 40)).astype(np.float32)
+    ref = PreparedReference(r, metric)
+    for normalise in (False, True):
+        full = difference_matrix(q, r, metric, block_rows=4, normalise=normalise)
+        assert np.array_equal(full, difference_matrix(q, ref, metric, block_rows=9, normalise=normalise))
+        for i in range(len(q)):
+            assert np.array_equal(ref.row(q[i], normalise=normalise), full[i])
+            assert np.array_equal(difference_row(q[i], r, metric, normalise=normalise), full[i])
+        stacked = np.concatenate([b for _, b in iter_difference_blocks(q, ref, metric, 2, normalise=normalise)])
+        assert np.array_equal(stacked, full)
+    # a shard of the reference gives the same columns (raw differences)
+    raw = difference_matrix(q, r, metric)
+    assert np.array_equal(PreparedReference(r[300:700], metric).block(q), raw[:, 300:700])
+
+
+def test_hamming_is_exact_count(rng):
+    q, r = rng.random((4, 70)) > 0.5, rng.random((6, 70)) > 0.5
+    assert np.array_equal(difference_matrix(q, r, "hamming"), _slow(q, r, "hamming"))
+    packed = difference_matrix(np.packbits(q, axis=1), np.packbits(r, axis=1), "hamming")
+    assert np.array_equal(packed, _slow(np.unpackbits(np.packbits(q, axis=1), axis=1),
+                                        np.unpackbits(np.packbits(r, axis=1), axis=1), "hamming"))
+
+
+def test_normalise_rows_against_numpy_and_bitwise_row_vs_matrix(rng):
+    d = rng.normal(size=(3, 9000)) * 5 + 2
+    out = normalise_rows(d)
+    expected = (d - d.mean(1, keepdims=True)) / d.std(1, keepdims=True)
+    np.testing.assert_allclose(out, expected, rtol=1e-12, atol=1e-12)
+    for i in range(3):
+        assert np.array_equal(normalise_rows(d[i]), out[i])
+
+
+def test_normalise_rows_rejects_non_finite_without_warnings():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(DataError, match=r"non-finite.*inf.*index 1"):
+            normalise_rows([1.0, np.inf, 2.0])
+        with pytest.raises(DataError, match="nan"):
+            normalise_rows([[1.0, 2.0], [np.nan, 0.0]])
+        with pytest.raises(DataError, match="no reference places"):
+            normalise_rows([])
+        with pytest.raises(DataError, match="shape"):
+            normalise_rows(np.zeros((2, 2, 2)))
+        assert normalise_rows(np.zeros((0, 5))).shape == (0, 5)
+
+
+def test_zero_spread_row_is_no_evidence_not_a_confident_match():
+    from catgraph.matching import best_matches
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        flat = normalise_rows(np.full((1, 50), 3.7))
+    assert np.all(flat == 0.0)  # the normalised difference of an unrelated place
+    _, confidence = best_matches(flat, exclusion=2)
+    assert confidence[0] <= 0.0  # every place ties: no margin
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(1, 6), st.integers(1, 300), st.floats(-1e3, 1e3), st.floats(1e-3, 1e3), st.integers(0, 2**31))
+def test_normalise_rows_zero_mean_unit_std(m, n, shift, scale, seed):
+    d = np.random.default_rng(seed).normal(size=(m, n)) * scale + shift
+    out = normalise_rows(d)
+    for row, src in zip(out, d):
+        if src.std() > 1e-9 * max(1.0, abs(src.mean())):
+            assert abs(row.mean()) < 1e-8 and abs(row.std() - 1) < 1e-8
+        else:
+            assert np.all(row == 0)
+
+
+def test_difference_row_refuses_anything_but_one_descriptor(rng):
+    r = rng.normal(size=(5, 16))
+    with pytest.raises(DataError, match=r"one descriptor of shape \(d,\).*\(2, 2, 4\)"):
+        difference_row(np.zeros((2, 2, 4)), r)
+    with pytest.raises(DataError, match="one descriptor"):
+        difference_row(np.zeros((1, 16)), r)
+    with pytest.raises(ShapeMismatchError, match="same front-end"):
+        difference_row(np.zeros(15), r)
+    with pytest.raises(DataError, match="NaN"):
+        difference_row(np.array([np.inf] + [0.0] * 15), r)
+    with pytest.raises(DataError, match="empty"):
+        PreparedReference(np.zeros((0, 4)))
+    with pytest.raises(InvalidParameterError, match="metric"):
+        difference_row(np.zeros(16), PreparedReference(r, "sad"), "cosine")
+    with pytest.raises(DataError, match="too large for float32"):
+        PreparedReference(np.array([[1e300, 0.0]]))
+
+
+def test_prepared_reference_validates_once_and_reuses_out(rng):
+    r = rng.normal(size=(300, 8)).astype(np.float32)
+    ref = PreparedReference(r, "cosine")
+    assert ref.norms.shape == (300,) and ref.nbytes == r.nbytes + 300 * 8
+    out = np.empty(300)
+    got = ref.row(r[3], out=out)
+    assert got is out and abs(out[3]) < 1e-6
+    with pytest.raises(ShapeMismatchError, match="out"):
+        ref.row(r[3], out=np.empty(299))
