@@ -15,7 +15,13 @@ One step (:meth:`Localizer.step`), as in ``particles.SMC.__next__``::
     inject(observation)                    # a few particles re-drawn from a proposal
     reweight(observation)                  # w_i ∝ w_i · exp(ℓ_i), update P(new)
     resample_if_degenerate()               # ESS < ess_threshold · n
-    return summarise()                     # Estimate
+    estimate = summarise()                 # Estimate
+    feedback(prior, posterior, answer)     # model.feedback(FilterFeedback)
+    return estimate
+
+Odometry is checked on every step, the first included: NaN, infinite or negative
+odometry raises :class:`~catgraph.exceptions.DataError`. The row's length is checked
+here, its values by the model (once per step).
 
 Reweighting. Particle ``i`` on edge ``a → b`` at fraction ``α`` gains
 ``ℓ_i = (1 − α) r_a + α r_b`` (:mod:`catgraph.observation`). The new-place hypothesis
@@ -51,9 +57,15 @@ of route. Models that can say how well the *most recent* frames alone support a 
 (``Observation.support``, e.g. the shortest sequence window) bound it:
 ``score = min(log-odds, max_{j near answer} support_j)`` (``confidence_score="joint"``,
 the default) — a frame is only as sure as both its history and its recent evidence.
-Both are in nats. After each step the filter reports the answer's neighbourhood to
-models with a ``feedback(near)`` method (the combined model learns its parts'
-reliability from it).
+Both are in nats, and stay finite: the mass outside the answer is floored at
+``1e-300`` (:func:`confidence_log_odds`), so a confidence of exactly 1 (a two-place map,
+one particle) still gives a finite, ordered score.
+
+Feedback. After each step the filter tells the model what it predicted and what it
+concluded (:class:`~catgraph.observation.FilterFeedback`: the place masses before and
+after the frame and the answer's neighbourhood) through ``ObservationModel.feedback``,
+its own named step: the tempered whole-image model chooses its temperature and learns
+``P(d|L)`` from it, the combined model its parts' reliability.
 
 Cost. A step is O(n_particles · hops + n_places): the motion kernel is compiled, the
 rest is vectorised numpy; memory is fixed at construction. Same seed, same output:
@@ -76,7 +88,51 @@ from .motion import FrameMotion, MotionModel, OdometryMotion
 from .observation import Observation, ObservationModel
 from .particles import ParticleSet, get_resampler, place_to_edges
 
-__all__ = ["Estimate", "LocalizationResult", "Localizer"]
+__all__ = ["Estimate", "LocalizationResult", "Localizer", "check_odometry", "confidence_log_odds"]
+
+#: Floor on the mass outside the answer's neighbourhood when taking log-odds: keeps them
+#: finite (and ordered) where the confidence is exactly 1.
+_MASS_FLOOR = 1e-300
+
+
+def check_odometry(odometry) -> float | None:
+    """Validate one step's odometry: ``None`` or a finite, non-negative distance.
+
+    Raises
+    ------
+    DataError
+        For NaN, infinite or negative odometry, on every step (the first included).
+    """
+    if odometry is None:
+        return None
+    try:
+        u = float(odometry)
+    except (TypeError, ValueError):
+        raise DataError(f"odometry must be a finite, non-negative distance; got {odometry!r}.") from None
+    if not math.isfinite(u) or u < 0:
+        raise DataError(
+            f"odometry must be a finite, non-negative distance; got {odometry!r}. "
+            "Drop or repair the frame's odometry, or give None for a frame without it."
+        )
+    return u
+
+
+def confidence_log_odds(w_in: float, w_out: float, log_map: float, log_new: float) -> tuple[float, float]:
+    """Confidence and its log-odds from the map masses inside / outside the answer's
+    neighbourhood (normalised over the map) and the log-probabilities of the map and of
+    the new place.
+
+    ``confidence = P(map) · w_in``; ``log_odds = log(P(map) w_in) − log(P(map) w_out + P(new))``,
+    with ``w_out`` floored at ``1e-300`` so that the log-odds stay finite, and still
+    grow with ``w_in``, when the confidence rounds to (or is exactly) 1.
+    """
+    log_in = log_map + math.log(w_in) if w_in > 0 else -math.inf
+    log_out = float(np.logaddexp(log_new, log_map + math.log(max(w_out, _MASS_FLOOR))))
+    if not math.isfinite(log_in):
+        log_in = log_map + math.log(_MASS_FLOOR)
+    confidence = float(math.exp(log_in)) if w_in > 0 else 0.0
+    return min(confidence, 1.0), float(log_in - log_out)
+
 
 
 @numba.njit(cache=True)
@@ -138,6 +194,17 @@ def _top_k(values, k):  # pragma: no cover - compiled
                     if best_i[s] < 0:
                         break
     return best_i
+
+
+def _check_length(observation, n_places: int) -> np.ndarray:
+    """The row as a 1-D float array of one value per place (its values are the model's to check)."""
+    row = np.asarray(observation, dtype=np.float64)
+    if row.ndim != 1 or len(row) != n_places:
+        raise ShapeMismatchError(
+            f"the observation has shape {row.shape} but the graph has {n_places} places; "
+            "give the frame's difference to every reference place of the map, as a 1-D array."
+        )
+    return row
 
 
 @dataclass(frozen=True)
@@ -314,6 +381,7 @@ class Localizer:
         self._no_ratio = np.zeros(self.graph.n_places)
         self._motions = (self.motion or FrameMotion(), self.motion or OdometryMotion())
         self.model.reset()
+        self._has_feedback = callable(getattr(self.model, "feedback", None))
         if self.confidence_radius_m is not None:
             from scipy.spatial import cKDTree
 
@@ -337,20 +405,30 @@ class Localizer:
         """
         if not hasattr(self, "particles_"):
             self.reset()
-        row = check_array(observation, "observation", ndim=1)
-        if len(row) != self.graph.n_places:
-            raise ShapeMismatchError(
-                f"the observation has {len(row)} places but the graph has {self.graph.n_places}; "
-                "give the frame's difference to every reference place of the map."
-            )
-        obs = self.model.observe(row)
+        row = _check_length(observation, self.graph.n_places)
+        odometry = check_odometry(odometry)
+        obs = self.model.observe(row)  # the model checks the row's values, once
         self._move(odometry)
         self._inject(obs)
+        prior = self._place_mass(np.exp(self.particles_.log_weight))
         ess = self._reweight(obs)
         self._support = obs.support if obs.informative else None
         resampled = self._resample_if_degenerate(ess)
+        estimate, near = self._summarise(ess, resampled)
+        self._feedback(prior, near)
         self.n_steps_ += 1
-        return self._summarise(ess, resampled)
+        return estimate
+
+    def _place_mass(self, weight: np.ndarray) -> np.ndarray:
+        g = self.graph
+        return np.bincount(self.particles_.places(g), weights=weight, minlength=g.n_places)
+
+    def _feedback(self, prior: np.ndarray, near) -> None:
+        """Tell the model the filter's prediction and answer (``ObservationModel.feedback``)."""
+        if self._has_feedback:
+            from .observation import FilterFeedback
+
+            self.model.feedback(FilterFeedback(prior, self.place_posterior_, near))
 
     def _move(self, odometry: float | None) -> None:
         if self.n_steps_ == 0:
@@ -401,34 +479,26 @@ class Localizer:
         self._weight = np.full(self.n_particles, 1.0 / self.n_particles)
         return True
 
-    def _summarise(self, ess: float, resampled: bool) -> Estimate:
-        g, p = self.graph, self.particles_
-        mass = np.bincount(p.places(g), weights=self._weight, minlength=g.n_places)
+    def _summarise(self, ess: float, resampled: bool) -> tuple[Estimate, slice | np.ndarray]:
+        g = self.graph
+        mass = self._place_mass(self._weight)
         self.place_posterior_ = mass * (1.0 - self.new_place_probability_)
         best = int(np.argmax(mass))
         if self.confidence_radius_m is not None:
-            inside = np.zeros(g.n_places, dtype=bool)
-            inside[self._tree.query_ball_point(g.positions[best], self.confidence_radius_m)] = True
-            w_in, w_out = float(mass[inside].sum()), float(mass[~inside].sum())
-            near = inside
+            near = np.zeros(g.n_places, dtype=bool)
+            near[self._tree.query_ball_point(g.positions[best], self.confidence_radius_m)] = True
         else:
-            lo, hi = max(0, best - self.confidence_radius), best + self.confidence_radius + 1
-            w_in, w_out = float(mass[lo:hi].sum()), float(mass[:lo].sum() + mass[hi:].sum())
-            near = slice(lo, hi)
+            near = slice(max(0, best - self.confidence_radius), best + self.confidence_radius + 1)
+        w_in = float(mass[near].sum())
+        w_out = max(0.0, float(mass.sum()) - w_in)
         # in log space, so that the new-place mass still ranks frames whose map mass is all inside
-        log_in = self._log_map + math.log(w_in) if w_in > 0 else -math.inf
-        log_out = np.logaddexp(self._log_new, self._log_map + math.log(w_out) if w_out > 0 else -math.inf)
-        log_odds = float(log_in - log_out) if np.isfinite(log_in) or np.isfinite(log_out) else 0.0
-        confidence = float(math.exp(log_in)) if np.isfinite(log_in) else 0.0
-        feedback = getattr(self.model, "feedback", None)
-        if callable(feedback):
-            feedback(near)
+        confidence, log_odds = confidence_log_odds(w_in, w_out, self._log_map, self._log_new)
         score = log_odds
         if self.confidence_score == "joint" and self._support is not None:
             score = min(log_odds, float(np.max(self._support[near])))
         position = None if g.positions is None else g.positions[best].copy()
-        return Estimate(best, position, min(confidence, 1.0), self.new_place_probability_, ess, resampled, log_odds,
-                        score)
+        return Estimate(best, position, confidence, self.new_place_probability_, ess, resampled, log_odds,
+                        score), near
 
     # ------------------------------------------------------------------ batch
     def run(self, observations, odometry: np.ndarray | None = None, query_index: np.ndarray | None = None,

@@ -57,6 +57,7 @@ comparable across frames and datasets.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Protocol, Sequence, runtime_checkable
 
@@ -67,7 +68,9 @@ from .exceptions import InvalidParameterError, NotFittedError, ShapeMismatchErro
 
 __all__ = [
     "Observation",
+    "FilterFeedback",
     "ObservationModel",
+    "TemperedObservation",
     "HistogramObservation",
     "SequenceObservation",
     "CombinedObservation",
@@ -102,12 +105,34 @@ class Observation:
     support: np.ndarray | None = None
 
 
+@dataclass(frozen=True)
+class FilterFeedback:
+    """What a filter tells its observation model after each frame.
+
+    Attributes
+    ----------
+    prior : ndarray of float64, shape (n_places,)
+        Predicted place masses before the frame (given the map; sums to 1).
+    posterior : ndarray of float64, shape (n_places,)
+        Place masses after the frame (the map's share, ``1 − P(new)`` in all).
+    near : slice or ndarray of bool, shape (n_places,)
+        The places counted in the answer's confidence.
+    """
+
+    prior: np.ndarray
+    posterior: np.ndarray
+    near: slice | np.ndarray
+
+
 @runtime_checkable
 class ObservationModel(Protocol):
     """What the particle filter needs from an observation model."""
 
     def reset(self) -> None:
         """Forget everything learned from earlier query frames."""
+
+    def feedback(self, feedback: FilterFeedback) -> None:
+        """Learn from the filter's answer to the latest frame (a no-op for most models)."""
 
     def observe(self, difference_row: np.ndarray) -> Observation:
         """Learn from (if the model learns) and score one query frame.
@@ -216,6 +241,9 @@ class HistogramObservation:
         self.__dict__.pop("recogniser_", None)
         self.__dict__.pop("_rng", None)
 
+    def feedback(self, feedback: FilterFeedback) -> None:
+        """Paper 2's model learns from the frames alone: nothing to do."""
+
     def _start(self) -> None:
         from .likelihood import HistogramLikelihood, HistogramPlaceRecogniser
 
@@ -291,6 +319,9 @@ class SequenceObservation:
     def reset(self) -> None:
         for k in ("matcher_", "recogniser_", "last_match_", "_scores"):
             self.__dict__.pop(k, None)
+
+    def feedback(self, feedback: FilterFeedback) -> None:
+        """The score histograms learn from the frames alone: nothing to do."""
 
     def _start(self) -> None:
         from .likelihood import HistogramPlaceRecogniser
@@ -387,14 +418,20 @@ class CombinedObservation:
         for k in ("reliability_", "_hits", "_trials", "_best"):
             self.__dict__.pop(k, None)
 
-    def feedback(self, near) -> None:
-        """Learn each part's reliability from the filter's answer.
+    def feedback(self, feedback) -> None:
+        """Learn each part's reliability from the filter's answer; pass it on to the parts.
 
         Parameters
         ----------
-        near : slice or ndarray of bool, shape (n_places,)
-            The places within tolerance of the filter's answer for the latest frame.
+        feedback : FilterFeedback, or slice / ndarray of bool of shape (n_places,)
+            The filter's feedback, or just the places within tolerance of its answer
+            for the latest frame.
         """
+        near = feedback.near if isinstance(feedback, FilterFeedback) else feedback
+        if isinstance(feedback, FilterFeedback):
+            for m in self.models:
+                if callable(getattr(m, "feedback", None)):
+                    m.feedback(feedback)
         best = getattr(self, "_best", None)
         if best is None or self.reliability is None:
             return
@@ -474,3 +511,217 @@ def make_model(name: str, window: int = 50, **kwargs) -> ObservationModel:
     if name == "combined":
         return CombinedObservation([HistogramObservation(**kwargs), SequenceObservation(window="adaptive", **kwargs)])
     raise InvalidParameterError(f"The 'model' parameter must be one of {list(MODEL_NAMES)}. Got {name!r} instead.")
+
+
+#: Default grid of temperatures the online temper chooses from.
+DEFAULT_TEMPERATURES = (0.05, 0.1, 0.15, 0.2, 0.3, 0.5, 0.7, 1.0, 1.5)
+
+
+class TemperedObservation:
+    """Whole-image evidence, tempered and hub-corrected by what the filter predicts.
+
+    The per-place log-ratio is ``r_j = τ · b(d_j − λ h_j)`` where
+
+    * ``b`` is the single-frame log-ratio ``log P(d|L) − log P(d)``:
+      ``likelihood="histogram"`` learns it as paper 2 does, from histograms of the
+      query's own differences, but ``P(d|L)`` is learned from the *filter's*
+      localisations (every place weighted by its posterior mass times the answer's
+      confidence; :meth:`feedback`) instead of from ``d_min``, which on a season change
+      is mostly a wrong match. It starts as the Gaussian-shift ratio ``−d`` (the
+      per-query normalised difference: ``P(d|L)`` one standard deviation below
+      ``P(d)``) with the weight of ``prior_strength`` frames and is kept
+      non-increasing in ``d`` (pooled adjacent violators). ``likelihood="linear"``
+      keeps ``b(d) = −d``;
+    * ``h_j`` is the hub level of reference ``j``: the mean of its past differences to
+      the query (``hub="online"``, from the frames seen so far), or a vector given
+      from the map (``hub=array``, e.g. :func:`catgraph.likelihood.map_hubness`), or
+      none;
+    * ``τ`` (temperature) and ``λ`` (hub weight) are chosen online, the same way on
+      every dataset: for each pair on the grids ``temperatures × hub_weights`` the model
+      keeps a discounted sum of the *predictive* log Bayes factor of each frame,
+      ``log Σ_j prior_j e^{τ b_j} − log mean_j e^{τ b_j}`` — how much better the
+      filter's prediction explained the frame than a uniform prior — and uses the pair
+      with the largest. Frames are not independent evidence; an over-confident ``τ``
+      is punished by the frames the track's prediction gets wrong, an under-confident
+      one by those it gets right.
+
+    The new-place log-ratio is ``log mean_j e^{r_j}``: a place not in the map looks,
+    to this model, like a place drawn at random from the map.
+
+    Parameters
+    ----------
+    likelihood : {"histogram", "linear"}
+    hub : {"online", None} or ndarray of shape (n_places,)
+    temperature : "online" or float
+        A fixed ``τ`` instead of the online choice.
+    temperatures : sequence of float
+        The grid of the online choice.
+    hub_weights : sequence of float
+        Grid of ``λ`` (``hub`` given).
+    memory : float
+        Half-life, in frames, of the predictive score (and of nothing else).
+    n_bins : int
+        Histogram bins (``"histogram"``).
+    prior_strength : float
+        Frames' worth of weight of the starting ratio ``−d``.
+
+    Attributes
+    ----------
+    temperature_ : float
+    hub_weight_ : float
+        The current choices.
+    score_ : ndarray, shape (n_temperatures, n_hub_weights)
+        Discounted predictive log Bayes factors.
+    """
+
+    def __init__(self, likelihood: str = "histogram", hub="online", temperature="online",
+                 temperatures: Sequence[float] = DEFAULT_TEMPERATURES, hub_weights: Sequence[float] = (0.0, 1.0),
+                 memory: float = 200.0, n_bins: int = 64, prior_strength: float = 50.0) -> None:
+        self.likelihood = likelihood
+        self.hub = hub
+        self.temperature = temperature
+        self.temperatures = temperatures
+        self.hub_weights = hub_weights
+        self.memory = memory
+        self.n_bins = n_bins
+        self.prior_strength = prior_strength
+
+    def reset(self) -> None:
+        for k in [k for k in self.__dict__ if k.endswith("_") or k.startswith("_s_")]:
+            del self.__dict__[k]
+
+    def _start(self, row: np.ndarray) -> None:
+        owner = type(self).__name__
+        if self.likelihood not in ("histogram", "linear"):
+            raise InvalidParameterError(
+                f"The 'likelihood' parameter of {owner} must be 'histogram' or 'linear'. Got {self.likelihood!r} instead."
+            )
+        if self.temperature != "online":
+            check_scalar(self.temperature, "temperature", owner, float, 0.0, low_inclusive=False)
+        taus = np.asarray(self.temperatures, dtype=np.float64) if self.temperature == "online" else np.array(
+            [float(self.temperature)])
+        if taus.ndim != 1 or len(taus) == 0 or not np.all(np.isfinite(taus)) or np.any(taus <= 0):
+            raise InvalidParameterError(
+                f"The 'temperatures' parameter of {owner} must be a non-empty sequence of positive floats. "
+                f"Got {self.temperatures!r} instead."
+            )
+        check_scalar(self.memory, "memory", owner, float, 1.0)
+        check_scalar(self.n_bins, "n_bins", owner, int, 4)
+        check_scalar(self.prior_strength, "prior_strength", owner, float, 0.0)
+        n = len(row)
+        if isinstance(self.hub, str) or self.hub is None:
+            if self.hub not in ("online", None):
+                raise InvalidParameterError(
+                    f"The 'hub' parameter of {owner} must be 'online', None or an array of one level per place. "
+                    f"Got {self.hub!r} instead."
+                )
+            hub_vector = None
+        else:
+            hub_vector = _check_row(self.hub, n)
+        lams = np.asarray(self.hub_weights, dtype=np.float64) if self.hub is not None else np.array([0.0])
+        if lams.ndim != 1 or len(lams) == 0 or not np.all(np.isfinite(lams)):
+            raise InvalidParameterError(
+                f"The 'hub_weights' parameter of {owner} must be a non-empty sequence of floats. Got {self.hub_weights!r} instead."
+            )
+        self.n_reference_ = n
+        self._taus, self._lams = taus, lams
+        self._hub_map = hub_vector
+        self._hub_sum, self._hub_count = np.zeros(n), 0
+        self.score_ = np.zeros((len(taus), len(lams)))
+        self._decay = 0.5 ** (1.0 / float(self.memory))
+        self.temperature_, self.hub_weight_ = float(taus[len(taus) // 2]), float(lams[0])
+        self._pick = (len(taus) // 2, 0)
+        if self.likelihood == "histogram":
+            sd = float(row.std()) or 1.0
+            lo, hi = float(row.min()) - 2.0 * sd, float(row.max()) + 2.0 * sd
+            self._edges = np.linspace(lo, hi, self.n_bins + 1)
+            centres = 0.5 * (self._edges[1:] + self._edges[:-1])
+            self._centres = centres
+            # every hub weight has its own histograms (its differences differ)
+            self._count_all = np.full((len(lams), self.n_bins), 1e-3)
+            self._count_same = np.zeros((len(lams), self.n_bins))
+            self._seeded = False
+            self._tables = np.tile(-centres, (len(lams), 1))
+
+    def _hub(self) -> np.ndarray | None:
+        if self._hub_map is not None:
+            return self._hub_map
+        if self.hub == "online" and self._hub_count > 0:
+            return self._hub_sum / self._hub_count
+        return None
+
+    def _bins(self, d: np.ndarray) -> np.ndarray:
+        return np.clip(np.searchsorted(self._edges, d, side="right") - 1, 0, self.n_bins - 1)
+
+    def _base(self, row: np.ndarray) -> list[np.ndarray]:
+        """Single-frame log-ratios ``b(d − λ h)`` for every hub weight."""
+        h = self._hub()
+        out = []
+        for m, lam in enumerate(self._lams):
+            d = row if (h is None or lam == 0.0) else row - lam * h
+            if self.likelihood == "linear":
+                out.append(-d)
+            else:
+                out.append(self._tables[m][self._bins(d)])
+        return out
+
+    def observe(self, difference_row: np.ndarray) -> Observation:
+        row = _check_row(difference_row, getattr(self, "n_reference_", None))
+        if not hasattr(self, "n_reference_"):
+            self._start(row)
+        self._row = row
+        self._bases = self._base(row)
+        i, m = self._pick
+        r = self._taus[i] * self._bases[m]
+        top = float(r.max())
+        new = top + math.log(float(np.mean(np.exp(r - top))))
+        return Observation(r, new, True)
+
+    def feedback(self, feedback: FilterFeedback) -> None:
+        """Score every (temperature, hub weight) on how well the filter predicted the
+        frame; learn ``P(d|L)`` from the posterior; update the online hub levels."""
+        row = getattr(self, "_row", None)
+        if row is None:
+            return
+        prior = np.asarray(feedback.prior, dtype=np.float64)
+        total = prior.sum()
+        log_prior = np.log(np.maximum(prior / total, 1e-300)) if total > 0 else np.full(len(prior), -math.log(len(prior)))
+        self.score_ *= self._decay
+        for m, b in enumerate(self._bases):
+            for i, tau in enumerate(self._taus):
+                x = tau * b
+                top = float(x.max())
+                e = np.exp(x - top)
+                self.score_[i, m] += math.log(float(np.exp(log_prior + x - top).sum()) + 1e-300) - math.log(float(e.mean()))
+        i, m = np.unravel_index(int(np.argmax(self.score_)), self.score_.shape)
+        self._pick = (int(i), int(m))
+        self.temperature_, self.hub_weight_ = float(self._taus[i]), float(self._lams[m])
+        if self.likelihood == "histogram":
+            self._learn(row, np.asarray(feedback.posterior, dtype=np.float64), feedback.near)
+        if self.hub == "online" and self._hub_map is None:
+            self._hub_sum += row
+            self._hub_count += 1
+        self._row = None
+
+    def _learn(self, row: np.ndarray, posterior: np.ndarray, near) -> None:
+        h = self._hub()
+        confidence = float(posterior[near].sum())
+        for m, lam in enumerate(self._lams):
+            d = row if (h is None or lam == 0.0) else row - lam * h
+            idx = self._bins(d)
+            self._count_all[m] += np.bincount(idx, minlength=self.n_bins) / len(d)
+            self._count_same[m] += confidence * np.bincount(idx, weights=posterior, minlength=self.n_bins)
+        n_seen = self._count_all[0].sum()
+        if n_seen < 5:
+            return
+        from .likelihood import _monotone_tables
+
+        for m in range(len(self._lams)):
+            p_all = self._count_all[m] / self._count_all[m].sum()
+            start = p_all * np.exp(-self._centres)
+            start /= start.sum()
+            same = self._count_same[m] + self.prior_strength * start + 1e-3 * p_all
+            log_same = np.log(same / same.sum())
+            log_all = np.log(p_all)
+            log_same, log_all = _monotone_tables(log_same, log_all)
+            self._tables[m] = log_same - log_all

@@ -1,0 +1,583 @@
+"""An exact (point-mass) Bayes filter over places and velocities on the place graph.
+
+The particle filter (:mod:`catgraph.localizer`) approximates a posterior that, on a graph
+of up to ~10⁵ places, can simply be computed: one probability per (place, velocity bin).
+:class:`GridLocalizer` does that. It is the slow, obviously correct reference the
+particle filter is tested against, and a mode of its own where the map is small enough.
+
+State
+-----
+``P[j, b]``: the probability of being at place ``j`` moving with velocity ``v_b``
+(places per frame, *signed*: ``v_b < 0`` drives the route backwards), plus one scalar
+``P(new)`` for "a place the map does not cover" (the new-place hypothesis of
+:mod:`catgraph.localizer`, with the same two-state prior).
+
+One step
+--------
+Predict (:func:`predict`), then update with the observation model's log-likelihood
+ratios ``r_j`` (:mod:`catgraph.observation`)::
+
+    P ← P · T                         sticky velocity transition (B × B)
+    P ← shift(P)                      each bin moves |v_b| places in direction sign(v_b)
+    P ← (1 − 2q) P + q (P⁺ + P⁻)      blur: a little mass one place either way
+    P ← (1 − ε) P + ε · U             recovery: uniform over places × velocity prior
+    P[j, b] ← P[j, b] · e^{r_j}       likelihood (every velocity of a place alike)
+    normalise (with the new place)
+
+``T`` keeps a velocity with probability ``velocity_stay``, moves to a neighbouring
+speed of the same sign otherwise, and turns round (``v → −v``) with probability
+``reverse_probability``. A fractional speed moves mass to the two bracketing places
+linearly (``v = 0.5``: half stays, half moves one place). A *hop* follows the route
+edge of the direction of travel (chain edge forwards, reverse edge backwards); at a
+place with junction edges a share ``junction_probability`` per junction leaves along
+it and continues at the other place, half in each direction (a crossing may turn
+either way). Mass that would run past a dead end leaves the map (the
+normalisation gives its share back to the rest): a route end is no place to wait, and
+letting mass stop there would pile every backward-moving hypothesis up at place 0. With odometry ``u`` (metres since the last
+frame) the shift is ``u`` along the route instead of ``|v_b|`` places, walking the
+chain's edge lengths (junctions are taken only by frame-based motion).
+
+Recovery and jumps. ``ε`` is the prior probability of a jump anywhere on the map; a
+jump is then found by Bayes' rule: the uniform share is weighted by the frame's
+likelihood like everything else, so a run of frames the current track cannot explain
+moves the mass. :attr:`Estimate.score` and the confidence drop as soon as it does.
+
+Estimate. Mass per place ``m_j = (1 − P(new)) Σ_b P[j, b]``; the answer ``argmax_j m_j``,
+its confidence the mass within ``confidence_radius`` places (or metres, on a graph with
+positions, ``confidence_radius_m``), its score the log-odds of that mass. Log-odds are
+computed from the masses with a floor of ``1e-300`` on the outside mass, so they stay
+finite and ordered when the confidence is exactly 1 (a two-place map).
+
+Feedback. After each step the filter calls ``model.feedback(FilterFeedback)`` with the
+predicted (prior) and posterior place masses (:class:`~catgraph.observation.FilterFeedback`):
+models that learn from the filter (the tempered whole-image model) do it there.
+
+Cost. A step is ``O(n_places · (n_bins · max|v| + n_bins²))`` in compiled loops:
+about 1 ms at 10⁵ places with the default 8 velocity bins on one core (see
+``benchmarks/bench_filter.py``); memory ``O(n_places · n_bins)``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numba
+import numpy as np
+
+from ._validation import check_array, check_scalar
+from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
+from .graph import PlaceGraph
+
+__all__ = ["GridLocalizer", "route_neighbours", "velocity_transition", "predict"]
+
+_CHAIN, _REVERSE, _JUNCTION = 0, 1, 2
+
+#: Default signed velocity bins (places per query frame).
+DEFAULT_VELOCITIES = (-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0)
+
+
+def route_neighbours(graph: PlaceGraph) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The one-hop structure the grid filter moves mass along.
+
+    Returns
+    -------
+    forward, backward : ndarray of int64, shape (n_places,)
+        Target of the chain edge (route order) / reverse-chain edge leaving each place,
+        or ``-1``.
+    forward_length, backward_length : ndarray of float64, shape (n_places,)
+        Their lengths (``inf`` where there is none).
+    junction_ptr : ndarray of int64, shape (n_places + 1,)
+    junction_target : ndarray of int64
+        CSR lists of the places reached by each place's junction edges.
+    """
+    n = graph.n_places
+    fwd = np.full(n, -1, dtype=np.int64)
+    bwd = np.full(n, -1, dtype=np.int64)
+    fl = np.full(n, np.inf)
+    bl = np.full(n, np.inf)
+    chain = graph.kind == _CHAIN
+    rev = graph.kind == _REVERSE
+    fwd[graph.source[chain]] = graph.target[chain]
+    fl[graph.source[chain]] = graph.length[chain]
+    bwd[graph.source[rev]] = graph.target[rev]
+    bl[graph.source[rev]] = graph.length[rev]
+    # a graph given without edge kinds (all "chain") still has reverse edges: the one
+    # going back to a smaller index is "backward"
+    if not rev.any():
+        back = chain & (graph.target < graph.source)
+        fwd_only = chain & (graph.target > graph.source)
+        fwd[:] = -1
+        fl[:] = np.inf
+        fwd[graph.source[fwd_only]] = graph.target[fwd_only]
+        fl[graph.source[fwd_only]] = graph.length[fwd_only]
+        bwd[graph.source[back]] = graph.target[back]
+        bl[graph.source[back]] = graph.length[back]
+    junction = graph.kind == _JUNCTION
+    src, dst = graph.source[junction], graph.target[junction]
+    order = np.argsort(src, kind="stable")
+    ptr = np.zeros(n + 1, dtype=np.int64)
+    np.add.at(ptr, src + 1, 1)
+    return fwd, bwd, fl, bl, np.cumsum(ptr), dst[order].astype(np.int64)
+
+
+def velocity_transition(velocities: np.ndarray, stay: float, reverse: float) -> np.ndarray:
+    """``(B, B)`` row-stochastic velocity transition.
+
+    Row ``b``: ``stay`` on ``b``; ``reverse`` on the bin of ``−v_b`` (if there is one);
+    the rest split between the neighbouring speeds of the same sign (all of it to the
+    one neighbour at the end of the range).
+    """
+    v = np.asarray(velocities, dtype=np.float64)
+    b = len(v)
+    t = np.zeros((b, b))
+    for i in range(b):
+        same = [k for k in np.argsort(np.abs(v)) if np.sign(v[k]) == np.sign(v[i])]
+        pos = same.index(i)
+        nbrs = [same[p] for p in (pos - 1, pos + 1) if 0 <= p < len(same)]
+        mirror = np.flatnonzero(np.isclose(v, -v[i]))
+        rest = 1.0 - stay
+        t[i, i] += stay
+        if len(mirror) and v[i] != 0:
+            t[i, mirror[0]] += reverse
+            rest -= reverse
+        if nbrs:
+            for k in nbrs:
+                t[i, k] += rest / len(nbrs)
+        else:
+            t[i, i] += rest
+    return t
+
+
+@numba.njit(cache=True)
+def _shift_frames(p, out, whole, frac, sign, mirror, fwd, bwd, jptr, jdst, p_junction):  # pragma: no cover
+    n, nb = p.shape
+    cur = p.copy()
+    out[:] = 0.0
+    max_h = 0
+    for b in range(nb):
+        if whole[b] + 1 > max_h:
+            max_h = whole[b] + 1
+        if whole[b] == 0:
+            for j in range(n):
+                out[j, b] += (1.0 - frac[b]) * cur[j, b]
+                cur[j, b] *= frac[b]
+    nxt = np.zeros_like(cur)
+    for h in range(1, max_h + 1):
+        nxt[:] = 0.0
+        for b in range(nb):
+            if not (whole[b] >= h or (whole[b] + 1 == h and frac[b] > 0.0)):
+                continue
+            s = sign[b]
+            for j in range(n):
+                m = cur[j, b]
+                if m == 0.0:
+                    continue
+                nj = jptr[j + 1] - jptr[j]
+                pj = p_junction * nj
+                if pj > 0.5:
+                    pj = 0.5
+                t = fwd[j] if s > 0 else bwd[j]
+                if t >= 0:  # at a dead end the mass leaves the map (renormalised)
+                    nxt[t, b] += m * (1.0 - pj)
+                if nj > 0:
+                    share = m * pj / nj * 0.5
+                    for c in range(jptr[j], jptr[j + 1]):
+                        k = jdst[c]
+                        nxt[k, b] += share
+                        nxt[k, mirror[b]] += share
+        for j in range(n):
+            for b in range(nb):
+                cur[j, b] = nxt[j, b]
+        for b in range(nb):
+            if whole[b] == h:
+                for j in range(n):
+                    out[j, b] += (1.0 - frac[b]) * cur[j, b]
+                    cur[j, b] *= frac[b]
+            elif whole[b] + 1 == h:
+                for j in range(n):
+                    out[j, b] += cur[j, b]
+                    cur[j, b] = 0.0
+
+
+@numba.njit(cache=True)
+def _shift_walk(p, out, whole, frac, sign, fwd, bwd, transition):  # pragma: no cover
+    """Velocity transition then ``_shift_frames`` for a graph without junctions, fused:
+    each place's mass walks its hops."""
+    n, nb = p.shape
+    out[:] = 0.0
+    q = np.empty(nb)
+    for j in range(n):
+        for b in range(nb):
+            acc = 0.0
+            for a in range(nb):
+                acc += p[j, a] * transition[a, b]
+            q[b] = acc
+        for b in range(nb):
+            m = q[b]
+            if m == 0.0:
+                continue
+            t = j
+            for _ in range(whole[b]):
+                t = fwd[t] if sign[b] > 0 else bwd[t]
+                if t < 0:
+                    break
+            if t < 0:
+                continue  # ran off the route's end
+            out[t, b] += (1.0 - frac[b]) * m
+            if frac[b] > 0.0:
+                u = fwd[t] if sign[b] > 0 else bwd[t]
+                if u >= 0:
+                    out[u, b] += frac[b] * m
+
+
+@numba.njit(cache=True)
+def _shift_distance(p, out, distance, sign, fwd, bwd, fl, bl):  # pragma: no cover
+    """Move every bin ``distance`` along the route (edge lengths), direction sign[b]."""
+    n, nb = p.shape
+    out[:] = 0.0
+    for b in range(nb):
+        s = sign[b]
+        for j in range(n):
+            m = p[j, b]
+            if m == 0.0:
+                continue
+            left = distance
+            cur = j
+            while True:
+                t = fwd[cur] if s > 0 else bwd[cur]
+                if t < 0:
+                    break  # ran off the route's end
+                ln = fl[cur] if s > 0 else bl[cur]
+                if left < ln:
+                    a = left / ln if ln > 0 else 1.0
+                    out[cur, b] += (1.0 - a) * m
+                    out[t, b] += a * m
+                    break
+                left -= ln
+                cur = t
+
+
+@numba.njit(cache=True)
+def _blur(p, out, q, fwd, bwd, recovery, velocity_prior):  # pragma: no cover
+    """Blur one place either way, normalise, mix in the recovery share."""
+    n, nb = p.shape
+    total = 0.0
+    for j in range(n):
+        for b in range(nb):
+            out[j, b] = (1.0 - 2.0 * q) * p[j, b]
+            total += p[j, b]
+    for j in range(n):
+        f = fwd[j] if fwd[j] >= 0 else j
+        k = bwd[j] if bwd[j] >= 0 else j
+        for b in range(nb):
+            m = q * p[j, b]
+            out[f, b] += m
+            out[k, b] += m
+    keep = (1.0 - recovery) / total if total > 0 else 0.0
+    share = recovery / n if total > 0 else 1.0 / n
+    for j in range(n):
+        for b in range(nb):
+            out[j, b] = keep * out[j, b] + share * velocity_prior[b]
+
+
+def _bin_moves(velocities: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per bin: whole places, fractional part, direction sign, index of the mirror bin."""
+    v = np.asarray(velocities, dtype=np.float64)
+    speed = np.abs(v)
+    whole = np.floor(speed).astype(np.int64)
+    sign = np.where(v >= 0, 1, -1).astype(np.int64)
+    mirror = np.arange(len(v), dtype=np.int64)
+    for b, x in enumerate(v):
+        same = np.flatnonzero(np.isclose(v, -x))
+        if len(same):
+            mirror[b] = same[0]
+    return whole, speed - whole, sign, mirror
+
+
+def predict(state: np.ndarray, transition: np.ndarray, velocities: np.ndarray, neighbours: tuple,
+            blur: float, recovery: float, velocity_prior: np.ndarray, junction_probability: float,
+            odometry: float | None = None, moves: tuple | None = None) -> np.ndarray:
+    """One prediction of the grid filter (see the module docstring).
+
+    Parameters
+    ----------
+    state : ndarray of float64, shape (n_places, n_bins)
+        Normalised (sums to 1).
+    transition : ndarray, shape (n_bins, n_bins)
+    velocities : ndarray, shape (n_bins,)
+    neighbours : tuple
+        :func:`route_neighbours` of the graph.
+    blur, recovery, junction_probability : float
+    velocity_prior : ndarray, shape (n_bins,)
+        Velocity distribution of the recovery share.
+    odometry : float, optional
+        Distance travelled (graph units); replaces the bins' speeds.
+    moves : tuple, optional
+        Precomputed ``_bin_moves(velocities)``.
+
+    Returns
+    -------
+    ndarray, shape (n_places, n_bins)
+        The predicted state (sums to 1).
+    """
+    fwd, bwd, fl, bl, jptr, jdst = neighbours
+    whole, frac, sign, mirror = _bin_moves(velocities) if moves is None else moves
+    moved = np.empty_like(state)
+    if odometry is None and len(jdst) == 0:
+        _shift_walk(state, moved, whole, frac, sign, fwd, bwd, transition)
+        p = state
+    else:
+        p = np.ascontiguousarray(state @ transition)
+    if odometry is None and len(jdst) == 0:
+        pass
+    elif odometry is None:
+        _shift_frames(p, moved, whole, frac, sign, mirror, fwd, bwd, jptr, jdst, float(junction_probability))
+    else:
+        _shift_distance(p, moved, float(odometry), sign, fwd, bwd, fl, bl)
+    out = np.empty_like(moved)
+    _blur(moved, out, float(blur), fwd, bwd, float(recovery), np.asarray(velocity_prior, dtype=np.float64))
+    return out
+
+
+class GridLocalizer:
+    """Exact Bayes filter over (place, signed velocity) on a place graph.
+
+    Parameters
+    ----------
+    graph : PlaceGraph
+    model : ObservationModel
+        Gives the per-place log-likelihood ratios (reset by :meth:`reset`).
+    velocities : sequence of float
+        Signed speed bins, places per query frame (default ``±0.5, ±1, ±2, ±3``).
+    velocity_stay : float in [0, 1]
+        Probability of keeping the velocity bin from one frame to the next.
+    reverse_probability : float in [0, 1]
+        Probability per frame of turning round (``v → −v``).
+    blur : float in [0, 0.5)
+        Share of mass moved one place either way after the shift.
+    recovery : float in [0, 1)
+        ``ε``: prior probability per frame of a jump anywhere on the map.
+    junction_probability : float in [0, 0.5]
+        Share of mass taking each junction edge at a junction place.
+    new_place_prior, new_place_stay : float in [0, 1)
+        The new-place hypothesis' two-state prior (as :class:`~catgraph.localizer.Localizer`).
+    confidence_radius : int
+        Places either side of the answer counted in its confidence.
+    confidence_radius_m : float, optional
+        A metric radius instead (needs graph positions).
+
+    Attributes
+    ----------
+    state_ : ndarray of float64, shape (n_places, n_bins)
+        Posterior over (place, velocity) given that the robot is in the map.
+    prior_ : ndarray of float64, shape (n_places,)
+        Predicted place masses before the latest observation.
+    place_posterior_ : ndarray of float64, shape (n_places,)
+        ``(1 − P(new)) Σ_b state_[:, b]``.
+    new_place_probability_ : float
+    n_steps_ : int
+    """
+
+    def __init__(self, graph: PlaceGraph, model, velocities=DEFAULT_VELOCITIES, velocity_stay: float = 0.9,
+                 reverse_probability: float = 0.001, blur: float = 0.05, recovery: float = 0.01,
+                 junction_probability: float = 0.1, new_place_prior: float = 0.0, new_place_stay: float = 0.8,
+                 confidence_radius: int = 2, confidence_radius_m: float | None = None) -> None:
+        self.graph = graph
+        self.model = model
+        self.velocities = velocities
+        self.velocity_stay = velocity_stay
+        self.reverse_probability = reverse_probability
+        self.blur = blur
+        self.recovery = recovery
+        self.junction_probability = junction_probability
+        self.new_place_prior = new_place_prior
+        self.new_place_stay = new_place_stay
+        self.confidence_radius = confidence_radius
+        self.confidence_radius_m = confidence_radius_m
+
+    # ------------------------------------------------------------------ setup
+    def _validate(self) -> None:
+        owner = type(self).__name__
+        if not isinstance(self.graph, PlaceGraph):
+            raise InvalidParameterError(f"The 'graph' parameter of {owner} must be a PlaceGraph. Got {type(self.graph).__name__}.")
+        if not hasattr(self.model, "observe") or not hasattr(self.model, "reset"):
+            raise InvalidParameterError(
+                f"The 'model' parameter of {owner} must be an ObservationModel (reset(), observe(row)). Got {self.model!r}."
+            )
+        v = np.asarray(self.velocities, dtype=np.float64) if np.ndim(self.velocities) == 1 else None
+        if v is None or len(v) == 0 or not np.all(np.isfinite(v)) or len(np.unique(v)) != len(v) or np.abs(v).max() > 64:
+            raise InvalidParameterError(
+                f"The 'velocities' parameter of {owner} must be a non-empty sequence of distinct finite speeds "
+                f"(places per frame, |v| <= 64). Got {self.velocities!r} instead."
+            )
+        check_scalar(self.velocity_stay, "velocity_stay", owner, float, 0.0, 1.0)
+        check_scalar(self.reverse_probability, "reverse_probability", owner, float, 0.0, 1.0 - self.velocity_stay)
+        check_scalar(self.blur, "blur", owner, float, 0.0, 0.5, True, False)
+        check_scalar(self.recovery, "recovery", owner, float, 0.0, 1.0, True, False)
+        check_scalar(self.junction_probability, "junction_probability", owner, float, 0.0, 0.5)
+        check_scalar(self.new_place_prior, "new_place_prior", owner, float, 0.0, 1.0, True, False)
+        check_scalar(self.new_place_stay, "new_place_stay", owner, float, 0.0, 1.0, True, False)
+        check_scalar(self.confidence_radius, "confidence_radius", owner, int, 0)
+        if self.confidence_radius_m is not None:
+            check_scalar(self.confidence_radius_m, "confidence_radius_m", owner, float, 0.0)
+            if self.graph.positions is None:
+                raise DataError("confidence_radius_m needs a place graph with positions; use confidence_radius (places).")
+        self._v = v
+
+    def reset(self) -> "GridLocalizer":
+        """Start afresh: uniform over places and velocity bins, ``P(new) = 0``, model reset."""
+        self._validate()
+        g = self.graph
+        nb = len(self._v)
+        self._neighbours = route_neighbours(g)
+        self._transition = velocity_transition(self._v, self.velocity_stay, self.reverse_probability)
+        self._moves = _bin_moves(self._v)
+        self._velocity_prior = np.full(nb, 1.0 / nb)
+        self.state_ = np.full((g.n_places, nb), 1.0 / (g.n_places * nb))
+        self.prior_ = self.state_.sum(1)
+        self.place_posterior_ = self.prior_.copy()
+        self.new_place_probability_ = 0.0
+        self._log_new, self._log_map = -math.inf, 0.0
+        self.n_steps_ = 0
+        self.model.reset()
+        if self.confidence_radius_m is not None:
+            from scipy.spatial import cKDTree
+
+            self._tree = cKDTree(g.positions)
+        return self
+
+    # ------------------------------------------------------------------ one step
+    def step(self, observation: np.ndarray, odometry: float | None = None):
+        """Process one query frame.
+
+        Parameters
+        ----------
+        observation : ndarray, shape (n_places,)
+            The frame's difference to every reference place.
+        odometry : float, optional
+            Distance travelled since the previous frame (graph units).
+
+        Returns
+        -------
+        Estimate
+        """
+        from .localizer import check_odometry
+
+        if not hasattr(self, "state_"):
+            self.reset()
+        row = _check_row(observation, self.graph.n_places)
+        odometry = check_odometry(odometry)
+        obs = self.model.observe(row)
+        self._predict(odometry)
+        self._update(obs)
+        estimate, near = self._summarise()
+        self._feedback(near)
+        self.n_steps_ += 1
+        return estimate
+
+    def _predict(self, odometry: float | None) -> None:
+        if self.n_steps_ > 0:
+            self.state_ = predict(self.state_, self._transition, self._v, self._neighbours, self.blur, self.recovery,
+                                  self._velocity_prior, self.junction_probability, odometry, self._moves)
+        self.prior_ = self.state_.sum(1)
+
+    def _update(self, obs) -> None:
+        if not obs.informative:
+            return
+        r = np.asarray(obs.log_ratio, dtype=np.float64)
+        top = float(r.max())
+        like = np.exp(r - top)
+        post = self.state_ * like[:, None]
+        total = float(post.sum())
+        if total <= 0.0 or not np.isfinite(total):
+            return  # every place impossible: keep the prediction
+        self.state_ = post / total
+        log_map = math.log(total) + top  # log Σ prior · e^r
+        p_new = self.new_place_probability_
+        prior = self.new_place_stay * p_new + self.new_place_prior * (1.0 - p_new)
+        if prior > 0.0:
+            a_new = math.log(prior) + float(obs.new_place_log_ratio)
+            a_map = math.log1p(-prior) + log_map
+            t = np.logaddexp(a_new, a_map)
+            self._log_new, self._log_map = a_new - t, a_map - t
+            self.new_place_probability_ = float(math.exp(self._log_new))
+        else:
+            self._log_new, self._log_map, self.new_place_probability_ = -math.inf, 0.0, 0.0
+
+    def _summarise(self):
+        from .localizer import Estimate, confidence_log_odds
+
+        g = self.graph
+        mass = self.state_.sum(1)
+        self.place_posterior_ = mass * (1.0 - self.new_place_probability_)
+        best = int(np.argmax(mass))
+        if self.confidence_radius_m is not None:
+            near = np.zeros(g.n_places, dtype=bool)
+            near[self._tree.query_ball_point(g.positions[best], self.confidence_radius_m)] = True
+        else:
+            near = slice(max(0, best - self.confidence_radius), best + self.confidence_radius + 1)
+        w_in = float(mass[near].sum())
+        confidence, log_odds = confidence_log_odds(w_in, max(0.0, 1.0 - w_in), self._log_map, self._log_new)
+        position = None if g.positions is None else g.positions[best].copy()
+        return Estimate(best, position, confidence, self.new_place_probability_, float(g.n_places), False,
+                        log_odds, log_odds), near
+
+    def _feedback(self, near) -> None:
+        from .observation import FilterFeedback
+
+        feedback = getattr(type(self.model), "feedback", None)
+        if feedback is not None:
+            self.model.feedback(FilterFeedback(self.prior_, self.place_posterior_, near))
+
+    # ------------------------------------------------------------------ batch
+    def run(self, observations, odometry: np.ndarray | None = None, query_index: np.ndarray | None = None,
+            return_posterior: bool = False):
+        """Reset, then :meth:`step` through a difference matrix (rows in processing order).
+
+        Parameters
+        ----------
+        observations : ndarray, shape (n_query, n_places)
+        odometry : ndarray, shape (n_query,), optional
+        query_index : ndarray of int, shape (n_query,), optional
+        return_posterior : bool
+
+        Returns
+        -------
+        LocalizationResult
+        """
+        from .localizer import LocalizationResult
+
+        d = check_array(observations, "difference matrix", ndim=2)
+        n = len(d)
+        if odometry is not None:
+            odometry = check_array(odometry, "odometry", ndim=1)
+            if len(odometry) != n:
+                raise ShapeMismatchError(f"odometry has {len(odometry)} entries for {n} query frames; give one per frame.")
+        qi = np.arange(n) if query_index is None else np.asarray(query_index, dtype=np.int64)
+        self.reset()
+        place = np.empty(n, dtype=np.int64)
+        conf, p_new, log_odds = np.empty(n), np.empty(n), np.empty(n)
+        pos = None if self.graph.positions is None else np.empty((n, self.graph.positions.shape[1]))
+        posterior = np.empty((n, self.graph.n_places), dtype=np.float32) if return_posterior else None
+        start = time.perf_counter()
+        for k in range(n):
+            est = self.step(d[k], None if odometry is None or k == 0 else float(odometry[k]))
+            place[k], conf[k], p_new[k], log_odds[k] = est.place, est.confidence, est.new_place_probability, est.log_odds
+            if pos is not None:
+                pos[k] = est.position
+            if posterior is not None:
+                posterior[k] = self.place_posterior_
+        seconds = (time.perf_counter() - start) / max(n, 1)
+        return LocalizationResult(place, conf, p_new, np.full(n, float(self.graph.n_places)), pos, qi, seconds,
+                                  log_odds, log_odds.copy(), posterior)
+
+
+def _check_row(observation, n_places: int) -> np.ndarray:
+    row = check_array(observation, "observation", ndim=1)
+    if len(row) != n_places:
+        raise ShapeMismatchError(
+            f"the observation has {len(row)} places but the graph has {n_places}; "
+            "give the frame's difference to every reference place of the map."
+        )
+    return row
