@@ -151,3 +151,15 @@ def test_prepared_reference_validates_once_and_reuses_out(rng):
     assert got is out and abs(out[3]) < 1e-6
     with pytest.raises(ShapeMismatchError, match="out"):
         ref.row(r[3], out=np.empty(299))
+
+
+def test_result_does_not_depend_on_thread_count(rng, monkeypatch):
+    import catgraph.differences as differences
+
+    q = rng.normal(size=(3, 64)).astype(np.float32)
+    r = rng.normal(size=(2000, 64)).astype(np.float32)
+    monkeypatch.setattr(differences, "WORK_PER_THREAD", 1)  # every core
+    many = difference_matrix(q, r, "sad", normalise=True)
+    monkeypatch.setattr(differences, "WORK_PER_THREAD", 1 << 60)  # one thread
+    one = difference_matrix(q, r, "sad", normalise=True)
+    assert np.array_equal(many, one)

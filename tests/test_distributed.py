@@ -1,0 +1,80 @@
+"""Dask-sharded batch evaluation equals the local run (on a LocalCluster)."""
+
+import numpy as np
+import pytest
+
+from catgraph.differences import difference_matrix
+from catgraph.exceptions import InvalidParameterError
+
+distributed = pytest.importorskip("distributed")
+from catgraph import distributed as dd  # noqa: E402
+
+
+def slow_scores(d, window):
+    """Obviously correct window scores: direct sums, the edge policy of catgraph.sequence."""
+    n_q, n = d.shape
+    row_mean = d.mean(1)
+    out = np.empty_like(d)
+    for i in range(n_q):
+        eff = min(window, i + 1)
+        total = np.zeros(n)
+        for k in range(eff):
+            col = np.arange(n) - k
+            total += np.where(col >= 0, d[i - k, np.maximum(col, 0)], row_mean[i - k])
+        out[i] = total / eff
+    return out
+
+
+@pytest.fixture(scope="module")
+def client():
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None)
+    c = distributed.Client(cluster)
+    yield c
+    c.close()
+    cluster.close()
+
+
+@pytest.fixture(scope="module")
+def data():
+    rng = np.random.default_rng(3)
+    r = rng.normal(size=(9000, 16)).astype(np.float32)
+    q = np.concatenate([r[4050:4150] + 0.3 * rng.normal(size=(100, 16)).astype(np.float32), r[:30], r[8990:]])
+    return q, r
+
+
+@pytest.mark.parametrize("metric", ["sad", "cosine"])
+def test_sharded_differences_identical_to_local(client, data, metric):
+    q, r = data
+    ref = dd.shard_reference(r, metric, client, shard_places=4096)
+    assert ref.bounds == [(0, 4096), (4096, 8192), (8192, 9000)]
+    for normalise in (False, True):
+        got = dd.difference_matrix(q, ref, normalise=normalise, block_rows=50)
+        assert np.array_equal(got, difference_matrix(q, r, metric, normalise=normalise))
+
+
+def test_sharded_window_scores_and_matches_equal_local(client, data):
+    q, r = data
+    ref = dd.shard_reference(r, "sad", client, shard_places=1)  # rounded up to one unit
+    assert ref.bounds[0] == (0, dd.SHARD_UNIT)
+    local = difference_matrix(q, r, "sad", normalise=True)
+    expected = slow_scores(local, 12)
+    got = dd.window_scores(q, ref, 12, block_rows=37)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
+    res = dd.match_fixed_window(q, ref, 12, radius=5, block_rows=37)
+    assert np.array_equal(res.match, expected.argmin(1))  # window spans shard boundaries at 4096
+    assert np.all(np.abs(res.match[20:100] - (4050 + np.arange(20, 100))) <= 1)
+    best = expected.min(1)
+    g = np.arange(r.shape[0])
+    second = np.where(np.abs(g[None] - res.match[:, None]) <= 5, np.inf, expected).min(1)
+    np.testing.assert_allclose(res.confidence, (second - best) / expected.std(1), rtol=1e-9)
+
+
+def test_bad_inputs(client, data):
+    q, r = data
+    with pytest.raises(InvalidParameterError, match="metric"):
+        dd.shard_reference(r, "l3", client)
+    with pytest.raises(InvalidParameterError, match="scheduler"):
+        dd.shard_reference(r, "sad", 42)
+    ref = dd.shard_reference(r, "sad", client)
+    with pytest.raises(InvalidParameterError, match="window"):
+        dd.match_fixed_window(q, ref, dd.SHARD_UNIT + 1)
