@@ -31,10 +31,11 @@ linearly (``v = 0.5``: half stays, half moves one place). A *hop* follows the ro
 edge of the direction of travel (chain edge forwards, reverse edge backwards); at a
 place with junction edges a share ``junction_probability`` per junction leaves along
 it and continues at the other place, half in each direction (a crossing may turn
-either way). Mass that would run past a dead end leaves the map (the
-normalisation gives its share back to the rest): a route end is no place to wait, and
-letting mass stop there would pile every backward-moving hypothesis up at place 0. With odometry ``u`` (metres since the last
-frame) the shift is ``u`` along the route instead of ``|v_b|`` places, walking the
+either way; where the velocity set has no ``−v`` bin, both halves keep ``v``). Mass
+that would run past a dead end leaves the map (the normalisation gives its share back
+to the rest): a route end is no place to wait, and letting mass stop there would pile
+every backward-moving hypothesis up at place 0. With odometry ``u`` (metres since the
+last frame) the shift is ``u`` along the route instead of ``|v_b|`` places, walking the
 chain's edge lengths (junctions are taken only by frame-based motion).
 
 Recovery and jumps. ``ε`` is the prior probability of a jump anywhere on the map; a

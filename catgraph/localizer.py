@@ -410,7 +410,8 @@ class Localizer:
         obs = self.model.observe(row)  # the model checks the row's values, once
         self._move(odometry)
         self._inject(obs)
-        prior = self._place_mass(np.exp(self.particles_.log_weight))
+        w = np.exp(self.particles_.log_weight)
+        prior = self._place_mass(w / w.sum())
         ess = self._reweight(obs)
         self._support = obs.support if obs.informative else None
         resampled = self._resample_if_degenerate(ess)
@@ -449,6 +450,8 @@ class Localizer:
         else:
             places = rng.integers(0, self.graph.n_places, size=n_new)
         p.edge[who], p.fraction[who] = place_to_edges(self.graph, places, rng)
+        if p.velocity is not None:
+            p.velocity[who] = -1  # drawn afresh by the motion model
         p.log_weight[who] = -math.log(self.n_particles)  # the mean weight (log-weights are normalised)
 
     def _reweight(self, obs: Observation) -> float:

@@ -24,6 +24,15 @@ particle may turn round: spontaneously with probability ``reverse_probability`` 
 particle always stops at the end. Particles never leave the graph: every edge index
 stays valid and every fraction stays in ``[0, 1]``.
 
+* :class:`VelocityMotion` — a *velocity state* per particle (CAT-SLAM), the particle
+  version of :class:`~catgraph.grid.GridLocalizer`'s motion: each particle carries a
+  signed velocity bin ``v_b`` (places per frame; ``v < 0`` drives the route
+  backwards), which changes by the grid's sticky transition ``T``; it then travels
+  ``|v_b|`` frame spacings (or the odometry, when the frame has it) in the direction
+  ``sign(v_b)``, plus one spacing either way with probability ``blur`` each. Its
+  defaults are the grid filter's, so the particle filter converges to the grid filter
+  as particles grow (``tests/test_grid.py``).
+
 Randomness is explicit and bounded: per step, per particle, one normal (two for
 odometry) and one uniform ``u`` for all its branch choices. A choice among ``m`` options
 takes ``k = ⌊u m⌋`` and goes on with ``u' = u m − k``, again uniform on [0, 1) and
@@ -40,12 +49,12 @@ from ._validation import check_scalar
 from .exceptions import DataError, InvalidParameterError
 from .particles import ParticleSet
 
-__all__ = ["MotionModel", "OdometryMotion", "FrameMotion", "advance"]
+__all__ = ["MotionModel", "OdometryMotion", "FrameMotion", "VelocityMotion", "advance"]
 
 
 @numba.njit(cache=True)
 def _advance_kernel(edge, fraction, distance, uniform, length, target, out_ptr, reverse, straight,
-                    p_straight, reflect, max_hops):  # pragma: no cover - compiled
+                    p_straight, reflect, max_hops, leftover):  # pragma: no cover - compiled
     n = edge.shape[0]
     for i in range(n):
         e = edge[i]
@@ -102,11 +111,12 @@ def _advance_kernel(edge, fraction, distance, uniform, length, target, out_ptr, 
             hops += 1
         edge[i] = e
         fraction[i] = min(max(f, 0.0), 1.0)
+        leftover[i] = d if f >= 1.0 else 0.0
 
 
 def advance(particles: ParticleSet, graph, distance: np.ndarray, rng: np.random.Generator,
             straight_preference: float = 0.0, reverse_probability: float = 0.0,
-            dead_end: str = "reflect", max_hops: int = 256) -> None:
+            dead_end: str = "reflect", max_hops: int = 256) -> np.ndarray:
     """Move every particle ``distance[i]`` along the graph, in place.
 
     Parameters
@@ -121,6 +131,12 @@ def advance(particles: ParticleSet, graph, distance: np.ndarray, rng: np.random.
     dead_end : {"reflect", "stop"}
     max_hops : int
         Most places one particle may cross in one step (bounds the time of a step).
+
+    Returns
+    -------
+    ndarray of float64, shape (n,)
+        Distance each particle could not travel (stopped at a dead end, or at
+        ``max_hops``); 0 for most.
     """
     n = len(particles)
     if reverse_probability > 0.0:
@@ -130,9 +146,11 @@ def advance(particles: ParticleSet, graph, distance: np.ndarray, rng: np.random.
         particles.edge[turn] = rev[turn]
         particles.fraction[turn] = 1.0 - particles.fraction[turn]
     uniform = rng.random(n)
+    leftover = np.empty(n)
     _advance_kernel(particles.edge, particles.fraction, np.ascontiguousarray(distance, dtype=np.float64), uniform,
                     graph.length, graph.target, graph.out_ptr, graph.reverse, graph.straight,
-                    float(straight_preference), dead_end == "reflect", int(max_hops))
+                    float(straight_preference), dead_end == "reflect", int(max_hops), leftover)
+    return leftover
 
 
 class MotionModel:
@@ -248,3 +266,111 @@ class FrameMotion(MotionModel):
         super()._validate_params()
         check_scalar(self.speed, "speed", "FrameMotion", float, 0.0)
         check_scalar(self.speed_noise, "speed_noise", "FrameMotion", float, 0.0)
+
+
+class VelocityMotion(MotionModel):
+    """Signed velocity state per particle, as the grid filter's motion.
+
+    Parameters
+    ----------
+    velocities : sequence of float
+        Signed speed bins (places per query frame); default
+        :data:`catgraph.grid.DEFAULT_VELOCITIES`.
+    velocity_stay : float in [0, 1]
+        Probability of keeping the bin from one frame to the next.
+    reverse_probability : float in [0, 1 − velocity_stay]
+        Probability per frame of turning round (``v → −v``).
+    blur : float in [0, 0.5)
+        Probability of one extra spacing forwards, and likewise backwards.
+    junction_probability : float in [0, 1]
+        Probability of leaving the route at a node that has other out-edges (the branch
+        choice of :class:`MotionModel`, as ``1 − straight_preference``).
+    **kwargs
+        ``max_hops`` of :class:`MotionModel`.
+
+    Notes
+    -----
+    A particle's direction is its edge's: a bin whose sign disagrees with the edge
+    (chain edges run forwards, reverse-chain edges backwards) first turns the particle
+    onto the reverse edge, at the same place. With odometry ``u`` the distance is ``u``
+    (the bins keep only their sign), as in the grid filter. A particle that would run
+    past a dead end gets weight 0 (the grid filter's mass leaves the map there).
+    """
+
+    def __init__(self, velocities=None, velocity_stay: float = 0.9, reverse_probability: float = 0.001,
+                 blur: float = 0.05, junction_probability: float = 0.1, **kwargs) -> None:
+        super().__init__(straight_preference=1.0 - junction_probability, **kwargs)
+        self.velocities = velocities
+        self.velocity_stay = velocity_stay
+        self.velocity_reverse_probability = reverse_probability
+        self.blur = blur
+        self.junction_probability = junction_probability
+
+    def _params(self) -> tuple:
+        v = self.velocities
+        rest = tuple(sorted((k, x) for k, x in vars(self).items() if not k.startswith("_") and k != "velocities"))
+        return rest + (None if v is None else tuple(np.asarray(v, dtype=float).ravel().tolist()),)
+
+    def _validate_params(self) -> None:
+        from .grid import DEFAULT_VELOCITIES, velocity_transition
+
+        self.straight_preference = 1.0 - self.junction_probability
+        super()._validate_params()
+        name = type(self).__name__
+        v = np.asarray(DEFAULT_VELOCITIES if self.velocities is None else self.velocities, dtype=np.float64)
+        if v.ndim != 1 or len(v) == 0 or not np.all(np.isfinite(v)) or len(np.unique(v)) != len(v):
+            raise InvalidParameterError(
+                f"The 'velocities' parameter of {name} must be a non-empty sequence of distinct finite speeds. "
+                f"Got {self.velocities!r} instead."
+            )
+        check_scalar(self.velocity_stay, "velocity_stay", name, float, 0.0, 1.0)
+        check_scalar(self.velocity_reverse_probability, "reverse_probability", name, float, 0.0,
+                     1.0 - self.velocity_stay)
+        check_scalar(self.blur, "blur", name, float, 0.0, 0.5, True, False)
+        check_scalar(self.junction_probability, "junction_probability", name, float, 0.0, 1.0)
+        self._v = v
+        self._cumulative = np.cumsum(velocity_transition(v, self.velocity_stay, self.velocity_reverse_probability),
+                                     axis=1)
+        self._cumulative[:, -1] = 1.0
+
+    def move(self, particles: ParticleSet, graph, rng: np.random.Generator, odometry: float | None = None) -> None:
+        self._check()
+        n = len(particles)
+        nb = len(self._v)
+        if particles.velocity is None:
+            particles.velocity = np.full(n, -1, dtype=np.int64)
+        vel = particles.velocity
+        fresh = vel < 0
+        vel[fresh] = rng.integers(0, nb, size=int(fresh.sum()))
+        u = rng.random(n)
+        vel[:] = np.minimum((u[:, None] > self._cumulative[vel]).sum(1), nb - 1)
+        v = self._v[vel]
+        # direction: turn particles whose edge disagrees with their velocity's sign
+        kind = graph.kind[particles.edge]
+        forwards = np.where(kind == 2, graph.target[particles.edge] > graph.source[particles.edge], kind != 1)
+        turn = (v < 0) == forwards
+        rev = graph.reverse[particles.edge]
+        turn &= rev >= 0
+        particles.edge[turn] = rev[turn]
+        particles.fraction[turn] = 1.0 - particles.fraction[turn]
+        spacing = graph.frame_spacing
+        base = np.abs(v) * spacing if odometry is None else np.full(n, float(odometry))
+        b = rng.random(n)
+        extra = np.where(b < self.blur, spacing, np.where(b < 2 * self.blur, -spacing, 0.0))
+        distance = base + extra
+        back = distance < 0  # a backward blur step: turn round for it, then turn back
+        if back.any():
+            rb = graph.reverse[particles.edge[back]]
+            ok = rb >= 0
+            idx = np.flatnonzero(back)[ok]
+            particles.edge[idx] = rb[ok]
+            particles.fraction[idx] = 1.0 - particles.fraction[idx]
+        sub = ParticleSet(particles.edge, particles.fraction, particles.log_weight)
+        leftover = advance(sub, graph, np.abs(distance), rng, self.straight_preference, 0.0, "stop", self.max_hops)
+        # a particle that would run past the route's end leaves the map, as grid mass does
+        particles.log_weight[leftover > 1e-9 * spacing] = -np.inf
+        if back.any():
+            rb = graph.reverse[particles.edge[idx]]
+            ok2 = rb >= 0
+            particles.edge[idx[ok2]] = rb[ok2]
+            particles.fraction[idx[ok2]] = 1.0 - particles.fraction[idx[ok2]]

@@ -68,11 +68,16 @@ class ParticleSet:
         Position along the edge, ``0`` at its source, ``1`` at its target.
     log_weight : ndarray of float64, shape (n,)
         Normalised log-weights (``logsumexp == 0``).
+    velocity : ndarray of int64, shape (n,), or None
+        Velocity bin of each particle, for motion models with a velocity state
+        (:class:`~catgraph.motion.VelocityMotion`); ``None`` otherwise. A bin index
+        ``< 0`` means "not drawn yet": the motion model draws it from its prior.
     """
 
     edge: np.ndarray
     fraction: np.ndarray
     log_weight: np.ndarray
+    velocity: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(len(self.edge))
@@ -86,12 +91,14 @@ class ParticleSet:
         return cls(edge, fraction, np.full(n_particles, -np.log(n_particles)))
 
     def copy(self) -> "ParticleSet":
-        return ParticleSet(self.edge.copy(), self.fraction.copy(), self.log_weight.copy())
+        v = None if self.velocity is None else self.velocity.copy()
+        return ParticleSet(self.edge.copy(), self.fraction.copy(), self.log_weight.copy(), v)
 
     def take(self, index: np.ndarray) -> "ParticleSet":
         """The particles ``index`` (resampling), weights reset to ``-log n``."""
         n = len(index)
-        return ParticleSet(self.edge[index], self.fraction[index], np.full(n, -np.log(n)))
+        v = None if self.velocity is None else self.velocity[index]
+        return ParticleSet(self.edge[index], self.fraction[index], np.full(n, -np.log(n)), v)
 
     def places(self, graph) -> np.ndarray:
         """``(n,) int64``: the nearer of each particle's two bounding places."""

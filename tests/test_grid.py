@@ -1,0 +1,238 @@
+"""The exact grid filter: kernels against slow references, localisation, and the particle
+filter converging to it as particles grow."""
+
+import math
+
+import numpy as np
+import pytest
+
+from catgraph.exceptions import DataError, InvalidParameterError, ShapeMismatchError
+from catgraph.graph import PlaceGraph
+from catgraph.grid import (GridLocalizer, _bin_moves, _shift_frames, predict, route_neighbours,
+                           velocity_transition)
+from catgraph.localizer import Localizer
+from catgraph.motion import VelocityMotion
+from catgraph.observation import TemperedObservation
+
+
+def _fixed(tau=1.0):
+    return TemperedObservation(likelihood="linear", hub=None, temperature=tau)
+
+
+# ---------------------------------------------------------------------- slow references
+def _walk(j, sign, hops, fwd, bwd, jptr, jdst, p_junction, has_mirror):
+    """Distribution of (place, sign flipped?) after ``hops`` hops from ``j``: recursive."""
+    if hops == 0:
+        return {(j, False): 1.0}
+    out: dict = {}
+    nj = jptr[j + 1] - jptr[j]
+    pj = min(0.5, p_junction * nj)
+    t = fwd[j] if sign > 0 else bwd[j]
+    branches = []
+    if t >= 0:
+        branches.append((t, sign, 1.0 - pj, False))
+    for c in range(jptr[j], jptr[j + 1]):
+        branches.append((jdst[c], sign, pj / nj * 0.5, False))
+        # the other direction exists only where the mirror bin does
+        branches.append((jdst[c], -sign, pj / nj * 0.5, True) if has_mirror else (jdst[c], sign, pj / nj * 0.5, False))
+    for k, s, w, flipped in branches:
+        for (place, f2), m in _walk(k, s, hops - 1, fwd, bwd, jptr, jdst, p_junction, has_mirror).items():
+            key = (place, flipped != f2)
+            out[key] = out.get(key, 0.0) + w * m
+    return out
+
+
+def _reference_predict(state, v, stay, reverse, blur, recovery, graph, p_junction):
+    n, nb = state.shape
+    fwd, bwd, _, _, jptr, jdst = route_neighbours(graph)
+    p = state @ velocity_transition(v, stay, reverse)
+    moved = np.zeros_like(p)
+    mirror = {b: int(np.flatnonzero(np.isclose(v, -v[b]))[0]) if np.isclose(v, -v[b]).any() else b
+              for b in range(nb)}
+    for j in range(n):
+        for b in range(nb):
+            whole = int(math.floor(abs(v[b])))
+            frac = abs(v[b]) - whole
+            sign = 1 if v[b] >= 0 else -1
+            for hops, w in ((whole, 1.0 - frac), (whole + 1, frac)):
+                if w == 0:
+                    continue
+                for (place, flipped), m in _walk(j, sign, hops, fwd, bwd, jptr, jdst, p_junction,
+                                                  mirror[b] != b).items():
+                    moved[place, mirror[b] if flipped else b] += w * m * p[j, b]
+    out = (1 - 2 * blur) * moved
+    for j in range(n):
+        out[fwd[j] if fwd[j] >= 0 else j] += blur * moved[j]
+        out[bwd[j] if bwd[j] >= 0 else j] += blur * moved[j]
+    out /= out.sum()
+    return (1 - recovery) * out + recovery / (n * nb)
+
+
+@pytest.mark.parametrize("junctions", [None, [(3, 9)], [(2, 8), (2, 11)]])
+def test_predict_matches_slow_reference(junctions):
+    rng = np.random.default_rng(0)
+    n = 14
+    g = PlaceGraph.from_edges(n, np.array([(i, i + 1) for i in range(n - 1)] + [(i + 1, i) for i in range(n - 1)]),
+                              kinds=np.array([0] * (n - 1) + [1] * (n - 1))) if junctions is None else None
+    if g is None:
+        from catgraph.traverse import Traverse
+
+        g = PlaceGraph.from_traverse(Traverse(np.zeros((n, 2))), junctions=np.array(junctions))
+    v = np.array([-2.0, -1.0, -0.5, 0.5, 1.0, 2.5])
+    state = rng.random((n, len(v)))
+    state /= state.sum()
+    got = predict(state, velocity_transition(v, 0.8, 0.05), v, route_neighbours(g), 0.1, 0.02,
+                  np.full(len(v), 1 / len(v)), 0.2)
+    want = _reference_predict(state, v, 0.8, 0.05, 0.1, 0.02, g, 0.2)
+    np.testing.assert_allclose(got, want, atol=1e-12)
+    assert got.sum() == pytest.approx(1.0)
+
+
+def test_frames_kernel_equals_walk_kernel_without_junctions():
+    rng = np.random.default_rng(1)
+    g = PlaceGraph.chain(30)
+    v = np.array([-3.0, -1.0, 0.5, 1.0, 1.5, 3.0])
+    fwd, bwd, _, _, jptr, jdst = route_neighbours(g)
+    whole, frac, sign, mirror = _bin_moves(v)
+    p = rng.random((30, len(v)))
+    a = np.empty_like(p)
+    _shift_frames(p, a, whole, frac, sign, mirror, fwd, bwd, jptr, jdst, 0.0)
+    b = predict(p / p.sum(), np.eye(len(v)), v, (fwd, bwd, _, _, jptr, jdst), 0.0, 0.0, np.ones(len(v)), 0.0)
+    np.testing.assert_allclose(a / a.sum(), b, atol=1e-12)
+
+
+def test_odometry_shift_follows_edge_lengths():
+    from catgraph.traverse import Traverse
+
+    odometry = np.array([0.0, 1.0, 3.0, 1.0, 1.0, 2.0])
+    g = PlaceGraph.from_traverse(Traverse(np.zeros((6, 2)), odometry=odometry))
+    state = np.zeros((6, 2))
+    state[1, 1] = 1.0  # place 1, forwards
+    out = predict(state, np.eye(2), np.array([-1.0, 1.0]), route_neighbours(g), 0.0, 0.0, np.ones(2) / 2, 0.0,
+                  odometry=2.0)
+    # from place 1 (route 1 m) 2 m forwards: 2/3 of the 3 m edge to place 2
+    np.testing.assert_allclose(out[:, 1], [0, 1 / 3, 2 / 3, 0, 0, 0])
+
+
+# ---------------------------------------------------------------------- the filter
+def _track_rows(n_places, places, rng, depth=3.0):
+    rows = rng.standard_normal((len(places), n_places))
+    rows[np.arange(len(places)), places] -= depth
+    return rows
+
+
+@pytest.mark.parametrize("speed", [1, -1, 2])
+def test_grid_filter_follows_a_track(speed):
+    rng = np.random.default_rng(2)
+    n = 200
+    start = 20 if speed > 0 else 180
+    places = start + speed * np.arange(60)
+    res = GridLocalizer(PlaceGraph.chain(n), _fixed(1.0)).run(_track_rows(n, places, rng, depth=2.0))
+    assert np.mean(np.abs(res.place[20:] - places[20:]) <= 2) > 0.95
+    assert res.confidence[-1] > 0.9
+    assert np.all(np.isfinite(res.log_odds))
+
+
+def test_confidence_falls_after_a_jump():
+    rng = np.random.default_rng(3)
+    n = 300
+    places = np.concatenate([20 + np.arange(60), 200 + np.arange(40)])
+    res = GridLocalizer(PlaceGraph.chain(n), _fixed(1.0)).run(_track_rows(n, places, rng, depth=2.0))
+    before = res.log_odds[55:60].mean()
+    assert res.log_odds[61] < before  # the first frame after the jump is less sure
+    assert np.all(np.abs(res.place[75:] - places[75:]) <= 2)  # and the new track is found
+
+
+def test_log_odds_finite_when_confidence_is_one():
+    g = PlaceGraph.chain(2)
+    rows = np.array([[0.0, 1.0], [0.0, 1.0], [1.0, 0.0]])
+    res = GridLocalizer(g, _fixed(), confidence_radius=2).run(rows)
+    assert np.all(res.confidence == 1.0)
+    assert np.all(np.isfinite(res.log_odds))
+    loc = Localizer(g, _fixed(), n_particles=1, confidence_radius=2, new_place_prior=0.0)
+    est = [loc.step(r) for r in rows]
+    assert all(np.isfinite(e.log_odds) and e.confidence == 1.0 for e in est)
+
+
+def test_log_odds_ordered_by_confidence():
+    from catgraph.localizer import confidence_log_odds
+
+    odds = [confidence_log_odds(1 - w, w, 0.0, -math.inf)[1] for w in (0.5, 1e-3, 1e-200, 0.0)]
+    assert np.all(np.isfinite(odds)) and np.all(np.diff(odds) > 0)
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -1.0])
+def test_bad_odometry_refused_on_every_step_first_included(bad):
+    g = PlaceGraph.chain(10)
+    row = np.zeros(10)
+    for loc in (GridLocalizer(g, _fixed()), Localizer(g, _fixed(), n_particles=10)):
+        with pytest.raises(DataError, match="odometry"):
+            loc.step(row, odometry=bad)
+        loc.reset()
+        loc.step(row, odometry=1.0)
+        with pytest.raises(DataError, match="odometry"):
+            loc.step(row, odometry=bad)
+
+
+def test_parameters_validated():
+    g = PlaceGraph.chain(10)
+    with pytest.raises(InvalidParameterError, match="velocities"):
+        GridLocalizer(g, _fixed(), velocities=[1.0, 1.0]).reset()
+    with pytest.raises(InvalidParameterError, match="blur"):
+        GridLocalizer(g, _fixed(), blur=0.5).reset()
+    with pytest.raises(ShapeMismatchError):
+        GridLocalizer(g, _fixed()).step(np.zeros(9))
+    with pytest.raises(DataError):
+        GridLocalizer(g, _fixed()).step(np.full(10, np.nan))
+
+
+def test_model_receives_feedback_once_per_step():
+    class Counting:
+        def __init__(self):
+            self.calls = []
+
+        def reset(self):
+            self.calls = []
+
+        def observe(self, row):
+            from catgraph.observation import Observation
+
+            return Observation(-np.asarray(row, dtype=float), 0.0)
+
+        def feedback(self, fb):
+            self.calls.append((fb.prior.sum(), fb.posterior.sum()))
+
+    g = PlaceGraph.chain(20)
+    rows = np.random.default_rng(0).standard_normal((5, 20))
+    for loc in (GridLocalizer(g, Counting()), Localizer(g, Counting(), n_particles=50, new_place_prior=0.0)):
+        loc.run(rows)
+        assert len(loc.model.calls) == 5
+        np.testing.assert_allclose(np.array(loc.model.calls), 1.0)
+
+
+# ---------------------------------------------------------------------- particles → grid
+def _total_variation(a, b):
+    return 0.5 * float(np.abs(a / a.sum() - b / b.sum()).sum())
+
+
+def test_particle_filter_converges_to_grid_filter():
+    rng = np.random.default_rng(4)
+    n = 40
+    places = 10 + np.arange(8)
+    rows = _track_rows(n, places, rng, depth=1.5)
+    v = (-1.0, 1.0, 2.0)
+    kw = dict(velocity_stay=0.8, reverse_probability=0.05, blur=0.1)
+    grid = GridLocalizer(PlaceGraph.chain(n), _fixed(0.7), velocities=v, recovery=0.0, **kw)
+    grid.run(rows)
+    exact = grid.place_posterior_
+    tv = {}
+    for n_particles in (100, 10_000):
+        d = []
+        for seed in range(3):
+            loc = Localizer(PlaceGraph.chain(n), _fixed(0.7), n_particles=n_particles, redraw_fraction=0.0,
+                            new_place_prior=0.0, motion=VelocityMotion(velocities=v, **kw), seed=seed)
+            loc.run(rows)
+            d.append(_total_variation(loc.place_posterior_, exact))
+        tv[n_particles] = np.mean(d)
+    assert tv[10_000] < tv[100]
+    assert tv[10_000] < 0.05
