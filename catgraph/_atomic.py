@@ -11,7 +11,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import IO
 
-__all__ = ["atomic_open", "write_text_atomic"]
+__all__ = ["atomic_open", "write_text_atomic", "check_writable"]
 
 
 @contextmanager
@@ -42,3 +42,26 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
     with atomic_open(path, "w") as fh:
         fh.write(text)
     return Path(path)
+
+
+def check_writable(path: str | os.PathLike, what: str = "output") -> Path:
+    """Check, before any work is done, that ``path`` can be written (its folder exists or can
+    be created, is writable, and ``path`` is not a folder); return it.
+
+    Raises :class:`~catgraph.exceptions.InvalidParameterError` naming the problem.
+    """
+    from .exceptions import InvalidParameterError
+
+    path = Path(path)
+    if path.is_dir():
+        raise InvalidParameterError(f"the {what} {path} is a folder; give a file name.")
+    folder = path.parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if not folder.is_dir():
+        raise InvalidParameterError(f"cannot write the {what} {path}: {folder} is not a folder.")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise InvalidParameterError(f"cannot write the {what} {path}: no permission to write in {folder}.")
+    if path.exists() and not os.access(path, os.W_OK) and not os.access(folder, os.W_OK):
+        raise InvalidParameterError(f"cannot write the {what} {path}: the file is read-only.")
+    return path

@@ -100,20 +100,25 @@ class Condition:
     def parse(cls, text: str) -> "Condition":
         """From ``in-order``, ``reverse``, ``speed:F``, ``shuffle:SEED`` or ``shuffle:SEED:MIN:MAX``."""
         parts = str(text).strip().split(":")
-        kind = parts[0]
+        kind, args = parts[0], parts[1:]
+        shapes = {"in-order": (0,), "reverse": (0,), "speed": (1,), "shuffle": (1, 3)}
         try:
-            if kind == "shuffle" and len(parts) in (2, 4):
-                rng = (float(parts[2]), float(parts[3])) if len(parts) == 4 else (0.02, 0.20)
-                return cls("shuffle", seed=int(parts[1]), segment_range=rng)
-            if kind == "speed" and len(parts) == 2:
-                return cls("speed", factor=float(parts[1]))
-            if kind in ("in-order", "reverse") and len(parts) == 1:
-                return cls(kind)
+            if kind in shapes and len(args) in shapes[kind]:
+                numbers = [int(args[0])] + [float(v) for v in args[1:]] if kind == "shuffle" else \
+                    [float(v) for v in args]
+            else:
+                numbers = None
         except ValueError:
-            pass
-        raise InvalidParameterError(
-            f"cannot read condition {text!r}; write in-order, reverse, speed:FACTOR, shuffle:SEED or "
-            "shuffle:SEED:MIN:MAX.")
+            numbers = None
+        if numbers is None:
+            raise InvalidParameterError(
+                f"cannot read condition {text!r}; write in-order, reverse, speed:FACTOR, shuffle:SEED or "
+                "shuffle:SEED:MIN:MAX.")
+        if kind == "shuffle":
+            return cls("shuffle", seed=numbers[0], segment_range=tuple(numbers[1:]) or (0.02, 0.20))
+        if kind == "speed":
+            return cls("speed", factor=numbers[0])
+        return cls(kind)
 
     @classmethod
     def from_dict(cls, values: dict | None) -> "Condition":
@@ -166,7 +171,7 @@ class Condition:
         order = self.order(len(traverse))
         out = traverse.take(order)
         meta = dict(traverse.meta)
-        meta["condition"] = self.as_dict()
+        meta["traversal"] = self.as_dict()
         if self.kind == "shuffle":
             meta["segments"] = segment_order(len(traverse), self.seed, *self.segment_range)[1]
         odometry = None if traverse.odometry is None else _odometry(traverse.odometry, order)

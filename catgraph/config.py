@@ -16,17 +16,21 @@ Format
 
     [[dataset]]
     name = "summer-winter"               # required, unique
-    reference = "../../shared/data/nordland/32x16/summer"   # path or "synthetic:SEED"
+    reference = "../../shared/data/nordland/32x16/summer"   # path or "synthetic:SEED" …
+    # map = "summer.npz"                 # … or a saved map (catgraph build-map)
     query = "../../shared/data/nordland/32x16/winter"
-    tolerance = 2                        # ground truth: frames …
-    # tolerance_m = 3.0                  # … or metres (exactly one; synthetic worlds: optional)
-    shuffle = [false, 0]                 # optional: false = in order, int = shuffle seed
+    tolerance = 2                        # optional ground truth: frames …
+    # tolerance_m = 3.0                  # … or metres …
+    # ground_truth = "pairs.csv"         # … or a file (at most one; none: no metrics)
+    conditions = ["in-order", "shuffle:0", "shuffle:1:0.005:0.03", "reverse", "speed:2"]  # optional
+    # shuffle = [false, 0]               # optional shorthand: false = in order, int = shuffle seed
     frontend = { size = "32x16", patch = 4, metric = "sad", normalise = true }  # optional
+    # junction_radius_m = 1.0            # optional: junctions of the place graph (needs positions)
 
     [[method]]
     name = "fixed"                       # optional, unique (default: the method)
     method = "sequence"                  # a name in catgraph.methods.METHODS
-    params = { approximation = "gaussian" }      # passed to the method as is
+    params = { approximation = "gaussian" }      # checked against the method's parameters
     grid = { window = [10, 25, 50] }     # optional: every combination is one run
     datasets = ["summer-winter"]         # optional: only these datasets (default: all)
 
@@ -37,19 +41,21 @@ Format
     params = { exclusion = 5 }
     shuffle = 0
 
-Every ``[[method]]`` runs on every dataset it applies to, for every ``shuffle`` value of
-the dataset and every combination of its ``grid`` values (the Cartesian product, in the
-order written). ``grid`` is separate from ``params`` because some parameters are lists
-themselves (a histogram ``range``, a window ``grid``): ``params`` are never expanded.
-TOML has no null, so ``false`` stands for "no shuffle".
+Every ``[[method]]`` runs on every dataset it applies to, for every condition of the
+dataset (:meth:`catgraph.conditions.Condition.parse`: ``in-order``, ``reverse``,
+``speed:FACTOR``, ``shuffle:SEED`` or ``shuffle:SEED:MIN:MAX``) and every combination of
+its ``grid`` values (the Cartesian product, in the order written). ``grid`` is separate
+from ``params`` because some parameters are lists themselves (a window ``grid``):
+``params`` are never expanded. TOML has no null, so ``false`` stands for "no shuffle".
 
 Relative paths are relative to the configuration file's folder (so a configuration
 works from any working directory); ``"synthetic:SEED"`` names the built-in world.
 
 Run names
 ---------
-Expanded runs are named ``DATASET/METHOD[/KEY=VALUE…][/in-order|/shuffle=SEED]`` (the
-``shuffle`` part only when the dataset sets ``shuffle``), e.g.
+Expanded runs are named ``DATASET/METHOD[/KEY=VALUE…][/CONDITION]`` (the condition part
+— ``in-order``, ``shuffle=SEED``, ``shuffle=SEED,MIN-MAX``, ``reverse``, ``speed=F`` — only
+when the dataset lists ``conditions`` or ``shuffle``), e.g.
 ``summer-winter/fixed/window=25/shuffle=0``. Names are unique; the bench command uses
 them for the result files.
 
@@ -58,9 +64,11 @@ Checks
 Unknown keys (with the closest known key suggested), wrong types, missing required
 keys, duplicate names, unknown methods and unknown dataset references raise
 :class:`~catgraph.exceptions.ConfigError` naming the file, the table and its number,
-and the key, e.g. ``config.toml: [[method]] #2 'window' must be an int ≥ 1 or
-'adaptive', got 'ten'``. Parameters with a well-known meaning (``window``,
-``exclusion``, ``l_min`` …) are type-checked here; the method checks the rest.
+and the key, e.g. ``config.toml: [[method]] #2: The 'window' parameter of method
+'sequence' must be an int ≥ 1 or 'adaptive'. Got 'ten' instead.`` Method parameters are
+checked against the method's own declarations (:mod:`catgraph.methods`), every grid
+combination included, so a sweep never fails an hour in on a value it could have
+refused at once.
 """
 
 from __future__ import annotations
@@ -75,17 +83,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .conditions import Condition
 from .exceptions import ConfigError, DataNotFoundError
 
 __all__ = ["ExperimentConfig", "load_config", "parse_config", "run_file_name"]
 
 _TOP_KEYS = ("name", "description", "dataset", "method", "run")
-_DATASET_KEYS = ("name", "reference", "query", "tolerance", "tolerance_m", "shuffle", "frontend")
+_SOURCE_KEYS = ("reference", "map", "query", "tolerance", "tolerance_m", "ground_truth", "frontend",
+                "junction_radius_m")
+_DATASET_KEYS = ("name", *_SOURCE_KEYS, "shuffle", "conditions")
 _METHOD_KEYS = ("name", "method", "params", "grid", "datasets")
-_RUN_KEYS = ("name", "dataset", "reference", "query", "tolerance", "tolerance_m", "shuffle", "frontend", "method",
-             "params")
-_FRONTEND_KEYS = ("size", "patch", "metric", "normalise")
-_METRICS = ("sad", "ssd", "cosine", "hamming", "wifi")
+_RUN_KEYS = ("name", "dataset", *_SOURCE_KEYS, "shuffle", "condition", "method", "params")
 
 
 @dataclass(frozen=True)
@@ -120,32 +128,6 @@ def _is_int(value: Any) -> bool:
 
 def _is_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
-def _int_at_least(low: int) -> tuple[Callable[[Any], bool], str]:
-    return (lambda v: _is_int(v) and v >= low), f"an int ≥ {low}"
-
-
-def _one_of(*choices: str) -> tuple[Callable[[Any], bool], str]:
-    return (lambda v: v in choices), "one of " + ", ".join(repr(c) for c in choices)
-
-
-#: Checks of well-known method parameters: name → (test, description).
-PARAM_CHECKS: dict[str, tuple[Callable[[Any], bool], str]] = {
-    "window": (lambda v: v == "adaptive" or (_is_int(v) and v >= 1), "an int ≥ 1 or 'adaptive'"),
-    "exclusion": _int_at_least(0),
-    "radius": _int_at_least(0),
-    "l_min": _int_at_least(1),
-    "l_max": _int_at_least(1),
-    "n_bins": _int_at_least(2),
-    "n_init": _int_at_least(0),
-    "n_particles": _int_at_least(1),
-    "seed": (lambda v: _is_int(v) and v >= 0, "an int ≥ 0"),
-    "approximation": _one_of("gaussian", "robust", "gmm2", "gmm3"),
-    "grid": (lambda v: v in ("geometric", "all") or (_is_int(v) and v >= 1)
-             or (isinstance(v, list) and bool(v) and all(_is_int(x) and x >= 1 for x in v)),
-             "'geometric', 'all', an int ≥ 1 or a list of ints ≥ 1"),
-}
 
 
 class _Where:
@@ -191,13 +173,17 @@ def _check_name(where: _Where, table: str, value: Any) -> str:
     return value
 
 
-def _check_params(where: _Where, table: str, params: Any, key: str = "params") -> dict:
+def _check_params(where: _Where, table: str, method: str, params: Any, key: str = "params") -> dict:
+    """The method's own checks (:meth:`catgraph.methods.Method.resolve`), located in the file."""
+    from .exceptions import InvalidParameterError
+    from .methods import get_method
+
     if not isinstance(params, Mapping):
         raise where.error(table, f"'{key}' must be a table of parameters, got {_show(params)}.")
-    for name, value in params.items():
-        if name in PARAM_CHECKS:
-            test, what = PARAM_CHECKS[name]
-            _check_value(where, table, name, value, test, what)
+    try:
+        get_method(method).resolve(params)
+    except InvalidParameterError as exc:
+        raise where.error(table, f"{exc}") from None
     return dict(params)
 
 
@@ -214,43 +200,52 @@ def _check_method_name(where: _Where, table: str, value: Any) -> str:
 
 
 def _check_frontend(where: _Where, table: str, frontend: Any) -> dict:
+    from .exceptions import InvalidParameterError
+    from .pipeline import FrontEnd
+
     _check_keys(where, f"{table} frontend", frontend, _FRONTEND_KEYS)
-    out: dict[str, Any] = {}
-    if "size" in frontend:
-        size = frontend["size"]
-        if isinstance(size, str):
-            parts = size.lower().split("x")
-            if len(parts) == 2 and all(p.isdigit() and int(p) > 0 for p in parts):
-                size = [int(parts[0]), int(parts[1])]
-        _check_value(where, table, "frontend.size", size,
-                     lambda v: isinstance(v, list) and len(v) == 2 and all(_is_int(x) and x > 0 for x in v),
-                     "'WIDTHxHEIGHT' such as '32x16' or [width, height]")
-        out["size"] = list(size)
-    if "patch" in frontend:
-        _check_value(where, table, "frontend.patch", frontend["patch"], lambda v: _is_int(v) and v >= 0,
-                     "an int ≥ 0 (0 = no patch normalisation)")
-        out["patch"] = frontend["patch"]
-    if "metric" in frontend:
-        _check_value(where, table, "frontend.metric", frontend["metric"], lambda v: v in _METRICS,
-                     "one of " + ", ".join(repr(m) for m in _METRICS))
-        out["metric"] = frontend["metric"]
-    if "normalise" in frontend:
-        _check_value(where, table, "frontend.normalise", frontend["normalise"], lambda v: isinstance(v, bool),
-                     "true or false")
-        out["normalise"] = frontend["normalise"]
-    return out
+    try:
+        checked = FrontEnd.from_dict(frontend)
+    except InvalidParameterError as exc:
+        raise where.error(table, f"'frontend': {exc}") from None
+    return {k: v for k, v in checked.as_dict().items() if k in frontend}
 
 
-def _check_shuffle_values(where: _Where, table: str, value: Any) -> list[int | None]:
+def _check_shuffle_values(where: _Where, table: str, value: Any) -> list[dict]:
     values = value if isinstance(value, list) else [value]
     ok = bool(values) and all(v is False or (_is_int(v) and v >= 0) for v in values)
     if not ok:
         raise where.error(table, f"'shuffle' must be false (in order), a seed ≥ 0, or a list of them, "
                                  f"got {_show(value)}.")
-    out = [None if v is False else int(v) for v in values]
-    if len(set(out)) != len(out):
+    if len({repr(v) for v in values}) != len(values):
         raise where.error(table, f"'shuffle' lists a value twice: {_show(value)}.")
+    return [Condition().as_dict() if v is False else Condition("shuffle", seed=int(v)).as_dict() for v in values]
+
+
+def _check_conditions(where: _Where, table: str, value: Any, key: str = "conditions") -> list[dict]:
+    from .exceptions import InvalidParameterError
+
+    values = value if isinstance(value, list) else [value]
+    if not values or not all(isinstance(v, str) for v in values):
+        raise where.error(table, f"'{key}' must be a list of conditions such as \"in-order\", \"reverse\", "
+                                 f"\"speed:2\", \"shuffle:0\" or \"shuffle:0:0.005:0.03\", got {_show(value)}.")
+    try:
+        out = [Condition.parse(v).as_dict() for v in values]
+    except InvalidParameterError as exc:
+        raise where.error(table, f"'{key}': {exc}") from None
+    if len({repr(c) for c in out}) != len(out):
+        raise where.error(table, f"'{key}' lists a condition twice: {_show(value)}.")
     return out
+
+
+def _condition_name(condition: dict) -> str:
+    c = Condition.from_dict(condition)
+    if c.kind == "shuffle":
+        lo, hi = c.segment_range
+        return f"shuffle={c.seed}" if (lo, hi) == (0.02, 0.20) else f"shuffle={c.seed},{lo:g}-{hi:g}"
+    if c.kind == "speed":
+        return f"speed={c.factor:g}"
+    return c.kind
 
 
 def _resolve(path: Any, base_dir: Path | None) -> str:
@@ -263,34 +258,64 @@ def _resolve(path: Any, base_dir: Path | None) -> str:
     return os.path.normpath(os.path.abspath(p)) if base_dir is not None else os.path.normpath(p)
 
 
+_FRONTEND_KEYS = ("size", "patch", "metric", "normalise")
+
+
 def _check_source(where: _Where, table: str, data: Mapping, base_dir: Path | None) -> dict:
-    """reference, query, ground truth and front-end of a dataset (or an explicit run)."""
+    """Reference or map, query, ground truth, front-end and graph options of a dataset (or run)."""
     out: dict[str, Any] = {}
-    for key in ("reference", "query"):
+    if ("reference" in data) == ("map" in data):
+        raise where.error(table, "needs exactly one of 'reference' (a traverse) and 'map' (a saved map).")
+    if "query" not in data:
+        raise where.error(table, "needs the key 'query'.")
+    for key in ("reference", "map", "query"):
+        if key not in data:
+            continue
         value = data[key]
         _check_value(where, table, key, value, lambda v: isinstance(v, str) and v != "",
-                     "a path or 'synthetic:SEED'")
-        if value.startswith("synthetic"):
+                     "a path or 'synthetic:SEED'" if key != "map" else "a path to a map file")
+        if value.startswith("synthetic") and key != "map":
             _, _, seed = value.partition(":")
             if value != "synthetic" and (not value.startswith("synthetic:") or not seed.isdigit()):
                 raise where.error(table, f"'{key}' {value!r} must be written 'synthetic:SEED' with an integer seed.")
         out[key] = _resolve(value, base_dir)
-    tolerance, tolerance_m = data.get("tolerance"), data.get("tolerance_m")
-    if tolerance is not None:
-        _check_value(where, table, "tolerance", tolerance, lambda v: _is_int(v) and v >= 0, "an int ≥ 0 (frames)")
-    if tolerance_m is not None:
-        _check_value(where, table, "tolerance_m", tolerance_m, lambda v: _is_number(v) and v >= 0,
+    given = [k for k in ("tolerance", "tolerance_m", "ground_truth") if data.get(k) is not None]
+    if len(given) > 1:
+        raise where.error(table, f"gives {' and '.join(repr(g) for g in given)}; keep one ground truth.")
+    if "tolerance" in data:
+        _check_value(where, table, "tolerance", data["tolerance"], lambda v: _is_int(v) and v >= 0,
+                     "an int ≥ 0 (frames)")
+        out["tolerance"] = data["tolerance"]
+    if "tolerance_m" in data:
+        _check_value(where, table, "tolerance_m", data["tolerance_m"], lambda v: _is_number(v) and v >= 0,
                      "a number ≥ 0 (metres)")
-    if tolerance is not None and tolerance_m is not None:
-        raise where.error(table, "gives both 'tolerance' (frames) and 'tolerance_m' (metres); keep one.")
-    synthetic = out["reference"].startswith("synthetic") and out["query"].startswith("synthetic")
-    if tolerance is None and tolerance_m is None and not synthetic:
-        raise where.error(table, "needs a ground truth: 'tolerance' (frames, same index = same place) "
-                                 "or 'tolerance_m' (metres, needs positions).")
-    out["tolerance"] = tolerance
-    out["tolerance_m"] = None if tolerance_m is None else float(tolerance_m)
-    out["frontend"] = _check_frontend(where, table, data["frontend"]) if "frontend" in data else {}
+        out["tolerance_m"] = float(data["tolerance_m"])
+    if "ground_truth" in data:
+        _check_value(where, table, "ground_truth", data["ground_truth"], lambda v: isinstance(v, str) and v != "",
+                     "a path to a pairs .csv or a .npy/.npz matrix")
+        out["ground_truth"] = _resolve(data["ground_truth"], base_dir)
+    if "frontend" in data:
+        if "map" in data:
+            raise where.error(table, "sets 'frontend' with a saved 'map': its front-end is fixed when it is built.")
+        out["frontend"] = _check_frontend(where, table, data["frontend"])
+    if "junction_radius_m" in data:
+        if "map" in data:
+            raise where.error(table, "sets 'junction_radius_m' with a saved 'map': its graph is fixed when it is built.")
+        _check_value(where, table, "junction_radius_m", data["junction_radius_m"], lambda v: _is_number(v) and v > 0,
+                     "a number > 0 (metres)")
+        out["junction_radius_m"] = float(data["junction_radius_m"])
     return out
+
+
+def _conditions_of(where: _Where, table: str, data: Mapping) -> list[dict] | None:
+    if "shuffle" in data and "conditions" in data:
+        raise where.error(table, "sets both 'shuffle' and 'conditions'; list shuffles in 'conditions' "
+                                 "(\"shuffle:SEED\").")
+    if "shuffle" in data:
+        return _check_shuffle_values(where, table, data["shuffle"])
+    if "conditions" in data:
+        return _check_conditions(where, table, data["conditions"])
+    return None
 
 
 def _format_value(value: Any) -> str:
@@ -346,12 +371,12 @@ def parse_config(data: Mapping[str, Any], source: str = "<config>", base_dir: st
     datasets: dict[str, dict] = {}
     for k, table in enumerate(data.get("dataset", []), 1):
         label = f"[[dataset]] #{k}"
-        _check_keys(where, label, table, _DATASET_KEYS, ("name", "reference", "query"))
+        _check_keys(where, label, table, _DATASET_KEYS, ("name",))
         name = _check_name(where, label, table["name"])
         if name in datasets:
             raise where.error(label, f"repeats the dataset name {name!r}; dataset names must be unique.")
         entry = _check_source(where, label, table, base)
-        entry["shuffle"] = _check_shuffle_values(where, label, table["shuffle"]) if "shuffle" in table else None
+        entry["conditions"] = _conditions_of(where, label, table)
         datasets[name] = entry
 
     methods: list[dict] = []
@@ -362,7 +387,7 @@ def parse_config(data: Mapping[str, Any], source: str = "<config>", base_dir: st
         name = _check_name(where, label, table.get("name", method))
         if any(m["name"] == name for m in methods):
             raise where.error(label, f"repeats the method name {name!r}; give each [[method]] a unique 'name'.")
-        params = _check_params(where, label, table.get("params", {}))
+        params = _check_params(where, label, method, table.get("params", {}))
         grid = table.get("grid", {})
         if not isinstance(grid, Mapping):
             raise where.error(label, f"'grid' must be a table of lists, got {_show(grid)}.")
@@ -371,8 +396,9 @@ def parse_config(data: Mapping[str, Any], source: str = "<config>", base_dir: st
                 raise where.error(label, f"'grid.{key}' must be a non-empty list of values, got {_show(values)}.")
             if key in params:
                 raise where.error(label, f"sets '{key}' in both 'params' and 'grid'; keep one.")
-            for value in values:
-                _check_params(where, label, {key: value})
+        keys = list(grid)
+        for values in itertools.product(*(grid[key] for key in keys)):
+            _check_params(where, label, method, {**params, **dict(zip(keys, values))})
         only = table.get("datasets")
         if only is not None:
             _check_value(where, label, "datasets", only,
@@ -384,6 +410,12 @@ def parse_config(data: Mapping[str, Any], source: str = "<config>", base_dir: st
                                              f"defined: {', '.join(datasets) or 'none'}.")
         methods.append({"name": name, "method": method, "params": params, "grid": dict(grid), "datasets": only})
 
+    def spec(name: str, source: dict, method: str, params: dict, condition: dict | None) -> dict:
+        out = {"name": name, **copy.deepcopy(source), "method": method, "params": copy.deepcopy(params)}
+        out.pop("conditions", None)
+        out["condition"] = condition or Condition().as_dict()
+        return out
+
     specs: list[dict[str, Any]] = []
     for ds_name, ds in datasets.items():
         for m in methods:
@@ -393,15 +425,11 @@ def parse_config(data: Mapping[str, Any], source: str = "<config>", base_dir: st
             for values in itertools.product(*(m["grid"][key] for key in keys)):
                 params = dict(m["params"])
                 params.update(zip(keys, values))
-                for shuffle in ds["shuffle"] if ds["shuffle"] is not None else [None]:
+                for condition in ds["conditions"] if ds["conditions"] is not None else [None]:
                     parts = [ds_name, m["name"]] + [f"{key}={_format_value(v)}" for key, v in zip(keys, values)]
-                    if ds["shuffle"] is not None:
-                        parts.append("in-order" if shuffle is None else f"shuffle={shuffle}")
-                    specs.append({
-                        "name": "/".join(parts), "reference": ds["reference"], "query": ds["query"],
-                        "method": m["method"], "params": copy.deepcopy(params), "tolerance": ds["tolerance"],
-                        "tolerance_m": ds["tolerance_m"], "shuffle": shuffle, "frontend": dict(ds["frontend"]),
-                    })
+                    if ds["conditions"] is not None:
+                        parts.append(_condition_name(condition))
+                    specs.append(spec("/".join(parts), ds, m["method"], params, condition))
 
     for k, table in enumerate(data.get("run", []), 1):
         label = f"[[run]] #{k}"
@@ -412,28 +440,29 @@ def parse_config(data: Mapping[str, Any], source: str = "<config>", base_dir: st
             if ds_name not in datasets:
                 raise where.error(label, f"'dataset' names {ds_name!r}, which no [[dataset]] defines; "
                                          f"defined: {', '.join(datasets) or 'none'}.")
-            overlap = [key for key in ("reference", "query", "tolerance", "tolerance_m") if key in table]
+            overlap = [key for key in _SOURCE_KEYS if key in table and key != "frontend"]
             if overlap:
                 raise where.error(label, f"sets 'dataset' and {', '.join(repr(x) for x in overlap)}; "
                                          "use one or the other.")
-            source = {key: datasets[ds_name][key] for key in ("reference", "query", "tolerance", "tolerance_m")}
-            source["frontend"] = (_check_frontend(where, label, table["frontend"]) if "frontend" in table
-                                  else dict(datasets[ds_name]["frontend"]))
+            source = {k: v for k, v in datasets[ds_name].items() if k != "conditions"}
+            if "frontend" in table:
+                source["frontend"] = _check_frontend(where, label, table["frontend"])
         else:
-            for key in ("reference", "query"):
-                if key not in table:
-                    raise where.error(label, f"needs the key '{key}' (or 'dataset' naming a [[dataset]]).")
             source = _check_source(where, label, table, base)
-        shuffle = None
+        if "shuffle" in table and "condition" in table:
+            raise where.error(label, "sets both 'shuffle' and 'condition'; keep 'condition'.")
+        condition = None
         if "shuffle" in table:
             if isinstance(table["shuffle"], list):
                 raise where.error(label, "'shuffle' of a [[run]] is one value (false or a seed), not a list.")
-            (shuffle,) = _check_shuffle_values(where, label, table["shuffle"])
+            (condition,) = _check_shuffle_values(where, label, table["shuffle"])
+        if "condition" in table:
+            if isinstance(table["condition"], list):
+                raise where.error(label, "'condition' of a [[run]] is one condition, not a list.")
+            (condition,) = _check_conditions(where, label, table["condition"], key="condition")
         name = _check_name(where, label, table["name"]) if "name" in table else f"{method}#{k}"
-        params = copy.deepcopy(_check_params(where, label, table.get("params", {})))
-        specs.append({"name": name, "reference": source["reference"], "query": source["query"], "method": method,
-                      "params": params, "tolerance": source["tolerance"], "tolerance_m": source["tolerance_m"],
-                      "shuffle": shuffle, "frontend": source["frontend"]})
+        params = _check_params(where, label, method, table.get("params", {}))
+        specs.append(spec(name, source, method, params, condition))
 
     seen: set[str] = set()
     for spec in specs:

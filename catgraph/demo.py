@@ -36,41 +36,31 @@ def run_demo(out_dir: str | Path = "catgraph-demo", seed: int = 0, n_particles: 
     log : callable
         Where progress messages go (``print`` by default; ``lambda *a: None`` for quiet).
     """
-    from .compare import localize
-    from .datasets.synthetic import make_world
-    from .graph import PlaceGraph
-    from .methods import run_method
-    from .pipeline import FrontEnd, differences, match_single_frames
+    from .experiment import Experiment, payload, prepare, run_method, synthetic_world
     from .report import write_report
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    world = make_world(seed=seed)
-    reference, query = world.reference, world.query
-    ground_truth = world.ground_truth()
+    world = synthetic_world(seed)
+    source = f"synthetic:{seed}"
+    exp = Experiment(query=source, reference=source, junction_radius_m=world.junction_radius_m)
+    prepared = prepare(exp)
+    reference, query = prepared.reference, prepared.query
     log(f"synthetic world (seed {seed}): {len(reference)} reference frames (day), {len(query)} query frames "
         f"(night, out of order, {int(query.meta['new_place'].sum())} frames through unmapped streets)")
-    frontend = FrontEnd()
-    diff = differences(reference, query, frontend)
-    graph = PlaceGraph.from_traverse(reference, junction_radius_m=world.junction_radius_m)
+    graph = prepared.graph()
     log(f"map: {graph!r}")
 
-    common = {"reference": f"synthetic:{seed}", "query": f"synthetic:{seed}", "frontend": frontend.as_dict(),
-              "ground_truth": ground_truth.describe()}
-    runs = []
-    single = match_single_frames(diff, query.index)
-    runs.append(single)
-    runs.append(run_method("sequence", {"window": "adaptive"}, reference=reference, query=query, differences=diff))
-    for model in ("histogram", "combined"):
-        runs.append(localize(reference, query, model=model, n_particles=n_particles, seed=seed, graph=graph,
-                             differences=diff, frontend=frontend, confidence_radius_m=world.tolerance_m))
+    plan = [("single-frame", {}), ("sequence", {"window": "adaptive"})]
+    plan += [("filter", {"model": model, "n_particles": n_particles, "seed": seed}) for model in ("histogram", "combined")]
     payloads = []
-    for result in runs:
-        result.params.update(common)
-        payload = result.to_dict(result.evaluate(ground_truth))
-        payloads.append(payload)
-        write_json_atomic(out / f"{result.method.replace('/', '-')}.json", payload)
+    for method, params in plan:
+        result = run_method(method, params, prepared, progress=progress and method == "filter")
+        out_payload, _ = payload(result, prepared)
+        payloads.append(out_payload)
+        write_json_atomic(out / f"{result.method.replace('/', '-')}.json", out_payload)
+    diff = prepared.differences
 
     figures = _figures(world, diff, graph, payloads, seed, n_particles)
     report = write_report(payloads, out, title=f"catgraph demo — synthetic city (seed {seed})", extra_figures=figures)
@@ -83,8 +73,8 @@ def _figures(world, diff, graph, payloads, seed, n_particles):
     from matplotlib.figure import Figure
 
     from . import plot
-    from .compare import build_model
     from .localizer import Localizer
+    from .observation import HistogramObservation
 
     figures = []
     adaptive = next(p for p in payloads if p["method"] == "adaptive")
@@ -104,8 +94,7 @@ def _figures(world, diff, graph, payloads, seed, n_particles):
 
     fig = Figure(figsize=(9, 4.5), layout="constrained")
     ax = fig.add_subplot()
-    loc = Localizer(graph, build_model("histogram", reference), n_particles=n_particles, seed=seed,
-                    confidence_radius_m=world.tolerance_m)
+    loc = Localizer(graph, HistogramObservation(), n_particles=n_particles, seed=seed)
     posterior = loc.run(diff, odometry=query.odometry, return_posterior=True).posterior
     plot.plot_posterior(posterior, log=True, ax=ax)
     ax.set_title("particle posterior over the places, log scale (filter + online histogram model)")

@@ -1,36 +1,66 @@
-"""One evaluated run from a plain, JSON-ready description (the unit of every sweep).
+"""One way to run a method: inputs → ground truth → condition → differences → method → result.
 
-A *run spec* is a dict::
+Every entry point — ``catgraph match``/``localize``/``compare``, ``catgraph bench`` and
+its sweeps, the demo, the benchmarks — describes what to run as an :class:`Experiment`
+and runs it through :func:`prepare` and :func:`run_method` (or :func:`run`, both at
+once). The stages, each owned by one function:
 
-    {"reference": "../shared/data/nordland/32x16/summer",  # or "synthetic:SEED"
-     "query": "../shared/data/nordland/32x16/winter",      # or "synthetic:SEED"
-     "method": "adaptive",                                  # see catgraph.methods.METHODS
-     "params": {...},                                       # the method's parameters
-     "tolerance": 2, "tolerance_m": null,                   # ground truth (one of them)
-     "shuffle": 0 or null,                                  # shuffle the query (seed)
-     "frontend": {"size": null, "patch": 4, "metric": null}}
+1. **Inputs** (:func:`prepare`). The reference becomes a *map*
+   (:class:`~catgraph.io.CatgraphMap`): either a saved map file, used as saved, or one
+   built in memory from a reference traverse with :func:`catgraph.io.build_map` — the
+   same function ``catgraph build-map`` saves — so a saved map and its reference folder
+   give the same answers for every method. Front-end options (``size``, ``patch``,
+   ``metric``, ``normalise``) and graph options (``junction_radius_m``) shape a map
+   when it is built; with a saved map they are refused (its front-end and graph are
+   fixed), and ``junction_radius_m`` without reference positions is refused too.
+2. **Ground truth** (optional): a frame tolerance, a metric tolerance or a file
+   (:func:`catgraph.datasets.ground_truth.load_ground_truth`), always about frames *as
+   loaded*. Without one, a run still produces every frame's answer; only the metrics
+   are missing. The method never sees it (except the ``trained`` histogram baseline,
+   which is fitted from it by definition).
+3. **Condition** (:class:`~catgraph.conditions.Condition`): the query in order,
+   shuffled, reversed or at another speed; ground truth follows the frames.
+4. **Differences**: the query through the map's own front-end against the map's
+   descriptors (:func:`catgraph.io.query_differences`), normalised per query; the
+   reference-vs-reference differences some models bootstrap from come from the map too
+   (:func:`catgraph.io.reference_differences`), computed once and only when needed.
+5. **Method** (:mod:`catgraph.methods`): by name, with its checked parameters.
+6. **Result**: a :class:`~catgraph.results.RunResult`, its evaluation where there is
+   ground truth, and the JSON payload every command writes (:func:`payload`).
 
-:func:`run_experiment` loads, describes, computes differences, runs the method and
-returns the result payload (the JSON every command writes). It is a pure function of the
-spec — same spec, same result — so sweeps can run it in any process or on any Dask
-worker and compare.
+An experiment is plain data (:meth:`Experiment.from_spec` / :meth:`Experiment.spec`),
+so sweeps can run it in any process or on any Dask worker: same spec, same result.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from .exceptions import ConfigError
-from .pipeline import FrontEnd, differences, ground_truth_for
-from .traverse import Traverse, shuffle_segments
+import numpy as np
 
-__all__ = ["load_input", "run_experiment", "SPEC_KEYS"]
+from .conditions import Condition
+from .exceptions import ConfigError, InvalidParameterError
+from .methods import get_method
+from .results import RunResult
+from .traverse import FrameTolerance, GroundTruth, MetricTolerance, Traverse
 
-SPEC_KEYS = {"reference", "query", "method", "params", "tolerance", "tolerance_m", "shuffle", "frontend", "name"}
+if TYPE_CHECKING:  # pragma: no cover
+    from .graph import PlaceGraph
+    from .io import CatgraphMap
+    from .metrics import Evaluation
+
+__all__ = ["Experiment", "Prepared", "MethodInputs", "prepare", "prepared_from", "run_method", "run", "payload", "run_experiment",
+           "load_input", "SPEC_KEYS", "FRONTEND_KEYS"]
+
+SPEC_KEYS = ("name", "reference", "map", "query", "method", "params", "tolerance", "tolerance_m", "ground_truth",
+             "condition", "frontend", "junction_radius_m")
+FRONTEND_KEYS = ("size", "patch", "metric", "normalise")
 
 
+# ---------------------------------------------------------------------------- sources
 @lru_cache(maxsize=4)
 def synthetic_world(seed: int):
     """The built-in synthetic world for ``seed`` (cached: it is immutable)."""
@@ -39,58 +69,351 @@ def synthetic_world(seed: int):
     return make_world(seed=seed)
 
 
-def _synthetic_seed(text: str) -> int:
+def _synthetic_seed(text: str) -> int | None:
+    """The seed of ``"synthetic"``/``"synthetic:SEED"``; ``None`` for anything else."""
+    if text != "synthetic" and not text.startswith("synthetic:"):
+        return None
     _, _, seed = text.partition(":")
-    try:
-        return int(seed or 0)
-    except ValueError:
-        raise ConfigError(f"{text!r}: write the synthetic world as 'synthetic' or 'synthetic:SEED'.") from None
+    if seed and not seed.isdigit():
+        raise InvalidParameterError(f"{text!r}: write the synthetic world as 'synthetic' or 'synthetic:SEED' "
+                                    "(SEED an integer ≥ 0).")
+    return int(seed or 0)
 
 
-def default_tolerance_m(source: str | Path) -> float | None:
-    """The ground-truth tolerance (metres) that goes with a source when none is given:
-    the synthetic world's own; ``None`` for real data (the user must choose)."""
+def load_input(source: str | Path | Traverse, role: str) -> Traverse:
+    """A traverse from a path, from ``"synthetic[:SEED]"`` (the built-in world), or as given."""
+    if isinstance(source, Traverse):
+        return source
     text = str(source)
-    return synthetic_world(_synthetic_seed(text)).tolerance_m if text.startswith("synthetic") else None
-
-
-def load_input(source: str | Path, role: str) -> Traverse:
-    """A traverse from a path, or from ``"synthetic[:SEED]"`` (the built-in world)."""
-    text = str(source)
-    if text.startswith("synthetic"):
-        world = synthetic_world(_synthetic_seed(text))
+    seed = _synthetic_seed(text)
+    if seed is not None:
+        world = synthetic_world(seed)
         return world.reference if role == "reference" else world.query
     from .datasets import load_traverse
 
     return load_traverse(source)
 
 
-def run_experiment(spec: dict[str, Any]) -> dict[str, Any]:
-    """Run one spec and return its result payload (method, params, metrics, frames)."""
-    from .methods import run_method
+# ---------------------------------------------------------------------------- the description
+@dataclass(frozen=True)
+class Experiment:
+    """What to run: inputs, optional ground truth, condition, front-end, method.
 
-    unknown = set(spec) - SPEC_KEYS
-    if unknown:
-        raise ConfigError(f"unknown run keys {sorted(unknown)}; allowed: {sorted(SPEC_KEYS)}.")
-    for key in ("reference", "query", "method"):
-        if key not in spec:
-            raise ConfigError(f"a run needs '{key}'.")
-    reference = load_input(spec["reference"], "reference")
-    query = load_input(spec["query"], "query")
-    tolerance, tolerance_m = spec.get("tolerance"), spec.get("tolerance_m")
-    if tolerance is None and tolerance_m is None:
-        tolerance_m = default_tolerance_m(spec["reference"])
-    ground_truth = ground_truth_for(reference, query, tolerance, tolerance_m)
-    if spec.get("shuffle") is not None:
-        query = shuffle_segments(query, seed=int(spec["shuffle"]))
-    frontend = FrontEnd(**{k: (tuple(v) if k == "size" and v else v) for k, v in (spec.get("frontend") or {}).items()})
-    diff = differences(reference, query, frontend)
-    result = run_method(spec["method"], dict(spec.get("params") or {}), reference=reference, query=query,
-                        differences=diff, ground_truth=ground_truth, frontend=frontend)
-    result.params.update({"reference": str(spec["reference"]), "query": str(spec["query"]),
-                          "shuffle": spec.get("shuffle"), "frontend": frontend.as_dict(),
-                          "ground_truth": ground_truth.describe()})
-    payload = result.to_dict(result.evaluate(ground_truth))
-    if spec.get("name"):
-        payload["name"] = spec["name"]
-    return payload
+    Parameters
+    ----------
+    query : path, ``"synthetic[:SEED]"`` or Traverse
+    method : str
+        A name in :data:`catgraph.methods.METHODS`.
+    params : dict
+        The method's parameters (checked; defaults filled in).
+    reference : path, ``"synthetic[:SEED]"`` or Traverse, optional
+        The reference traverse; exactly one of ``reference`` and ``map``.
+    map : path or CatgraphMap, optional
+        A saved map (``catgraph build-map``).
+    tolerance : int, optional
+        Ground truth: the same index ± ``tolerance`` frames is the same place.
+    tolerance_m : float, optional
+        Ground truth: positions within ``tolerance_m`` metres (and the same floor).
+    ground_truth : path, optional
+        Ground truth from a file (pairs CSV or matrix).
+    condition : Condition
+        How the query is driven (default: in order).
+    frontend : dict, optional
+        Front-end settings (``size``, ``patch``, ``metric``, ``normalise``) for a map
+        built from ``reference``.
+    junction_radius_m : float, optional
+        Join places of different parts of the route within this many metres (a map built
+        from a reference with positions).
+    name : str, optional
+        A label for sweeps and reports.
+    """
+
+    query: Any
+    method: str = "single-frame"
+    params: dict = field(default_factory=dict)
+    reference: Any = None
+    map: Any = None
+    tolerance: int | None = None
+    tolerance_m: float | None = None
+    ground_truth: Any = None
+    condition: Condition = Condition()
+    frontend: dict | None = None
+    junction_radius_m: float | None = None
+    name: str | None = None
+
+    def __post_init__(self) -> None:
+        if (self.reference is None) == (self.map is None):
+            raise InvalidParameterError("give a reference traverse or a saved map (exactly one of them).")
+        given = [k for k, v in (("tolerance", self.tolerance), ("tolerance_m", self.tolerance_m),
+                                ("ground_truth", self.ground_truth)) if v is not None]
+        if len(given) > 1:
+            raise InvalidParameterError(f"give one ground truth, not {' and '.join(given)}.")
+        if self.tolerance is not None and (isinstance(self.tolerance, bool) or not isinstance(self.tolerance, int)
+                                           or self.tolerance < 0):
+            raise InvalidParameterError(f"the tolerance must be an int ≥ 0 (frames); got {self.tolerance!r}.")
+        if self.tolerance_m is not None and not (isinstance(self.tolerance_m, (int, float))
+                                                 and 0 <= self.tolerance_m < float("inf")):
+            raise InvalidParameterError(f"the metric tolerance must be a number ≥ 0 (metres); got {self.tolerance_m!r}.")
+        if self.map is not None:
+            if self.frontend:
+                raise InvalidParameterError(
+                    f"front-end options ({', '.join(self.frontend)}) do not apply to a saved map: its front-end is "
+                    "fixed when it is built (catgraph build-map); drop them or build a new map.")
+            if self.junction_radius_m is not None:
+                raise InvalidParameterError("junction_radius_m does not apply to a saved map: its place graph is "
+                                            "fixed when it is built (catgraph build-map --junction-radius-m).")
+        if self.frontend:
+            unknown = sorted(set(self.frontend) - set(FRONTEND_KEYS))
+            if unknown:
+                raise InvalidParameterError(f"unknown front-end options {unknown}; allowed: {', '.join(FRONTEND_KEYS)}.")
+        if self.junction_radius_m is not None and not (isinstance(self.junction_radius_m, (int, float))
+                                                       and 0 < self.junction_radius_m < float("inf")):
+            raise InvalidParameterError(f"junction_radius_m must be a number > 0 (metres); got "
+                                        f"{self.junction_radius_m!r}.")
+        if not isinstance(self.condition, Condition):
+            object.__setattr__(self, "condition", Condition.parse(self.condition) if isinstance(self.condition, str)
+                               else Condition.from_dict(self.condition))
+        # the method and its parameters are checked now, not after the inputs are loaded
+        get_method(self.method).resolve(self.params)
+        object.__setattr__(self, "params", dict(self.params or {}))
+
+    # -- plain-data form --------------------------------------------------------------
+    @classmethod
+    def from_spec(cls, spec: dict[str, Any]) -> "Experiment":
+        """From a JSON-ready dict with the keys :data:`SPEC_KEYS`."""
+        unknown = sorted(set(spec) - set(SPEC_KEYS))
+        if unknown:
+            raise ConfigError(f"unknown run keys {unknown}; allowed: {', '.join(SPEC_KEYS)}.")
+        if "query" not in spec:
+            raise ConfigError("a run needs 'query'.")
+        return cls(**{k: v for k, v in spec.items()})
+
+    def spec(self) -> dict[str, Any]:
+        """The JSON-ready dict :meth:`from_spec` reads (sources as strings)."""
+        out: dict[str, Any] = {"query": _source_name(self.query), "method": self.method, "params": dict(self.params)}
+        if self.reference is not None:
+            out["reference"] = _source_name(self.reference)
+        else:
+            out["map"] = _source_name(self.map)
+        for key in ("tolerance", "tolerance_m", "ground_truth", "frontend", "junction_radius_m", "name"):
+            value = getattr(self, key)
+            if value is not None:
+                out[key] = str(value) if key == "ground_truth" else value
+        out["condition"] = self.condition.as_dict()
+        return out
+
+    def with_method(self, method: str, params: dict | None = None) -> "Experiment":
+        from dataclasses import replace
+
+        return replace(self, method=method, params=dict(params or {}))
+
+
+def _source_name(source: Any) -> str:
+    if isinstance(source, Traverse):
+        return source.name or "<traverse>"
+    if hasattr(source, "descriptors"):
+        return getattr(source, "name", "") or "<map>"
+    return str(source)
+
+
+# ---------------------------------------------------------------------------- prepared inputs
+@dataclass(eq=False)
+class Prepared:
+    """An experiment's inputs, ready for any method (see :func:`prepare`).
+
+    Attributes
+    ----------
+    map : CatgraphMap
+        The reference, described (saved, or built in memory).
+    reference : Traverse or None
+        The reference traverse it was built from (``None`` for a saved map).
+    query : Traverse
+        The query under the experiment's condition, in processing order.
+    differences : ndarray, shape (n_query, n_places)
+        Query × map differences, normalised per query, in processing order.
+    ground_truth : GroundTruth or None
+    sources : dict
+        What the inputs were (recorded in every result).
+    """
+
+    map: "CatgraphMap"
+    reference: Traverse | None
+    query: Traverse
+    differences: np.ndarray
+    ground_truth: GroundTruth | None
+    sources: dict
+    junction_radius_m: float | None = None
+    _graph: "PlaceGraph | None" = None
+    _reference_differences: np.ndarray | None = None
+
+    def graph(self) -> "PlaceGraph":
+        """The place graph: the saved map's, or built from the reference (once)."""
+        if self._graph is None:
+            from .exceptions import DataError
+            from .io import place_graph
+
+            if self.reference is None:
+                raise DataError("this map was saved without a place graph (build-map --no-graph); the particle "
+                                "filter needs one: build the map again without --no-graph.")
+            self._graph = place_graph(self.reference, self.junction_radius_m)
+        return self._graph
+
+    def reference_differences(self) -> np.ndarray:
+        """The map's reference-vs-reference differences (computed once, on first use)."""
+        if self._reference_differences is None:
+            from .io import reference_differences
+
+            self._reference_differences = reference_differences(self.map)
+        return self._reference_differences
+
+    def under(self, condition: Condition) -> "Prepared":
+        """The same inputs with the query driven under ``condition`` (from the query as loaded)."""
+        from dataclasses import replace
+
+        if self.query.meta.get("traversal") is not None:
+            raise InvalidParameterError("apply a condition to inputs whose query is in order as loaded.")
+        order = condition.order(len(self.query))
+        return replace(self, query=condition.apply(self.query), differences=self.differences[order])
+
+
+def prepared_from(reference: Traverse, query: Traverse, differences: np.ndarray | None = None,
+                  ground_truth: GroundTruth | None = None, frontend: dict | None = None,
+                  junction_radius_m: float | None = None) -> Prepared:
+    """Prepared inputs from loaded traverses (and, optionally, their difference matrix).
+
+    For benchmarks and notebooks that compute a difference matrix once and run many
+    methods or conditions on it (:meth:`Prepared.under`). ``differences`` must be what
+    :func:`catgraph.io.query_differences` gives for ``query`` against ``reference``'s map.
+    """
+    from .io import build_map, query_differences
+    from .pipeline import FrontEnd
+
+    the_map = build_map(reference, FrontEnd.from_dict(frontend), graph=False)
+    d = query_differences(the_map, query) if differences is None else np.asarray(differences)
+    if d.shape != (len(query), the_map.n_places):
+        from .exceptions import ShapeMismatchError
+
+        raise ShapeMismatchError(f"the differences have shape {d.shape}; expected (n_query, n_reference) = "
+                                 f"({len(query)}, {the_map.n_places}).")
+    return Prepared(the_map, reference, query, d, ground_truth,
+                    {"reference": _source_name(reference), "query": _source_name(query)},
+                    junction_radius_m=junction_radius_m)
+
+
+@dataclass(frozen=True, eq=False)
+class MethodInputs:
+    """What a method may read: the map, the query, the differences (and the graph)."""
+
+    prepared: Prepared
+    ground_truth: GroundTruth | None = None  # the ``trained`` baseline only
+    progress: bool = False
+
+    @property
+    def map(self) -> "CatgraphMap":
+        return self.prepared.map
+
+    @property
+    def query(self) -> Traverse:
+        return self.prepared.query
+
+    @property
+    def differences(self) -> np.ndarray:
+        return self.prepared.differences
+
+    def graph(self) -> "PlaceGraph":
+        return self.prepared.graph()
+
+    def reference_differences(self) -> np.ndarray:
+        return self.prepared.reference_differences()
+
+
+def _ground_truth(exp: Experiment, reference: Traverse, query: Traverse, n_places: int) -> GroundTruth | None:
+    if exp.tolerance is not None:
+        return FrameTolerance(n_places, exp.tolerance)
+    tolerance_m = exp.tolerance_m
+    if tolerance_m is None and exp.ground_truth is None:
+        # the synthetic world knows its own tolerance (an evaluation default only)
+        seed = _synthetic_seed(str(exp.query)) if isinstance(exp.query, (str, Path)) else None
+        if seed is None:
+            return None
+        tolerance_m = synthetic_world(seed).tolerance_m
+    if tolerance_m is not None:
+        return MetricTolerance.between(query, reference, float(tolerance_m))
+    from .datasets.ground_truth import load_ground_truth
+
+    return load_ground_truth(exp.ground_truth, len(query), n_places)
+
+
+def prepare(exp: Experiment) -> Prepared:
+    """Load and describe an experiment's inputs (stages 1–4 of the module docstring)."""
+    from .io import build_map, load_map, query_differences, reference_from_map
+
+    query = load_input(exp.query, "query")
+    if exp.map is not None:
+        the_map = exp.map if hasattr(exp.map, "descriptors") else load_map(exp.map)
+        reference = None
+        graph = the_map.graph
+        sources = {"map": _source_name(exp.map)}
+    else:
+        from .pipeline import FrontEnd
+
+        reference = load_input(exp.reference, "reference")
+        if exp.junction_radius_m is not None and reference.positions is None:
+            raise InvalidParameterError("junction_radius_m joins places by position, but the reference has no "
+                                        "positions; leave it out.")
+        frontend = FrontEnd.from_dict(exp.frontend)
+        the_map = build_map(reference, frontend, graph=False)
+        graph = None
+        sources = {"reference": _source_name(exp.reference)}
+    sources["query"] = _source_name(exp.query)
+    ground_truth = _ground_truth(exp, reference if reference is not None else reference_from_map(the_map), query,
+                                 the_map.n_places)
+    prepared = Prepared(the_map, reference, query, query_differences(the_map, query), ground_truth, sources,
+                        junction_radius_m=exp.junction_radius_m, _graph=graph)
+    return prepared if exp.condition.kind == "in-order" else prepared.under(exp.condition)
+
+
+# ---------------------------------------------------------------------------- running
+def run_method(method: str, params: dict | None, prepared: Prepared, progress: bool = False) -> RunResult:
+    """Run method ``method`` with ``params`` on prepared inputs (stage 5)."""
+    m = get_method(method)
+    resolved = m.resolve(params)
+    trained = method == "histogram" and resolved.get("learning") == "trained"
+    inputs = MethodInputs(prepared, prepared.ground_truth if trained else None, progress)
+    return m.run(resolved, inputs)
+
+
+def payload(result: RunResult, prepared: Prepared, exp: Experiment | None = None) -> tuple[dict, "Evaluation | None"]:
+    """The result JSON every command writes, and the evaluation (``None`` without ground truth)."""
+    evaluation = result.evaluate(prepared.ground_truth) if prepared.ground_truth is not None else None
+    result.params.update(prepared.sources)
+    result.params.update({
+        "condition": prepared.query.meta.get("traversal", {"kind": "in-order"}),
+        "frontend": dict(prepared.map.frontend),
+        "ground_truth": None if prepared.ground_truth is None else prepared.ground_truth.describe(),
+    })
+    if prepared.junction_radius_m is not None:
+        result.params["junction_radius_m"] = prepared.junction_radius_m
+    out = result.to_dict(evaluation)
+    if exp is not None and exp.name:
+        out["name"] = exp.name
+    return out, evaluation
+
+
+def run(exp: Experiment, progress: bool = False) -> tuple[RunResult, dict, "Evaluation | None"]:
+    """Prepare, run and evaluate one experiment: ``(result, payload, evaluation)``."""
+    prepared = prepare(exp)
+    result = run_method(exp.method, exp.params, prepared, progress=progress)
+    out, evaluation = payload(result, prepared, exp)
+    return result, out, evaluation
+
+
+def run_experiment(spec: dict[str, Any]) -> dict[str, Any]:
+    """Run one plain-data spec (:meth:`Experiment.from_spec`) and return its payload (for sweeps)."""
+    return run(Experiment.from_spec(spec))[1]
+
+
+def default_tolerance_m(source: str | Path) -> float | None:
+    """The synthetic world's own ground-truth tolerance (metres); ``None`` for other sources."""
+    seed = _synthetic_seed(str(source))
+    return None if seed is None else synthetic_world(seed).tolerance_m

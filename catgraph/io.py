@@ -86,6 +86,8 @@ __all__ = [
     "build_map",
     "reference_from_map",
     "query_differences",
+    "reference_differences",
+    "place_graph",
     "FORMAT_NAME",
     "FORMAT_VERSION",
 ]
@@ -206,18 +208,32 @@ def build_map(reference: "Traverse", frontend: "FrontEnd | None" = None, *, junc
 
     frontend = FrontEnd() if frontend is None else frontend
     descriptors, metric = describe(reference, frontend)
-    place_graph = None
-    if graph:
-        from .graph import PlaceGraph
-
-        place_graph = PlaceGraph.from_traverse(reference, junction_radius_m=junction_radius_m)
+    the_graph = place_graph(reference, junction_radius_m) if graph else None
     info = {"kind": _kind(reference), "n_frames": len(reference)}
     if "source" in reference.meta:
         info["source"] = str(reference.meta["source"])
     info.update(meta or {})
-    return CatgraphMap(np.ascontiguousarray(descriptors), metric, frontend.as_dict(), place_graph,
+    return CatgraphMap(np.ascontiguousarray(descriptors), metric, frontend.as_dict(), the_graph,
                        reference.positions, reference.floors, reference.ids, dict(histograms or {}),
                        reference.name, info)
+
+
+def place_graph(reference: "Traverse", junction_radius_m: float | None = None) -> "PlaceGraph":
+    """The place graph of a reference traverse, as every map has it: the chain (lengths
+    from odometry, else positions, else frames), reverse edges, and junctions within
+    ``junction_radius_m`` metres where the reference has positions."""
+    from .graph import PlaceGraph
+
+    return PlaceGraph.from_traverse(reference, junction_radius_m=junction_radius_m)
+
+
+def reference_differences(catgraph_map: CatgraphMap) -> np.ndarray:
+    """The ``(N, N)`` differences between the map's places, with the map's own metric and
+    normalisation: what models that bootstrap from the map learn from."""
+    from .differences import difference_matrix
+
+    return difference_matrix(catgraph_map.descriptors, catgraph_map.descriptors, catgraph_map.metric,
+                             normalise=bool(catgraph_map.frontend.get("normalise", True)))
 
 
 def reference_from_map(catgraph_map: CatgraphMap) -> "Traverse":
@@ -247,9 +263,12 @@ def query_differences(catgraph_map: CatgraphMap, query: "Traverse") -> np.ndarra
     """
     from .differences import difference_matrix
     from .exceptions import ShapeMismatchError
-    from .pipeline import describe
+    from .pipeline import _kind, describe
 
     frontend = catgraph_map.frontend_settings()
+    kind = catgraph_map.meta.get("kind")
+    if kind is not None and _kind(query) != kind:
+        raise DataError(f"the map holds {kind} but the query holds {_kind(query)}; compare like with like.")
     q, _ = describe(query, frontend)
     if q.shape[1] != catgraph_map.descriptors.shape[1]:
         raise ShapeMismatchError(

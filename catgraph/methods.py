@@ -1,163 +1,481 @@
-"""The registry of localisation methods, by name.
+"""The registry of localisation methods: every name, parameter and choice, once.
 
-Every method takes the same inputs — reference and query traverses, the query ×
-reference difference matrix (normalised per query, in processing order), and, for the
-"trained" baselines only, the ground truth — and returns a :class:`RunResult`. The CLI,
-the experiment runner and the sweeps all go through :func:`run_method`, so a method
-added here is available everywhere.
+A *method* turns a prepared reference (a :class:`~catgraph.io.CatgraphMap`), a query
+traverse and the query × reference difference matrix into per-frame matches and
+confidences (:class:`~catgraph.results.RunResult`). Every entry point — the CLI
+commands, experiment configurations, sweeps, the demo and the benchmarks — runs methods
+through :func:`catgraph.experiment.run` and so through this registry; the CLI builds its
+options and the configuration checker its checks from the :class:`Param` declarations
+here, so a name or a choice exists in one place only.
+
+Methods
+-------
+``single-frame``
+    The nearest reference place per query frame; confidence = margin to the best place
+    outside ``± exclusion`` places.
+``sequence``
+    SeqSLAM sequence matching with a fixed ``window`` or the adaptive window of paper 1
+    (``window="adaptive"``; then ``approximation``, ``rule``, ``l_min``, ``l_max``,
+    ``grid`` apply).
+``histogram``
+    Single-frame recognition with paper 2's histogram model P(d|L), P(d|¬L), learned
+    ``online`` (training-free), ``bootstrap`` (from the map's own frames) or ``trained``
+    (fitted from the labelled query: an oracle baseline, the only method that reads
+    ground truth).
+``filter``
+    The CAT-Graph particle filter on the map's place graph with observation ``model``
+    (see :data:`FILTER_MODELS`); the observation model's options (``window``,
+    ``approximation``, ``n_init`` …) are parameters of the filter method, so a sweep
+    can vary them.
+
+A method's parameters belong to the method: none is derived from the evaluation (the
+filter's ``confidence_radius`` is its own, in places, whatever tolerance the run is
+scored with). A parameter that does not apply to the chosen variant (``rule`` with a
+fixed window, ``window`` with the ``adaptive`` model) is refused, not ignored.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .exceptions import InvalidParameterError
-from .pipeline import match_single_frames
 from .results import RunResult
-from .traverse import GroundTruth, Traverse
 
-__all__ = ["METHODS", "run_method"]
+if TYPE_CHECKING:  # pragma: no cover
+    from .experiment import MethodInputs
 
+__all__ = ["Param", "Method", "METHODS", "FILTER_MODELS", "get_method", "resolve_params"]
 
-def _check_keys(params: dict, allowed: tuple[str, ...], what: str) -> None:
-    unknown = set(params) - set(allowed)
-    if unknown:
-        raise InvalidParameterError(f"unknown {what} parameters {sorted(unknown)}; allowed: {', '.join(allowed)}.")
-
-
-def _single_frame(params, *, reference, query, differences, ground_truth, frontend=None, graph=None) -> RunResult:
-    return match_single_frames(differences, query.index, exclusion=int(params.get("exclusion", 10)))
+#: Observation models of the particle filter.
+FILTER_MODELS = ("histogram", "histogram-bootstrap", "sequence", "adaptive", "combined")
+_LEARNING = ("online", "bootstrap", "trained")
+_PROPOSALS = ("best", "uniform")  # TODO-move: the localizer's
 
 
-_SEQUENCE_KEYS = ("window", "approximation", "rule", "confidence", "l_min", "l_max", "grid", "radius")
+# ---------------------------------------------------------------------------- parameters
+@dataclass(frozen=True)
+class Param:
+    """One method parameter: its type, range or choices, default and help.
+
+    ``kind`` is ``"int"``, ``"float"``, ``"bool"``, ``"str"`` (with ``choices``),
+    ``"window"`` (an int ≥ 1 or ``"adaptive"``) or ``"grid"`` (``"geometric"``, ``"all"``,
+    an int ≥ 1 or a list of ints ≥ 1). ``default=None`` with ``optional=True`` means
+    "not set" (the method decides). ``flag`` is the command-line option.
+    """
+
+    name: str
+    kind: str
+    default: Any
+    help: str
+    choices: tuple | None = None
+    low: float | None = None
+    high: float | None = None
+    optional: bool = False
+    flag: str | None = None
+
+    @property
+    def option(self) -> str:
+        return self.flag or "--" + self.name.replace("_", "-")
+
+    def describe(self) -> str:
+        """What a valid value is, in words."""
+        if self.choices:
+            return "one of " + ", ".join(repr(c) for c in self.choices)
+        if self.kind == "window":
+            return "an int ≥ 1 or 'adaptive'"
+        if self.kind == "grid":
+            return "'geometric', 'all', an int ≥ 1 or a list of ints ≥ 1"
+        if self.kind == "bool":
+            return "true or false"
+        what = {"int": "an int", "float": "a number", "str": "a string"}[self.kind]
+        if self.low is not None and self.high is not None:
+            return f"{what} in [{self.low:g}, {self.high:g}]"
+        if self.low is not None:
+            return f"{what} ≥ {self.low:g}"
+        return what
+
+    def check(self, value: Any, owner: str, label: str | None = None) -> Any:
+        """``value`` converted to the parameter's type; :class:`InvalidParameterError` if invalid.
+
+        ``label`` names the value in the message (default ``"The 'NAME' parameter of OWNER"``).
+        """
+        if value is None and self.optional:
+            return None
+
+        def bad() -> InvalidParameterError:
+            what = label or f"The '{self.name}' parameter of {owner}"
+            return InvalidParameterError(f"{what} must be {self.describe()}. Got {value!r} instead.")
+
+        is_int = isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+        if self.kind == "window":
+            if value == "adaptive":
+                return value
+            if not is_int or value < 1:
+                raise bad()
+            return int(value)
+        if self.kind == "grid":
+            if value in ("geometric", "all"):
+                return value
+            if is_int and value >= 1:
+                return int(value)
+            if isinstance(value, (list, tuple)) and value and all(
+                    isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1 for v in value):
+                return [int(v) for v in value]
+            raise bad()
+        if self.kind == "bool":
+            if not isinstance(value, (bool, np.bool_)):
+                raise bad()
+            return bool(value)
+        if self.kind == "str":
+            if not isinstance(value, str) or (self.choices and value not in self.choices):
+                raise bad()
+            return value
+        if self.kind == "int":
+            if not is_int:
+                raise bad()
+            value = int(value)
+        elif self.kind == "float":
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+                raise bad()
+            value = float(value)
+            if not math.isfinite(value):
+                raise bad()
+        if (self.low is not None and value < self.low) or (self.high is not None and value > self.high):
+            raise bad()
+        return value
 
 
-def _sequence(params, *, reference, query, differences, ground_truth, frontend=None, graph=None) -> RunResult:
-    """SeqSLAM sequence matching, fixed (``window`` int) or adaptive (``"adaptive"``)."""
-    import time
+# shared declarations: one per concept, reused by every method that has it
+_EXCLUSION = Param("exclusion", "int", 10, "confidence = margin to the best match outside ± this many places",
+                   low=0, high=1_000_000)
+_WINDOW_ADAPTIVE = ("approximation", "rule", "l_min", "l_max", "grid")
 
+
+def _sequence_params(window_default: Any, window_optional: bool = False) -> tuple[Param, ...]:
+    from .sequence import APPROXIMATIONS, RULES
+
+    return (
+        Param("window", "window", window_default,
+              "sequence length in frames, or 'adaptive' (paper 1: chosen per frame)", optional=window_optional),
+        Param("approximation", "str", APPROXIMATIONS[0], "adaptive window: approximation of the score distribution",
+              choices=APPROXIMATIONS),
+        Param("rule", "str", RULES[0], "adaptive window: how the window length is chosen (see docs/sequence.md)",
+              choices=RULES),
+        Param("l_min", "int", 10, "adaptive window: shortest window", low=1, high=100_000),
+        Param("l_max", "int", 500, "adaptive window: longest window", low=1, high=100_000),
+        Param("grid", "grid", "geometric", "adaptive window: candidate lengths ('geometric', 'all', a count or a list)"),
+    )
+
+
+def _histogram_params() -> tuple[Param, ...]:
+    return (
+        Param("n_init", "int", 100, "online learning: initialisation frames T_init", low=1, high=1_000_000,
+              flag="--init-frames"),
+        Param("exclusion_radius", "int", 5, "places around the best match that do not give ¬L samples",
+              low=0, high=1_000_000),
+        Param("n_bins", "int", 100, "histogram bins", low=2, high=100_000),
+        Param("same_place_m", "float", None, "reference places within METRES count as the same place (needs "
+              "positions; default: ± a few places along the route)", low=0.0, optional=True),
+        Param("gap", "int", None, "bootstrap: reference frames more than GAP places apart are different places",
+              low=1, optional=True),
+        Param("max_different", "int", 100_000, "bootstrap: ¬L samples drawn from the map", low=1, high=10_000_000),
+    )
+
+
+# ---------------------------------------------------------------------------- methods
+@dataclass(frozen=True)
+class Method:
+    """A registered method: its parameters and the function that runs it."""
+
+    name: str
+    summary: str
+    params: tuple[Param, ...]
+    run: Callable[[dict, "MethodInputs"], RunResult]
+    not_applicable: Callable[[dict], dict[str, str]] = field(default=lambda p: {})
+
+    def param(self, name: str) -> Param:
+        for p in self.params:
+            if p.name == name:
+                return p
+        raise KeyError(name)
+
+    def resolve(self, params: Mapping[str, Any] | None) -> dict[str, Any]:
+        """Every parameter, checked, defaults filled in; unknown or inapplicable ones refused."""
+        params = dict(params or {})
+        owner = f"method {self.name!r}"
+        known = {p.name: p for p in self.params}
+        unknown = sorted(set(params) - set(known))
+        if unknown:
+            raise InvalidParameterError(f"{owner} has no parameter{'s' if len(unknown) > 1 else ''} "
+                                        f"{', '.join(repr(u) for u in unknown)}; its parameters: "
+                                        f"{', '.join(known)}.")
+        out = {name: p.check(params[name], owner) if name in params else p.default for name, p in known.items()}
+        refused = self.not_applicable(out)
+        given = [name for name in params if name in refused and params[name] is not None]
+        if given:
+            name = given[0]
+            raise InvalidParameterError(f"'{name}' does not apply to {owner} here: {refused[name]}.")
+        return {name: value for name, value in out.items() if name not in refused}
+
+
+def _single_frame(params: dict, inputs: "MethodInputs") -> RunResult:
+    from .matching import best_matches
+
+    start = time.perf_counter()
+    match, confidence = best_matches(inputs.differences, exclusion=params["exclusion"])
+    return RunResult("single-frame", dict(params), inputs.query.index, match, confidence,
+                     seconds=time.perf_counter() - start)
+
+
+def _sequence_kwargs(params: dict) -> dict:
+    kwargs = {"window": params["window"]}
+    if params["window"] == "adaptive":
+        kwargs.update({k: params[k] for k in _WINDOW_ADAPTIVE})
+    return kwargs
+
+
+def _sequence(params: dict, inputs: "MethodInputs") -> RunResult:
     from .sequence import match_sequences
 
-    _check_keys(params, _SEQUENCE_KEYS, "sequence-matching")
-    kwargs = {k: v for k, v in params.items() if v is not None}
-    kwargs.setdefault("window", "adaptive")
     start = time.perf_counter()
-    res = match_sequences(differences, **kwargs)
-    seconds = time.perf_counter() - start
-    name = "adaptive" if kwargs["window"] == "adaptive" else f"sequence-L{kwargs['window']}"
-    return RunResult(name, dict(kwargs), np.asarray(query.index), res.match, res.confidence,
-                     extra={"window_length": res.window_length}, seconds=seconds)
+    res = match_sequences(inputs.differences, radius=params["exclusion"], **_sequence_kwargs(params))
+    name = "adaptive" if params["window"] == "adaptive" else f"sequence-L{params['window']}"
+    return RunResult(name, dict(params), inputs.query.index, res.match, res.confidence,
+                     extra={"window_length": res.window_length}, seconds=time.perf_counter() - start)
 
 
-_HISTOGRAM_KEYS = ("learning", "n_init", "exclusion_radius", "confidence_radius", "new_place_prior", "n_bins", "gap",
-                   "max_different", "seed", "confidence_distance", "exclusion_distance")
+def _not_adaptive(params: dict) -> dict[str, str]:
+    if params.get("window") == "adaptive":
+        return {}
+    return {k: "it sets the adaptive window; give window 'adaptive' or leave it out" for k in _WINDOW_ADAPTIVE}
 
 
-def _histogram(params, *, reference, query, differences, ground_truth, frontend=None, graph=None) -> RunResult:
-    """Single-frame recognition with the histogram model P(d|L), P(d|¬L) (paper 2).
+def _same_place(params: dict, inputs: "MethodInputs") -> dict:
+    """Histogram-model options for "the same place" by position (metres; floors 100 m apart)."""
+    if params["same_place_m"] is None:
+        return {}
+    positions = inputs.map.positions
+    if positions is None:
+        raise InvalidParameterError("same_place_m needs reference positions; this reference has none.")
+    if inputs.map.floors is not None:
+        positions = np.column_stack([positions, 100.0 * inputs.map.floors])
+    return {"reference_positions": positions, "confidence_distance": params["same_place_m"],
+            "exclusion_distance": params["same_place_m"]}
 
-    ``learning``: ``"online"`` (training-free, the paper), ``"bootstrap"`` (¬L from
-    reference pairs more than ``gap`` places apart, so no initialisation wait) or
-    ``"trained"`` (fitted from the labelled query itself: an oracle baseline).
-    """
-    import time
 
+def _bootstrap_gap(params: dict, n: int) -> int:
+    """"Far apart along the route": ``gap`` places, by default 50 or a fifth of a short route."""
+    gap = params["gap"] if params["gap"] is not None else min(50, max(1, n // 5))
+    return max(1, min(int(gap), n - 2))
+
+
+def _histogram(params: dict, inputs: "MethodInputs") -> RunResult:  # noqa: C901
     from .likelihood import HistogramLikelihood, HistogramPlaceRecogniser, labelled_samples, reference_samples
 
-    _check_keys(params, _HISTOGRAM_KEYS, "histogram-model")
-    p = {"learning": "online", "n_init": 100, "exclusion_radius": 5, "confidence_radius": 2,
-         "new_place_prior": 0.01, "n_bins": 100, "gap": None, "max_different": 100_000, "seed": 0}
-    p.update({k: v for k, v in params.items() if v is not None})
     start = time.perf_counter()
-    model = HistogramLikelihood(n_bins=int(p["n_bins"]))
-    common = {"exclusion_radius": int(p["exclusion_radius"]), "confidence_radius": int(p["confidence_radius"]),
-              "new_place_prior": float(p["new_place_prior"]), "random_state": int(p["seed"])}
-    if p.get("confidence_distance") is not None or p.get("exclusion_distance") is not None:
-        # "the same place" by position (metres; floors 100 m apart) instead of by index
-        if reference.positions is None:
-            raise InvalidParameterError("confidence_distance/exclusion_distance need reference positions.")
-        positions = reference.positions if reference.floors is None else \
-            np.column_stack([reference.positions, 100.0 * reference.floors])
-        common.update(reference_positions=positions, confidence_distance=p.get("confidence_distance"),
-                      exclusion_distance=p.get("exclusion_distance"))
-    if p["learning"] == "online":
-        recogniser = HistogramPlaceRecogniser(model, n_init=int(p["n_init"]), **common)
-    elif p["learning"] == "bootstrap":
-        from .pipeline import FrontEnd, differences as diff_of
-
-        rr = diff_of(reference, reference, frontend or FrontEnd())
-        if p["gap"] is None:  # "far apart along the route": 50 places, or a fifth of a short route
-            p["gap"] = min(50, max(1, len(reference) // 5))
-        model.fit(*reference_samples(rr, int(p["gap"]), max_different=int(p["max_different"]), seed=int(p["seed"])))
+    model = HistogramLikelihood(n_bins=params["n_bins"])
+    common = {"exclusion_radius": params["exclusion_radius"], "confidence_radius": params["confidence_radius"],
+              "new_place_prior": params["new_place_prior"], "random_state": params["seed"],
+              **_same_place(params, inputs)}
+    learning = params["learning"]
+    if learning == "online":
+        recogniser = HistogramPlaceRecogniser(model, n_init=params["n_init"], **common)
+    elif learning == "bootstrap":
+        rr = inputs.reference_differences()
+        model.fit(*reference_samples(rr, _bootstrap_gap(params, len(rr)), max_different=params["max_different"],
+                                     seed=params["seed"]))
         recogniser = HistogramPlaceRecogniser(model, n_init=0, **common)
-    elif p["learning"] == "trained":
-        if ground_truth is None:
-            raise InvalidParameterError("the trained histogram model needs ground truth to fit from.")
-        model.fit(*labelled_samples(differences, ground_truth, np.asarray(query.index),
-                                    max_different=int(p["max_different"]), seed=int(p["seed"])))
+    else:  # trained: an oracle baseline fitted on the labelled query
+        if inputs.ground_truth is None:
+            raise InvalidParameterError("the trained histogram model is fitted from ground truth; give --tolerance, "
+                                        "--tolerance-m or --ground-truth, or use learning 'online' or 'bootstrap'.")
+        model.fit(*labelled_samples(inputs.differences, inputs.ground_truth, inputs.query.index,
+                                    max_different=params["max_different"], seed=params["seed"]))
         recogniser = HistogramPlaceRecogniser(model, n_init=0, learn=False, **common)
-    else:
-        raise InvalidParameterError(f"unknown learning {p['learning']!r}; choose online, trained or bootstrap.")
-    rec = recogniser.run(differences)
-    return RunResult(f"histogram-{p['learning']}", p, np.asarray(query.index), rec.match, rec.confidence,
+    rec = recogniser.run(inputs.differences)
+    return RunResult(f"histogram-{learning}", dict(params), inputs.query.index, rec.match, rec.confidence,
                      extra={"p_new_place": rec.new_place_probability}, seconds=time.perf_counter() - start)
 
 
-_FILTER_KEYS = ("n_particles", "seed", "window", "junction_radius_m", "edge_length", "use_odometry",
-                "confidence_radius", "confidence_radius_m", "resampler", "ess_threshold", "redraw_fraction",
-                "proposal", "new_place_prior")
+def _histogram_not_applicable(params: dict) -> dict[str, str]:
+    out = {}
+    if params["learning"] != "online":
+        out["n_init"] = "only online learning has an initialisation stage"
+    if params["learning"] != "bootstrap":
+        out.update(gap="it sets the bootstrap from the map; use learning 'bootstrap'")
+        if params["learning"] == "online":
+            out["max_different"] = "online learning draws no samples from the map or the ground truth"
+    return out
 
 
-def confidence_from_ground_truth(ground_truth: GroundTruth) -> dict:
-    """The filter's confidence is the posterior mass within the tolerance the evaluation
-    uses (DESIGN §6): ``confidence_radius`` (places) or ``confidence_radius_m`` (metres)."""
-    described = ground_truth.describe()
-    if described.get("type") == "metric":
-        return {"confidence_radius_m": float(described["metres"])}
-    if described.get("type") == "frame":
-        return {"confidence_radius": max(1, int(described["tolerance"]))}
-    return {}
+def _observation_model(params: dict, inputs: "MethodInputs"):
+    """The filter's observation model, built from the filter's parameters."""
+    from .observation import CombinedObservation, HistogramObservation, SequenceObservation
+
+    model = params["model"]
+
+    def histogram(bootstrap: bool) -> HistogramObservation:
+        kw = {"exclusion_radius": params["exclusion_radius"], "seed": params["seed"]}
+        if not bootstrap:
+            return HistogramObservation(n_init=params["n_init"], **kw)
+        rr = inputs.reference_differences()
+        return HistogramObservation.bootstrap(rr, gap=_bootstrap_gap(params, len(rr)),
+                                              max_different=params["max_different"], **kw)
+
+    def sequence(default_window) -> SequenceObservation:
+        window = params.get("window") or default_window
+        matcher = {k: params[k] for k in _WINDOW_ADAPTIVE} if window == "adaptive" else {}
+        return SequenceObservation(window=window, matcher_params=matcher)
+
+    if model == "histogram":
+        return histogram(False)
+    if model == "histogram-bootstrap":
+        return histogram(True)
+    if model == "sequence":
+        return sequence(50)
+    if model == "adaptive":
+        return sequence("adaptive")
+    return CombinedObservation([histogram(True), sequence("adaptive")])
 
 
-def _filter(model: str):
-    """The CAT-Graph particle filter with observation model ``model``."""
+def _filter(params: dict, inputs: "MethodInputs") -> RunResult:
+    from .localizer import Localizer
 
-    def run(params, *, reference, query, differences, ground_truth, frontend=None, graph=None) -> RunResult:
-        from .compare import localize
-
-        _check_keys(params, _FILTER_KEYS, "particle-filter")
-        kwargs = {k: v for k, v in params.items() if v is not None}
-        if "confidence_radius" not in kwargs and "confidence_radius_m" not in kwargs and ground_truth is not None:
-            kwargs.update(confidence_from_ground_truth(ground_truth))
-        if graph is not None:  # a saved map's graph replaces the one built from the reference
-            kwargs.pop("junction_radius_m", None)
-        return localize(reference, query, model=model, differences=differences, frontend=frontend, graph=graph,
-                        **kwargs)
-
-    run.__doc__ = f"Particle filter with the {model!r} observation model."
-    return run
+    graph = inputs.graph()
+    obs = _observation_model(params, inputs)
+    keys = ("n_particles", "seed", "resampler", "ess_threshold", "redraw_fraction", "proposal", "new_place_prior",
+            "confidence_radius", "confidence_radius_m")
+    loc = Localizer(graph, obs, **{k: params[k] for k in keys if k in params})
+    odometry = inputs.query.odometry if params["use_odometry"] and graph.unit == "m" else None
+    start = time.perf_counter()
+    res = loc.run(inputs.differences, odometry=odometry, query_index=inputs.query.index, progress=inputs.progress)
+    seconds = time.perf_counter() - start
+    return RunResult(f"particle-filter/{params['model']}", dict(params), inputs.query.index, res.place, res.score,
+                     extra={"posterior_mass": res.confidence, "log_odds": res.log_odds,
+                            "p_new_place": res.new_place_probability, "ess": res.ess}, seconds=seconds)
 
 
-METHODS: dict[str, Callable[..., RunResult]] = {
-    "single-frame": _single_frame,
-    "sequence": _sequence,
-    "histogram": _histogram,
-    **{f"filter-{m}": _filter(m) for m in ("histogram", "histogram-bootstrap", "sequence", "adaptive", "combined")},
-}
+def _filter_not_applicable(params: dict) -> dict[str, str]:
+    model = params["model"]
+    out: dict[str, str] = {}
+    sequence_models = ("sequence", "adaptive", "combined")
+    histogram_models = ("histogram", "histogram-bootstrap", "combined")
+    if model not in sequence_models:
+        for k in ("window", *_WINDOW_ADAPTIVE):
+            out[k] = f"model {model!r} has no sequence matcher"
+    else:
+        if model == "adaptive":
+            out["window"] = "model 'adaptive' is the sequence model with the adaptive window; for a fixed window " \
+                            "use model 'sequence'"
+        window = params["window"] or (50 if model == "sequence" else "adaptive")
+        if window != "adaptive":
+            for k in _WINDOW_ADAPTIVE:
+                out[k] = "it sets the adaptive window, and this model's window is fixed"
+    if model not in histogram_models:
+        for k in ("n_init", "exclusion_radius"):
+            out[k] = f"model {model!r} has no histogram model"
+    if model != "histogram":
+        out.setdefault("n_init", "only the online histogram model has an initialisation stage")
+    if model not in ("histogram-bootstrap", "combined"):
+        for k in ("gap", "max_different"):
+            out[k] = f"model {model!r} is not bootstrapped from the map"
+    if params["confidence_radius_m"] is not None:
+        out["confidence_radius"] = "give one confidence radius: places or metres"
+    return out
 
 
-def run_method(name: str, params: dict, *, reference: Traverse, query: Traverse, differences: np.ndarray,
-               ground_truth: GroundTruth | None = None, frontend=None, graph=None) -> RunResult:
-    """Run method ``name`` with ``params``; see :data:`METHODS` for the names.
+def _filter_params() -> tuple[Param, ...]:
+    from .particles import RESAMPLERS
 
-    ``frontend`` (a :class:`~catgraph.pipeline.FrontEnd`) is needed by methods that
-    compare reference frames with each other (bootstrapped histograms, the filter);
-    ``graph`` (a :class:`~catgraph.graph.PlaceGraph`, e.g. from a saved map) replaces the
-    place graph the filter methods would build from the reference.
-    """
+    seq = {p.name: p for p in _sequence_params(None, window_optional=True)}
+    seq["window"] = Param("window", "window", None, "sequence models: window length in frames or 'adaptive' "
+                          "(default: 50 for model 'sequence', adaptive otherwise)", optional=True)
+    hist = {p.name: p for p in _histogram_params()}
+    return (
+        Param("model", "str", "histogram", "observation model", choices=FILTER_MODELS),
+        Param("n_particles", "int", 2000, "number of particles", low=1, high=10_000_000, flag="--particles"),
+        Param("seed", "int", 0, "seed of the filter", low=0),
+        Param("confidence_radius", "int", 2, "places either side of the answer counted in its confidence "
+              "(a parameter of the method, not of the evaluation)", low=0, high=1_000_000),
+        Param("confidence_radius_m", "float", None, "count posterior mass within METRES instead (needs positions)",
+              low=0.0, optional=True),
+        Param("use_odometry", "bool", True, "drive the motion model by the query's odometry where it has one"),
+        Param("resampler", "str", "systematic", "resampling scheme", choices=tuple(RESAMPLERS)),
+        Param("ess_threshold", "float", 0.5, "resample when ESS < this fraction of the particles", low=0.0, high=1.0),
+        Param("redraw_fraction", "float", 0.02, "fraction of particles re-drawn from the proposal each step",
+              low=0.0, high=0.99),
+        Param("proposal", "str", "best", "where re-drawn particles go", choices=_PROPOSALS),
+        Param("new_place_prior", "float", 0.05, "per-step probability of entering unmapped space", low=0.0, high=0.99),
+        *seq.values(),
+        hist["n_init"], hist["exclusion_radius"], hist["gap"], hist["max_different"],
+    )
+
+
+def _histogram_method_params() -> tuple[Param, ...]:
+    return (
+        Param("learning", "str", "online", "online (training-free), bootstrap (from the map) or trained (fitted on "
+              "the labelled query: an upper-bound baseline)", choices=_LEARNING),
+        *_histogram_params(),
+        Param("confidence_radius", "int", 2, "places either side of the answer counted in its confidence",
+              low=0, high=1_000_000),
+        Param("new_place_prior", "float", 0.01, "prior probability of a new place", low=0.0, high=0.99),
+        Param("seed", "int", 0, "seed of the ¬L samples", low=0),
+    )
+
+
+def _registry() -> dict[str, Method]:
+    return {m.name: m for m in (
+        Method("single-frame", "nearest reference place per frame", (_EXCLUSION,), _single_frame),
+        Method("sequence", "SeqSLAM sequence matching, fixed or adaptive window",
+               (*_sequence_params(50), _EXCLUSION), _sequence, _not_adaptive),
+        Method("histogram", "single-frame recognition with the histogram model P(d|L), P(d|¬L)",
+               _histogram_method_params(), _histogram, _histogram_not_applicable),
+        Method("filter", "CAT-Graph particle filter on the place graph", _filter_params(), _filter,
+               _filter_not_applicable),
+    )}
+
+
+class _Registry(Mapping):
+    """The methods by name (built on first use: declarations import the modules that own the choices)."""
+
+    _methods: dict[str, Method] | None = None
+
+    def _all(self) -> dict[str, Method]:
+        if self._methods is None:
+            type(self)._methods = _registry()
+        return self._methods
+
+    def __getitem__(self, name: str) -> Method:
+        return self._all()[name]
+
+    def __iter__(self):
+        return iter(self._all())
+
+    def __len__(self) -> int:
+        return len(self._all())
+
+
+#: Every method by name.
+METHODS: Mapping[str, Method] = _Registry()
+
+
+def get_method(name: str) -> Method:
+    """The method ``name``; :class:`InvalidParameterError` naming the known ones otherwise."""
     if name not in METHODS:
-        raise InvalidParameterError(f"unknown method {name!r}; choose one of {', '.join(sorted(METHODS))}.")
-    return METHODS[name](params, reference=reference, query=query, differences=differences,
-                         ground_truth=ground_truth, frontend=frontend, graph=graph)
+        import difflib
+
+        close = difflib.get_close_matches(str(name), list(METHODS), n=1, cutoff=0.5)
+        hint = f" did you mean {close[0]!r}?" if close else ""
+        raise InvalidParameterError(f"unknown method {name!r};{hint} choose one of {', '.join(METHODS)}.")
+    return METHODS[name]
+
+
+def resolve_params(name: str, params: Mapping[str, Any] | None) -> dict[str, Any]:
+    """All parameters of method ``name``, checked, with defaults (see :meth:`Method.resolve`)."""
+    return get_method(name).resolve(params)

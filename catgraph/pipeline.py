@@ -1,30 +1,30 @@
-"""From loaded traverses to evaluated runs: the path every command takes.
+"""Front-ends: from a traverse's frames to descriptors and a difference matrix.
 
 1. :func:`describe` turns a traverse's frames into descriptors with the front-end its
    kind calls for — images: the SeqSLAM pipeline (greyscale, resize, 4×4 patch
    normalisation) compared with SAD; Wi-Fi: strength-above-floor vectors, SAD;
    descriptor arrays: as given, cosine (boolean arrays: Hamming).
 2. :func:`differences` computes the query × reference difference matrix, normalised per
-   query (paper 1) unless asked otherwise.
-3. A method turns it into per-frame matches and confidences (:class:`RunResult`), which
-   :func:`ground_truth_for` and :mod:`catgraph.metrics` evaluate.
+   query (paper 1) unless asked otherwise — through a map built in memory
+   (:func:`catgraph.io.build_map`, :func:`catgraph.io.query_differences`), the one
+   path a saved map takes too.
+
+Running a method on the result is :mod:`catgraph.experiment`'s job.
 """
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from .differences import difference_matrix
-from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
+from .differences import METRICS
+from .exceptions import InvalidParameterError
 from .frontends import seqslam_preprocess, wifi_vectors
-from .matching import best_matches
-from .results import RunResult
-from .traverse import FrameTolerance, GroundTruth, MetricTolerance, Traverse
+from .traverse import Traverse
 
-__all__ = ["FrontEnd", "describe", "differences", "ground_truth_for", "match_single_frames"]
+__all__ = ["FrontEnd", "describe", "differences", "METRICS"]
 
 
 @dataclass(frozen=True)
@@ -48,6 +48,37 @@ class FrontEnd:
     patch: int = 4
     metric: str | None = None
     normalise: bool = True
+
+    def __post_init__(self) -> None:
+        if self.size is not None:
+            size = tuple(self.size)
+            if len(size) != 2 or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and 0 < v <= 100_000
+                                         for v in size):
+                raise InvalidParameterError(f"the front-end size must be (width, height) in pixels, each in "
+                                            f"[1, 100000]; got {self.size!r}.")
+            object.__setattr__(self, "size", (int(size[0]), int(size[1])))
+        if isinstance(self.patch, bool) or not isinstance(self.patch, (int, np.integer)) or not 0 <= self.patch <= 10_000:
+            raise InvalidParameterError(f"the patch side must be an int in [0, 10000] pixels (0 = off); got {self.patch!r}.")
+        if self.metric is not None and self.metric not in METRICS:
+            raise InvalidParameterError(f"unknown metric {self.metric!r}; choose one of {', '.join(METRICS)}.")
+        if not isinstance(self.normalise, (bool, np.bool_)):
+            raise InvalidParameterError(f"normalise must be true or false; got {self.normalise!r}.")
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any] | None) -> "FrontEnd":
+        """From :meth:`as_dict`'s form (``None`` or ``{}``: the defaults)."""
+        values = dict(values or {})
+        unknown = sorted(set(values) - {"size", "patch", "metric", "normalise"})
+        if unknown:
+            raise InvalidParameterError(f"unknown front-end options {unknown}; allowed: size, patch, metric, normalise.")
+        if isinstance(values.get("size"), str):
+            try:
+                w, h = values["size"].lower().split("x")
+                values["size"] = (int(w), int(h))
+            except ValueError:
+                raise InvalidParameterError(f"write the size as WIDTHxHEIGHT, e.g. 32x16; got {values['size']!r}.") from None
+        values = {k: v for k, v in values.items() if v is not None or k in ("size", "metric")}
+        return cls(**values)
 
     def as_dict(self) -> dict:
         return {"size": list(self.size) if self.size else None, "patch": self.patch, "metric": self.metric,
@@ -77,38 +108,6 @@ def describe(traverse: Traverse, frontend: FrontEnd = FrontEnd()) -> tuple[np.nd
 
 def differences(reference: Traverse, query: Traverse, frontend: FrontEnd = FrontEnd()) -> np.ndarray:
     """The ``(n_query, n_reference)`` difference matrix, in the query's processing order."""
-    kinds = (_kind(reference), _kind(query))
-    if kinds[0] != kinds[1]:
-        raise DataError(f"the reference holds {kinds[0]} but the query holds {kinds[1]}; compare like with like.")
-    r, metric = describe(reference, frontend)
-    q, _ = describe(query, frontend)
-    if r.shape[1] != q.shape[1]:
-        raise ShapeMismatchError(
-            f"reference frames give {r.shape[1]} values per descriptor but query frames give {q.shape[1]}; "
-            "use the same image size (or --size WxH) and the same access-point list for both."
-        )
-    return difference_matrix(q, r, metric, normalise=frontend.normalise)
+    from .io import build_map, query_differences
 
-
-def ground_truth_for(reference: Traverse, query: Traverse, tolerance: int | None = None,
-                     tolerance_m: float | None = None) -> GroundTruth:
-    """Frame-index ground truth (``tolerance``) or metric ground truth (``tolerance_m``)."""
-    if (tolerance is None) == (tolerance_m is None):
-        raise InvalidParameterError(
-            "give exactly one ground truth: a frame tolerance (--tolerance FRAMES, same index = same place) "
-            "or a metric one (--tolerance-m METRES, needs positions in both traverses)."
-        )
-    if tolerance_m is not None:
-        return MetricTolerance.between(query, reference, tolerance_m)
-    return FrameTolerance(len(reference), tolerance)
-
-
-def match_single_frames(diff: np.ndarray, query_index: np.ndarray, exclusion: int = 10) -> RunResult:
-    """Single-frame matching: the nearest reference place per query frame.
-
-    Confidence is the margin to the best place outside ``± exclusion`` of the match.
-    """
-    start = time.perf_counter()
-    match, confidence = best_matches(diff, exclusion=exclusion)
-    return RunResult("single-frame", {"window": 1, "exclusion": exclusion}, np.asarray(query_index), match,
-                     confidence, seconds=time.perf_counter() - start)
+    return query_differences(build_map(reference, frontend, graph=False), query)

@@ -295,16 +295,16 @@ def test_log_odds_agree_with_confidence_and_keep_ranking_at_saturation():
 
 
 def test_returned_posterior_is_the_mass_behind_each_estimate():
-    from catgraph.compare import build_model
     from catgraph.datasets import make_world
     from catgraph.graph import PlaceGraph
     from catgraph.localizer import Localizer
+    from catgraph.observation import HistogramObservation
     from catgraph.pipeline import differences
 
     world = make_world(seed=4)
     d = differences(world.reference, world.query)[:120]
     graph = PlaceGraph.from_traverse(world.reference)
-    loc = Localizer(graph, build_model("histogram", world.reference), n_particles=300, seed=1)
+    loc = Localizer(graph, HistogramObservation(), n_particles=300, seed=1)
     res = loc.run(d, return_posterior=True)
     assert res.posterior.shape == (120, graph.n_places)
     np.testing.assert_allclose(res.posterior.sum(axis=1), 1.0 - res.new_place_probability, atol=1e-4)

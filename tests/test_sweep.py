@@ -135,7 +135,7 @@ def test_bench_command_end_to_end(tiny_config, tmp_path, capsys):
     names = sorted(p.name for p in out.glob("*.json") if p.name != "summary.json")
     assert len(names) == 9 and "a__sf__exclusion=1__shuffle=0.json" in names
     payload = json.loads((out / "a__sf__exclusion=1__shuffle=0.json").read_text())
-    assert payload["name"] == "a/sf/exclusion=1/shuffle=0" and payload["spec"]["shuffle"] == 0
+    assert payload["name"] == "a/sf/exclusion=1/shuffle=0" and payload["spec"]["condition"]["seed"] == 0
     assert set(payload["metrics"]) >= {"auc", "mtl", "accuracy"}
     summary = (out / "summary.md").read_text()
     assert "a/sf/exclusion=4/in-order" in summary and "AUC" in summary

@@ -60,6 +60,7 @@ def _summary_markdown(config, payloads: list[dict], failed: list[dict]) -> str:
 
 
 def cmd_bench(args) -> int:
+    from ..conditions import Condition
     from ..config import load_config, run_file_name
     from ..exceptions import CatgraphError, InvalidParameterError
     from ..results import write_json_atomic
@@ -69,8 +70,9 @@ def cmd_bench(args) -> int:
     config = load_config(args.config)
     if args.list:
         for spec in config.specs:
-            shuffle = "" if spec["shuffle"] is None else f" shuffle={spec['shuffle']}"
-            print(f"{spec['name']}: {spec['method']} {spec['params']}{shuffle}")
+            condition = spec.get("condition") or {"kind": "in-order"}
+            where = "" if condition["kind"] == "in-order" else f" {Condition.from_dict(condition).label}"
+            print(f"{spec['name']}: {spec['method']} {spec['params']}{where}")
         print(f"{len(config.specs)} runs")
         return 0
     if args.processes is not None and args.processes < 1:

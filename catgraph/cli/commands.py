@@ -1,4 +1,12 @@
-"""Sub-commands. Each ``register_*`` adds a parser; each ``cmd_*`` runs one."""
+"""Sub-commands. Each ``register_*`` adds a parser; each ``cmd_*`` runs one.
+
+The evaluating commands (``match``, ``localize``, ``compare``) only translate their
+options into a :class:`catgraph.experiment.Experiment` and call the experiment layer.
+Method options are generated from the method registry (:mod:`catgraph.methods`): their
+names, types, ranges, choices and help exist there once. An option is passed on only
+when the user gives it, so an option that does not apply to the chosen method is an
+error, never silently ignored.
+"""
 
 from __future__ import annotations
 
@@ -28,124 +36,233 @@ def load_command_modules() -> None:
         importlib.import_module(f"{__package__}.{name}")
 
 
+# ---------------------------------------------------------------------------- option types
 def _size(text: str) -> tuple[int, int]:
     try:
         w, h = text.lower().split("x")
-        return int(w), int(h)
+        size = int(w), int(h)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 32x16, got {text!r}") from None
+    if not all(0 < v <= 100_000 for v in size):
+        raise argparse.ArgumentTypeError(f"width and height must be in [1, 100000] pixels, got {text!r}")
+    return size
 
 
 def _window(text: str):
     if text == "adaptive":
         return text
     try:
-        value = int(text)
+        return int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number of frames or 'adaptive', got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"the window must be at least 1 frame, got {value}")
-    return value
 
 
-def add_common_inputs(p: argparse.ArgumentParser) -> None:
+def _grid(text: str):
+    if text in ("geometric", "all"):
+        return text
+    try:
+        values = [int(v) for v in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected 'geometric', 'all', a count or a list such as 10,20,50; "
+                                         f"got {text!r}") from None
+    return values[0] if len(values) == 1 else values
+
+
+def _number(kind):
+    def parse(text: str):
+        try:
+            return kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {'an integer' if kind is int else 'a number'}, "
+                                             f"got {text!r}") from None
+
+    parse.__name__ = kind.__name__
+    return parse
+
+
+def _segment_range(text: str) -> tuple[float, float]:
+    try:
+        lo, hi = (float(v) for v in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected MIN:MAX fractions of the query such as 0.02:0.2, got {text!r}") \
+            from None
+    return lo, hi
+
+
+_TYPES = {"int": _number(int), "float": _number(float), "window": _window, "grid": _grid}
+
+
+def add_method_options(p: argparse.ArgumentParser, methods: tuple[str, ...], skip: tuple[str, ...] = ()) -> None:
+    """One option per parameter of ``methods`` (each once), from the registry's declarations."""
+    from ..methods import METHODS
+
+    group = p.add_argument_group("method options")
+    seen = set(skip)
+    for method in methods:
+        for param in METHODS[method].params:
+            if param.name in seen:
+                continue
+            seen.add(param.name)
+            help_text = param.help + ("" if param.default is None else f" (default {param.default})")
+            kwargs = {"dest": f"param_{param.name}", "default": argparse.SUPPRESS, "help": help_text}
+            if param.kind == "bool":
+                group.add_argument(param.option, action=argparse.BooleanOptionalAction, **kwargs)
+                continue
+            if param.choices:
+                kwargs["choices"] = param.choices
+            else:
+                kwargs["type"] = _TYPES.get(param.kind, str)
+                kwargs["metavar"] = param.name.upper()
+            group.add_argument(param.option, **kwargs)
+
+
+def method_params(args, method: str) -> dict:
+    """The method options the user gave, checked against ``method``'s declarations."""
+    from ..methods import METHODS
+
+    m = METHODS[method]
+    known = {p.name: p for p in m.params}
+    out = {}
+    for key, value in vars(args).items():
+        if not key.startswith("param_"):
+            continue
+        name = key[len("param_"):]
+        if name not in known:
+            flag = _flag_of(name)
+            raise InvalidParameterError(f"{flag} does not apply to {_method_words(method)}.")
+        out[name] = known[name].check(value, method, label=known[name].option)
+    return out
+
+
+def _flag_of(name: str) -> str:
+    from ..methods import METHODS
+
+    for m in METHODS.values():
+        for p in m.params:
+            if p.name == name:
+                return p.option
+    return "--" + name.replace("_", "-")
+
+
+def _method_words(method: str) -> str:
+    return {"single-frame": "single-frame matching (--window 1)", "sequence": "sequence matching",
+            "histogram": "the histogram model (--model histogram)", "filter": "the particle filter"}.get(method, method)
+
+
+# ---------------------------------------------------------------------------- inputs
+_USAGE = "%(prog)s [options] REFERENCE QUERY\n       %(prog)s [options] --map MAP QUERY"
+
+
+def add_common_inputs(p: argparse.ArgumentParser, graph_options: bool = False) -> None:
+    """Inputs, ground truth, traversal condition, front-end and output options."""
+    from ..differences import METRICS
+
     p.add_argument("inputs", nargs="+", metavar="REFERENCE QUERY",
                    help="reference and query traverses: image folders, UJI prefixes (db/01/trn01), .npy/.npz "
                         "files or synthetic:SEED; with --map, only QUERY")
     p.add_argument("--map", type=Path, metavar="MAP", help="a saved map (catgraph build-map) as the reference")
-    gt = p.add_mutually_exclusive_group()
-    gt.add_argument("--tolerance", type=int, metavar="FRAMES", help="ground truth: same index ± FRAMES")
-    gt.add_argument("--tolerance-m", type=float, metavar="METRES", help="ground truth: positions within METRES")
-    p.add_argument("--shuffle", type=int, metavar="SEED", help="shuffle the query in segments of 2–20%% (seeded)")
-    p.add_argument("--size", type=_size, metavar="WxH", help="resize images to WxH before patch normalisation")
-    p.add_argument("--patch", type=int, default=4, help="patch-normalisation patch side in pixels (0 = off)")
-    p.add_argument("--metric", choices=["sad", "ssd", "cosine", "hamming"], help="difference metric")
+    gt = p.add_argument_group("ground truth (optional: without it, frames are written and metrics are null)")
+    one = gt.add_mutually_exclusive_group()
+    one.add_argument("--tolerance", type=_number(int), metavar="FRAMES", help="same index ± FRAMES is the same place")
+    one.add_argument("--tolerance-m", type=_number(float), metavar="METRES",
+                     help="positions within METRES (and the same floor) are the same place")
+    one.add_argument("--ground-truth", type=Path, metavar="FILE",
+                     help="a CSV of query,reference index pairs, or a .npy/.npz (n_query, n_reference) matrix")
+    cond = p.add_argument_group("traversal condition of the query")
+    how = cond.add_mutually_exclusive_group()
+    how.add_argument("--shuffle", type=_number(int), metavar="SEED",
+                     help="cut the query into segments and reorder them at random (seeded)")
+    how.add_argument("--reverse", action="store_true", help="drive the query backwards")
+    how.add_argument("--speed", type=_number(float), metavar="FACTOR",
+                     help="FACTOR times the recorded speed: 2 keeps every second frame, 0.5 shows each twice")
+    cond.add_argument("--segment-range", type=_segment_range, metavar="MIN:MAX",
+                      help="--shuffle segment lengths as fractions of the query (default 0.02:0.2)")
+    fe = p.add_argument_group("front-end (when the map is built from REFERENCE)")
+    fe.add_argument("--size", type=_size, metavar="WxH", help="resize images to WxH before patch normalisation")
+    fe.add_argument("--patch", type=_number(int), metavar="PIXELS",
+                    help="patch-normalisation patch side in pixels (0 = off; default 4)")
+    fe.add_argument("--metric", choices=METRICS, help="difference metric (default: by data kind)")
+    if graph_options:
+        fe.add_argument("--junction-radius-m", type=_number(float), metavar="METRES",
+                        help="join places of different parts of the route within METRES (needs positions)")
     p.add_argument("--output", "-o", type=Path, metavar="FILE", help="write the result JSON here")
-    p.add_argument("--quiet", "-q", action="store_true", help="no progress bars or tables")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress bars or messages (the table is printed)")
 
 
-class Inputs:
-    """Loaded inputs of an evaluating command."""
+def condition_from(args):
+    from ..conditions import Condition
 
-    def __init__(self, reference, query, ground_truth, differences, frontend, graph=None, sources=None):
-        self.reference, self.query, self.ground_truth = reference, query, ground_truth
-        self.differences, self.frontend, self.graph, self.sources = differences, frontend, graph, sources or {}
+    if args.segment_range is not None and args.shuffle is None:
+        raise InvalidParameterError("--segment-range sets the shuffle's segments; add --shuffle SEED.")
+    if args.shuffle is not None:
+        return Condition("shuffle", seed=args.shuffle, segment_range=args.segment_range or (0.02, 0.20))
+    if args.reverse:
+        return Condition("reverse")
+    if args.speed is not None:
+        return Condition("speed", factor=args.speed)
+    return Condition()
 
 
-def load_inputs(args) -> Inputs:
-    """Load reference (or map) and query, shuffle the query if asked, build ground truth and differences."""
-    from ..experiment import default_tolerance_m, load_input
-    from ..pipeline import differences, ground_truth_for
-    from ..traverse import shuffle_segments
+def experiment_from(args, method: str, params: dict):
+    """The :class:`~catgraph.experiment.Experiment` the options describe."""
+    from ..experiment import Experiment
 
     expected = 1 if args.map is not None else 2
     if len(args.inputs) != expected:
         raise InvalidParameterError(
-            "give QUERY only when --map is used" if args.map is not None else
+            f"with --map give only QUERY (got {len(args.inputs)} paths)." if args.map is not None else
             f"give REFERENCE and QUERY (got {len(args.inputs)} path{'s' if len(args.inputs) != 1 else ''})."
         )
-    if args.tolerance is not None and args.tolerance < 0:
-        raise InvalidParameterError(f"--tolerance must be ≥ 0 frames; got {args.tolerance}.")
-    if args.tolerance_m is not None and args.tolerance_m < 0:
-        raise InvalidParameterError(f"--tolerance-m must be ≥ 0 metres; got {args.tolerance_m}.")
-    query_source = args.inputs[-1]
-    tolerance_m = args.tolerance_m
-    if args.tolerance is None and tolerance_m is None:
-        tolerance_m = default_tolerance_m(query_source)
-    if args.tolerance is None and tolerance_m is None:
-        raise InvalidParameterError(
-            "no ground truth given: add --tolerance FRAMES (same index = same place) "
-            "or --tolerance-m METRES (for data with positions)."
-        )
-    query = load_input(query_source, "query")
-    graph = None
-    if args.map is not None:
-        from ..io import load_map, query_differences, reference_from_map
+    frontend = {k: getattr(args, k) for k in ("size", "patch", "metric") if getattr(args, k) is not None}
+    if args.map is not None and frontend:
+        flags = ", ".join(f"--{k}" for k in frontend)
+        raise InvalidParameterError(f"{flags} do{'es' if len(frontend) == 1 else ''} not apply to a saved map: its "
+                                    "front-end is fixed when it is built (catgraph build-map).")
+    junction = getattr(args, "junction_radius_m", None)
+    if args.map is not None and junction is not None:
+        raise InvalidParameterError("--junction-radius-m does not apply to a saved map: its place graph is fixed when "
+                                    "it is built (catgraph build-map --junction-radius-m).")
+    if args.output is not None:
+        from .._atomic import check_writable
 
-        saved = load_map(args.map)
-        reference, frontend, graph = reference_from_map(saved), saved.frontend_settings(), saved.graph
-        ground_truth = ground_truth_for(reference, query, args.tolerance, tolerance_m)
-        if args.shuffle is not None:
-            query = shuffle_segments(query, seed=args.shuffle)
-        diff = query_differences(saved, query)
-        sources = {"map": str(args.map), "query": str(query_source)}
-    else:
-        reference = load_input(args.inputs[0], "reference")
-        frontend = frontend_from(args)
-        ground_truth = ground_truth_for(reference, query, args.tolerance, tolerance_m)
-        if args.shuffle is not None:
-            query = shuffle_segments(query, seed=args.shuffle)
-        diff = differences(reference, query, frontend)
-        sources = {"reference": str(args.inputs[0]), "query": str(query_source)}
-    return Inputs(reference, query, ground_truth, diff, frontend, graph, sources)
+        check_writable(args.output, "output file")
+    return Experiment(query=args.inputs[-1], method=method, params=params,
+                      reference=None if args.map is not None else args.inputs[0], map=args.map,
+                      tolerance=args.tolerance, tolerance_m=args.tolerance_m, ground_truth=args.ground_truth,
+                      condition=condition_from(args), frontend=frontend or None, junction_radius_m=junction)
 
 
-def frontend_from(args):
-    from ..pipeline import FrontEnd
-
-    return FrontEnd(size=args.size, patch=args.patch, metric=args.metric)
-
-
-def run_params(args, inputs: "Inputs") -> dict:
-    """The parameters every result file records about its inputs."""
-    return {**inputs.sources, "shuffle": args.shuffle, "frontend": inputs.frontend.as_dict(),
-            "ground_truth": inputs.ground_truth.describe()}
+def progress_enabled(args) -> bool:
+    """Progress bars only for a person watching: not with --quiet, not into a log file."""
+    return not args.quiet and sys.stderr.isatty()
 
 
-def finish(args, result, ground_truth, extra_params=None) -> int:
-    """Evaluate, print the metrics table, write the JSON."""
+def run_and_report(args, exp) -> int:
+    """Run one experiment, print its table, write its JSON."""
+    from ..experiment import payload, prepare, run_method
     from ..results import write_json_atomic
 
-    evaluation = result.evaluate(ground_truth)
-    result.params.update(extra_params or {})
-    payload = result.to_dict(evaluation)
+    prepared = prepare(exp)
+    result = run_method(exp.method, exp.params, prepared, progress=progress_enabled(args))
+    out, evaluation = payload(result, prepared, exp)
     if args.output is not None:
-        write_json_atomic(args.output, payload)
-    if not args.quiet:
-        print_metrics_table([(result.method, evaluation.metrics.as_dict(), result.seconds)])
-        if args.output is not None:
-            print(f"wrote {args.output}")
+        write_json_atomic(args.output, out)
+    print_results([(result.method, out["metrics"], result.seconds)], per_frame=len(prepared.query))
+    if args.output is not None and not args.quiet:
+        print(f"wrote {args.output}")
     return 0
+
+
+def print_results(rows, per_frame: int | None = None) -> None:
+    """rows: (name, metrics dict or None, seconds) → an aligned table on stdout; runs without
+    ground truth show their time only."""
+    if all(m is None for _, m, _ in rows):
+        for name, _, seconds in rows:
+            rate = f"{1000 * seconds / per_frame:.2f} ms/frame" if per_frame and seconds == seconds else ""
+            print(f"{name}: {per_frame} frames localised, no ground truth given (no metrics) {rate}".rstrip())
+        sys.stdout.flush()
+        return
+    print_metrics_table([(n, m, s) for n, m, s in rows if m is not None], per_frame=per_frame)
 
 
 def print_metrics_table(rows, per_frame: int | None = None) -> None:
@@ -167,131 +284,91 @@ def print_metrics_table(rows, per_frame: int | None = None) -> None:
     sys.stdout.flush()
 
 
+# ---------------------------------------------------------------------------- match
 @register
 def register_match(sub) -> None:
-    p = sub.add_parser("match", help="match every query frame to the reference (single frame or sequences)",
-                       description="Match each query frame to a reference place and evaluate the result.")
+    p = sub.add_parser("match", help="match every query frame to the reference (single frame, sequences, histogram)",
+                       usage=_USAGE,
+                       description="Match each query frame to a reference place; evaluate where ground truth is "
+                                   "given. --window 1 (default): single frame; --window N or adaptive: sequences; "
+                                   "--model histogram: the P(d|L), P(d|¬L) model.")
     add_common_inputs(p)
-    p.add_argument("--window", type=_window, default=1, help="sequence length in frames, or 'adaptive' (default 1)")
-    p.add_argument("--approximation", choices=["gaussian", "robust", "gmm2", "gmm3"], default="gaussian",
-                   help="adaptive window: approximation of the score distribution (default gaussian)")
-    p.add_argument("--rule", choices=["sustained", "consistent", "literal"], default="sustained",
-                   help="adaptive window: 'literal' = the paper's argmin p(L); 'consistent' = argmin p(L) among "
-                        "windows whose hypothesis also holds over their recent frames; 'sustained' (default) = "
-                        "the longest such window at least half as significant as the best")
-    p.add_argument("--l-min", type=int, default=10, help="adaptive window: shortest window (default 10)")
-    p.add_argument("--l-max", type=int, default=500, help="adaptive window: longest window (default 500)")
-    p.add_argument("--model", choices=["sequence", "histogram"], default="sequence",
+    p.add_argument("--model", choices=("sequence", "histogram"), default="sequence",
                    help="'sequence' (SeqSLAM; --window 1 = single frame) or 'histogram' (P(d|L), P(d|¬L) model)")
-    p.add_argument("--learning", choices=["online", "trained", "bootstrap"], default="online",
-                   help="histogram model: online (training-free), trained (fit on the labelled query: an "
-                        "upper-bound baseline) or bootstrap (from the reference map)")
-    p.add_argument("--init-frames", type=int, default=100, help="histogram model, online: T_init (default 100)")
-    p.add_argument("--same-place-m", type=float, metavar="METRES",
-                   help="histogram model: reference places within METRES count as the same place (needs "
-                        "positions; default: ± a few places along the route)")
-    p.add_argument("--exclusion", type=int, default=10,
-                   help="confidence = margin to the best match outside ± this many places (default 10)")
+    add_method_options(p, ("sequence", "single-frame", "histogram"))
     p.set_defaults(func=cmd_match)
 
 
 def cmd_match(args) -> int:
-    from ..methods import run_method
-    from ..pipeline import match_single_frames
-
-    inputs = load_inputs(args)
-    common = {"reference": inputs.reference, "query": inputs.query, "differences": inputs.differences,
-              "frontend": inputs.frontend}
+    given = {k[len("param_"):]: v for k, v in vars(args).items() if k.startswith("param_")}
     if args.model == "histogram":
-        params = {"learning": args.learning, "n_init": args.init_frames}
-        if args.same_place_m is not None:
-            params.update(confidence_distance=args.same_place_m, exclusion_distance=args.same_place_m)
-        result = run_method("histogram", params, ground_truth=inputs.ground_truth, **common)
-    elif args.window == 1:
-        result = match_single_frames(inputs.differences, inputs.query.index, exclusion=args.exclusion)
+        method = "histogram"
     else:
-        params = {"window": args.window, "radius": args.exclusion}
-        if args.window == "adaptive":
-            params.update(approximation=args.approximation, rule=args.rule, l_min=args.l_min, l_max=args.l_max)
-        result = run_method("sequence", params, **common)
-    return finish(args, result, inputs.ground_truth, run_params(args, inputs))
+        method = "single-frame" if given.get("window", 1) == 1 else "sequence"
+        if method == "single-frame":
+            vars(args).pop("param_window", None)
+    return run_and_report(args, experiment_from(args, method, method_params(args, method)))
 
 
-# observation models of the particle filter (catgraph.compare.MODEL_NAMES)
-FILTER_MODELS = ("histogram", "histogram-bootstrap", "sequence", "adaptive", "combined")
-
-
-def add_filter_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--particles", type=int, default=2000, help="number of particles (default 2000)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the filter (default 0)")
-    p.add_argument("--window", type=int, default=50, help="window of the fixed sequence model (default 50)")
-    p.add_argument("--junction-radius-m", type=float, metavar="METRES",
-                   help="join places of different parts of the route within METRES (needs positions)")
-
-
+# ---------------------------------------------------------------------------- localize
 @register
 def register_localize(sub) -> None:
-    p = sub.add_parser("localize", help="localise the query with the CAT-Graph particle filter",
-                       description="Run the particle filter on a place graph built from the reference (or a saved "
-                                   "map) with the chosen observation model, and evaluate it.")
-    add_common_inputs(p)
-    p.add_argument("--model", choices=FILTER_MODELS, default="histogram",
-                   help="observation model (default histogram: online, training-free)")
-    add_filter_options(p)
+    p = sub.add_parser("localize", help="localise the query with the CAT-Graph particle filter", usage=_USAGE,
+                       description="Run the particle filter on the place graph of the reference (or a saved map) "
+                                   "with the chosen observation model; evaluate where ground truth is given.")
+    add_common_inputs(p, graph_options=True)
+    add_method_options(p, ("filter",))
     p.set_defaults(func=cmd_localize)
 
 
 def cmd_localize(args) -> int:
-    from ..compare import localize
+    return run_and_report(args, experiment_from(args, "filter", method_params(args, "filter")))
 
-    if args.particles < 1:
-        raise InvalidParameterError(f"--particles must be ≥ 1; got {args.particles}.")
-    inputs = load_inputs(args)
-    from ..methods import confidence_from_ground_truth
 
-    result = localize(inputs.reference, inputs.query, model=args.model, n_particles=args.particles,
-                      seed=args.seed, window=args.window, graph=inputs.graph,
-                      junction_radius_m=args.junction_radius_m, differences=inputs.differences,
-                      frontend=inputs.frontend, progress=not args.quiet,
-                      **confidence_from_ground_truth(inputs.ground_truth))
-    return finish(args, result, inputs.ground_truth, run_params(args, inputs))
+# ---------------------------------------------------------------------------- compare
+_COMPARE_FILTER = ("n_particles", "seed", "confidence_radius", "confidence_radius_m", "use_odometry", "resampler",
+                   "ess_threshold", "redraw_fraction", "proposal", "new_place_prior")
 
 
 @register
 def register_compare(sub) -> None:
-    p = sub.add_parser("compare", help="run every observation model on the same input and print one table",
-                       description="Run the standalone sequence matchers and the particle filter with every "
-                                   "observation model on one reference/query pair; print one table.")
-    add_common_inputs(p)
-    add_filter_options(p)
+    p = sub.add_parser("compare", help="run every method and observation model on the same input; print one table",
+                       usage=_USAGE,
+                       description="Run single-frame matching, a fixed and the adaptive sequence matcher, the "
+                                   "histogram recogniser and the particle filter with every observation model on one "
+                                   "reference/query pair and one difference matrix; print one table.")
+    add_common_inputs(p, graph_options=True)
+    p.add_argument("--window", type=_number(int), default=50, metavar="FRAMES",
+                   help="the fixed window of the matcher and of the filter's sequence model (default 50)")
+    from ..methods import METHODS
+
+    skip = tuple(p.name for p in METHODS["filter"].params if p.name not in _COMPARE_FILTER)
+    add_method_options(p, ("filter",), skip=skip)
     p.set_defaults(func=cmd_compare)
 
 
 def cmd_compare(args) -> int:
-    from ..methods import run_method
+    from ..compare import compare_plan
+    from ..experiment import payload, prepare, run_method
     from ..results import write_json_atomic
 
-    inputs = load_inputs(args)
-    common = {"reference": inputs.reference, "query": inputs.query, "differences": inputs.differences,
-              "frontend": inputs.frontend, "ground_truth": inputs.ground_truth}
-    filter_params = {"n_particles": args.particles, "seed": args.seed, "window": args.window,
-                     "junction_radius_m": args.junction_radius_m}
-    plan = [("single-frame", {}), ("sequence", {"window": args.window}), ("sequence", {"window": "adaptive"}),
-            ("histogram", {"learning": "online"})]
-    plan += [(f"filter-{m}", dict(filter_params)) for m in FILTER_MODELS]
+    if args.window < 1:
+        raise InvalidParameterError(f"--window must be ≥ 1 frame; got {args.window}.")
+    filter_params = method_params(args, "filter")
+    exp = experiment_from(args, "single-frame", {})
+    prepared = prepare(exp)
     rows, payloads = [], []
-    for name, params in progress_iter(plan, args.quiet, "methods"):
-        result = run_method(name, params, graph=inputs.graph, **common)
-        result.params.update(run_params(args, inputs))
-        evaluation = result.evaluate(inputs.ground_truth)
-        payloads.append(result.to_dict(evaluation))
-        rows.append((result.method, evaluation.metrics.as_dict(), result.seconds))
-    if not args.quiet:
-        print_metrics_table(rows, per_frame=len(inputs.query))
+    for name, params in progress_iter(compare_plan(args.window, filter_params), not progress_enabled(args),
+                                      "methods"):
+        result = run_method(name, params, prepared)
+        out, _ = payload(result, prepared)
+        payloads.append(out)
+        rows.append((result.method, out["metrics"], result.seconds))
     if args.output is not None:
         write_json_atomic(args.output, {"runs": payloads})
-        if not args.quiet:
-            print(f"wrote {args.output}")
+    print_results(rows, per_frame=len(prepared.query))
+    if args.output is not None and not args.quiet:
+        print(f"wrote {args.output}")
     return 0
 
 
@@ -307,6 +384,7 @@ def progress_iter(items, quiet: bool, desc: str):
         yield item
 
 
+# ---------------------------------------------------------------------------- demo
 @register
 def register_demo(sub) -> None:
     p = sub.add_parser("demo", help="run everything on the built-in synthetic world and write a report",
@@ -314,20 +392,24 @@ def register_demo(sub) -> None:
                                    "map with single-frame matching, the adaptive sequence matcher and the particle "
                                    "filter; print a table and write an HTML report.")
     p.add_argument("--out", type=Path, default=Path("catgraph-demo"), help="report folder (default catgraph-demo/)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the world and the filter (default 0)")
-    p.add_argument("--particles", type=int, default=2000, help="particles in the filter (default 2000)")
-    p.add_argument("--quiet", "-q", action="store_true", help="print nothing but errors")
+    p.add_argument("--seed", type=_number(int), default=0, help="seed of the world and the filter (default 0)")
+    p.add_argument("--particles", type=_number(int), default=2000, help="particles in the filter (default 2000)")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress messages (the table is printed)")
     p.set_defaults(func=cmd_demo)
 
 
 def cmd_demo(args) -> int:
     from ..demo import run_demo
+    from ..methods import METHODS
 
-    if args.seed < 0:
-        raise InvalidParameterError(f"--seed must be ≥ 0; got {args.seed}.")
+    METHODS["filter"].param("seed").check(args.seed, "demo", label="--seed")
+    METHODS["filter"].param("n_particles").check(args.particles, "demo", label="--particles")
+    if args.out.exists() and not args.out.is_dir():
+        raise InvalidParameterError(f"--out {args.out} is a file; give a folder (it is created if missing).")
     log = (lambda *a: None) if args.quiet else print
-    report, payloads = run_demo(args.out, seed=args.seed, n_particles=args.particles, progress=not args.quiet, log=log)
+    report, payloads = run_demo(args.out, seed=args.seed, n_particles=args.particles,
+                                progress=progress_enabled(args), log=log)
+    print_metrics_table([(p["method"], p["metrics"], p.get("seconds", float("nan"))) for p in payloads])
     if not args.quiet:
-        print_metrics_table([(p["method"], p["metrics"], p.get("seconds", float("nan"))) for p in payloads])
         print(f"report: {report}")
     return 0

@@ -3,7 +3,8 @@
 Each sub-command is a thin function that parses its options, calls the public API and
 prints or writes the result. :func:`main` is the only place that catches errors: a
 :class:`~catgraph.exceptions.CatgraphError` (a user's mistake: a missing folder, a bad
-value) becomes one line on stderr and exit code 1 — never a traceback.
+value) or a command line argparse cannot read becomes one line on stderr and exit code
+1 — never a traceback or a usage block.
 """
 
 from __future__ import annotations
@@ -18,8 +19,18 @@ from . import commands
 __all__ = ["main", "build_parser"]
 
 
+class _UsageError(Exception):
+    """A command line argparse cannot read (reported as one line, exit code 1)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # argparse would print the usage block and exit 2
+        raise _UsageError(f"{self.prog.split()[-1] if ' ' in self.prog else ''}: {message}".lstrip(": ")
+                          + f" (see {self.prog} --help)")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="catgraph",
         description="Probabilistic, appearance-based localisation along known routes.",
     )
@@ -37,7 +48,11 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the exit code."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except _UsageError as exc:
+        print(f"catgraph: error: {exc}", file=sys.stderr)
+        return 1
     try:
         return int(args.func(args) or 0)
     except CatgraphError as exc:

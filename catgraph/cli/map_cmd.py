@@ -13,11 +13,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .commands import _size, register
+from .commands import _number, _size, register
 
 
 @register
 def register_build_map(sub) -> None:
+    from ..differences import METRICS
+
     p = sub.add_parser("build-map", help="describe a reference traverse once and save it as a map file (.npz)",
                        description="Describe a reference traverse with the front-end, build its place graph and "
                                    "save everything as one checksummed .npz map file.")
@@ -25,9 +27,9 @@ def register_build_map(sub) -> None:
                                      "or synthetic:SEED")
     p.add_argument("--out", "-o", type=Path, required=True, metavar="FILE", help="map file to write (map.npz)")
     p.add_argument("--size", type=_size, metavar="WxH", help="resize images to WxH before patch normalisation")
-    p.add_argument("--patch", type=int, default=4, help="patch-normalisation patch side in pixels (0 = off)")
-    p.add_argument("--metric", choices=["sad", "ssd", "cosine", "hamming"], help="difference metric")
-    p.add_argument("--junction-radius-m", type=float, metavar="METRES",
+    p.add_argument("--patch", type=_number(int), default=4, help="patch-normalisation patch side in pixels (0 = off)")
+    p.add_argument("--metric", choices=METRICS, help="difference metric (default: by data kind)")
+    p.add_argument("--junction-radius-m", type=_number(float), metavar="METRES",
                    help="join places of different parts of the route within METRES (needs positions)")
     p.add_argument("--no-graph", action="store_true", help="store no place graph")
     p.add_argument("--quiet", "-q", action="store_true", help="print nothing")
@@ -40,12 +42,18 @@ def cmd_build_map(args) -> int:
     from ..io import build_map, save_map
     from ..pipeline import FrontEnd
 
-    if args.patch < 0:
-        raise InvalidParameterError(f"--patch must be ≥ 0 pixels (0 = off); got {args.patch}.")
+    from .._atomic import check_writable
+
     if args.junction_radius_m is not None and args.no_graph:
         raise InvalidParameterError("--junction-radius-m adds edges to the place graph; drop --no-graph.")
-    reference = load_input(args.reference, "reference")
+    if args.junction_radius_m is not None and not 0 < args.junction_radius_m < float("inf"):
+        raise InvalidParameterError(f"--junction-radius-m must be > 0 metres; got {args.junction_radius_m}.")
     frontend = FrontEnd(size=args.size, patch=args.patch, metric=args.metric)
+    check_writable(args.out, "map file")
+    reference = load_input(args.reference, "reference")
+    if args.junction_radius_m is not None and reference.positions is None:
+        raise InvalidParameterError("--junction-radius-m joins places by position, but the reference has no "
+                                    "positions; leave it out.")
     m = build_map(reference, frontend, junction_radius_m=args.junction_radius_m, graph=not args.no_graph,
                   meta={"source": str(args.reference)})
     path = save_map(args.out, m)

@@ -1,0 +1,221 @@
+"""The experiment layer: one path from inputs to results, for every entry point."""
+
+import json
+
+import numpy as np
+import pytest
+
+from catgraph.cli.main import main
+from catgraph.compare import compare_plan
+from catgraph.conditions import Condition
+from catgraph.datasets import load_traverse
+from catgraph.exceptions import ConfigError, DataError, InvalidParameterError
+from catgraph.experiment import Experiment, payload, prepare, run, run_method
+from catgraph.io import build_map, save_map
+from catgraph.metrics import evaluate
+from catgraph.traverse import FrameTolerance
+
+from .conftest import write_images
+
+
+@pytest.fixture
+def image_pair(tmp_path):
+    rng = np.random.default_rng(3)
+    base = rng.integers(0, 255, (60, 8, 16))
+    noisy = np.clip(base + rng.normal(0, 25, base.shape), 0, 255)
+    return write_images(tmp_path / "ref", base), write_images(tmp_path / "qry", noisy)
+
+
+def _method_output(p: dict) -> dict:
+    """What the method produced: every per-frame field except the evaluation's."""
+    return {k: v for k, v in p["frames"].items() if k not in ("correct", "has_true_match")}
+
+
+FAST_FILTER = {"n_particles": 200, "l_max": 20, "max_different": 2000}
+
+
+def _plan():
+    plan = []
+    for method, params in compare_plan(window=5):
+        if method == "filter":
+            params = {**params, **{k: v for k, v in FAST_FILTER.items()
+                                   if not (k == "l_max" and params["model"] in ("histogram", "histogram-bootstrap",
+                                                                                 "sequence"))
+                                   and not (k == "max_different" and params["model"] not in
+                                            ("histogram-bootstrap", "combined"))}}
+        elif method == "sequence" and params["window"] == "adaptive":
+            params = {**params, "l_max": 20}
+        plan.append((method, params))
+    plan.append(("histogram", {"learning": "bootstrap", "max_different": 2000}))
+    return plan
+
+
+def test_saved_map_and_folder_agree_for_every_method(image_pair, tmp_path):
+    ref, qry = image_pair
+    path = save_map(tmp_path / "m.npz", build_map(load_traverse(ref)))
+    from_folder = prepare(Experiment(query=qry, reference=ref, tolerance=1))
+    from_map = prepare(Experiment(query=qry, map=path, tolerance=1))
+    np.testing.assert_array_equal(from_folder.differences, from_map.differences)
+    np.testing.assert_array_equal(from_folder.reference_differences(), from_map.reference_differences())
+    for method, params in _plan():
+        a = run_method(method, params, from_folder)
+        b = run_method(method, params, from_map)
+        assert a.method == b.method
+        np.testing.assert_array_equal(a.match, b.match, err_msg=f"{method} {params}")
+        np.testing.assert_array_equal(a.confidence, b.confidence, err_msg=f"{method} {params}")
+        for key in a.extra:
+            np.testing.assert_array_equal(a.extra[key], b.extra[key], err_msg=f"{method} {params} {key}")
+
+
+def test_evaluation_tolerance_never_reaches_the_method(image_pair, tmp_path):
+    ref, qry = image_pair
+    outputs = []
+    for tolerance in ("0", "5"):
+        out = tmp_path / f"t{tolerance}.json"
+        assert main(["localize", str(ref), str(qry), "--model", "histogram", "--particles", "200", "--init-frames",
+                     "10", "--tolerance", tolerance, "-o", str(out), "-q"]) == 0
+        p = json.loads(out.read_text())
+        outputs.append((json.dumps(_method_output(p), sort_keys=True),
+                        {k: v for k, v in p["params"].items() if k != "ground_truth"}))
+    assert outputs[0] == outputs[1]  # byte-identical answers and method parameters
+
+
+def test_runs_without_ground_truth(image_pair, tmp_path, capsys):
+    ref, qry = image_pair
+    out = tmp_path / "x.json"
+    assert main(["localize", str(ref), str(qry), "--model", "histogram", "--particles", "200", "-o", str(out)]) == 0
+    p = json.loads(out.read_text())
+    assert p["metrics"] is None and p["params"]["ground_truth"] is None
+    assert len(p["frames"]["match"]) == 60 and "correct" not in p["frames"]
+    assert all(0 <= v <= 1 for v in p["frames"]["p_new_place"])
+    assert "no ground truth" in capsys.readouterr().out
+    assert main(["report", str(out), "--out", str(tmp_path / "rep"), "-q"]) == 0
+
+
+def test_ground_truth_file_gives_the_same_metrics_as_the_tolerance(image_pair, tmp_path):
+    ref, qry = image_pair
+    pairs = [(q, r) for q in range(60) for r in range(max(0, q - 2), min(60, q + 3))]
+    (tmp_path / "pairs.csv").write_text("query,reference\n" + "".join(f"{q},{r}\n" for q, r in pairs))
+    m = np.zeros((60, 60), bool)
+    for q, r in pairs:
+        m[q, r] = True
+    np.save(tmp_path / "gt.npy", m)
+    results = []
+    for gt in (["--tolerance", "2"], ["--ground-truth", str(tmp_path / "pairs.csv")],
+               ["--ground-truth", str(tmp_path / "gt.npy")]):
+        out = tmp_path / "r.json"
+        assert main(["match", str(ref), str(qry), "--window", "5", "-o", str(out), "-q"] + gt) == 0
+        results.append(json.loads(out.read_text())["metrics"])
+    assert results[0] == results[1] == results[2]
+
+
+@pytest.mark.parametrize("condition", [["--reverse"], ["--speed", "2"], ["--speed", "0.5"],
+                                       ["--shuffle", "1", "--segment-range", "0.005:0.03"]])
+def test_conditions_score_against_the_moved_ground_truth(condition, image_pair, tmp_path):
+    ref, qry = image_pair
+    out = tmp_path / "c.json"
+    assert main(["match", str(ref), str(qry), "--window", "5", "--tolerance", "2", "-o", str(out), "-q"]
+                + condition) == 0
+    p = json.loads(out.read_text())
+    f = p["frames"]
+    order = Condition.parse({"--reverse": "reverse", "--speed": f"speed:{condition[-1]}",
+                             "--shuffle": "shuffle:1:0.005:0.03"}[condition[0]]).order(60)
+    assert f["query_index"] == order.tolist()
+    match = np.array([-1 if v is None else v for v in f["match"]])
+    ev = evaluate(np.array(f["query_index"]), match, np.array([0.0 if c is None else c for c in f["confidence"]]),
+                  FrameTolerance(60, 2))
+    assert [bool(c) for c in ev.correct] == f["correct"]
+    assert p["metrics"]["auc"] == pytest.approx(ev.metrics.auc)
+    assert p["params"]["condition"]["kind"] in ("reverse", "speed", "shuffle")
+
+
+def test_filter_options_reach_the_filter_from_the_cli_and_a_sweep(tmp_path):
+    runs = {}
+    for window in ("3", "15"):
+        out = tmp_path / f"w{window}.json"
+        assert main(["localize", "synthetic:2", "synthetic:2", "--model", "combined", "--window", window,
+                     "--particles", "200", "--max-different", "2000", "-o", str(out), "-q"]) == 0
+        runs[window] = json.loads(out.read_text())
+        assert runs[window]["params"]["window"] == int(window)
+    assert runs["3"]["frames"]["match"] != runs["15"]["frames"]["match"]
+    from catgraph.config import parse_config
+    from catgraph.experiment import run_experiment
+
+    config = parse_config({"dataset": [{"name": "c", "reference": "synthetic:2", "query": "synthetic:2"}],
+                           "method": [{"method": "filter", "params": {"model": "combined", "n_particles": 200,
+                                                                      "max_different": 2000},
+                                       "grid": {"window": [3, 15]}}]})
+    swept = [run_experiment(spec) for spec in config.specs]
+    assert [s["params"]["window"] for s in swept] == [3, 15]
+    assert [s["frames"]["match"] for s in swept] == [runs["3"]["frames"]["match"], runs["15"]["frames"]["match"]]
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["localize", "REF", "QRY", "--model", "adaptive", "--window", "20"], "'window' does not apply"),
+    (["localize", "REF", "QRY", "--model", "histogram", "--rule", "literal"], "'rule' does not apply"),
+    (["match", "REF", "QRY", "--window", "5", "--rule", "literal"], "'rule' does not apply"),
+    (["match", "REF", "QRY", "--learning", "online"], "--learning does not apply to single-frame matching"),
+    (["match", "QRY", "--map", "MAP", "--size", "8x4"], "--size does not apply to a saved map"),
+    (["match", "QRY", "--map", "MAP", "--patch", "2", "--metric", "ssd"], "--patch, --metric do not apply"),
+    (["localize", "QRY", "--map", "MAP", "--junction-radius-m", "3"], "--junction-radius-m does not apply"),
+    (["localize", "REF", "QRY", "--junction-radius-m", "3"], "the reference has no positions"),
+    (["match", "REF", "QRY", "--segment-range", "0.1:0.2"], "add --shuffle SEED"),
+    (["match", "REF", "QRY", "--speed", "0"], "speed factor must be in (0, 100]"),
+    (["match", "REF", "QRY", "--shuffle", "1", "--segment-range", "0.3:0.1"], "0 < MIN ≤ MAX ≤ 1"),
+    (["match", "REF", "QRY", "--reverse", "--speed", "2"], "not allowed with argument"),
+    (["match", "REF", "QRY", "--ground-truth", "NOPE.csv"], "does not exist"),
+    (["localize", "REF", "QRY", "--particles", "0"], "--particles must be an int in [1, 1e+07]"),
+    (["match", "REF", "QRY", "--window", "ten"], "expected a number of frames or 'adaptive'"),
+    (["match", "REF", "QRY", "--bogus"], "unrecognized arguments: --bogus"),
+])
+def test_options_that_do_not_apply_are_errors(args, needle, image_pair, tmp_path, capsys):
+    ref, qry = image_pair
+    save_map(tmp_path / "m.npz", build_map(load_traverse(ref)))
+    paths = {"REF": str(ref), "QRY": str(qry), "MAP": str(tmp_path / "m.npz"), "NOPE.csv": str(tmp_path / "no.csv")}
+    assert main([paths.get(a, a) for a in args] + ["-q"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("catgraph: error:") and needle in err and "\n" not in err, err
+
+
+def test_ground_truth_files_are_checked(tmp_path):
+    from catgraph.datasets.ground_truth import load_ground_truth
+
+    (tmp_path / "a.csv").write_text("0,1\n1,x\n")
+    (tmp_path / "b.csv").write_text("0,1,2\n")
+    (tmp_path / "c.csv").write_text("0,9\n")
+    np.save(tmp_path / "d.npy", np.ones((3, 3)))
+    np.save(tmp_path / "e.npy", np.array([[np.nan, 1.0]]))
+    for name, needle in (("a.csv", "row 2"), ("b.csv", "one 'query,reference' pair"), ("c.csv", "outside"),
+                         ("d.npy", "must be (n_query, n_reference) = (2, 4)"), ("e.npy", "must be")):
+        with pytest.raises(DataError, match=needle.replace("(", r"\(").replace(")", r"\)")):
+            load_ground_truth(tmp_path / name, 2, 4)
+    np.savez(tmp_path / "f.npz", ground_truth=np.eye(2, 4), other=np.zeros(1))
+    gt = load_ground_truth(tmp_path / "f.npz", 2, 4)
+    assert gt.correct(np.array([0, 1]), np.array([0, 0])).tolist() == [True, False]
+
+
+def test_experiment_spec_round_trip_and_checks():
+    exp = Experiment(query="synthetic:1", reference="synthetic:1", method="sequence", params={"window": 4},
+                     condition="reverse")
+    again = Experiment.from_spec(exp.spec())
+    assert again.spec() == exp.spec()
+    a, b = run(exp)[1], run(again)[1]
+    assert a["frames"] == b["frames"]
+    with pytest.raises(ConfigError, match="unknown run keys"):
+        Experiment.from_spec({"query": "x", "reference": "y", "shuffle": 0})
+    with pytest.raises(InvalidParameterError, match="exactly one"):
+        Experiment(query="synthetic:1")
+    with pytest.raises(InvalidParameterError, match="unknown method 'sequense'; did you mean 'sequence'"):
+        Experiment(query="synthetic:1", reference="synthetic:1", method="sequense")
+
+
+def test_prepared_inputs_serve_every_condition():
+    prepared = prepare(Experiment(query="synthetic:1", reference="synthetic:1"))
+    for condition in (Condition("reverse"), Condition("speed", factor=2.0)):
+        direct = prepare(Experiment(query="synthetic:1", reference="synthetic:1", condition=condition))
+        under = prepared.under(condition)
+        np.testing.assert_array_equal(direct.differences, under.differences)
+        np.testing.assert_array_equal(direct.query.index, under.query.index)
+        a, _ = payload(run_method("single-frame", {}, direct), direct)
+        b, _ = payload(run_method("single-frame", {}, under), under)
+        assert a["frames"] == b["frames"] and a["metrics"] == b["metrics"]
