@@ -389,7 +389,7 @@ def payload(result: RunResult, prepared: Prepared, exp: Experiment | None = None
     result.params.update(prepared.sources)
     result.params.update({
         "condition": prepared.query.meta.get("traversal", {"kind": "in-order"}),
-        "frontend": dict(prepared.map.frontend),
+        "frontend": {**prepared.map.frontend, "metric": prepared.map.metric},
         "ground_truth": None if prepared.ground_truth is None else prepared.ground_truth.describe(),
     })
     if prepared.junction_radius_m is not None:
