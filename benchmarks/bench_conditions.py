@@ -1,0 +1,135 @@
+"""Benchmark: every method's defaults on every traversal condition and dataset.
+
+The condition table (``catgraph.conditions.condition_table``): in order; shuffled in
+segments of 2–20 % and of 0.5–3 % (seeds 0–4 each); reversed; speed 2; speed 0.5 — on
+Nordland 32×16 summer → winter (±2 frames), UJI Wi-Fi month 01 ``trn01`` → months 02–06
+``tst01`` (3 m; means over the five months) and the synthetic world (seed 0, 10 m).
+Every method runs with its registry defaults through the experiment layer
+(:func:`catgraph.experiment.run_method` on :meth:`Prepared.under` inputs), so the table
+shows exactly what a user gets without tuning.
+
+Writes ``benchmarks/results/conditions.md`` and ``conditions.json``. Run from the
+repository root::
+
+    python benchmarks/bench_conditions.py [--quick] [--methods single-frame,adaptive,...]
+        [--datasets nordland,uji,synthetic]
+
+``--quick``: in order, shuffled 2–20 % seed 0, shuffled 0.5–3 % seed 0, reversed, speed 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from datasets import DATA, WIFI_METRES  # noqa: E402
+
+from catgraph.conditions import Condition, condition_table  # noqa: E402
+from catgraph.experiment import Experiment, prepare, run_method  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+#: label → (method, params): the registry defaults a user gets
+METHODS = {
+    "single-frame": ("single-frame", {}),
+    "fixed L=10": ("sequence", {"window": 10}),
+    "fixed L=50": ("sequence", {"window": 50}),
+    "fixed L=100": ("sequence", {"window": 100}),
+    "adaptive": ("sequence", {"window": "adaptive"}),
+    "histogram (online)": ("histogram", {}),
+    "filter + histogram": ("filter", {"model": "histogram"}),
+    "filter + combined": ("filter", {"model": "combined"}),
+}
+
+
+def _datasets(names):
+    out = {}
+    if "nordland" in names and (DATA / "nordland").is_dir():
+        d = DATA / "nordland" / "32x16"
+        out["Nordland"] = [prepare(Experiment(query=d / "winter", reference=d / "summer", tolerance=2))]
+    if "uji" in names and (DATA / "uji-lib").is_dir():
+        db = DATA / "uji-lib" / "db"
+        out["UJI 02-06"] = [prepare(Experiment(query=db / f"{m:02d}" / "tst01", reference=db / "01" / "trn01",
+                                               tolerance_m=WIFI_METRES)) for m in range(2, 7)]
+    if "synthetic" in names:
+        out["synthetic"] = [prepare(Experiment(query="synthetic:0", reference="synthetic:0"))]
+    return out
+
+
+def _conditions(quick: bool) -> list[Condition]:
+    if quick:
+        return [Condition(), Condition("shuffle", seed=0), Condition("shuffle", seed=0, segment_range=(0.005, 0.03)),
+                Condition("reverse"), Condition("speed", factor=2.0)]
+    return condition_table()
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--methods", default=",".join(METHODS))
+    ap.add_argument("--datasets", default="nordland,uji,synthetic")
+    args = ap.parse_args(argv)
+    labels = [m.strip() for m in args.methods.split(",")]
+    unknown = [m for m in labels if m not in METHODS]
+    if unknown:
+        raise SystemExit(f"unknown methods {unknown}; choose from {list(METHODS)}")
+    conditions = _conditions(args.quick)
+    datasets = _datasets(args.datasets.split(","))
+    rows = []
+    for ds, cases in datasets.items():
+        for condition in conditions:
+            prepared = [case.under(condition) if condition.kind != "in-order" else case for case in cases]
+            for label in labels:
+                method, params = METHODS[label]
+                metrics, seconds = [], 0.0
+                for p in prepared:
+                    result = run_method(method, params, p)
+                    metrics.append(result.evaluate(p.ground_truth).metrics.as_dict())
+                    seconds += result.seconds
+                row = {"dataset": ds, "condition": condition.label, "condition_spec": condition.as_dict(),
+                       "method": label, "auc": float(np.mean([m["auc"] for m in metrics])),
+                       "recall_at_100p": float(np.mean([m["recall_at_100p"] for m in metrics])),
+                       "mtl": float(np.mean([m["mtl"] for m in metrics])),
+                       "mtl_max": int(max(m["mtl"] for m in metrics)), "seconds": seconds}
+                rows.append(row)
+                print(f"{ds:10s} {condition.label:28s} {label:22s} AUC {row['auc']:.3f} R@100P "
+                      f"{row['recall_at_100p']:.3f} MTL {row['mtl']:.0f}  {time.strftime('%X')}", flush=True)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "conditions.json").write_text(json.dumps({"machine": platform.platform(), "rows": rows}, indent=1))
+    (RESULTS / "conditions.md").write_text(_markdown(rows, labels, conditions, args.quick))
+
+
+def _markdown(rows, labels, conditions, quick) -> str:
+    parts = ["# Every method's defaults under every traversal condition\n",
+             "Generated by `benchmarks/bench_conditions.py" + (" --quick" if quick else "") + "`. Each cell: AUC / "
+             "R@100P / MTL (UJI: means over months 02–06). Registry defaults, no tuning; ground truth ±2 frames "
+             "(Nordland), 3 m (UJI), 10 m (synthetic). Shuffled rows are summarised as mean and worst AUC over "
+             "their seeds below each table.\n"]
+    for ds in dict.fromkeys(r["dataset"] for r in rows):
+        parts.append(f"\n## {ds}\n\n| condition | " + " | ".join(labels) + " |\n|---|" + "---|" * len(labels) + "\n")
+        for c in conditions:
+            cells = []
+            for label in labels:
+                r = next(r for r in rows if r["dataset"] == ds and r["condition"] == c.label and r["method"] == label)
+                cells.append(f"{r['auc']:.3f} / {r['recall_at_100p']:.2f} / {r['mtl']:.0f}")
+            parts.append(f"| {c.label} | " + " | ".join(cells) + " |\n")
+        for rng, name in (((0.02, 0.2), "shuffled 2–20 %"), ((0.005, 0.03), "shuffled 0.5–3 %")):
+            group = [r for r in rows if r["dataset"] == ds and r["condition_spec"].get("segment_range") == list(rng)]
+            if len({r["condition"] for r in group}) > 1:
+                cells = []
+                for label in labels:
+                    aucs = [r["auc"] for r in group if r["method"] == label]
+                    cells.append(f"mean {np.mean(aucs):.3f}, worst {min(aucs):.3f}")
+                parts.append(f"| **{name}, all seeds** | " + " | ".join(cells) + " |\n")
+    return "".join(parts)
+
+
+if __name__ == "__main__":
+    main()
