@@ -21,6 +21,14 @@ match (``-1`` = no output) and a confidence (higher = surer). With a
   be localised).
 
 When ``P = 0`` recall-based figures are 0. All functions are pure.
+
+Frames with no output
+    ``match = -1`` means "no output" (a frame with no information, or a method that
+    abstains). Its confidence is never read, whatever it holds (``0``, ``-inf``, NaN),
+    so no convention for it can leak into a curve; confidences of frames *with* an
+    output must be finite. Inputs are checked at the boundary: indices must be
+    integers (or floats holding whole numbers), one per frame, and ``match`` must lie
+    in ``[-1, n_reference)`` where the ground truth knows ``n_reference``.
 """
 
 from __future__ import annotations
@@ -29,6 +37,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from ._validation import check_array, check_scalar
 from .exceptions import DataError, ShapeMismatchError
 from .traverse import GroundTruth
 
@@ -67,6 +76,33 @@ class Evaluation:
     curve: PRCurve
 
 
+def _indices(values, name: str) -> np.ndarray:
+    """1-D integer indices (whole-number floats accepted), possibly empty."""
+    arr = check_array(values, name, ndim=1, dtype=None, allow_empty=True, finite=False)
+    if arr.dtype.kind in "iu":
+        return arr.astype(np.int64, copy=False)
+    if arr.dtype.kind == "f":
+        if arr.size and (not np.all(np.isfinite(arr)) or np.any(arr != np.round(arr)) or np.abs(arr).max() > 2**62):
+            raise DataError(f"{name} must hold whole-number indices; found NaN, infinite or fractional values.")
+        return arr.astype(np.int64)
+    raise DataError(f"{name} must be integer indices; got dtype {arr.dtype}.")
+
+
+def _flags(values, name: str) -> np.ndarray:
+    """1-D booleans (0/1 integers accepted), possibly empty."""
+    arr = check_array(values, name, ndim=1, dtype=None, allow_empty=True, finite=False)
+    if arr.dtype.kind == "b":
+        return arr
+    if arr.dtype.kind in "iuf" and np.all((arr == 0) | (arr == 1)):
+        return arr.astype(bool)
+    raise DataError(f"{name} must be booleans (or 0/1), one per frame; got dtype {arr.dtype} with other values.")
+
+
+def _confidences(values, name: str = "confidence") -> np.ndarray:
+    """1-D real confidences; NaN/inf allowed here (only frames with an output are checked)."""
+    return check_array(values, name, ndim=1, dtype=np.float64, allow_empty=True, finite=False)
+
+
 def pr_curve(correct: np.ndarray, has_output: np.ndarray, confidence: np.ndarray, n_positive: int) -> PRCurve:
     """Precision–recall points from per-frame correctness and confidence.
 
@@ -76,11 +112,23 @@ def pr_curve(correct: np.ndarray, has_output: np.ndarray, confidence: np.ndarray
     confidence : ndarray of float, shape (n,)
         Only frames with an output are read; they must be finite.
     n_positive : int
-        Frames with a true match (recall's denominator).
+        Frames with a true match (recall's denominator); at least the number of
+        correct frames with an output.
     """
-    correct = np.asarray(correct, dtype=bool)
-    has_output = np.asarray(has_output, dtype=bool)
-    conf = np.asarray(confidence, dtype=np.float64)
+    correct = _flags(correct, "correct")
+    has_output = _flags(has_output, "has_output")
+    conf = _confidences(confidence)
+    if not correct.shape == has_output.shape == conf.shape:
+        raise ShapeMismatchError(
+            f"correct, has_output and confidence must have one value per frame; got shapes {correct.shape}, "
+            f"{has_output.shape} and {conf.shape}."
+        )
+    check_scalar(n_positive, "n_positive", "pr_curve", int, 0)
+    if int(np.count_nonzero(correct & has_output)) > n_positive:
+        raise DataError(
+            f"{int(np.count_nonzero(correct & has_output))} frames are correct but n_positive is {n_positive}; "
+            "n_positive counts the frames with a true match and cannot be smaller."
+        )
     c = conf[has_output]
     if not np.all(np.isfinite(c)):
         raise DataError("confidences of frames with an output must be finite; got NaN or infinity.")
@@ -115,7 +163,7 @@ def recall_at_precision(curve: PRCurve, precision: float) -> float:
 
 def max_time_to_localisation(correct: np.ndarray) -> int:
     """Longest run of consecutive ``False`` in ``correct`` (processing order)."""
-    c = np.asarray(correct, dtype=bool)
+    c = _flags(correct, "correct")
     if c.size == 0:
         return 0
     # indices of correct frames, with sentinels before the start and after the end
@@ -142,17 +190,35 @@ def evaluate(query_index, match, confidence, ground_truth: GroundTruth) -> Evalu
         ``metrics`` (AUC, R@100P/99P/90P, MTL, accuracy, n_queries), per-frame
         ``correct`` and ``has_true_match``, and the PR ``curve``.
     """
-    q = np.asarray(query_index)
-    m = np.asarray(match)
-    conf = np.asarray(confidence, dtype=np.float64)
-    if not (q.shape == m.shape == conf.shape) or q.ndim != 1:
+    q = _indices(query_index, "query_index")
+    m = _indices(match, "match")
+    conf = _confidences(confidence)
+    if not (q.shape == m.shape == conf.shape):
         raise ShapeMismatchError(
             f"query_index, match and confidence must be 1-D of one length; got {q.shape}, {m.shape}, {conf.shape}."
         )
+    if not isinstance(ground_truth, GroundTruth):
+        raise DataError(f"ground_truth must be a catgraph GroundTruth; got {type(ground_truth).__name__}.")
+    if np.any(m < -1):
+        raise DataError(f"match holds {int(np.sum(m < -1))} values below -1; use -1 for 'no output'.")
+    n_reference = getattr(ground_truth, "n_reference", None)
+    if isinstance(n_reference, (int, np.integer)) and np.any(m >= n_reference):
+        raise DataError(
+            f"match holds reference indices up to {int(m.max())} but the reference has {int(n_reference)} places."
+        )
+    if np.any(q < 0):
+        raise DataError("query_index holds negative values; give each frame's index in the query as loaded.")
     correct = ground_truth.correct(q, m)
     has = ground_truth.has_true_match(q)
     n_positive = int(has.sum())
-    curve = pr_curve(correct, m >= 0, conf, n_positive)
+    has_output = m >= 0
+    if not np.all(np.isfinite(conf[has_output])):
+        bad = int(np.count_nonzero(~np.isfinite(conf[has_output])))
+        raise DataError(
+            f"{bad} frames with an output have a NaN or infinite confidence; a confidence must be a finite number "
+            "(a frame with no output has match -1)."
+        )
+    curve = pr_curve(correct, has_output, conf, n_positive)
     metrics = Metrics(
         auc=auc(curve),
         recall_at_100p=recall_at_precision(curve, 1.0),
