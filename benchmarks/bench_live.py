@@ -1,0 +1,394 @@
+"""Live localisation at scale: time per frame, peak memory, cold start.
+
+Random 512-value float32 reference descriptors (a 32×16 image map), N = 10⁴, 10⁵, 10⁶
+places; query frames are random 16×32 images through the map's front-end. Every
+case runs in its own process (peak RSS from ``getrusage``), one after another, and
+measures its own *floor* in the same process: the time to read the reference once
+with every core (a parallel sum over its bytes) — the least any difference row can
+cost — so ratios survive a busy machine. Writes ``benchmarks/results/live.md`` (and
+``live.json``).
+
+    python benchmarks/bench_live.py [--sizes 10000 100000 1000000] [--frames 60]
+    python benchmarks/bench_live.py --cold-start
+
+Cases (per N):
+
+``row``        :meth:`PreparedReference.row` with normalisation (SAD), all cores
+``row-1t``     the same on one thread
+``cosine-raw`` :func:`difference_row` on the raw reference, cosine, as a user without a
+               prepared map calls it (validates and recomputes norms every call)
+``cosine``     the prepared cosine row
+``matcher``    :meth:`SequenceMatcher.step`, adaptive, ``l_max`` 500, on normalised rows
+``live``       :meth:`LiveLocalizer.step`, combined model, 2000 particles: front-end +
+               difference + matcher + filter, the full per-frame path
+
+``matcher`` and ``live`` first step through ``l_max + 1`` untimed frames, so the ring
+buffer is full (steady-state memory; ``numpy.zeros`` pages count only once written).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+RESULTS = Path(__file__).resolve().parent / "results"
+DIM = 512
+
+
+def _peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _floor_ms(reference: np.ndarray, repeats: int = 7) -> float:
+    """Median time to read every byte of the reference once, all cores."""
+    import numba
+
+    @numba.njit(parallel=True, fastmath=True, cache=False)
+    def read_all(x):  # pragma: no cover - compiled
+        total = 0.0
+        for j in numba.prange(x.shape[0]):
+            acc = np.float32(0.0)
+            for k in range(x.shape[1]):
+                acc += x[j, k]
+            total += acc
+        return total
+
+    read_all(reference[:8])
+    return _median_ms(lambda: read_all(reference), repeats)[0]
+
+
+def _median_ms(fn, repeats: int) -> tuple[float, float]:
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    ms = 1000.0 * np.asarray(times)
+    return float(np.median(ms)), float(np.percentile(ms, 99))
+
+
+def _reference(n: int) -> np.ndarray:
+    rng = np.random.default_rng(0)
+    out = np.empty((n, DIM), dtype=np.float32)
+    for start in range(0, n, 100_000):  # bounded scratch while generating
+        stop = min(n, start + 100_000)
+        out[start:stop] = rng.standard_normal((stop - start, DIM), dtype=np.float32)
+    return out
+
+
+def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> dict:
+    """One measurement, in this process."""
+    from catgraph.differences import PreparedReference, difference_row
+
+    out: dict = {"case": case, "n": n, "frames": frames}
+    rng = np.random.default_rng(1)
+    if case == "matcher":
+        from catgraph.sequence import SequenceMatcher
+
+        rows = rng.standard_normal((8, n))
+        matcher = SequenceMatcher(window="adaptive", l_max=l_max)
+        for k in range(l_max + 1):  # fill the ring buffer: steady-state memory and cost
+            matcher.step(rows[k % 8])
+        times = []
+        for k in range(frames):
+            start = time.perf_counter()
+            matcher.step(rows[k % 8])
+            times.append(time.perf_counter() - start)
+        ms = 1000.0 * np.asarray(times)
+        out.update(median_ms=float(np.median(ms)), p99_ms=float(np.percentile(ms, 99)),
+                   floor_ms=float("nan"), peak_rss_mb=_peak_rss_mb(), l_max=l_max)
+        return out
+    reference = _reference(n)
+    out["floor_ms"] = _floor_ms(reference)
+    query = rng.standard_normal((frames, DIM), dtype=np.float32)
+    if case in ("row", "row-1t", "cosine"):
+        import numba
+
+        if case == "row-1t":
+            numba.set_num_threads(1)
+        prepared = PreparedReference(reference, "cosine" if case == "cosine" else "sad")
+        buf = np.empty(n)
+        prepared.row(query[0], normalise=True, out=buf)
+        it = iter(range(10**9))
+        out["median_ms"], out["p99_ms"] = _median_ms(lambda: prepared.row(query[next(it) % frames], normalise=True,
+                                                                           out=buf), frames)
+    elif case == "cosine-raw":
+        difference_row(query[0], reference, "cosine")
+        it = iter(range(10**9))
+        out["median_ms"], out["p99_ms"] = _median_ms(lambda: difference_row(query[next(it) % frames], reference,
+                                                                            "cosine", normalise=True),
+                                                     max(3, frames // 4))
+    elif case == "live":
+        from catgraph.graph import PlaceGraph
+        from catgraph.io import CatgraphMap
+        from catgraph.live import LiveLocalizer, LiveMap
+
+        the_map = CatgraphMap(reference, "sad", {"size": None, "patch": 4, "metric": None, "normalise": True},
+                              PlaceGraph.chain(n), meta={"kind": "images"})
+        start = time.perf_counter()
+        live_map = LiveMap(the_map)
+        live = LiveLocalizer(live_map, model="combined", n_particles=2000, l_max=l_max, anchor_rows=anchor_rows)
+        out["prepare_s"] = time.perf_counter() - start
+        images = rng.uniform(0, 255, (frames + 1, 16, 32)).astype(np.float32)
+        for k in range(l_max + 1):  # fill the matcher's ring buffer: steady-state memory and cost
+            live.step(images[k % len(images)])
+        parts = {"frontend": [], "difference": [], "model": []}
+        times = []
+        for k in range(frames):
+            start = time.perf_counter()
+            est = live.step(images[k + 1])
+            times.append(time.perf_counter() - start)
+            for key in parts:
+                parts[key].append(est.seconds[key])
+        ms = 1000.0 * np.asarray(times)
+        out.update(median_ms=float(np.median(ms)), p99_ms=float(np.percentile(ms, 99)), l_max=l_max,
+                   anchor_rows=anchor_rows, **{f"{k}_ms": 1000.0 * float(np.median(v)) for k, v in parts.items()})
+    else:
+        raise SystemExit(f"unknown case {case!r}")
+    out["peak_rss_mb"] = _peak_rss_mb()
+    return out
+
+
+def _subprocess(args: list[str], env: dict | None = None) -> dict:
+    proc = subprocess.run([sys.executable, __file__, *args], capture_output=True, text=True,
+                          env={**os.environ, **(env or {})})
+    if proc.returncode != 0:
+        return {"error": proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else f"exit {proc.returncode}",
+                "args": args}
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+# ---------------------------------------------------------------------------------------
+# cold start
+
+_COLD_SCRIPT = """
+import time, json, numpy as np
+t0 = time.perf_counter()
+from catgraph.datasets.synthetic import make_world
+from catgraph.live import LiveMap, LiveLocalizer
+world = make_world(seed=1, blocks=(2, 2), as_images=True)
+live_map = LiveMap(world.reference)
+t1 = time.perf_counter()
+live_map.reference.row(live_map.describe(world.query.frames[0]), normalise=True)
+t2 = time.perf_counter()
+live = LiveLocalizer(live_map, model="combined", n_particles=500)
+for f in world.query.frames[:20]:
+    live.step(f)
+t3 = time.perf_counter()
+print(json.dumps({"import_and_map_s": t1 - t0, "first_row_s": t2 - t1, "twenty_combined_steps_s": t3 - t2,
+                  "total_s": t3 - t0}))
+"""
+
+
+def cold_start() -> dict:
+    """The same short live run three times in fresh processes with an empty numba cache
+    directory (cold, then warm twice)."""
+    runs = []
+    with tempfile.TemporaryDirectory() as cache:
+        for label in ("cold", "warm", "warm"):
+            start = time.perf_counter()
+            proc = subprocess.run([sys.executable, "-c", _COLD_SCRIPT], capture_output=True, text=True,
+                                  env={**os.environ, "NUMBA_CACHE_DIR": cache})
+            wall = time.perf_counter() - start
+            if proc.returncode != 0:
+                raise SystemExit(proc.stderr)
+            row = json.loads(proc.stdout.strip().splitlines()[-1])
+            row.update(label=label, process_s=wall)
+            runs.append(row)
+    return {"runs": runs}
+
+
+# ---------------------------------------------------------------------------------------
+# Dask shards
+
+
+def dask_shards(shard_places: int = 1 << 18, n_shards: int = 2, block_rows: int = 32, window: int = 50,
+                n_query: int = 96) -> dict:
+    """Per-shard figures of :func:`catgraph.distributed.match_fixed_window` on a local
+    cluster of ``n_shards`` one-thread worker processes (one shard each)."""
+    import distributed
+
+    from catgraph import distributed as dd
+
+    reference = _reference(shard_places * n_shards)
+    rng = np.random.default_rng(2)
+    start_place = shard_places - 40  # a route stretch that crosses the shard edge
+    query = reference[start_place : start_place + n_query] + 0.3 * rng.standard_normal((n_query, DIM),
+                                                                                        dtype=np.float32)
+
+    def counters(dask_worker):
+        import psutil
+
+        return {"rss": psutil.Process().memory_info().rss,
+                "out": getattr(dask_worker, "transfer_outgoing_bytes_total", 0),
+                "in": getattr(dask_worker.state, "transfer_incoming_bytes_total", 0)
+                if hasattr(dask_worker, "state") else 0}
+
+    with distributed.LocalCluster(n_workers=n_shards, threads_per_worker=1, processes=True,
+                                  dashboard_address=None, memory_limit=None) as cluster, \
+            distributed.Client(cluster) as client:
+        t0 = time.perf_counter()
+        ref = dd.shard_reference(reference, "sad", client, shard_places=shard_places)
+        client.gather(ref.shards)
+        prepare_s = time.perf_counter() - t0
+        before = client.run(counters)
+        dd.match_fixed_window(query[:block_rows], ref, window, block_rows=block_rows)  # warm the kernels
+        t1 = time.perf_counter()
+        res = dd.match_fixed_window(query, ref, window, block_rows=block_rows)
+        seconds = time.perf_counter() - t1
+        after = client.run(counters)
+    correct = float(np.mean(np.abs(res.match[window:] - (start_place + np.arange(window, n_query))) <= 1))
+    return {"shard_places": shard_places, "n_shards": n_shards, "block_rows": block_rows, "window": window,
+            "n_query": n_query, "prepare_s": prepare_s, "ms_per_frame": 1000 * seconds / n_query,
+            "worker_rss_mb": [a["rss"] / 2**20 for a in after.values()],
+            "bytes_in_per_frame": [(a["in"] - b["in"]) / n_query for a, b in zip(after.values(), before.values())],
+            "bytes_out_per_frame": [(a["out"] - b["out"]) / n_query for a, b in zip(after.values(), before.values())],
+            "correct_after_window": correct}
+
+
+# ---------------------------------------------------------------------------------------
+# report
+
+
+def _fmt(v, digits=1):
+    return "—" if v is None or (isinstance(v, float) and not np.isfinite(v)) else f"{v:.{digits}f}"
+
+
+def write_report(results: list[dict], cold: dict | None, path: Path, shards: dict | None = None) -> None:
+    by = {(r.get("case"), r.get("n")): r for r in results if "error" not in r}
+    sizes = sorted({r["n"] for r in results if "n" in r})
+    lines = ["# Live localisation: time per frame, memory, cold start", "",
+             f"Random {DIM}-value float32 reference descriptors; {platform.machine()}, "
+             f"Python {platform.python_version()}, {os.cpu_count()} cores shared with other work "
+             "(medians are noisy: compare each figure with the floor measured in the same process). "
+             "Generated by `benchmarks/bench_live.py`.", "",
+             "Floor = one parallel read of the reference (N × 2 KiB), the least a difference row can cost.", "",
+             "| per frame | " + " | ".join(f"N = {n:,}" for n in sizes) + " |",
+             "|---|" + "---|" * len(sizes)]
+
+    def row(label, case, key="median_ms", ratio=True):
+        cells = []
+        for n in sizes:
+            r = by.get((case, n))
+            if r is None:
+                cells.append("not run")
+                continue
+            text = f"{_fmt(r[key])} ms"
+            if key == "median_ms":
+                text += f" (p99 {_fmt(r['p99_ms'])})"
+            if ratio and np.isfinite(r.get("floor_ms", float("nan"))):
+                text += f", ×{r[key] / r['floor_ms']:.1f} floor"
+            cells.append(text)
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+
+    def floor_row():
+        cells = [f"{_fmt(by[(c, n)]['floor_ms'])} ms" if (c := "row", n) in by else "—" for n in sizes]
+        lines.append("| floor: read the reference once, all cores | " + " | ".join(cells) + " |")
+
+    floor_row()
+    row("difference row + normalisation (SAD, prepared map, all cores)", "row")
+    row("the same, one thread", "row-1t")
+    row("`difference_row`, cosine, raw reference (validates every call)", "cosine-raw")
+    row("prepared cosine row + normalisation", "cosine")
+    row("`SequenceMatcher.step` (adaptive, l_max 500, as it is)", "matcher", ratio=False)
+    row("full live step, combined model, 2000 particles", "live")
+    row("… of which front-end", "live", "frontend_ms", ratio=False)
+    row("… of which difference row", "live", "difference_ms", ratio=False)
+    row("… of which models + filter", "live", "model_ms", ratio=False)
+    lines += ["", "Peak RSS of each process (reference, buffers, models; Python and numba ≈ 150–200 MB):", "",
+              "| process | " + " | ".join(f"N = {n:,}" for n in sizes) + " |", "|---|" + "---|" * len(sizes)]
+    for label, case in (("difference rows (SAD)", "row"), ("matcher alone (float64 ring, l_max 500)", "matcher"),
+                        ("full live step (combined)", "live")):
+        cells = []
+        for n in sizes:
+            r = by.get((case, n))
+            cells.append("not run" if r is None else f"{_fmt(r['peak_rss_mb'], 0)} MB")
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    live = [by[("live", n)] for n in sizes if ("live", n) in by]
+    if live:
+        lines += ["", "Preparing the live map (validation, layout, bootstrap from sampled pairs): " +
+                  ", ".join(f"N = {r['n']:,}: {r['prepare_s']:.1f} s (anchor rows {r['anchor_rows']})"
+                            for r in live) + "."]
+    errors = [r for r in results if "error" in r]
+    if errors:
+        lines += ["", "Failed cases:", ""] + [f"- `{' '.join(e['args'])}`: {e['error']}" for e in errors]
+    if cold:
+        lines += ["", "## Cold start", "",
+                  "The same short run (import, synthetic image map of 288 places, first difference row, 20 "
+                  "combined live steps) in fresh processes sharing one empty `NUMBA_CACHE_DIR`:", "",
+                  "| run | process wall s | import + map s | first row s | 20 combined steps s |", "|---|---|---|---|---|"]
+        for r in cold["runs"]:
+            lines.append(f"| {r['label']} | {r['process_s']:.2f} | {r['import_and_map_s']:.2f} | "
+                         f"{r['first_row_s']:.2f} | {r['twenty_combined_steps_s']:.2f} |")
+        warm = np.median([r["process_s"] for r in cold["runs"] if r["label"] == "warm"])
+        lines += ["", f"Cold / warm: ×{cold['runs'][0]['process_s'] / warm:.2f}."]
+    if shards:
+        s = shards
+        per_shard_mb = s["shard_places"] * DIM * 4 / 2**20
+        lines += ["", "## Dask shards", "",
+                  f"`catgraph.distributed.match_fixed_window` on a `LocalCluster` of {s['n_shards']} one-thread worker "
+                  f"processes, one shard of {s['shard_places']:,} places × {DIM} float32 ({per_shard_mb:.0f} MiB) each, "
+                  f"window {s['window']}, {s['n_query']} query frames in blocks of {s['block_rows']} (the route "
+                  "crosses the shard edge):", "",
+                  "| figure | measured |", "|---|---|",
+                  f"| preparing the shards (send + validate) | {s['prepare_s']:.1f} s |",
+                  f"| time per query frame (all shards, client rounds included) | {s['ms_per_frame']:.1f} ms |",
+                  "| worker RSS after the run | " + ", ".join(f"{v:.0f} MB" for v in s["worker_rss_mb"]) + " |",
+                  "| bytes received per frame, per worker | " + ", ".join(f"{v:,.0f}" for v in
+                                                                        s["bytes_in_per_frame"]) + " |",
+                  "| bytes sent per frame, per worker | " + ", ".join(f"{v:,.0f}" for v in
+                                                                    s["bytes_out_per_frame"]) + " |",
+                  f"| frames matched within ±1 place after the first window | {s['correct_after_window']:.2f} |"]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000, 1_000_000])
+    parser.add_argument("--cases", nargs="+", default=["row", "row-1t", "cosine-raw", "cosine", "matcher", "live"])
+    parser.add_argument("--frames", type=int, default=60)
+    parser.add_argument("--l-max", type=int, default=500)
+    parser.add_argument("--cold-start", action="store_true", help="measure only the cold start")
+    parser.add_argument("--dask", action="store_true", help="measure only the Dask shards")
+    parser.add_argument("--case", help=argparse.SUPPRESS)
+    parser.add_argument("--n", type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--anchor-rows", type=int, default=None, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.case:  # worker mode: one case, JSON on stdout
+        anchor = args.anchor_rows or (256 if args.n >= 1_000_000 else 1024)
+        print(json.dumps(run_case(args.case, args.n, args.frames, args.l_max, anchor)))
+        return
+    store = RESULTS / "live.json"
+    previous = json.loads(store.read_text()) if store.exists() else {"results": [], "cold": None}
+    if args.cold_start:
+        previous["cold"] = cold_start()
+    elif args.dask:
+        previous["shards"] = dask_shards()
+    else:
+        keep = [r for r in previous["results"] if (r.get("case"), r.get("n")) not in
+                {(c, n) for c in args.cases for n in args.sizes}]
+        for n in args.sizes:
+            for case in args.cases:
+                print(f"N = {n}: {case}", file=sys.stderr, flush=True)
+                frames = args.frames if case != "cosine-raw" or n <= 100_000 else 8
+                res = _subprocess(["--case", case, "--n", str(n), "--frames", str(frames), "--l-max", str(args.l_max)])
+                print(f"  {res}", file=sys.stderr, flush=True)
+                keep.append(res)
+        previous["results"] = keep
+    store.write_text(json.dumps(previous, indent=1))
+    write_report(previous["results"], previous.get("cold"), RESULTS / "live.md", previous.get("shards"))
+    print((RESULTS / "live.md").read_text())
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,504 @@
+"""Live localisation: one sensor frame in, one answer out.
+
+A navigation stack does not hold a query traverse: a camera frame or a Wi-Fi scan
+arrives, an answer must leave, in bounded time and memory. This module is that path.
+
+1. **Prepare the map once** — :class:`LiveMap` (from a saved map,
+   :func:`catgraph.io.load_map`, or a reference traverse): the reference descriptors
+   validated and laid out for the difference kernels
+   (:class:`~catgraph.differences.PreparedReference`; cosine norms precomputed), the
+   front-end settings and data kind the map was built with, its place graph and,
+   on request, statistics of the map against itself (:meth:`LiveMap.bootstrap`):
+   ``¬L`` samples for the bootstrapped histogram model and each place's typical
+   normalised difference to places far from it (the "hub" statistic).
+2. **Step once per frame** — :class:`LiveLocalizer`: ``step(frame)`` applies exactly the
+   map's front-end to the raw frame (:func:`describe_frame`), computes its difference to
+   every place (one row, all cores), normalises it, and runs the particle filter (or,
+   with ``model="matcher"``, the sequence matcher alone). It returns a
+   :class:`LiveEstimate`: place, confidence, ``P(new place)``, the chosen window
+   and velocity, and the time each stage took.
+
+Same answers as the batch commands
+----------------------------------
+Every stage is the batch code, called one row at a time: :func:`describe_frame`
+equals :func:`catgraph.pipeline.describe` on that frame, the difference row equals the
+row of :func:`catgraph.differences.difference_matrix` bit for bit (one kernel), the
+model is built as :func:`catgraph.compare.build_model` builds it, and the filter is
+:class:`~catgraph.localizer.Localizer` with the settings of
+:func:`catgraph.compare.localize`. So feeding a query frame by frame gives the places
+and scores ``catgraph localize`` writes (tested).
+
+Bootstrap without an ``N × N`` matrix
+-------------------------------------
+The bootstrapped ``¬L`` histogram draws pairs of reference places more than ``gap``
+apart (:func:`catgraph.likelihood.reference_samples`). :meth:`LiveMap.bootstrap` draws
+the *same* pairs with the same seed and computes only the rows they need, a block at a
+time, so memory is ``O(block × N)``; the result equals the batch model bit for bit.
+Above ``anchor_rows`` places (default 4096) the rows are restricted to a seeded sample
+of ``anchor_rows`` places (columns anywhere at least ``gap`` away): cost
+``O(anchor_rows × N × d)`` instead of ``O(N² d)``, so bootstrap and combined models
+run at ``N = 10⁵`` and beyond.
+
+Memory of one step
+------------------
+The map (``N × d`` float32), one float64 difference row, and what the models hold: the
+filter ``O(n_particles + N)``, the sequence matcher its ring buffer of
+``l_max + 1`` prefix-sum rows (``8 · N · (l_max + 1)`` bytes while it is float64),
+the histogram models ``O(N)``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ._validation import as_generator, check_array, check_scalar
+from .differences import PreparedReference
+from .exceptions import DataError, InvalidParameterError
+
+__all__ = [
+    "LIVE_MODELS",
+    "LiveEstimate",
+    "LiveLocalizer",
+    "LiveMap",
+    "bootstrap_pairs",
+    "describe_frame",
+]
+
+#: Models a :class:`LiveLocalizer` runs: the filter's observation models
+#: (:data:`catgraph.compare.MODEL_NAMES`) and the standalone sequence matcher.
+LIVE_MODELS = ("histogram", "histogram-bootstrap", "sequence", "adaptive", "combined", "matcher")
+
+
+# ---------------------------------------------------------------------------------------
+# front-end of one frame
+
+
+def describe_frame(frame, kind: str, frontend=None, not_detected: float = 100.0) -> np.ndarray:
+    """The descriptor of one raw frame, as :func:`catgraph.pipeline.describe` makes it.
+
+    Parameters
+    ----------
+    frame : array_like
+        ``kind="images"``: one image ``(h, w)`` or ``(h, w, channels)``;
+        ``"wifi"``: one scan ``(n_access_points,)`` in dBm (``not_detected`` = not
+        seen); ``"descriptors"``: one feature vector (any shape, flattened).
+    kind : {"images", "wifi", "descriptors"}
+        The map's data kind (``LiveMap.kind``).
+    frontend : FrontEnd, optional
+        The map's front-end settings (default ``FrontEnd()``).
+    not_detected : float
+        Wi-Fi code for "access point not seen" (UJI: +100).
+
+    Returns
+    -------
+    ndarray, shape (d,)
+        float32 (bool for boolean descriptors).
+    """
+    from .frontends import seqslam_preprocess, wifi_vectors
+    from .pipeline import FrontEnd
+
+    frontend = FrontEnd() if frontend is None else frontend
+    x = np.asarray(frame)
+    if kind == "images":
+        if x.ndim not in (2, 3):
+            raise DataError(f"a live image frame must have shape (h, w) or (h, w, channels); got {x.shape}.")
+        return seqslam_preprocess(x[None], size=frontend.size, patch=frontend.patch)[0]
+    if kind == "wifi":
+        if x.ndim != 1:
+            raise DataError(f"a live Wi-Fi scan must have shape (n_access_points,); got {x.shape}.")
+        return wifi_vectors(x[None], not_detected=not_detected)[0]
+    if kind == "descriptors":
+        flat = x.reshape(-1)
+        return flat if flat.dtype == bool else flat.astype(np.float32)
+    raise InvalidParameterError(f"unknown data kind {kind!r}; a map holds 'images', 'wifi' or 'descriptors'.")
+
+
+# ---------------------------------------------------------------------------------------
+# the prepared map
+
+
+def bootstrap_pairs(n_places: int, gap: int, max_different: int = 100_000, seed=0,
+                    anchor_rows: int | None = 4096) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs of reference places ``(rows, cols)`` more than ``gap`` apart, drawn for the
+    bootstrapped ``¬L`` histogram.
+
+    With ``n_places <= anchor_rows`` (or ``anchor_rows=None``) the draws are those of
+    :func:`catgraph.likelihood.reference_samples` (same seed, same pairs). Above it,
+    ``rows`` come from a seeded sample of ``anchor_rows`` places and each ``col`` is
+    uniform among the places more than ``gap`` from its row.
+
+    Returns
+    -------
+    rows, cols : ndarray of int64, shape (max_different,)
+    """
+    n = int(n_places)
+    check_scalar(gap, "gap", "bootstrap_pairs", int, 0, n - 2)
+    check_scalar(max_different, "max_different", "bootstrap_pairs", int, 1)
+    rng = as_generator(seed)
+    if anchor_rows is None or n <= anchor_rows:
+        # the draws of catgraph.likelihood.reference_samples, step for step
+        offsets = np.arange(gap + 1, n)
+        weights = (n - offsets).astype(np.float64)
+        k = rng.choice(offsets, size=max_different, p=weights / weights.sum())
+        j = np.floor(rng.random(max_different) * (n - k)).astype(np.int64)
+        flip = rng.random(max_different) < 0.5
+        return np.where(flip, j + k, j), np.where(flip, j, j + k)
+    check_scalar(anchor_rows, "anchor_rows", "bootstrap_pairs", int, 1)
+    anchors = np.sort(rng.choice(n, size=anchor_rows, replace=False))
+    rows = anchors[rng.integers(0, anchor_rows, size=max_different)]
+    lo, hi = np.maximum(rows - gap, 0), np.minimum(rows + gap, n - 1)
+    width = hi - lo + 1
+    u = np.floor(rng.random(max_different) * (n - width)).astype(np.int64)
+    cols = np.where(u < lo, u, u + width)
+    return rows.astype(np.int64), cols
+
+
+class LiveMap:
+    """A map prepared for one-frame-at-a-time localisation.
+
+    Parameters
+    ----------
+    source : CatgraphMap or Traverse
+        A saved map (:func:`catgraph.io.load_map`), or a reference traverse, which is
+        described with ``frontend`` (its place graph built with
+        :meth:`~catgraph.graph.PlaceGraph.from_traverse`, junctions within
+        ``junction_radius_m``).
+    frontend : FrontEnd, optional
+        Only with a traverse (a map carries its own).
+    junction_radius_m : float, optional
+        Only with a traverse.
+    not_detected : float
+        Wi-Fi code for "not seen" in the live scans.
+
+    Attributes
+    ----------
+    reference : PreparedReference
+    kind : str
+        ``"images"``, ``"wifi"`` or ``"descriptors"``: what a live frame must be.
+    frontend : FrontEnd
+    metric : str
+    graph : PlaceGraph
+    positions : ndarray or None
+    hub_ : ndarray of float64, shape (N,)
+        After :meth:`bootstrap`: each place's mean normalised difference to the sampled
+        places more than ``gap`` from it (low = close to everything: a hub).
+    """
+
+    def __init__(self, source, frontend=None, junction_radius_m: float | None = None,
+                 not_detected: float = 100.0) -> None:
+        from .io import CatgraphMap, build_map
+        from .pipeline import FrontEnd
+        from .traverse import Traverse
+
+        if isinstance(source, Traverse):
+            if isinstance(frontend, dict) or frontend is None:
+                frontend = FrontEnd.from_dict(frontend)
+            source = build_map(source, frontend, junction_radius_m=junction_radius_m)
+        elif isinstance(source, CatgraphMap):
+            if frontend is not None or junction_radius_m is not None:
+                raise InvalidParameterError("a saved map carries its front-end and place graph; give neither "
+                                            "frontend nor junction_radius_m with a map.")
+        else:
+            raise InvalidParameterError(
+                f"LiveMap needs a CatgraphMap (catgraph.io.load_map) or a reference Traverse; got {type(source).__name__}."
+            )
+        if source.graph is None:
+            raise DataError("this map was saved without a place graph (build-map --no-graph); live localisation "
+                            "needs one: build the map again without --no-graph.")
+        self.map = source
+        self.frontend = source.frontend_settings()
+        self.kind = str(source.meta.get("kind", "descriptors"))
+        self.metric = source.metric
+        self.graph = source.graph
+        self.positions = source.positions
+        self.name = source.name
+        self.not_detected = float(not_detected)
+        self.reference = PreparedReference(source.descriptors, self.metric)
+
+    @property
+    def n_places(self) -> int:
+        """Number of places ``N``."""
+        return self.reference.n_places
+
+    def describe(self, frame) -> np.ndarray:
+        """One raw frame through the map's front-end, ``(d,)``."""
+        return describe_frame(frame, self.kind, self.frontend, self.not_detected)
+
+    def difference_row(self, frame, out: np.ndarray | None = None) -> np.ndarray:
+        """The frame's (normalised, as the map's front-end says) difference to every place."""
+        return self.reference.row(self.describe(frame), normalise=self.frontend.normalise, out=out)
+
+    def reference_rows(self, rows: np.ndarray, block_values: int = 1 << 22):
+        """Yield ``(places, block)``: normalised rows of the map against itself for the
+        given places, ``block`` ``(len(places), N)`` float64, ``block_values`` values at
+        most per block."""
+        rows = np.asarray(rows, dtype=np.int64)
+        step = max(1, block_values // self.n_places)
+        r = self.reference
+        for start in range(0, len(rows), step):
+            places = rows[start : start + step]
+            out = np.empty((len(places), self.n_places))
+            yield places, r._fill(r.descriptors[places], self.frontend.normalise, out)
+
+    def bootstrap(self, gap: int | None = None, max_different: int = 100_000, seed=0,
+                  anchor_rows: int | None = 4096):
+        """A fitted ``HistogramLikelihood`` whose ``¬L`` histogram comes from the map.
+
+        Equal to :meth:`catgraph.observation.HistogramObservation.bootstrap` on the full
+        ``N × N`` reference matrix when ``N <= anchor_rows``; see the module docstring.
+        Also sets :attr:`hub_`.
+
+        Parameters
+        ----------
+        gap : int, optional
+            Places more than ``gap`` apart are different (default ``max(10, N // 100)``).
+        max_different : int
+            ``¬L`` samples.
+        seed : int, Generator or None
+        anchor_rows : int or None
+            Above this many places, rows come from a sample of this many.
+        """
+        from .likelihood import HistogramLikelihood
+
+        n = self.n_places
+        if n < 3:
+            raise DataError(f"a bootstrap needs at least 3 map places; the map has {n}.")
+        gap = max(10, n // 100) if gap is None else gap
+        gap = min(gap, n - 2)
+        rows, cols = bootstrap_pairs(n, gap, max_different, seed, anchor_rows)
+        order = np.argsort(rows, kind="stable")
+        needed = np.unique(rows)
+        values = np.empty(len(rows))
+        hub_sum, hub_count = np.zeros(n), np.zeros(n)
+        sorted_rows = rows[order]
+        for places, block in self.reference_rows(needed):
+            lo = np.searchsorted(sorted_rows, places[0], "left")
+            hi = np.searchsorted(sorted_rows, places[-1], "right")
+            idx = order[lo:hi]
+            local = np.searchsorted(places, rows[idx])
+            values[idx] = block[local, cols[idx]]
+            for t, p in enumerate(places):  # hub statistic: mean over far places
+                far = block[t].copy()
+                far[max(0, p - gap) : p + gap + 1] = np.nan
+                ok = ~np.isnan(far)
+                hub_sum[ok] += far[ok]
+                hub_count[ok] += 1
+        self.hub_ = np.divide(hub_sum, hub_count, out=np.zeros(n), where=hub_count > 0)
+        return HistogramLikelihood().fit(np.empty(0), values)
+
+    def __repr__(self) -> str:
+        return (f"LiveMap(name={self.name!r}, n_places={self.n_places}, kind={self.kind!r}, metric={self.metric!r}, "
+                f"frontend={self.frontend})")
+
+
+# ---------------------------------------------------------------------------------------
+# one step per frame
+
+
+@dataclass(frozen=True)
+class LiveEstimate:
+    """The answer for one live frame.
+
+    Attributes
+    ----------
+    place : int
+        Most likely map place.
+    position : ndarray or None
+        Its metric position, where the map has positions.
+    score : float
+        What to threshold (and rank frames by): the filter's :attr:`Estimate.score`
+        (log-odds of the posterior mass near ``place``, capped by the recent support);
+        the matcher's confidence with ``model="matcher"``.
+    confidence : float
+        Posterior mass within the confidence radius of ``place`` (filter); the
+        matcher's confidence with ``model="matcher"``.
+    new_place_probability : float
+        ``P(new place | frames so far)`` (NaN for the matcher alone).
+    window_length : int or None
+        The sequence window the frame was matched with (models with a sequence part).
+    velocity : float or None
+        Places per frame of the chosen sequence hypothesis (1.0 while the matcher
+        searches the diagonal only).
+    seconds : dict
+        Wall time of ``frontend``, ``difference`` and ``model`` for this frame.
+    """
+
+    place: int
+    position: np.ndarray | None
+    score: float
+    confidence: float
+    new_place_probability: float
+    window_length: int | None
+    velocity: float | None
+    seconds: dict
+
+
+def _sequence_part(model):
+    """The SequenceObservation inside a model, if any."""
+    from .observation import CombinedObservation, SequenceObservation
+
+    if isinstance(model, SequenceObservation):
+        return model
+    if isinstance(model, CombinedObservation):
+        for part in model.models:
+            found = _sequence_part(part)
+            if found is not None:
+                return found
+    return None
+
+
+def _observation_model(params: dict, live_map: LiveMap, anchor_rows: int | None):
+    """The filter's observation model from the ``filter`` method's parameters, as
+    :mod:`catgraph.methods` builds it, with the bootstrap drawn from the map in blocks."""
+    from .methods import _WINDOW_ADAPTIVE, _bootstrap_gap
+    from .observation import CombinedObservation, HistogramObservation, SequenceObservation
+
+    model = params["model"]
+
+    def histogram(bootstrap: bool) -> HistogramObservation:
+        kw = {"exclusion_radius": params["exclusion_radius"]}
+        if not bootstrap:
+            return HistogramObservation(n_init=params["n_init"], seed=params["seed"], **kw)
+        likelihood = live_map.bootstrap(gap=_bootstrap_gap(params, live_map.n_places),
+                                        max_different=params["max_different"], seed=params["seed"],
+                                        anchor_rows=anchor_rows)
+        return HistogramObservation(mode="bootstrap", likelihood=likelihood, **kw)
+
+    def sequence(default_window) -> SequenceObservation:
+        window = params.get("window") or default_window
+        matcher = {k: params[k] for k in _WINDOW_ADAPTIVE} if window == "adaptive" else {}
+        return SequenceObservation(window=window, matcher_params=matcher)
+
+    if model == "histogram":
+        return histogram(False)
+    if model == "histogram-bootstrap":
+        return histogram(True)
+    if model == "sequence":
+        return sequence(50)
+    if model == "adaptive":
+        return sequence("adaptive")
+    return CombinedObservation([histogram(True), sequence("adaptive")])
+
+
+class LiveLocalizer:
+    """Localise one frame at a time against a :class:`LiveMap`.
+
+    Parameters
+    ----------
+    live_map : LiveMap
+    model : str
+        One of :data:`LIVE_MODELS`: an observation model of the particle filter,
+        built as the batch ``filter`` method builds it (bootstrapped ones through
+        :meth:`LiveMap.bootstrap`), or ``"matcher"``: the sequence matcher alone.
+    anchor_rows : int or None
+        Passed to :meth:`LiveMap.bootstrap`.
+    **params
+        Parameters of the batch method — ``filter`` (``n_particles``, ``seed``,
+        ``confidence_radius``, ``window`` …; see ``catgraph methods filter``), or
+        ``sequence`` for ``"matcher"`` (``window``, ``exclusion`` …) — with the same
+        defaults and checks.
+
+    Attributes
+    ----------
+    params_ : dict
+        The resolved parameters.
+    localizer_ : Localizer or None
+    matcher_ : SequenceMatcher or None
+
+    Examples
+    --------
+    >>> from catgraph.datasets.synthetic import make_world
+    >>> world = make_world(seed=1, blocks=(2, 2), as_images=True)
+    >>> live = LiveLocalizer(LiveMap(world.reference), model="adaptive", n_particles=200)
+    >>> est = live.step(world.query.frames[0])
+    >>> 0 <= est.place < live.live_map.n_places
+    True
+    """
+
+    def __init__(self, live_map: LiveMap, model: str = "combined", anchor_rows: int | None = 4096,
+                 **params: Any) -> None:
+        from .methods import resolve_params
+
+        if not isinstance(live_map, LiveMap):
+            raise InvalidParameterError(f"LiveLocalizer needs a LiveMap; got {type(live_map).__name__}.")
+        if model not in LIVE_MODELS:
+            raise InvalidParameterError(
+                f"The 'model' parameter of LiveLocalizer must be one of {LIVE_MODELS}. Got {model!r} instead."
+            )
+        self.live_map = live_map
+        self.model_name = model
+        self._row = np.empty(live_map.n_places)
+        self.localizer_ = self.matcher_ = None
+        if model == "matcher":
+            from .methods import _sequence_kwargs
+            from .sequence import SequenceMatcher
+
+            self.params_ = resolve_params("sequence", {"window": "adaptive", **params})
+            self.matcher_ = SequenceMatcher(radius=self.params_["exclusion"], **_sequence_kwargs(self.params_))
+            return
+        from .localizer import Localizer
+
+        self.params_ = p = resolve_params("filter", {"model": model, **params})
+        obs = _observation_model(p, live_map, anchor_rows)
+        self.model_ = obs
+        self._sequence = _sequence_part(obs)
+        self.use_odometry = bool(p["use_odometry"]) and live_map.graph.unit == "m"
+        keys = ("n_particles", "seed", "resampler", "ess_threshold", "redraw_fraction", "proposal", "new_place_prior",
+                "confidence_radius", "confidence_radius_m")
+        self.localizer_ = Localizer(live_map.graph, obs, **{k: p[k] for k in keys if k in p})
+        self.localizer_.reset()
+
+    def reset(self) -> "LiveLocalizer":
+        """Start a new query (models and filter forget every frame)."""
+        if self.localizer_ is None:
+            self.matcher_.reset()
+        else:
+            self.localizer_.reset()
+        return self
+
+    def step(self, frame, odometry: float | None = None) -> LiveEstimate:
+        """Localise one raw frame (image, scan or descriptor, as the map's kind says).
+
+        Parameters
+        ----------
+        frame : array_like
+            See :func:`describe_frame`.
+        odometry : float, optional
+            Distance travelled since the previous frame (metric graphs only).
+
+        Returns
+        -------
+        LiveEstimate
+        """
+        t0 = time.perf_counter()
+        descriptor = self.live_map.describe(frame)
+        t1 = time.perf_counter()
+        row = self.live_map.reference.row(descriptor, normalise=self.live_map.frontend.normalise, out=self._row)
+        t2 = time.perf_counter()
+        if self.localizer_ is None:
+            m = self.matcher_.step(row)
+            t3 = time.perf_counter()
+            return LiveEstimate(int(m.match), None, float(m.confidence), float(m.confidence), float("nan"),
+                                int(m.window_length), float(getattr(m, "velocity", 1.0)),
+                                {"frontend": t1 - t0, "difference": t2 - t1, "model": t3 - t2})
+        if odometry is not None:
+            check_scalar(odometry, "odometry", "LiveLocalizer.step", float, 0.0)
+        est = self.localizer_.step(row, float(odometry) if (odometry is not None and self.use_odometry) else None)
+        t3 = time.perf_counter()
+        window = velocity = None
+        last = getattr(self._sequence, "last_match_", None)
+        if last is not None:
+            window = int(last.window_length)
+            velocity = float(getattr(last, "velocity", 1.0))
+        return LiveEstimate(int(est.place), est.position, float(est.score), float(est.confidence),
+                            float(est.new_place_probability), window, velocity,
+                            {"frontend": t1 - t0, "difference": t2 - t1, "model": t3 - t2})
+
+    def run(self, frames, odometry=None) -> list[LiveEstimate]:
+        """:meth:`step` through frames (a convenience for tests and examples)."""
+        odometry = None if odometry is None else check_array(odometry, "odometry", ndim=1)
+        return [self.step(f, None if odometry is None or k == 0 else float(odometry[k])) for k, f in enumerate(frames)]

@@ -1,0 +1,162 @@
+"""Live API: one frame at a time gives the batch answers; bounded bootstrap."""
+
+import json
+import runpy
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from catgraph.datasets.synthetic import make_world
+from catgraph.exceptions import DataError, InvalidParameterError
+from catgraph.live import LiveEstimate, LiveLocalizer, LiveMap, bootstrap_pairs, describe_frame
+from catgraph.pipeline import FrontEnd, describe
+from catgraph.traverse import Traverse
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "live.py"
+
+
+@pytest.fixture(scope="module")
+def world():
+    return make_world(seed=1, blocks=(2, 2), as_images=True)
+
+
+@pytest.fixture(scope="module")
+def short_query(world):
+    return world.query.take(np.arange(120))
+
+
+def test_describe_frame_equals_batch_front_end(world, rng):
+    frontend = FrontEnd(size=(16, 8), patch=4)
+    batch, _ = describe(world.query, frontend)
+    for k in range(0, len(world.query), 37):
+        assert np.array_equal(describe_frame(world.query.frames[k], "images", frontend), batch[k])
+    rss = np.where(rng.random((5, 12)) < 0.4, 100.0, -rng.uniform(30, 100, (5, 12)))
+    wifi = Traverse(rss, meta={"kind": "wifi", "not_detected": 100.0})
+    batch, _ = describe(wifi)
+    assert all(np.array_equal(describe_frame(rss[k], "wifi"), batch[k]) for k in range(5))
+    bits = rng.random((3, 2, 5)) > 0.5
+    assert describe_frame(bits[0], "descriptors").dtype == bool
+    with pytest.raises(DataError, match=r"\(h, w\)"):
+        describe_frame(np.zeros((2, 3, 4, 5)), "images")
+    with pytest.raises(DataError, match="scan"):
+        describe_frame(np.zeros((2, 3)), "wifi")
+    with pytest.raises(InvalidParameterError, match="kind"):
+        describe_frame(np.zeros(3), "lidar")
+
+
+def test_bootstrap_pairs_are_those_of_reference_samples(rng):
+    from catgraph.likelihood import reference_samples
+
+    r = rng.normal(size=(60, 60))
+    rows, cols = bootstrap_pairs(60, 7, 500, seed=3)
+    _, different = reference_samples(r, 7, max_different=500, seed=3)
+    assert np.array_equal(r[rows, cols], different)
+    # anchored: rows from a sample of places, columns more than gap away
+    rows, cols = bootstrap_pairs(5000, 20, 3000, seed=1, anchor_rows=40)
+    assert len(np.unique(rows)) <= 40 and np.all(np.abs(rows - cols) > 20)
+    assert cols.min() >= 0 and cols.max() < 5000
+
+
+def test_map_bootstrap_equals_full_matrix_bootstrap(world):
+    from catgraph.differences import difference_matrix
+    from catgraph.observation import HistogramObservation
+
+    live_map = LiveMap(world.reference)
+    d = live_map.reference.descriptors
+    full = HistogramObservation.bootstrap(difference_matrix(d, d, live_map.metric, normalise=True), gap=12,
+                                          max_different=4000, seed=5).likelihood
+    mine = live_map.bootstrap(gap=12, max_different=4000, seed=5)
+    z = np.linspace(-4, 4, 41)
+    assert np.array_equal(full.log_likelihood_ratio(z), mine.log_likelihood_ratio(z))
+    assert live_map.hub_.shape == (live_map.n_places,) and np.all(np.isfinite(live_map.hub_))
+    # above anchor_rows: rows sampled, never an N x N matrix
+    small = live_map.bootstrap(gap=12, max_different=4000, seed=5, anchor_rows=16)
+    assert np.all(np.isfinite(small.log_likelihood_ratio(z)))
+
+
+@pytest.mark.parametrize("model", ["histogram", "histogram-bootstrap", "adaptive", "combined"])
+def test_live_steps_give_the_batch_answers(world, short_query, model):
+    from catgraph.compare import localize
+
+    live = LiveLocalizer(LiveMap(world.reference), model=model, n_particles=200, seed=2)
+    query = short_query
+    estimates = [live.step(query.frames[k], None if k == 0 else float(query.odometry[k])) for k in range(len(query))]
+    batch = localize(world.reference, query, model=model, n_particles=200, seed=2)
+    assert np.array_equal([e.place for e in estimates], batch.match)
+    assert np.array_equal([e.score for e in estimates], batch.confidence)
+    assert np.array_equal([e.new_place_probability for e in estimates], batch.extra["p_new_place"])
+    last = estimates[-1]
+    assert isinstance(last, LiveEstimate) and set(last.seconds) == {"frontend", "difference", "model"}
+    if model in ("adaptive", "combined"):
+        assert last.window_length >= 1 and last.velocity is not None
+    else:
+        assert last.window_length is None
+
+
+def test_matcher_mode_equals_match_sequences(world):
+    from catgraph.differences import difference_matrix
+    from catgraph.sequence import match_sequences
+
+    live_map = LiveMap(world.reference)
+    live = LiveLocalizer(live_map, model="matcher", l_max=60)
+    got = [live.step(f) for f in world.query.frames[:60]]
+    q, _ = describe(world.query)
+    d = difference_matrix(q[:60], live_map.reference, live_map.metric, normalise=True)
+    batch = match_sequences(d, window="adaptive", l_max=60, radius=live.params_["exclusion"])
+    assert np.array_equal([g.place for g in got], batch.match)
+    assert np.array_equal([g.window_length for g in got], batch.window_length)
+    assert np.isnan(got[0].new_place_probability)
+
+
+def test_live_map_from_saved_map_and_bad_inputs(world, tmp_path):
+    from catgraph.io import build_map, load_map, save_map
+
+    path = save_map(tmp_path / "m.npz", build_map(world.reference))
+    live_map = LiveMap(load_map(path))
+    assert live_map.kind == "images" and live_map.n_places == len(world.reference)
+    with pytest.raises(InvalidParameterError, match="front-end"):
+        LiveMap(load_map(path), frontend=FrontEnd())
+    with pytest.raises(DataError, match="place graph"):
+        LiveMap(build_map(world.reference, graph=False))
+    with pytest.raises(InvalidParameterError, match="LiveMap"):
+        LiveMap(np.zeros((3, 3)))
+    with pytest.raises(InvalidParameterError, match="model"):
+        LiveLocalizer(live_map, model="kalman")
+    live = LiveLocalizer(live_map, model="histogram", n_particles=50)
+    with pytest.raises(DataError):
+        live.step(np.zeros((3, 3, 3, 3)))
+    with pytest.raises(Exception, match="values per"):
+        live.step(np.zeros((4, 4)))
+
+
+def _to_uint8(frames):
+    lo, hi = np.percentile(frames, [1, 99])
+    return np.clip((frames - lo) / (hi - lo) * 255, 0, 255).astype(np.uint8)
+
+
+def test_example_matches_the_localize_command(world, tmp_path, capsys, monkeypatch):
+    from catgraph.cli.main import main as cli
+
+    from .conftest import write_images
+
+    ref = write_images(tmp_path / "ref", _to_uint8(world.reference.frames))
+    qry = write_images(tmp_path / "qry", _to_uint8(world.query.frames[:60]))
+    map_path = tmp_path / "ref.npz"
+    assert cli(["build-map", str(ref), "--out", str(map_path), "--quiet"]) == 0
+    out_live = tmp_path / "live.json"
+    monkeypatch.setattr(sys, "argv", ["live.py", str(map_path), str(qry), "--model", "combined", "--particles",
+                                      "200", "--output", str(out_live)])
+    with pytest.raises(SystemExit) as stop:
+        runpy.run_path(str(EXAMPLE), run_name="__main__")
+    assert stop.value.code == 0
+    assert "per-frame ms: median" in capsys.readouterr().out
+    out_batch = tmp_path / "batch.json"
+    assert cli(["localize", "--map", str(map_path), str(qry), "--model", "combined", "--particles", "200",
+                "-o", str(out_batch), "--quiet"]) == 0
+    live_frames = json.loads(out_live.read_text())["frames"]
+    batch_frames = json.loads(out_batch.read_text())["frames"]
+    assert live_frames["match"] == batch_frames["match"]
+    assert live_frames["confidence"] == batch_frames["confidence"]
+    assert live_frames["p_new_place"] == batch_frames["p_new_place"]
