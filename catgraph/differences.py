@@ -61,6 +61,7 @@ are in ``benchmarks/results/live.md``.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 
 import numpy as np
@@ -96,21 +97,36 @@ def _kernels():
     return _diff_kernels
 
 
-def _pair_block(q: np.ndarray, r: np.ndarray, code: int, out: np.ndarray) -> None:
-    """The pair kernel on as many threads as the work is worth (same result on any)."""
-    import numba
+_POOL = None
 
-    k = _kernels()
-    available = numba.get_num_threads()
-    threads = int(max(1, min(available, (q.shape[0] * r.shape[0] * r.shape[1]) // WORK_PER_THREAD)))
-    if threads == available:
-        k.pair_block(q, r, code, out)
-        return
-    numba.set_num_threads(threads)
+
+def _threads_available() -> int:
     try:
-        k.pair_block(q, r, code, out)
-    finally:
-        numba.set_num_threads(available)
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return os.cpu_count() or 1
+
+
+def _pair_block(q: np.ndarray, r: np.ndarray, code: int, out: np.ndarray) -> None:
+    """The pair kernel over disjoint place ranges, on as many threads as the work is
+    worth (the result is the same on any number)."""
+    global _POOL
+    k = _kernels()
+    n = r.shape[0]
+    threads = int(max(1, min(_threads_available(), (q.shape[0] * n * r.shape[1]) // WORK_PER_THREAD,
+                             -(-n // k.PLACE_BLOCK))))
+    if threads == 1:
+        k.pair_block(q, r, 0, n, code, out)
+        return
+    if _POOL is None or _POOL._max_workers < threads:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _POOL = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="catgraph-differences")
+    blocks = -(-n // k.PLACE_BLOCK)
+    edges = [min(n, (blocks * t // threads) * k.PLACE_BLOCK) for t in range(threads + 1)]
+    jobs = [_POOL.submit(k.pair_block, q, r, lo, hi, code, out) for lo, hi in zip(edges[:-1], edges[1:])]
+    for job in jobs:
+        job.result()
 
 
 def _check_finite(x: np.ndarray, name: str, rows: int = 65536) -> None:
