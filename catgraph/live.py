@@ -66,6 +66,7 @@ __all__ = [
     "LiveMap",
     "bootstrap_pairs",
     "describe_frame",
+    "map_bootstrap",
 ]
 
 #: Models a :class:`LiveLocalizer` runs: the filter's observation models
@@ -157,6 +158,76 @@ def bootstrap_pairs(n_places: int, gap: int, max_different: int = 100_000, seed=
     return rows.astype(np.int64), cols
 
 
+def _reference_rows(reference: PreparedReference, rows: np.ndarray, normalise: bool, block_values: int = 1 << 22):
+    """Yield ``(places, block)``: the map against itself for the given places,
+    ``(len(places), N)`` float64, at most ``block_values`` values per block."""
+    step = max(1, block_values // reference.n_places)
+    for start in range(0, len(rows), step):
+        places = rows[start : start + step]
+        out = np.empty((len(places), reference.n_places))
+        yield places, reference._fill(reference.descriptors[places], normalise, out)
+
+
+def map_bootstrap(catgraph_map, gap: int | None = None, max_different: int = 100_000, seed=0,
+                  anchor_rows: int | None = 4096, reference: PreparedReference | None = None):
+    """The bootstrapped ``¬L`` model of a map, without an ``N × N`` matrix.
+
+    Draws the pairs of :func:`bootstrap_pairs` and computes only the reference rows
+    they need, a block at a time. With ``N <= anchor_rows`` the fitted model equals
+    :meth:`catgraph.observation.HistogramObservation.bootstrap` on the full normalised
+    reference-vs-reference matrix, bit for bit.
+
+    Parameters
+    ----------
+    catgraph_map : CatgraphMap
+    gap : int, optional
+        Places more than ``gap`` apart are different (default ``max(10, N // 100)``,
+        capped at ``N − 2``).
+    max_different : int
+        ``¬L`` samples.
+    seed : int, Generator or None
+    anchor_rows : int or None
+        Above this many places, rows come from a seeded sample of this many.
+    reference : PreparedReference, optional
+        The map's prepared descriptors, if already at hand.
+
+    Returns
+    -------
+    likelihood : HistogramLikelihood
+        Fitted (``L`` histogram empty: learned online).
+    hub : ndarray of float64, shape (N,)
+        Each place's mean normalised difference to the sampled places more than
+        ``gap`` from it (low: close to everything, a hub).
+    """
+    from .likelihood import HistogramLikelihood
+
+    reference = PreparedReference(catgraph_map.descriptors, catgraph_map.metric) if reference is None else reference
+    normalise = bool(catgraph_map.frontend.get("normalise", True))
+    n = reference.n_places
+    if n < 3:
+        raise DataError(f"a bootstrap needs at least 3 map places; the map has {n}.")
+    gap = max(10, n // 100) if gap is None else gap
+    gap = min(gap, n - 2)
+    rows, cols = bootstrap_pairs(n, gap, max_different, seed, anchor_rows)
+    order = np.argsort(rows, kind="stable")
+    sorted_rows = rows[order]
+    values = np.empty(len(rows))
+    hub_sum, hub_count = np.zeros(n), np.zeros(n)
+    for places, block in _reference_rows(reference, np.unique(rows), normalise):
+        lo = np.searchsorted(sorted_rows, places[0], "left")
+        hi = np.searchsorted(sorted_rows, places[-1], "right")
+        idx = order[lo:hi]
+        values[idx] = block[np.searchsorted(places, rows[idx]), cols[idx]]
+        for t, p in enumerate(places):  # hub statistic: mean over places far from the row
+            hub_sum += block[t]
+            hub_count += 1
+            near = slice(max(0, p - gap), p + gap + 1)
+            hub_sum[near] -= block[t, near]
+            hub_count[near] -= 1
+    hub = np.divide(hub_sum, hub_count, out=np.zeros(n), where=hub_count > 0)
+    return HistogramLikelihood().fit(np.empty(0), values), hub
+
+
 class LiveMap:
     """A map prepared for one-frame-at-a-time localisation.
 
@@ -232,63 +303,12 @@ class LiveMap:
         """The frame's (normalised, as the map's front-end says) difference to every place."""
         return self.reference.row(self.describe(frame), normalise=self.frontend.normalise, out=out)
 
-    def reference_rows(self, rows: np.ndarray, block_values: int = 1 << 22):
-        """Yield ``(places, block)``: normalised rows of the map against itself for the
-        given places, ``block`` ``(len(places), N)`` float64, ``block_values`` values at
-        most per block."""
-        rows = np.asarray(rows, dtype=np.int64)
-        step = max(1, block_values // self.n_places)
-        r = self.reference
-        for start in range(0, len(rows), step):
-            places = rows[start : start + step]
-            out = np.empty((len(places), self.n_places))
-            yield places, r._fill(r.descriptors[places], self.frontend.normalise, out)
-
     def bootstrap(self, gap: int | None = None, max_different: int = 100_000, seed=0,
                   anchor_rows: int | None = 4096):
-        """A fitted ``HistogramLikelihood`` whose ``¬L`` histogram comes from the map.
-
-        Equal to :meth:`catgraph.observation.HistogramObservation.bootstrap` on the full
-        ``N × N`` reference matrix when ``N <= anchor_rows``; see the module docstring.
-        Also sets :attr:`hub_`.
-
-        Parameters
-        ----------
-        gap : int, optional
-            Places more than ``gap`` apart are different (default ``max(10, N // 100)``).
-        max_different : int
-            ``¬L`` samples.
-        seed : int, Generator or None
-        anchor_rows : int or None
-            Above this many places, rows come from a sample of this many.
-        """
-        from .likelihood import HistogramLikelihood
-
-        n = self.n_places
-        if n < 3:
-            raise DataError(f"a bootstrap needs at least 3 map places; the map has {n}.")
-        gap = max(10, n // 100) if gap is None else gap
-        gap = min(gap, n - 2)
-        rows, cols = bootstrap_pairs(n, gap, max_different, seed, anchor_rows)
-        order = np.argsort(rows, kind="stable")
-        needed = np.unique(rows)
-        values = np.empty(len(rows))
-        hub_sum, hub_count = np.zeros(n), np.zeros(n)
-        sorted_rows = rows[order]
-        for places, block in self.reference_rows(needed):
-            lo = np.searchsorted(sorted_rows, places[0], "left")
-            hi = np.searchsorted(sorted_rows, places[-1], "right")
-            idx = order[lo:hi]
-            local = np.searchsorted(places, rows[idx])
-            values[idx] = block[local, cols[idx]]
-            for t, p in enumerate(places):  # hub statistic: mean over far places
-                far = block[t].copy()
-                far[max(0, p - gap) : p + gap + 1] = np.nan
-                ok = ~np.isnan(far)
-                hub_sum[ok] += far[ok]
-                hub_count[ok] += 1
-        self.hub_ = np.divide(hub_sum, hub_count, out=np.zeros(n), where=hub_count > 0)
-        return HistogramLikelihood().fit(np.empty(0), values)
+        """A fitted ``HistogramLikelihood`` whose ``¬L`` histogram comes from the map
+        (:func:`map_bootstrap`); also sets :attr:`hub_`."""
+        likelihood, self.hub_ = map_bootstrap(self.map, gap, max_different, seed, anchor_rows, self.reference)
+        return likelihood
 
     def __repr__(self) -> str:
         return (f"LiveMap(name={self.name!r}, n_places={self.n_places}, kind={self.kind!r}, metric={self.metric!r}, "

@@ -70,10 +70,18 @@ def test_map_bootstrap_equals_full_matrix_bootstrap(world):
     mine = live_map.bootstrap(gap=12, max_different=4000, seed=5)
     z = np.linspace(-4, 4, 41)
     assert np.array_equal(full.log_likelihood_ratio(z), mine.log_likelihood_ratio(z))
-    assert live_map.hub_.shape == (live_map.n_places,) and np.all(np.isfinite(live_map.hub_))
+    hub_full = live_map.hub_
+    assert hub_full.shape == (live_map.n_places,) and np.all(np.isfinite(hub_full))
     # above anchor_rows: rows sampled, never an N x N matrix
     small = live_map.bootstrap(gap=12, max_different=4000, seed=5, anchor_rows=16)
     assert np.all(np.isfinite(small.log_likelihood_ratio(z)))
+    # the same from a map without a place graph (what the batch methods hold)
+    from catgraph.io import build_map
+    from catgraph.live import map_bootstrap
+
+    likelihood, hub = map_bootstrap(build_map(world.reference, graph=False), gap=12, max_different=4000, seed=5)
+    assert np.array_equal(likelihood.log_likelihood_ratio(z), full.log_likelihood_ratio(z))
+    np.testing.assert_allclose(hub, hub_full, atol=1e-9)
 
 
 @pytest.mark.parametrize("model", ["histogram", "histogram-bootstrap", "adaptive", "combined"])
