@@ -206,8 +206,11 @@ def build_map(reference: "Traverse", frontend: "FrontEnd | None" = None, *, junc
     """
     from .pipeline import FrontEnd, _kind, describe
 
+    from .frontends import check_information
+
     frontend = FrontEnd() if frontend is None else frontend
     descriptors, metric = describe(reference, frontend)
+    check_information(descriptors, "reference")
     the_graph = place_graph(reference, junction_radius_m) if graph else None
     info = {"kind": _kind(reference), "n_frames": len(reference)}
     if "source" in reference.meta:
@@ -230,8 +233,12 @@ def place_graph(reference: "Traverse", junction_radius_m: float | None = None) -
 def reference_differences(catgraph_map: CatgraphMap) -> np.ndarray:
     """The ``(N, N)`` differences between the map's places, with the map's own metric and
     normalisation: what models that bootstrap from the map learn from."""
+    from ._validation import check_memory
     from .differences import difference_matrix
 
+    n = len(catgraph_map.descriptors)
+    check_memory(8.0 * n * n, f"the ({n}, {n}) float64 differences between the map's places",
+                 "use a learning that does not bootstrap from the map, or a shorter reference")
     return difference_matrix(catgraph_map.descriptors, catgraph_map.descriptors, catgraph_map.metric,
                              normalise=bool(catgraph_map.frontend.get("normalise", True)))
 
@@ -275,7 +282,17 @@ def query_differences(catgraph_map: CatgraphMap, query: "Traverse") -> np.ndarra
             f"query frames give {q.shape[1]} values per descriptor but the map holds {catgraph_map.descriptors.shape[1]}; "
             f"the map was built with front-end {catgraph_map.frontend}: use query data of the same kind and size."
         )
-    return difference_matrix(q, catgraph_map.descriptors, catgraph_map.metric, normalise=frontend.normalise)
+    from ._validation import check_memory
+    from .frontends import check_information
+
+    informative = check_information(q, "query")
+    n_query, n_places = len(q), len(catgraph_map.descriptors)
+    check_memory(8.0 * n_query * n_places, f"the ({n_query}, {n_places}) float64 difference matrix",
+                 "use a shorter query or reference")
+    d = difference_matrix(q, catgraph_map.descriptors, catgraph_map.metric, normalise=frontend.normalise)
+    # a frame with no information says nothing about where it is: σ = 0, no match (catgraph.matching)
+    d[~informative] = 0.0 if frontend.normalise else d[~informative].mean(axis=1, keepdims=True)
+    return d
 
 
 # ---------------------------------------------------------------------------- encoding

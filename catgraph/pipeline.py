@@ -103,7 +103,10 @@ def describe(traverse: Traverse, frontend: FrontEnd = FrontEnd()) -> tuple[np.nd
     frames = traverse.frames.reshape(len(traverse), -1)
     if frames.dtype == bool:
         return frames, frontend.metric or "hamming"
-    return frames.astype(np.float32), frontend.metric or "cosine"
+    from ._validation import check_array
+
+    return check_array(frames, f"descriptors of {traverse.name or 'the traverse'}", dtype=np.float32), \
+        frontend.metric or "cosine"
 
 
 def differences(reference: Traverse, query: Traverse, frontend: FrontEnd = FrontEnd()) -> np.ndarray:

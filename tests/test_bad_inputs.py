@@ -170,10 +170,6 @@ def EITHER(id, *argv, message="", xfail=""):
 
 
 # Cases the library or the command line still fails, each with what is missing and where.
-NO_INFORMATION = ("frames with no information are not yet checked where the differences are computed: "
-                  "catgraph.frontends.check_information must be called on the reference and query descriptors "
-                  "(pipeline/io)")
-WARNINGS = "catgraph/cli/main.py does not yet print a CatgraphWarning as one 'catgraph: warning:' line"
 FRONTEND_OPTIONS = "--size/--patch are silently ignored for descriptor arrays (pipeline.describe)"
 WINDOW_RANGE = "a --window longer than the query is accepted without a word (methods/sequence)"
 INIT_FRAMES_RANGE = "--init-frames beyond the query length is accepted: every confidence 0 (methods)"
@@ -217,29 +213,25 @@ CASES = [
     E("dimension-mismatch", "match", "{ref}", "{qry20}", "--tolerance", "2", message="16.*20|20.*16"),
     E("kind-mismatch", "match", "{ref_img}", "{qry}", "--tolerance", "2", message="images|descriptors"),
     EITHER("npy-huge-values", "match", "{ref}", "{huge}", "--tolerance", "2", message="finite|large|infinite"),
-    E("all-zero-cosine-reference", "match", "{zeros}", "{qry}", "--tolerance", "2", message="information",
-      xfail=NO_INFORMATION),
-    W("all-zero-cosine-query", "match", "{ref}", "{zeros}", "--tolerance", "2", message="information",
-      xfail=NO_INFORMATION),
+    E("all-zero-cosine-reference", "match", "{zeros}", "{qry}", "--tolerance", "2", message="information"),
+    W("all-zero-cosine-query", "match", "{ref}", "{zeros}", "--tolerance", "2", message="information"),
     # --- image folders
     E("folder-empty", "match", "{empty_dir}", "{qry_img}", "--tolerance", "2", message="no PNG or JPG"),
     E("folder-corrupt-image", "match", "{corrupt_img}", "{qry_img}", "--tolerance", "2", message="img-00040.png"),
     E("folder-mixed-sizes", "match", "{mixed_img}", "{qry_img}", "--tolerance", "2", message="differ in size"),
-    E("black-reference", "match", "{black_img}", "{qry_img}", "--tolerance", "2", message="information",
-      xfail=NO_INFORMATION),
+    E("black-reference", "match", "{black_img}", "{qry_img}", "--tolerance", "2", message="information"),
     W("black-query-frames", "match", "{ref_img}", "{qry_some_black}", "--tolerance", "2",
-      message="5 of 40 query frames carry no information", xfail=NO_INFORMATION),
+      message="5 of 40 query frames carry no information"),
     # --- UJI Wi-Fi
     E("uji-missing", "match", "{uji_missing}", "{uji_qry}", "--tolerance-m", "3", message="none01"),
     E("uji-ragged", "match", "{uji_ragged}", "{uji_qry}", "--tolerance-m", "3", message="rag01rss.csv, line 2"),
     E("uji-positive-dbm", "match", "{uji_positive}", "{uji_qry}", "--tolerance-m", "3", message="dBm"),
     OK("uji-14-digit-timestamps", "match", "{uji_ref}", "{uji_qry}", "--tolerance-m", "3"),
-    W("uji-bad-timestamps", "match", "{uji_badtms}", "{uji_qry}", "--tolerance-m", "3", message="bad01tms.csv",
-      xfail=WARNINGS),
+    W("uji-bad-timestamps", "match", "{uji_badtms}", "{uji_qry}", "--tolerance-m", "3", message="bad01tms.csv"),
     W("uji-query-all-undetected", "match", "{uji_ref}", "{uji_undetected}", "--tolerance-m", "3",
-      message="information", xfail=NO_INFORMATION),
+      message="information"),
     E("uji-reference-all-undetected", "match", "{uji_undetected}", "{uji_qry}", "--tolerance-m", "3",
-      message="information", xfail=NO_INFORMATION),
+      message="information"),
     # --- synthetic world names
     E("synthetic-bad-seed", "match", "synthetic:abc", "synthetic:abc", message="synthetic"),
     E("synthetic-negative-seed", "match", "synthetic:-1", "synthetic:-1", message="seed|synthetic"),
@@ -322,8 +314,7 @@ CASES = [
     E("build-map-junction-no-graph", "build-map", "{refpos}", "--out", "{existing_map}", "--junction-radius-m", "5",
       "--no-graph", message="--no-graph"),
     E("build-map-out-under-a-file", "build-map", "{ref}", "--out", "{blocked}", message="afile"),
-    E("build-map-black-reference", "build-map", "{black_img}", "--out", "{existing_map}", message="information",
-      xfail=NO_INFORMATION),
+    E("build-map-black-reference", "build-map", "{black_img}", "--out", "{existing_map}", message="information"),
     E("build-map-size-on-descriptors", "build-map", "{ref}", "--out", "{existing_map}", "--size", "8x8",
       message="--size", xfail=FRONTEND_OPTIONS),
     # --- report
@@ -403,7 +394,6 @@ def test_the_table_is_large_enough():
 
 
 # ---------------------------------------------------------------------------- silent wrong answers
-@pytest.mark.xfail(strict=True, reason=NO_INFORMATION)
 def test_black_query_frames_get_no_match(fresh):
     """All-black frames used to be matched to one place with a confidence above most real frames."""
     import json

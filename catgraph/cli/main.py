@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from collections.abc import Sequence
 
-from ..exceptions import CatgraphError
+from ..exceptions import CatgraphError, CatgraphWarning
 from . import commands
 
 __all__ = ["main", "build_parser"]
@@ -45,6 +46,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning is one line on stderr, like an error (no file name, no source line)."""
+    text = " ".join(str(message).split())
+    prefix = "" if issubclass(category, CatgraphWarning) else f"{category.__name__}: "
+    print(f"catgraph: warning: {prefix}{text}", file=sys.stderr)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the exit code."""
     parser = build_parser()
@@ -54,7 +62,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"catgraph: error: {exc}", file=sys.stderr)
         return 1
     try:
-        return int(args.func(args) or 0)
+        with warnings.catch_warnings():
+            warnings.simplefilter("default")
+            warnings.showwarning = _show_warning
+            return int(args.func(args) or 0)
     except CatgraphError as exc:
         print(f"catgraph: error: {exc}", file=sys.stderr)
         return 1
