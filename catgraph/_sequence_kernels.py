@@ -8,16 +8,21 @@ The kernels trust their inputs (shapes, dtypes, ranges); the public functions in
 :mod:`catgraph.sequence` validate first. The streaming matcher and the batch function
 call the *same* kernels in the same order, so their results agree bit for bit.
 
-Notation (see :mod:`catgraph.sequence`): ``ring`` is ``(R, N)`` float64 holding the
-last ``R`` diagonal prefix-sum rows ``C_i[j] = d_ij + C_{i-1}[j-1]``; row ``C_i`` sits at
-``ring[i % R]``, and ``mring[i % R]`` holds ``M_i``, the running sum of the
-rows' mean differences (used to fill terms before the reference's start). ``grid`` holds the candidate window lengths (ascending).
+Notation (see :mod:`catgraph.sequence`). Velocity ``v`` places query frame ``i`` at
+reference offset ``pos_v(i) = floor(v * i + 1/2)``; one step moves the line by
+``delta_v(i) = pos_v(i) - pos_v(i - 1)`` places. ``ring`` is ``(V, R, N)`` float64: for
+each velocity the last ``R`` prefix-sum rows along its lines,
+``C^v_i[j] = d_ij + C^v_{i-1}[j - delta_v(i)]`` (a term whose place falls outside
+``[0, N)`` ends the chain), row ``C^v_i`` at ``ring[v, i % R]``. ``mring[i % R]`` holds
+``M_i``, the running sum of the rows' mean differences (the fill for terms outside the
+reference). ``grid`` holds the candidate window lengths (ascending). The line through
+``(i, j)`` visits place ``j - (pos_v(i) - pos_v(i - t))`` at frame ``i - t``.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 APPROX_GAUSSIAN = 0
 APPROX_ROBUST = 1
@@ -25,83 +30,161 @@ APPROX_GMM = 2
 
 
 @njit(cache=True)
-def advance(ring, mring, i, d_row):
-    """Write ``C_i`` into ``ring[i % R]`` (from ``C_{i-1}``; zeros before the start) and
-    the running sum of row means ``M_i = M_{i-1} + mean_j d_ij`` into ``mring[i % R]``."""
-    r = ring.shape[0]
+def position(v, i):
+    """``pos_v(i) = floor(v * i + 1/2)`` (int)."""
+    return np.int64(np.floor(v * i + 0.5))
+
+
+@njit(cache=True)
+def advance(ring, mring, i, d_row, velocities):
+    """Write ``C^v_i`` into ``ring[v, i % R]`` for every velocity, and
+    ``M_i = M_{i-1} + mean_j d_ij`` into ``mring[i % R]``."""
+    r = ring.shape[1]
     n = d_row.shape[0]
-    out = ring[i % r]
     total = 0.0
     for j in range(n):
         total += d_row[j]
     if i == 0:
-        for j in range(n):
-            out[j] = d_row[j]
         mring[0] = total / n
-        return
-    prev = ring[(i - 1) % r]
-    # prev and out are different rows because R >= 2
-    out[0] = d_row[0]
-    for j in range(1, n):
-        out[j] = d_row[j] + prev[j - 1]
-    mring[i % r] = mring[(i - 1) % r] + total / n
+    else:
+        mring[i % r] = mring[(i - 1) % r] + total / n
+    for vi in range(velocities.shape[0]):
+        out = ring[vi, i % r]
+        if i == 0:
+            for j in range(n):
+                out[j] = d_row[j]
+            continue
+        prev = ring[vi, (i - 1) % r]  # a different row because R >= 2
+        delta = position(velocities[vi], i) - position(velocities[vi], i - 1)
+        lo = delta if delta > 0 else 0
+        hi = n + delta if delta < 0 else n
+        if lo > n:
+            lo = n
+        if hi < 0:
+            hi = 0
+        for j in range(0, lo):
+            out[j] = d_row[j]
+        for j in range(lo, hi):
+            out[j] = d_row[j] + prev[j - delta]
+        for j in range(max(hi, lo), n):
+            out[j] = d_row[j]
 
 
 @njit(cache=True)
-def _window(ring, mring, i, length, j):
-    r = ring.shape[0]
+def _exit_time(v, i, eff, j, n):
+    """First ``t`` in ``[1, eff - 1]`` whose place ``j - (pos(i) - pos(i - t))`` lies
+    outside ``[0, N)`` (the caller knows one exists); binary search, the offsets being
+    monotone in ``t``."""
+    p = position(v, i)
+    lo = 0
+    hi = eff - 1
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        k = j - (p - position(v, i - mid))
+        if k < 0 or k >= n:
+            hi = mid
+        else:
+            lo = mid
+    return hi
+
+
+@njit(cache=True)
+def score_at(ring_v, mring, i, v, length, j):
+    """One score ``s_ij(L, v)`` (same policy and arithmetic as :func:`window_scores`)."""
+    r = ring_v.shape[0]
+    n = ring_v.shape[1]
     eff = length if length <= i + 1 else i + 1
-    v = ring[i % r][j]
-    if j >= eff:
+    p = position(v, i)
+    k_last = j - (p - position(v, i - eff + 1))
+    val = ring_v[i % r][j]
+    if 0 <= k_last < n:
         if i >= eff:
-            v -= ring[(i - eff) % r][j - eff]
-    elif j < eff - 1:
-        # the window runs off the start of the reference: terms k = j+1 .. eff-1 are
-        # filled with their query row's mean difference, M_{i-j-1} - M_{i-eff}
-        v += mring[(i - j - 1) % r]
+            kb = j - (p - position(v, i - eff))
+            if 0 <= kb < n:
+                val -= ring_v[(i - eff) % r][kb]
+    else:
+        t_exit = _exit_time(v, i, eff, j, n)
+        val += mring[(i - t_exit) % r]
         if i >= eff:
-            v -= mring[(i - eff) % r]
-    return v / eff
+            val -= mring[(i - eff) % r]
+    return val / eff
 
 
 @njit(cache=True)
-def window_scores(ring, mring, i, length, s):
-    """Scores ``s_ij(L)`` of query frame ``i`` against every reference ``j`` into ``s``;
+def window_scores(ring_v, mring, i, v, length, s):
+    """Scores ``s_ij(L, v)`` of query frame ``i`` against every reference ``j`` into ``s``;
     returns their sum.
 
-    Policy: the window has ``L_eff = min(L, i + 1)`` terms (before the query's start
-    there is nothing to sum); terms before the reference's start are filled with their
-    query row's mean difference (no evidence either way); the sum is divided by
-    ``L_eff``. Same arithmetic as :func:`score_at`.
+    Policy: the window has ``L_eff = min(L, i + 1)`` terms; a term whose place falls
+    outside the reference is filled with its query row's mean difference; the sum is
+    divided by ``L_eff``. Same arithmetic as :func:`score_at`.
     """
+    r = ring_v.shape[0]
     n = s.shape[0]
-    r = ring.shape[0]
     eff = length if length <= i + 1 else i + 1
-    head = eff if eff < n else n
+    p = position(v, i)
+    last = p - position(v, i - eff + 1)  # offset of the oldest term
+    back_off = p - position(v, i - eff)
+    has_back = i >= eff
+    cur = ring_v[i % r]
+    back = ring_v[(i - eff) % r]
+    mback = mring[(i - eff) % r]
+    # regular places: the whole window lies inside the reference
+    jlo = last if last > 0 else 0
+    jhi = n + last if last < 0 else n
+    if jlo > n:
+        jlo = n
+    if jhi < jlo:
+        jhi = jlo
     total = 0.0
-    for j in range(head):
-        v = _window(ring, mring, i, length, j)
-        s[j] = v
-        total += v
-    cur = ring[i % r]
-    if i >= eff:
-        back = ring[(i - eff) % r]
-        for j in range(head, n):
-            v = (cur[j] - back[j - eff]) / eff
-            s[j] = v
-            total += v
+    if has_back:
+        blo = back_off if back_off > jlo else jlo
+        if blo > jhi:
+            blo = jhi
+        bhi = n + back_off if n + back_off < jhi else jhi
+        if bhi < blo:
+            bhi = blo
+        for j in range(jlo, blo):
+            val = cur[j] / eff
+            s[j] = val
+            total += val
+        for j in range(blo, bhi):
+            val = (cur[j] - back[j - back_off]) / eff
+            s[j] = val
+            total += val
+        for j in range(bhi, jhi):
+            val = cur[j] / eff
+            s[j] = val
+            total += val
     else:
-        for j in range(head, n):
-            v = cur[j] / eff
-            s[j] = v
-            total += v
+        for j in range(jlo, jhi):
+            val = cur[j] / eff
+            s[j] = val
+            total += val
+    # places whose window runs off the reference: the chain ends at the exit time
+    if last > 0:
+        t = 1
+        for j in range(0, jlo):
+            while p - position(v, i - t) <= j:
+                t += 1
+            val = cur[j] + mring[(i - t) % r]
+            if has_back:
+                val -= mback
+            val = val / eff
+            s[j] = val
+            total += val
+    elif last < 0:
+        t = 1
+        for j in range(n - 1, jhi - 1, -1):
+            while j - (p - position(v, i - t)) <= n - 1:
+                t += 1
+            val = cur[j] + mring[(i - t) % r]
+            if has_back:
+                val -= mback
+            val = val / eff
+            s[j] = val
+            total += val
     return total
-
-
-@njit(cache=True)
-def score_at(ring, mring, i, length, j):
-    """One score ``s_ij(L)`` (same policy and arithmetic as :func:`window_scores`)."""
-    return _window(ring, mring, i, length, j)
 
 
 @njit(cache=True)
@@ -187,33 +270,26 @@ def _gmm_em(s, stride, mean, std, n_iter, w, mu, sd, resp, coef, inv):
 
 
 @njit(cache=True)
-def frame_stats(ring, mring, i, grid, approx, n_components, n_iter, em_stride, radius,
-                best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
-    """Everything the selection rules need for query frame ``i``, per candidate window.
-
-    Outputs (``G = len(grid)``, ``K = n_components``): ``best_j, best_s, second_s, mean,
-    std`` ``(G,)``; ``weights, locs, scales`` ``(G, K)`` — the approximation's components
-    (one component for the Gaussian and robust Gaussian); ``sub`` ``(G, G)`` (or ``(G, 0)`` when not needed) with
-    ``sub[g, h] = s_{i, best_j[g]}(grid[h])``, the best hypothesis of window ``g`` scored
-    over window ``h``. Mixtures are fitted to every ``em_stride``-th score. ``second_s`` is the best score more than ``radius`` places away
-    from ``best_j`` (``+inf`` where none exists).
-    """
+def _velocity_stats(ring_v, mring, i, v, grid, approx, n_iter, em_stride, radius,
+                    best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
+    """:func:`frame_stats` for one velocity (outputs indexed by window only)."""
     g_count = grid.shape[0]
     n = s.shape[0]
+    n_components = weights.shape[1]
     coef = np.empty(n_components)
     inv = np.empty(n_components)
     for g in range(g_count):
-        total = window_scores(ring, mring, i, grid[g], s)
+        total = window_scores(ring_v, mring, i, v, grid[g], s)
         m = total / n
         jb = 0
         vb = s[0]
         acc = 0.0
         for j in range(n):
-            v = s[j]
-            if v < vb:
-                vb = v
+            val = s[j]
+            if val < vb:
+                vb = val
                 jb = j
-            dev = v - m
+            dev = val - m
             acc += dev * dev
         sdv = np.sqrt(acc / n)
         best_j[g] = jb
@@ -241,14 +317,35 @@ def frame_stats(ring, mring, i, grid, approx, n_components, n_iter, em_stride, r
             scales[g, 0] = mad
         else:
             _gmm_em(s, em_stride, m, sdv, n_iter, weights[g], locs[g], scales[g], resp, coef, inv)
-    if sub.shape[1] == g_count:  # only the consistent and sustained rules need them
+    if sub.shape[1] == g_count:  # only the consistency tests need them
         for g in range(g_count):
             for h in range(g_count):
-                sub[g, h] = score_at(ring, mring, i, grid[h], best_j[g])
+                sub[g, h] = score_at(ring_v, mring, i, v, grid[h], best_j[g])
+
+
+@njit(cache=True, parallel=True)
+def frame_stats(ring, mring, i, velocities, grid, approx, n_iter, em_stride, radius,
+                best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
+    """Everything the selection rules need for query frame ``i``, per velocity and window.
+
+    Outputs (``V`` velocities, ``G = len(grid)``, ``K`` components): ``best_j, best_s,
+    second_s, mean, std`` ``(V, G)``; ``weights, locs, scales`` ``(V, G, K)`` — the
+    approximation's components; ``sub`` ``(V, G, G)`` (or ``(V, G, 0)`` when not needed)
+    with ``sub[v, g, h] = s_{i, best_j[v, g]}(grid[h], v)``, window ``g``'s best hypothesis
+    scored over window ``h`` along the same line. Mixtures are fitted to every
+    ``em_stride``-th score. ``second_s`` is the best score more than ``radius`` places
+    from ``best_j`` at the same velocity (``+inf`` where none exists). Scratch ``s, work``
+    ``(V, N)``, ``resp`` ``(V, K, N)``. Velocities run in parallel; each writes only its
+    own outputs, so the result does not depend on the number of threads.
+    """
+    for vi in prange(velocities.shape[0]):
+        _velocity_stats(ring[vi], mring, i, velocities[vi], grid, approx, n_iter, em_stride, radius,
+                        best_j[vi], best_s[vi], second_s[vi], mean[vi], std[vi], weights[vi], locs[vi],
+                        scales[vi], sub[vi], s[vi], work[vi], resp[vi])
 
 
 @njit(cache=True)
-def run_batch(d, start, ring, mring, grid, approx, n_components, n_iter, em_stride, radius,
+def run_batch(d, start, ring, mring, velocities, grid, approx, n_iter, em_stride, radius,
               best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
     """:func:`advance` then :func:`frame_stats` for every row of ``d``, in order; row
     ``t`` of ``d`` is query frame ``start + t``.
@@ -258,20 +355,21 @@ def run_batch(d, start, ring, mring, grid, approx, n_components, n_iter, em_stri
     """
     for t in range(d.shape[0]):
         i = start + t
-        advance(ring, mring, i, d[t])
-        frame_stats(ring, mring, i, grid, approx, n_components, n_iter, em_stride, radius,
+        advance(ring, mring, i, d[t], velocities)
+        frame_stats(ring, mring, i, velocities, grid, approx, n_iter, em_stride, radius,
                     best_j[t], best_s[t], second_s[t], mean[t], std[t], weights[t], locs[t],
                     scales[t], sub[t], s, work, resp)
 
 
 @njit(cache=True)
-def fixed_scores(d, length):
-    """All scores ``s_ij(L)`` for one fixed ``L``, ``(n_query, N)`` (batch helper)."""
+def fixed_scores(d, length, v):
+    """All scores ``s_ij(L, v)`` for one window and velocity, ``(n_query, N)`` (batch helper)."""
     n_q, n = d.shape
     out = np.empty((n_q, n))
-    ring = np.zeros((length + 1, n))
+    ring = np.zeros((1, length + 1, n))
     mring = np.zeros(length + 1)
+    vel = np.array([v])
     for i in range(n_q):
-        advance(ring, mring, i, d[i])
-        window_scores(ring, mring, i, length, out[i])
+        advance(ring, mring, i, d[i], vel)
+        window_scores(ring[0], mring, i, v, length, out[i])
     return out

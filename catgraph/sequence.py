@@ -113,12 +113,17 @@ __all__ = [
     "APPROXIMATIONS",
     "RULES",
     "CONFIDENCES",
+    "DEFAULT_VELOCITIES",
 ]
 
 APPROXIMATIONS = ("gaussian", "robust", "gmm2", "gmm3")
-RULES = ("sustained", "consistent", "literal")
+RULES = ("consistent", "sustained", "literal")
 CONFIDENCES = ("gap", "neglogp", "z")
+#: reference places per query frame searched by default: driven backwards or forwards, 0.5x to 3x
+DEFAULT_VELOCITIES = (-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0)
 SUSTAINED_FRACTION = 0.5
+#: candidate window lengths by default: 13 geometric lengths from l_min to l_max
+DEFAULT_GRID = 13
 EM_ITERATIONS = 10
 EM_MAX_POINTS = 1024
 
@@ -143,13 +148,16 @@ class SequenceMatch:
     match : int
         Best reference place (``-1`` = no output; not produced by the current rules).
     score : float
-        ``s_ij(L)`` of the match at the chosen window (lower is better).
+        ``s_ij(L, v)`` of the match at the chosen window and velocity (lower is better).
     confidence : float
         Larger is more confident (see the module docstring).
     window_length : int
         Effective window length used (``min(L, frames seen)``).
+    velocity : float
+        The chosen velocity (reference places per query frame).
     log_p : ndarray, shape (G,), optional
-        ``log p_i(L)`` for every candidate in ``window_grid`` (on request).
+        ``log p_i(L)`` at the chosen velocity for every candidate in ``window_grid`` (on
+        request).
     window_grid : ndarray of int, shape (G,), optional
         The candidate window lengths (with ``log_p``).
     """
@@ -160,6 +168,7 @@ class SequenceMatch:
     window_length: int
     log_p: np.ndarray | None = None
     window_grid: np.ndarray | None = None
+    velocity: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -173,10 +182,14 @@ class SequenceResult:
     score, confidence : ndarray of float, shape (n_query,)
     window_length : ndarray of int, shape (n_query,)
         Effective window length used per frame.
-    log_p : ndarray, shape (n_query, G), optional
-        ``log p_i(L)`` curves (on request).
     window_grid : ndarray of int, shape (G,)
         The candidate window lengths.
+    log_p : ndarray, shape (n_query, G), optional
+        ``log p_i(L)`` curves at each frame's chosen velocity (on request).
+    velocity : ndarray of float, shape (n_query,)
+        The chosen velocity per frame.
+    velocities : ndarray of float, shape (V,)
+        The velocities searched.
     """
 
     match: np.ndarray
@@ -185,6 +198,8 @@ class SequenceResult:
     window_length: np.ndarray
     window_grid: np.ndarray
     log_p: np.ndarray | None = None
+    velocity: np.ndarray | None = None
+    velocities: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.match.shape[0])
@@ -236,9 +251,22 @@ def window_grid(l_min: int = 10, l_max: int = 500, grid: str | int | Sequence[in
     return np.unique(values.astype(np.int64))
 
 
+def _velocity_set(velocities, owner: str) -> np.ndarray:
+    try:
+        values = np.asarray(velocities, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        values = np.array([np.nan])
+    if values.size == 0 or not np.all(np.isfinite(values)) or np.unique(values).size != values.size:
+        raise InvalidParameterError(
+            f"The 'velocities' parameter of {owner} must be a non-empty sequence of distinct finite floats "
+            f"(reference places per query frame, e.g. (-1.0, 1.0, 2.0)). Got {velocities!r} instead.")
+    return values
+
+
 @dataclass(frozen=True)
 class _Config:
     grid: np.ndarray
+    velocities: np.ndarray
     approx_code: int
     n_components: int
     rule: str
@@ -246,9 +274,11 @@ class _Config:
     radius: int
     fixed: bool
     recent_fraction: float
+    hub_offsets: np.ndarray | None
 
 
-def _config(owner, window, approximation, rule, confidence, l_min, l_max, grid, radius, recent_fraction) -> _Config:
+def _config(owner, window, approximation, rule, confidence, l_min, l_max, grid, radius, recent_fraction,
+            velocities, hub_offsets) -> _Config:
     if approximation not in APPROXIMATIONS:
         raise InvalidParameterError(
             f"The 'approximation' parameter of {owner} must be one of {APPROXIMATIONS}. Got {approximation!r} instead."
@@ -274,9 +304,24 @@ def _config(owner, window, approximation, rule, confidence, l_min, l_max, grid, 
         check_scalar(window, "window", owner, int, 1)
         values = np.array([int(window)], dtype=np.int64)
         fixed = True
+    vel = _velocity_set(velocities, owner)
+    offsets = None if hub_offsets is None else check_array(hub_offsets, "hub offsets", ndim=1)
     code = {"gaussian": 0, "robust": 1, "gmm2": 2, "gmm3": 2}[approximation]
     k = {"gaussian": 1, "robust": 1, "gmm2": 2, "gmm3": 3}[approximation]
-    return _Config(values, code, k, rule, confidence, int(radius), fixed, float(recent_fraction))
+    return _Config(values, vel, code, k, rule, confidence, int(radius), fixed, float(recent_fraction), offsets)
+
+
+def _prepare_rows(d: np.ndarray, cfg: _Config) -> np.ndarray:
+    """Rows as the kernels see them: hub-corrected (and normalised again) when asked."""
+    if cfg.hub_offsets is None:
+        return d
+    if cfg.hub_offsets.shape[0] != d.shape[-1]:
+        raise ShapeMismatchError(
+            f"the difference rows have {d.shape[-1]} reference places but there are {cfg.hub_offsets.shape[0]} hub "
+            "offsets; compute the offsets from the same reference map (catgraph.hubs.hub_offsets).")
+    from .hubs import apply_hub_offsets
+
+    return np.ascontiguousarray(apply_hub_offsets(d, cfg.hub_offsets))
 
 
 _BLOCK_VALUES = 4_000_000
@@ -296,101 +341,128 @@ def _em_stride(n: int) -> int:
 
 
 class _Stats:
-    """Per-frame, per-window statistics produced by the kernels (leading axis: frames)."""
+    """Per-frame, per-velocity, per-window statistics produced by the kernels."""
 
-    def __init__(self, n: int, g: int, k: int, with_sub: bool = True):
-        self.best_j = np.zeros((n, g), dtype=np.int64)
-        self.best_s = np.zeros((n, g))
-        self.second_s = np.zeros((n, g))
-        self.mean = np.zeros((n, g))
-        self.std = np.zeros((n, g))
-        self.weights = np.zeros((n, g, k))
-        self.locs = np.zeros((n, g, k))
-        self.scales = np.zeros((n, g, k))
-        self.sub = np.zeros((n, g, g if with_sub else 0))
+    def __init__(self, n: int, v: int, g: int, k: int, with_sub: bool = True):
+        self.best_j = np.zeros((n, v, g), dtype=np.int64)
+        self.best_s = np.zeros((n, v, g))
+        self.second_s = np.zeros((n, v, g))
+        self.mean = np.zeros((n, v, g))
+        self.std = np.zeros((n, v, g))
+        self.weights = np.zeros((n, v, g, k))
+        self.locs = np.zeros((n, v, g, k))
+        self.scales = np.zeros((n, v, g, k))
+        self.sub = np.zeros((n, v, g, g if with_sub else 0))
+
+
+def _common_std(st: _Stats) -> np.ndarray:
+    """``(n, 1, G)``: the widest score spread over the velocities at each window length."""
+    return st.std.max(axis=1, keepdims=True)
 
 
 def _log_p(st: _Stats) -> np.ndarray:
-    """``log p_i(L)``, ``(n, G)``: log probability of a draw at most the best score."""
-    best = st.best_s[:, :, None]
+    """``log p_i(L, v)``, ``(n, V, G)``: log probability of a draw at most the best score.
+
+    Each velocity's approximation is widened to the common spread (:func:`_common_std`):
+    lines at different velocities average differently many distinct places, so their
+    spreads differ, and a narrow spread alone would make a mediocre line look
+    significant. With one velocity this is the approximation itself.
+    """
+    common = _common_std(st)
     with np.errstate(divide="ignore", invalid="ignore"):
-        z = np.where(st.scales > 0, (best - st.locs) / st.scales, np.where(best < st.locs, -np.inf, np.inf))
+        widen = np.where(st.std > 0, common / st.std, 1.0)[..., None]
+    best = st.best_s[..., None]
+    scales = st.scales * widen
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(scales > 0, (best - st.locs) / scales, np.where(best < st.locs, -np.inf, np.inf))
         terms = np.log(st.weights) + log_ndtr(z)
-    if terms.shape[2] == 1:
-        return terms[:, :, 0]
-    top = terms.max(axis=2, keepdims=True)
+    if terms.shape[-1] == 1:
+        return terms[..., 0]
+    top = terms.max(axis=-1, keepdims=True)
     top = np.where(np.isfinite(top), top, 0.0)
-    return (top + np.log(np.exp(terms - top).sum(axis=2, keepdims=True)))[:, :, 0]
+    return (top + np.log(np.exp(terms - top).sum(axis=-1, keepdims=True)))[..., 0]
+
+
+def _admissible(st: _Stats, cfg: _Config) -> np.ndarray:
+    """``(n, V, G)``: windows whose best hypothesis is supported by its own recent frames."""
+    n, v_count, g_count = st.best_s.shape
+    if not _needs_sub(cfg):
+        return np.ones((n, v_count, g_count), dtype=bool)
+    # every tested shorter sub-window of the best hypothesis (same line) must lie closer to
+    # the window's own score than to the mean of random places at that length
+    mid = 0.5 * (st.best_s[..., None] + st.mean[:, :, None, :])  # (n, V, G, H)
+    ok = st.sub <= mid
+    lengths = cfg.grid.astype(np.float64)
+    tested = (lengths[None, :] < lengths[:, None]) & (lengths[None, :] >= cfg.recent_fraction * lengths[:, None])
+    admissible = np.all(ok | ~tested, axis=3)
+    admissible[:, :, 0] = True
+    return admissible
 
 
 def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool):
-    n, g_count = st.best_s.shape
+    n, v_count, g_count = st.best_s.shape
+    rows = np.arange(n)
     log_p = _log_p(st)
-    if cfg.fixed or cfg.rule == "literal" or g_count == 1:
-        admissible = np.ones((n, g_count), dtype=bool)
-    else:
-        # consistent: every shorter sub-window of the best hypothesis must lie closer to
-        # the window's own score than to the mean of random places at that length
-        mid = 0.5 * (st.best_s[:, :, None] + st.mean[:, None, :])  # (n, g, h)
-        ok = st.sub <= mid
-        lengths = cfg.grid.astype(np.float64)
-        tested = (lengths[None, :] < lengths[:, None]) & (lengths[None, :] >= cfg.recent_fraction * lengths[:, None])
-        admissible = np.all(ok | ~tested[None], axis=2)
-        admissible[:, 0] = True
-    masked = np.where(admissible, log_p, np.inf)
+    # the velocity: the one whose most significant window is the most significant overall
+    v = np.argmin(log_p.min(axis=2), axis=1)
+    lp = log_p[rows, v]  # (n, G)
+    admissible = _admissible(st, cfg)[rows, v]
+    masked = np.where(admissible, lp, np.inf)
     if cfg.rule == "sustained" and not cfg.fixed:
         # the longest admitted window at least SUSTAINED_FRACTION as significant (in log p)
         # as the most significant admitted one; the argmin itself always qualifies
         floor = SUSTAINED_FRACTION * masked.min(axis=1, keepdims=True)
-        qualified = admissible & (log_p <= floor)
-        chosen = g_count - 1 - np.argmax(qualified[:, ::-1], axis=1)
+        qualified = admissible & (lp <= floor)
+        g = g_count - 1 - np.argmax(qualified[:, ::-1], axis=1)
     else:
-        chosen = np.argmin(masked, axis=1)
-    rows = np.arange(n)
-    best = st.best_s[rows, chosen]
-    std = st.std[rows, chosen]
+        g = np.argmin(masked, axis=1)
+    best = st.best_s[rows, v, g]
+    std = _common_std(st)[rows, 0, g]
     if cfg.confidence == "gap":
         with np.errstate(divide="ignore", invalid="ignore"):
-            conf = np.where(std > 0, (st.second_s[rows, chosen] - best) / std, 0.0)
+            conf = np.where(std > 0, (st.second_s[rows, v, g] - best) / std, 0.0)
         conf = np.where(np.isfinite(conf), conf, 0.0)
     elif cfg.confidence == "neglogp":
-        conf = -log_p[rows, chosen]
+        conf = -lp[rows, g]
     else:
         with np.errstate(divide="ignore", invalid="ignore"):
-            conf = np.where(std > 0, (st.mean[rows, chosen] - best) / std, 0.0)
-    match = st.best_j[rows, chosen]
-    length = np.minimum(cfg.grid[chosen], frame_index + 1)
-    return match, best, conf, length, (log_p if want_curves else None)
+            conf = np.where(std > 0, (st.mean[rows, v, g] - best) / std, 0.0)
+    match = st.best_j[rows, v, g]
+    length = np.minimum(cfg.grid[g], frame_index + 1)
+    return match, best, conf, length, cfg.velocities[v], (lp if want_curves else None)
 
 
 # ---------------------------------------------------------------------------------------
 # batch form
 
 
-def fixed_window_scores(differences: np.ndarray, window: int) -> np.ndarray:
-    """All window scores ``s_ij(L)`` for one fixed ``L``, ``(n_query, N) float64``.
+def fixed_window_scores(differences: np.ndarray, window: int, velocity: float = 1.0) -> np.ndarray:
+    """All window scores ``s_ij(L, v)`` for one window and velocity, ``(n_query, N) float64``.
 
-    Uses the edge policy of the module docstring. Memory is the output itself plus
-    ``O(N * L)``; for long queries prefer :func:`match_sequences`, which never stores
-    the scores.
+    Uses the line and edge policy of the module docstring. Memory is the output itself
+    plus ``O(N * L)``; for long queries prefer :func:`match_sequences`, which never
+    stores the scores.
     """
     d = check_array(differences, "difference matrix", ndim=2)
     check_scalar(window, "window", "fixed_window_scores", int, 1)
-    return _kernels().fixed_scores(np.ascontiguousarray(d), int(window))
+    check_scalar(velocity, "velocity", "fixed_window_scores", float)
+    return _kernels().fixed_scores(np.ascontiguousarray(d), int(window), float(velocity))
 
 
 def match_sequences(
     differences: np.ndarray,
     window: int | str = "adaptive",
     approximation: str = "gaussian",
-    rule: str = "sustained",
+    rule: str = "consistent",
     confidence: str = "gap",
-    l_min: int = 10,
+    l_min: int = 5,
     l_max: int = 500,
-    grid: str | int | Sequence[int] = "geometric",
+    grid: str | int | Sequence[int] = DEFAULT_GRID,
     radius: int = 10,
-    recent_fraction: float = 0.125,
+    recent_fraction: float = 0.0,
     return_curves: bool = False,
+    velocities: Sequence[float] = DEFAULT_VELOCITIES,
+    hub_offsets: np.ndarray | None = None,
 ) -> SequenceResult:
     """Match every query frame (rows of ``differences``, in processing order).
 
@@ -404,10 +476,7 @@ def match_sequences(
     approximation : {"gaussian", "robust", "gmm2", "gmm3"}
         Approximation of the score distribution used for ``p_i(L)``.
     rule : {"sustained", "consistent", "literal"}
-        Window choice: the paper's ``argmin_L p_i(L)`` ("literal"); the same among
-        windows whose hypothesis is supported by its recent frames ("consistent");
-        among those, the longest with ``log p`` at most half the smallest (default,
-        "sustained"). See the module docstring.
+        Window choice, see the module docstring.
     confidence : {"gap", "neglogp", "z"}
         Confidence given to each match (see the module docstring).
     l_min, l_max : int
@@ -418,40 +487,50 @@ def match_sequences(
         Places either side of the best match excluded when looking for the second best
         (``confidence="gap"``).
     recent_fraction : float
-        ``rule="consistent"`` or ``"sustained"``: a window of length ``L`` is tested on its recent
-        sub-windows of length ``l`` in the grid with ``recent_fraction * L <= l < L``.
+        A window of length ``L`` is tested on its recent sub-windows of length ``l`` in
+        the grid with ``recent_fraction * L <= l < L`` (rules "consistent" and
+        "sustained").
     return_curves : bool
-        Also return ``log p_i(L)`` for every frame and candidate length.
+        Also return ``log p_i(L)`` (at each frame's chosen velocity) for every frame and
+        candidate length.
+    velocities : sequence of float
+        Velocities searched (reference places per query frame; negative = driven
+        backwards). ``(1.0,)`` is the classic diagonal.
+    hub_offsets : ndarray, shape (N,), optional
+        Per-reference offsets from :func:`catgraph.hubs.hub_offsets`; each row is
+        corrected (and normalised again) before matching.
 
     Returns
     -------
     SequenceResult
     """
     cfg = _config("match_sequences", window, approximation, rule, confidence, l_min, l_max, grid, radius,
-                  recent_fraction)
+                  recent_fraction, velocities, hub_offsets)
     d = np.ascontiguousarray(check_array(differences, "difference matrix", ndim=2))
+    d = _prepare_rows(d, cfg)
     n_q, n = d.shape
     k = _kernels()
     g = cfg.grid.shape[0]
-    ring = np.zeros((int(cfg.grid[-1]) + 1, n))
-    mring = np.zeros(int(cfg.grid[-1]) + 1)
-    s = np.empty(n)
-    work = np.empty(n)
-    resp = np.empty((cfg.n_components, n))
-    # rows are processed in blocks so that the (block, G, G) sub-window scores stay small
-    block = max(1, min(n_q, _BLOCK_VALUES // (g * g)))
+    v_count = cfg.velocities.shape[0]
+    rows = int(cfg.grid[-1]) + 1
+    ring = np.zeros((v_count, rows, n))
+    mring = np.zeros(rows)
+    scratch = (np.empty((v_count, n)), np.empty((v_count, n)), np.empty((v_count, cfg.n_components, n)))
+    # rows are processed in blocks so that the (block, V, G, G) sub-window scores stay small
+    block = max(1, min(n_q, _BLOCK_VALUES // (v_count * g * g)))
     parts = []
     for start in range(0, n_q, block):
         stop = min(n_q, start + block)
-        st = _Stats(stop - start, g, cfg.n_components, _needs_sub(cfg))
-        k.run_batch(d[start:stop], start, ring, mring, cfg.grid, cfg.approx_code, cfg.n_components, EM_ITERATIONS,
+        st = _Stats(stop - start, v_count, g, cfg.n_components, _needs_sub(cfg))
+        k.run_batch(d[start:stop], start, ring, mring, cfg.velocities, cfg.grid, cfg.approx_code, EM_ITERATIONS,
                     _em_stride(n), cfg.radius, st.best_j, st.best_s, st.second_s, st.mean, st.std, st.weights,
-                    st.locs, st.scales, st.sub, s, work, resp)
+                    st.locs, st.scales, st.sub, *scratch)
         parts.append(_decide(st, cfg, np.arange(start, stop), return_curves))
-    match, score, conf, length = (np.concatenate([p[c] for p in parts]) for c in range(4))
-    log_p = np.concatenate([p[4] for p in parts]) if return_curves else None
+    match, score, conf, length, velocity = (np.concatenate([p[c] for p in parts]) for c in range(5))
+    log_p = np.concatenate([p[5] for p in parts]) if return_curves else None
     return SequenceResult(match=match, score=score, confidence=conf, window_length=length,
-                          window_grid=cfg.grid.copy(), log_p=log_p)
+                          window_grid=cfg.grid.copy(), log_p=log_p, velocity=velocity,
+                          velocities=cfg.velocities.copy())
 
 
 # ---------------------------------------------------------------------------------------
@@ -462,10 +541,11 @@ class SequenceMatcher:
     """Streaming sequence matcher: one :meth:`step` per query frame.
 
     Parameters are those of :func:`match_sequences`. The constructor only stores them;
-    the first :meth:`step` fixes the number of reference places ``N`` and allocates the
-    ring buffer of the last ``max(grid) + 1`` diagonal prefix-sum rows (``8 * N *
-    (l_max + 1)`` bytes). Time per step is ``O(N * G)`` (``G`` candidate lengths), however
-    many frames came before.
+    the first :meth:`step` fixes the number of reference places ``N`` and allocates, per
+    velocity, the ring buffer of the last ``max(grid) + 1`` prefix-sum rows along its
+    lines (``8 * N * (l_max + 1)`` bytes per velocity). Time per step is
+    ``O(N * V * G)`` (``V`` velocities, ``G`` candidate lengths), however many frames came
+    before.
 
     Attributes
     ----------
@@ -475,6 +555,8 @@ class SequenceMatcher:
         Frames processed so far.
     window_grid_ : ndarray of int, shape (G,)
         Candidate window lengths.
+    velocities_ : ndarray of float, shape (V,)
+        Velocities searched.
 
     Examples
     --------
@@ -492,13 +574,15 @@ class SequenceMatcher:
         self,
         window: int | str = "adaptive",
         approximation: str = "gaussian",
-        rule: str = "sustained",
+        rule: str = "consistent",
         confidence: str = "gap",
-        l_min: int = 10,
+        l_min: int = 5,
         l_max: int = 500,
-        grid: str | int | Sequence[int] = "geometric",
+        grid: str | int | Sequence[int] = DEFAULT_GRID,
         radius: int = 10,
-        recent_fraction: float = 0.125,
+        recent_fraction: float = 0.0,
+        velocities: Sequence[float] = DEFAULT_VELOCITIES,
+        hub_offsets: np.ndarray | None = None,
     ) -> None:
         self.window = window
         self.approximation = approximation
@@ -509,37 +593,53 @@ class SequenceMatcher:
         self.grid = grid
         self.radius = radius
         self.recent_fraction = recent_fraction
+        self.velocities = velocities
+        self.hub_offsets = hub_offsets
 
     def reset(self) -> "SequenceMatcher":
         """Forget all frames (the next step starts a new query)."""
-        for name in ("n_reference_", "n_steps_", "window_grid_", "_cfg", "_ring", "_mring", "_buffers", "_stats"):
+        for name in ("n_reference_", "n_steps_", "window_grid_", "velocities_", "_cfg", "_ring", "_mring",
+                     "_buffers", "_stats"):
             self.__dict__.pop(name, None)
         return self
 
     def _start(self, n: int) -> None:
         cfg = _config(type(self).__name__, self.window, self.approximation, self.rule, self.confidence,
-                      self.l_min, self.l_max, self.grid, self.radius, self.recent_fraction)
+                      self.l_min, self.l_max, self.grid, self.radius, self.recent_fraction, self.velocities,
+                      self.hub_offsets)
         self._cfg = cfg
         self.window_grid_ = cfg.grid.copy()
+        self.velocities_ = cfg.velocities.copy()
         self.n_reference_ = n
         self.n_steps_ = 0
-        self._ring = np.zeros((int(cfg.grid[-1]) + 1, n))
+        v_count = cfg.velocities.shape[0]
+        self._ring = np.zeros((v_count, int(cfg.grid[-1]) + 1, n))
         self._mring = np.zeros(int(cfg.grid[-1]) + 1)
-        self._buffers = (np.empty(n), np.empty(n), np.empty((cfg.n_components, n)))
-        self._stats = _Stats(1, cfg.grid.shape[0], cfg.n_components, _needs_sub(cfg))
+        self._buffers = (np.empty((v_count, n)), np.empty((v_count, n)), np.empty((v_count, cfg.n_components, n)))
+        self._stats = _Stats(1, v_count, cfg.grid.shape[0], cfg.n_components, _needs_sub(cfg))
 
-    def window_scores(self, length: int) -> np.ndarray:
-        """``(N,)`` window scores ``s_ij(L)`` of the latest frame ``i`` at length ``L``.
+    def window_scores(self, length: int, velocity: float | None = None) -> np.ndarray:
+        """``(N,)`` window scores ``s_ij(L, v)`` of the latest frame ``i`` at length ``L``.
 
         Same policy and arithmetic as the matcher itself (query start: ``min(L, i+1)``
-        terms; reference start: neutral fill). ``L`` may not exceed ``l_max`` (the ring
-        buffer holds no more).
+        terms; outside the reference: neutral fill). ``L`` may not exceed ``l_max`` (the
+        ring buffer holds no more); ``velocity`` must be one of the matcher's velocities
+        (default: ``1.0`` if searched, else the first).
         """
         if not hasattr(self, "n_steps_") or self.n_steps_ == 0:
             raise NotFittedError("window_scores needs at least one step(); call step(difference_row) first.")
-        check_scalar(length, "length", "SequenceMatcher.window_scores", int, 1, self._ring.shape[0] - 1)
+        check_scalar(length, "length", "SequenceMatcher.window_scores", int, 1, self._ring.shape[1] - 1)
+        vel = self.velocities_
+        if velocity is None:
+            vi = int(np.flatnonzero(vel == 1.0)[0]) if np.any(vel == 1.0) else 0
+        else:
+            hits = np.flatnonzero(vel == float(velocity))
+            if hits.size == 0:
+                raise InvalidParameterError(
+                    f"velocity {velocity!r} is not searched by this matcher; choose one of {vel.tolist()}.")
+            vi = int(hits[0])
         s = np.empty(self.n_reference_)
-        _kernels().window_scores(self._ring, self._mring, self.n_steps_ - 1, int(length), s)
+        _kernels().window_scores(self._ring[vi], self._mring, self.n_steps_ - 1, float(vel[vi]), int(length), s)
         return s
 
     def step(self, difference_row: np.ndarray, return_curve: bool = False) -> SequenceMatch:
@@ -550,7 +650,7 @@ class SequenceMatcher:
         difference_row : ndarray, shape (N,)
             Differences of this query frame to every reference place.
         return_curve : bool
-            Also return ``log p_i(L)`` over the candidate lengths.
+            Also return ``log p_i(L)`` over the candidate lengths (chosen velocity).
 
         Returns
         -------
@@ -564,18 +664,19 @@ class SequenceMatcher:
                 f"difference row has {row.shape[0]} reference places but the matcher was started with "
                 f"{self.n_reference_}; call reset() before matching against another reference."
             )
+        row = _prepare_rows(row, self._cfg)
         k = _kernels()
         cfg, st, i = self._cfg, self._stats, self.n_steps_
         s, work, resp = self._buffers
-        k.advance(self._ring, self._mring, i, row)
-        k.frame_stats(self._ring, self._mring, i, cfg.grid, cfg.approx_code, cfg.n_components, EM_ITERATIONS,
+        k.advance(self._ring, self._mring, i, row, cfg.velocities)
+        k.frame_stats(self._ring, self._mring, i, cfg.velocities, cfg.grid, cfg.approx_code, EM_ITERATIONS,
                       _em_stride(self.n_reference_), cfg.radius,
                       st.best_j[0], st.best_s[0], st.second_s[0], st.mean[0], st.std[0], st.weights[0],
                       st.locs[0], st.scales[0], st.sub[0], s, work, resp)
         self.n_steps_ = i + 1
-        match, score, conf, length, log_p = _decide(st, cfg, np.array([i]), return_curve)
+        match, score, conf, length, velocity, log_p = _decide(st, cfg, np.array([i]), return_curve)
         return SequenceMatch(
             match=int(match[0]), score=float(score[0]), confidence=float(conf[0]), window_length=int(length[0]),
             log_p=None if log_p is None else log_p[0].copy(),
-            window_grid=self.window_grid_.copy() if return_curve else None,
+            window_grid=self.window_grid_.copy() if return_curve else None, velocity=float(velocity[0]),
         )

@@ -17,6 +17,8 @@ from catgraph.sequence import (
 
 # ------------------------------------------------------------------ slow references
 
+V1 = (1.0,)  # the classic diagonal only: the slow references below score it
+
 
 def slow_scores(d: np.ndarray, length: int) -> np.ndarray:
     """s_ij(L) by a double loop. Edge policy: ``min(L, i + 1)`` terms; a term before
@@ -99,7 +101,7 @@ def test_fixed_window_scores_match_double_loop(length):
 @pytest.mark.parametrize("length", [1, 5, 12])
 def test_fixed_window_batch_matches_reference(length):
     d = np.random.default_rng(1).normal(size=(40, 60))
-    result = match_sequences(d, window=length)
+    result = match_sequences(d, window=length, velocities=V1)
     expected = slow_scores(d, length)
     np.testing.assert_array_equal(result.match, expected.argmin(axis=1))
     np.testing.assert_allclose(result.score, expected.min(axis=1), rtol=1e-12, atol=1e-12)
@@ -108,13 +110,13 @@ def test_fixed_window_batch_matches_reference(length):
 
 def test_fixed_window_recovers_planted_diagonal():
     d = planted()
-    result = match_sequences(d, window=10)
+    result = match_sequences(d, window=10, velocities=V1)
     assert np.mean(result.match[10:] == np.arange(10, 120) + 20) > 0.95
 
 
 def test_fixed_window_gap_confidence_matches_definition():
     d = np.random.default_rng(2).normal(size=(30, 80))
-    result = match_sequences(d, window=4, radius=3, confidence="gap")
+    result = match_sequences(d, window=4, radius=3, confidence="gap", velocities=V1)
     s = slow_scores(d, 4)
     for i in range(30):
         j = int(np.argmin(s[i]))
@@ -146,7 +148,7 @@ def test_streaming_memory_is_a_ring_of_l_max_plus_one_rows():
     matcher = SequenceMatcher(window="adaptive", l_min=2, l_max=9, grid="all")
     for row in np.random.default_rng(0).normal(size=(40, 13)):
         matcher.step(row)
-    assert matcher._ring.shape == (10, 13)
+    assert matcher._ring.shape == (len(matcher.velocities_), 10, 13)
 
 
 def test_streaming_reset_and_shape_check():
@@ -165,7 +167,7 @@ def test_streaming_reset_and_shape_check():
 def test_literal_adaptive_matches_slow_reference(approximation):
     d = planted(45, 50, seed=4)
     grid = window_grid(3, 20, 6)
-    result = match_sequences(d, "adaptive", approximation, rule="literal", l_min=3, l_max=20, grid=6,
+    result = match_sequences(d, "adaptive", approximation, rule="literal", l_min=3, l_max=20, grid=6, velocities=V1,
                              return_curves=True)
     match, length, curves = slow_literal(d, grid, approximation)
     np.testing.assert_allclose(result.log_p, curves, rtol=1e-7, atol=1e-9)
@@ -202,7 +204,7 @@ def slow_rule(d: np.ndarray, grid: np.ndarray, rule: str, fraction: float = 0.12
 def test_consistent_and_sustained_rules_match_slow_reference(rule):
     d = planted(45, 50, seed=7)
     grid = window_grid(3, 24, 8)
-    result = match_sequences(d, "adaptive", rule=rule, l_min=3, l_max=24, grid=8)
+    result = match_sequences(d, "adaptive", rule=rule, l_min=3, l_max=24, grid=8, velocities=V1, recent_fraction=0.125)
     np.testing.assert_array_equal(result.match, slow_rule(d, grid, rule))
 
 
@@ -220,7 +222,7 @@ def test_consistent_rule_shortens_window_after_a_jump():
     d = rng.normal(size=(200, n_ref))
     truth = np.r_[np.arange(50, 150), np.arange(300, 400)]  # a jump at frame 100
     d[np.arange(200), truth] -= 1.5
-    common = dict(window="adaptive", l_min=5, l_max=100, grid=16)
+    common = dict(window="adaptive", l_min=5, l_max=100, grid=16, velocities=V1)
     literal = match_sequences(d, rule="literal", **common)
     after = slice(100, 200)
 
@@ -282,7 +284,7 @@ def test_blocked_batch_equals_single_block(monkeypatch):
 def test_mixture_fit_uses_a_strided_subsample_for_large_references():
     """Above EM_MAX_POINTS scores the mixture is fitted to every stride-th score."""
     d = np.random.default_rng(8).normal(size=(4, 2500))
-    result = match_sequences(d, window=3, approximation="gmm2", return_curves=True)
+    result = match_sequences(d, window=3, approximation="gmm2", return_curves=True, velocities=V1)
     s = slow_scores(d[:, :], 3)[3 - 1]
     stride = 3  # ceil(2500 / 1024)
     w, mu, sd = slow_em(s[::stride], 2, start=(s.mean(), s.std()))
@@ -296,7 +298,7 @@ def test_public_window_scores_equal_fixed_window_scores():
 
     rng = np.random.default_rng(5)
     d = rng.normal(size=(30, 40))
-    m = SequenceMatcher(window="adaptive", l_min=2, l_max=16)
+    m = SequenceMatcher(window="adaptive", l_min=2, l_max=16, velocities=V1)
     with pytest.raises(NotFittedError):
         m.window_scores(4)
     for row in d:

@@ -1,0 +1,147 @@
+"""Velocity search in catgraph.sequence: lines of slope v, against slow loops."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from catgraph.exceptions import InvalidParameterError
+from catgraph.sequence import DEFAULT_VELOCITIES, SequenceMatcher, fixed_window_scores, match_sequences
+
+
+def slow_line_scores(d: np.ndarray, length: int, v: float) -> np.ndarray:
+    """s_ij(L, v) by a triple loop: the line through (i, j) visits place
+    j - (pos(i) - pos(i - t)) at frame i - t, pos(i) = floor(v i + 1/2); min(L, i + 1)
+    terms; a place outside the reference contributes its row's mean difference."""
+    n_q, n = d.shape
+
+    def pos(i):
+        return int(np.floor(v * i + 0.5))
+
+    out = np.empty((n_q, n))
+    for i in range(n_q):
+        eff = min(length, i + 1)
+        for j in range(n):
+            total = 0.0
+            for t in range(eff):
+                k = j - (pos(i) - pos(i - t))
+                total += d[i - t, k] if 0 <= k < n else d[i - t].mean()
+            out[i, j] = total / eff
+    return out
+
+
+@pytest.mark.parametrize("v", [1.0, -1.0, 0.5, -0.5, 2.0, -3.0, 1.5, 0.0, 9.0])
+@pytest.mark.parametrize("length", [1, 4, 11])
+def test_line_scores_match_triple_loop(v, length):
+    d = np.random.default_rng(int(10 * abs(v)) + length).normal(size=(26, 17))
+    np.testing.assert_allclose(fixed_window_scores(d, length, v), slow_line_scores(d, length, v), rtol=1e-12,
+                               atol=1e-12)
+
+
+def planted_line(v: float, n_q: int = 90, n_ref: int = 200, start: int = 60, seed: int = 0, strength: float = 2.0):
+    """Query frame i resembles reference place start + pos(i) (a route driven at speed v)."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(n_q, n_ref))
+    truth = np.array([start + int(np.floor(v * i + 0.5)) for i in range(n_q)])
+    ok = (truth >= 0) & (truth < n_ref)
+    d[np.flatnonzero(ok), truth[ok]] -= strength
+    return d, truth
+
+
+@pytest.mark.parametrize("v", [-1.0, 2.0, 0.5, -2.0, 3.0])
+def test_velocity_search_recovers_planted_line(v):
+    d, truth = planted_line(v, n_q=60, n_ref=400, start=200)
+    searched = match_sequences(d, window=20)
+    forward = match_sequences(d, window=20, velocities=(1.0,))
+    late = slice(20, None)
+    assert np.mean(np.abs(searched.match[late] - truth[late]) <= 1) > 0.9
+    assert np.all(searched.velocity[late] == v)
+    assert np.mean(np.abs(forward.match[late] - truth[late]) <= 1) < 0.5
+
+
+def test_adaptive_recovers_reversed_route_and_chooses_long_windows():
+    d, truth = planted_line(-1.0, n_q=120, n_ref=300, start=250, strength=1.5)
+    result = match_sequences(d, l_min=3, l_max=60)
+    forward = match_sequences(d, l_min=3, l_max=60, velocities=(1.0,))
+    late = slice(40, None)
+    assert np.mean(np.abs(result.match[late] - truth[late]) <= 1) >= 0.85
+    assert np.mean(np.abs(forward.match[late] - truth[late]) <= 1) < 0.2
+    assert np.median(result.window_length[late]) >= 30
+
+
+def slow_common_log_p(d, grid, velocities):
+    """log p on the common spread: per length the widest velocity spread (Gaussian)."""
+    from scipy.special import log_ndtr
+
+    scores = {(L, v): slow_line_scores(d, int(L), v) for L in grid for v in velocities}
+    n_q = d.shape[0]
+    out = np.empty((n_q, len(velocities), len(grid)))
+    best = np.empty((n_q, len(velocities), len(grid)), dtype=int)
+    for i in range(n_q):
+        for g, L in enumerate(grid):
+            common = max(scores[(L, v)][i].std() for v in velocities)
+            for k, v in enumerate(velocities):
+                s = scores[(L, v)][i]
+                out[i, k, g] = log_ndtr((s.min() - s.mean()) / common)
+                best[i, k, g] = int(np.argmin(s))
+    return out, best
+
+
+def test_literal_rule_with_velocities_matches_slow_reference():
+    d, _ = planted_line(2.0, n_q=30, n_ref=70, start=5, strength=1.0)
+    grid = np.array([2, 5, 9])
+    vel = (-1.0, 0.5, 2.0)
+    result = match_sequences(d, "adaptive", rule="literal", grid=list(grid), l_min=2, l_max=9, velocities=vel,
+                             return_curves=True)
+    lp, best = slow_common_log_p(d, grid, vel)
+    for i in range(d.shape[0]):
+        k = int(np.argmin(lp[i].min(axis=1)))
+        g = int(np.argmin(lp[i, k]))
+        assert result.velocity[i] == vel[k]
+        assert result.match[i] == best[i, k, g]
+        np.testing.assert_allclose(result.log_p[i], lp[i, k], rtol=1e-7, atol=1e-9)
+
+
+@pytest.mark.parametrize("rule", ["consistent", "sustained", "literal"])
+def test_streaming_equals_batch_with_velocities(rule):
+    d, _ = planted_line(-1.0, n_q=50, n_ref=60, start=55)
+    kwargs = dict(rule=rule, l_min=2, l_max=20, grid=6, velocities=(-1.0, 0.5, 1.0, 2.0))
+    batch = match_sequences(d, return_curves=True, **kwargs)
+    matcher = SequenceMatcher(**kwargs)
+    steps = [matcher.step(row, return_curve=True) for row in d]
+    np.testing.assert_array_equal(batch.match, [s.match for s in steps])
+    np.testing.assert_array_equal(batch.confidence, [s.confidence for s in steps])
+    np.testing.assert_array_equal(batch.velocity, [s.velocity for s in steps])
+    np.testing.assert_array_equal(batch.window_length, [s.window_length for s in steps])
+    np.testing.assert_array_equal(batch.log_p, np.array([s.log_p for s in steps]))
+    assert matcher._ring.shape == (4, 21, 60)  # one ring of l_max + 1 rows per velocity
+
+
+def test_window_scores_per_velocity_and_hub_offsets():
+    rng = np.random.default_rng(3)
+    d = rng.normal(size=(25, 30))
+    m = SequenceMatcher(l_min=2, l_max=8)
+    for row in d:
+        m.step(row)
+    np.testing.assert_allclose(m.window_scores(5, velocity=-1.0), fixed_window_scores(d, 5, -1.0)[-1], atol=1e-12)
+    np.testing.assert_allclose(m.window_scores(5), fixed_window_scores(d, 5, 1.0)[-1], atol=1e-12)
+    with pytest.raises(InvalidParameterError, match="velocity"):
+        m.window_scores(5, velocity=1.25)
+    offsets = np.zeros(30)
+    offsets[4] = -3.0
+    from catgraph.hubs import apply_hub_offsets
+
+    direct = match_sequences(apply_hub_offsets(d, offsets), window=4)
+    via = match_sequences(d, window=4, hub_offsets=offsets)
+    np.testing.assert_array_equal(direct.match, via.match)
+    np.testing.assert_array_equal(direct.confidence, via.confidence)
+
+
+def test_default_velocities_and_validation():
+    assert -1.0 in DEFAULT_VELOCITIES and 0.5 in DEFAULT_VELOCITIES and 3.0 in DEFAULT_VELOCITIES
+    with pytest.raises(InvalidParameterError, match="velocities"):
+        match_sequences(np.zeros((3, 4)), velocities=())
+    with pytest.raises(InvalidParameterError, match="velocities"):
+        match_sequences(np.zeros((3, 4)), velocities=(1.0, 1.0))
+    with pytest.raises(InvalidParameterError, match="velocities"):
+        match_sequences(np.zeros((3, 4)), velocities=(np.nan,))
