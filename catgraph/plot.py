@@ -74,7 +74,7 @@ METRIC_LABELS = {
     "n_queries": "n",
 }
 
-_CORRECT, _WRONG, _NONE, _TRUTH = "#2ca02c", "#d62728", "#bbbbbb", "#1f77b4"
+_CORRECT, _WRONG, _NONE, _TRUTH = "#2ca02c", "#d62728", "#bbbbbb", "cyan"  # truth: cyan, as on the posterior
 
 
 # ---------------------------------------------------------------------------- helpers
@@ -371,6 +371,7 @@ def plot_difference_matrix(
     if colorbar:
         ax.figure.colorbar(image, ax=ax, label="difference")
     marker = max(0.5, min(8.0, 2000.0 / max(n_query, 1)))
+    truth = (np.zeros(0), np.zeros(0))
     if true_match is not None:
         t = np.asarray(true_match)
         if t.ndim == 2:
@@ -383,7 +384,7 @@ def plot_difference_matrix(
                 raise ShapeMismatchError(f"true_match has {t.size} entries for {n_query} query frames.")
             qi = np.flatnonzero(np.isfinite(t) & (t >= 0))
             rj = t[qi]
-        ax.scatter(qi, rj, s=marker, color=_TRUTH, alpha=0.5, linewidths=0, label="ground truth")
+        truth = (qi, rj)
     if match is not None:
         m = np.asarray(_optional_list(match) if isinstance(match, list) else match, dtype=np.float64)
         m = _vector(m, "match")
@@ -391,14 +392,18 @@ def plot_difference_matrix(
             raise ShapeMismatchError(f"match has {m.size} entries for {n_query} query frames.")
         has = np.isfinite(m) & (m >= 0)
         if correct is None:
-            ax.scatter(np.flatnonzero(has), m[has], s=marker, color="white", marker="x", linewidths=0.8, label="match")
+            ax.scatter(np.flatnonzero(has), m[has], s=marker, color="white", marker="x", linewidths=0.8, label="match",
+                       zorder=2)
         else:
             c = _vector(correct, "correct", dtype=bool)
             if c.size != n_query:
                 raise ShapeMismatchError(f"correct has {c.size} entries for {n_query} query frames.")
             for mask, color, name in ((has & c, _CORRECT, "correct match"), (has & ~c, _WRONG, "wrong match")):
                 ax.scatter(np.flatnonzero(mask), m[mask], s=marker * 1.5, color=color, marker="x",
-                           linewidths=0.8, label=name)
+                           linewidths=0.8, label=name, zorder=2)
+    if true_match is not None:
+        # the truth is drawn last, smaller and on top, so no match marker can hide it
+        ax.scatter(*truth, s=marker * 0.6, color=_TRUTH, alpha=0.9, linewidths=0, label="ground truth", zorder=3)
     ax.set_xlim(-0.5, n_query - 0.5)
     ax.set_ylim(-0.5, n_reference - 0.5)
     ax.set_xlabel("query frame")
@@ -617,6 +622,7 @@ def plot_localisation_timeline(
     results: Sequence[Mapping[str, Any]] | Sequence[Any],
     labels: Sequence[str] | None = None,
     ax: "Axes | None" = None,
+    initialisation: Sequence[int] | None = None,
 ) -> "Axes":
     """Per method a strip over the frames: correct (green), wrong (red), no output (grey).
 
@@ -627,6 +633,9 @@ def plot_localisation_timeline(
         boolean arrays of shape (n,) (correct per frame).
     labels : sequence of str, optional
     ax : matplotlib Axes, optional
+    initialisation : sequence of int, optional
+        Per method, the number of first frames spent learning (an online model's
+        ``T_init``); hatched, so that they are not read as failures of the method.
 
     Returns
     -------
@@ -659,6 +668,21 @@ def plot_localisation_timeline(
     cmap = ListedColormap(["white", _NONE, _WRONG, _CORRECT])
     ax.imshow(code, aspect="auto", interpolation="nearest", cmap=cmap, vmin=-1.5, vmax=2.5,
               extent=(-0.5, code.shape[1] - 0.5, len(rows) - 0.5, -0.5))
+    if initialisation is not None:
+        from matplotlib.patches import Rectangle
+
+        spans = list(initialisation)
+        if len(spans) != len(rows):
+            raise ShapeMismatchError(f"initialisation has {len(spans)} entries for {len(rows)} methods.")
+        hatched = False
+        for k, frames in enumerate(spans):
+            frames = min(int(frames or 0), code.shape[1])
+            if frames > 0:
+                ax.add_patch(Rectangle((-0.5, k - 0.5), frames, 1.0, fill=False, hatch="////", edgecolor="black",
+                                       linewidth=0.0, alpha=0.45, label=None if hatched else "learning (T_init)"))
+                hatched = True
+        if hatched:
+            ax.legend(loc="upper right", fontsize="x-small", framealpha=0.8)
     ax.set_yticks(np.arange(len(rows)))
     ax.set_yticklabels(labels, fontsize="small")
     ax.set_xlabel("query frame (processing order)")

@@ -11,6 +11,13 @@
     showing which frames were localised correctly, and — where the runs' frames carry
     them — the adaptive window length and ``P(new place)`` over the frames. Further
     figures can be appended (``extra_figures``). It opens offline in any browser.
+
+    Reading aids: ``notes`` (paragraphs under the table, e.g. why a method loses on
+    this input); every parameter of a run is shown in full, one per line, never cut;
+    a run that learns online has its initialisation stage (``n_init`` frames, in which
+    it cannot localise yet) hatched on the timeline; the frames truly outside the map
+    (``new_place_truth``) are shaded on the ``P(new place)`` figure, and each run keeps
+    one colour in every figure.
 ``results.md``
     The same table in GitHub-flavoured markdown, for pasting into notes and pull
     requests.
@@ -37,7 +44,7 @@ from typing import Any
 from ._atomic import write_text_atomic
 from .exceptions import DataError, InvalidParameterError
 
-__all__ = ["COLUMNS", "load_results", "run_labels", "markdown_table", "write_report"]
+__all__ = ["COLUMNS", "initialisation_frames", "load_results", "run_labels", "markdown_table", "write_report"]
 
 #: (metrics key, column title, format, better) of the metric columns, in table order.
 COLUMNS: tuple[tuple[str, str, str, str], ...] = (
@@ -262,7 +269,26 @@ def _png_data_uri(fig) -> str:
     return "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode("ascii")
 
 
-def _standard_figures(payloads: Sequence[dict], labels: Sequence[str]) -> list[tuple[str, str]]:
+def initialisation_frames(payload: Mapping[str, Any]) -> int:
+    """Frames an online-learning run spends initialising (its ``n_init``/``T_init``), else 0.
+
+    Read from the run's parameters: a key ``n_init`` (at any depth) whose sibling
+    ``learning``, where present, is ``"online"``.
+    """
+    flat = _flatten(payload.get("params") or {})
+    for key, value in flat.items():
+        if key.split(".")[-1] not in ("n_init", "init_frames", "t_init"):
+            continue
+        prefix = key.rsplit(".", 1)[0] + "." if "." in key else ""
+        learning = flat.get(prefix + "learning", "online")
+        if learning == "online" and isinstance(value, (int, float)) and not isinstance(value, bool) and value > 0:
+            n = len((payload.get("frames") or {}).get("query_index") or [])
+            return int(min(value, n)) if n else int(value)
+    return 0
+
+
+def _standard_figures(payloads: Sequence[dict], labels: Sequence[str],
+                      new_place_truth: Any = None) -> list[tuple[str, str]]:
     """(caption, data URI) of the figures the runs support."""
     from matplotlib.figure import Figure
 
@@ -294,10 +320,16 @@ def _standard_figures(payloads: Sequence[dict], labels: Sequence[str]) -> list[t
 
     if evaluated:
         fig = Figure(figsize=(9.0, 0.9 + 0.32 * len(evaluated)), layout="constrained")
+        init = [initialisation_frames(payloads[k]) for k in evaluated]
         plot.plot_localisation_timeline([payloads[k] for k in evaluated], labels=[labels[k] for k in evaluated],
-                                        ax=fig.add_subplot())
-        figures.append(("Query frames in processing order: correct match (green), wrong match (red), "
-                        "no output (grey). The longest stretch without green is the MTL.", _png_data_uri(fig)))
+                                        ax=fig.add_subplot(), initialisation=init)
+        caption = ("Query frames in processing order: correct match (green), wrong match (red), "
+                   "no output (grey). The longest stretch without green is the MTL.")
+        if any(init):
+            caption += (" Hatched: the online model's initialisation stage (T_init frames), in which it only "
+                        "collects samples of differences between different places and cannot localise yet; "
+                        "its answers there are noise by design, not failures.")
+        figures.append((caption, _png_data_uri(fig)))
 
     windowed = [k for k, p in enumerate(payloads) if _usable(p["frames"].get("window_length"))]
     if windowed:
@@ -315,9 +347,12 @@ def _standard_figures(payloads: Sequence[dict], labels: Sequence[str]) -> list[t
     if new_place:
         fig = Figure(figsize=(9.0, 3.2), layout="constrained")
         plot.plot_new_place_probability([payloads[k]["frames"][key] for k, key in new_place],
-                                        labels=[labels[k] for k, _ in new_place],
+                                        labels=[labels[k] for k, _ in new_place], is_new_place=new_place_truth,
                                         colors=[colors[k] for k, _ in new_place], ax=fig.add_subplot())
-        figures.append(("Probability that the current frame shows a place not in the map.", _png_data_uri(fig)))
+        caption = "Probability that the current frame shows a place not in the map (one colour per run, as above)."
+        if new_place_truth is not None:
+            caption += " Shaded: frames truly outside the map."
+        figures.append((caption, _png_data_uri(fig)))
     return figures
 
 
@@ -375,13 +410,23 @@ p.meta{color:#666;margin-top:0}
 table{border-collapse:collapse;font-size:.9rem;width:100%}
 th,td{padding:.35rem .6rem;border-bottom:1px solid #e3e3e3;text-align:left;vertical-align:top}
 th{background:#f4f4f4;font-weight:600}td.num,th.num{text-align:right;font-variant-numeric:tabular-nums}
-td.best{font-weight:700}td.params{color:#555;font-size:.82rem;max-width:22rem}
+td.best{font-weight:700}td.params{color:#555;font-size:.82rem;max-width:26rem;overflow-wrap:anywhere}
 span.swatch{display:inline-block;width:.8rem;height:.8rem;border-radius:2px;margin-right:.4rem;vertical-align:-1px}
 figure{margin:1.5rem 0;text-align:center}figure img{max-width:100%;height:auto;border:1px solid #eee}
 figcaption{color:#555;font-size:.88rem;margin-top:.3rem}
 details{margin:.4rem 0}pre{background:#f7f7f7;padding:.6rem;overflow-x:auto;font-size:.8rem}
 p.note{color:#555;font-size:.85rem}
+p.reading{background:#fffbe6;border-left:3px solid #e0c050;padding:.5rem .8rem;font-size:.92rem}
 """.strip()
+
+
+def _notes(notes: Any) -> list[str]:
+    if notes is None:
+        return []
+    items = [notes] if isinstance(notes, str) else list(notes) if isinstance(notes, Sequence) else None
+    if items is None or not all(isinstance(n, str) for n in items):
+        raise InvalidParameterError(f"notes must be a string or a sequence of strings; got {type(notes).__name__}.")
+    return [" ".join(n.split()) for n in items if n.strip()]
 
 
 def _hex(color) -> str:
@@ -389,7 +434,8 @@ def _hex(color) -> str:
     return f"#{r:02x}{g:02x}{b:02x}"
 
 
-def _html_page(title: str, payloads: Sequence[dict], figures: Sequence[tuple[str, str]]) -> str:
+def _html_page(title: str, payloads: Sequence[dict], figures: Sequence[tuple[str, str]],
+               notes: Sequence[str] = ()) -> str:
     from . import __version__
     from .plot import method_colors
 
@@ -402,9 +448,9 @@ def _html_page(title: str, payloads: Sequence[dict], figures: Sequence[tuple[str
     head = ['<th>method</th>', '<th>params</th>'] + [f'<th class="num">{e(c[1])}</th>' for c in COLUMNS]
     body = []
     for label, f, keys, row, color in zip(labels, flat, varying, cells, colors):
-        full = _summary(f, keys)
+        items = [f"{k}={_format_value(f[k])}" for k in keys if k in f]
         tds = [f'<td><span class="swatch" style="background:{_hex(color)}"></span>{e(label)}</td>',
-               f'<td class="params" title="{e(full)}">{e(_shorten(full, 120)) or "–"}</td>']
+               f'<td class="params">{"<br>".join(e(item) for item in items) or "–"}</td>']
         tds += [f'<td class="num{" best" if best else ""}">{e(text)}</td>' for text, best in row]
         body.append("<tr>" + "".join(tds) + "</tr>")
 
@@ -421,6 +467,8 @@ def _html_page(title: str, payloads: Sequence[dict], figures: Sequence[tuple[str
         *body,
         "</tbody></table>",
     ]
+    for note in notes:
+        parts.append(f'<p class="reading">{e(note)}</p>')
     if shared:
         parts.append(f'<p class="note">Shared by all runs: {e(_summary(shared, list(shared)))}.</p>')
     parts.append('<p class="note">AUC: area under the precision–recall curve. R@xP: largest recall at precision '
@@ -445,6 +493,8 @@ def write_report(
     out_dir: str | os.PathLike,
     title: str = "catgraph report",
     extra_figures: Mapping[str, Any] | Sequence[tuple[str, Any]] | None = None,
+    notes: str | Sequence[str] | None = None,
+    new_place_truth: Any = None,
 ) -> Path:
     """Write ``index.html`` and ``results.md`` comparing the runs into ``out_dir``.
 
@@ -459,6 +509,12 @@ def write_report(
     extra_figures : mapping caption → figure, or sequence of (caption, figure), optional
         More figures to append: a matplotlib ``Figure`` or ``Axes``, or a path to a
         ``.png``/``.svg``/``.jpg`` file (embedded, not linked).
+    notes : str or sequence of str, optional
+        Paragraphs shown right under the table (and under the markdown table): how to
+        read the numbers, e.g. why a method loses on this input.
+    new_place_truth : array-like of bool, shape (n,), optional
+        Which query frames (in processing order) are truly outside the map; shaded on
+        the ``P(new place)`` figure.
 
     Returns
     -------
@@ -485,9 +541,12 @@ def write_report(
             f"the report folder {out} is a file; give a folder path (it is created if missing)."
         )
     title = str(title)
-    figures = _standard_figures(payloads, run_labels(payloads)) + _extra_figures(extra_figures)
-    page = _html_page(title, payloads, figures)
+    notes = _notes(notes)
+    figures = _standard_figures(payloads, run_labels(payloads), new_place_truth) + _extra_figures(extra_figures)
+    page = _html_page(title, payloads, figures, notes)
     table = markdown_table(payloads, title=title)
+    if notes:
+        table += "\n" + "\n\n".join(notes) + "\n"
     out.mkdir(parents=True, exist_ok=True)
     index = out / "index.html"
     write_text_atomic(index, page)

@@ -231,3 +231,22 @@ def test_place_graph_from_a_place_graph():
     ax = plot.plot_place_graph(positions, np.column_stack([graph.source, graph.target]), highlight=int(graph.target[0]))
     undirected = np.unique(np.sort(np.c_[graph.source, graph.target], 1), axis=0)
     assert len(ax.collections[0].get_segments()) == len(undirected)
+
+
+def test_difference_matrix_draws_the_truth_on_top_of_the_matches():
+    d = np.random.default_rng(6).random((30, 20))
+    truth = np.arange(30) % 20
+    ax = plot.plot_difference_matrix(d, true_match=truth, match=truth, correct=np.ones(30, bool), colorbar=False)
+    by_label = {c.get_label(): c for c in ax.collections}
+    assert by_label["ground truth"].get_zorder() > by_label["correct match"].get_zorder()
+    assert ax.collections[-1].get_label() == "ground truth"
+
+
+def test_localisation_timeline_hatches_the_initialisation_stage():
+    rng = np.random.default_rng(7)
+    ax = plot.plot_localisation_timeline([rng.random(50) > 0.5, rng.random(50) > 0.5], labels=["a", "b"],
+                                         initialisation=[0, 20])
+    hatched = [p for p in ax.patches if p.get_hatch()]
+    assert len(hatched) == 1 and hatched[0].get_width() == 20 and hatched[0].get_y() == 0.5
+    with pytest.raises(ShapeMismatchError):
+        plot.plot_localisation_timeline([rng.random(50) > 0.5], initialisation=[1, 2])

@@ -191,3 +191,30 @@ def test_report_renders_in_headless_chromium(tmp_path, payloads):
     pixels = np.asarray(Image.open(shot).convert("L"), dtype=np.float64)
     assert pixels.shape == (900, 1200)
     assert pixels.std() > 20  # text, table and plots, not a blank page
+
+
+def test_parameters_are_never_cut_and_notes_are_shown(tmp_path, payloads):
+    long = {"window": "adaptive", "note": "x" * 300, "frontend": {"patch": 4}}
+    runs = payloads + [make_payload(5, "sequence", long)]
+    note = "Single-frame matching wins here because the synthetic night is only mildly darker."
+    page = write_report(runs, tmp_path / "r", notes=[note]).read_text()
+    assert "note=" + "x" * 300 + "</td>" in page  # the parameter cell holds it in full
+    assert note in page and note in (tmp_path / "r" / "results.md").read_text()
+    with pytest.raises(InvalidParameterError):
+        write_report(runs, tmp_path / "r2", notes=[3])
+
+
+def test_initialisation_frames_from_params():
+    from catgraph.report import initialisation_frames
+
+    assert initialisation_frames(make_payload(1, "histogram", {"learning": "online", "n_init": 30})) == 30
+    assert initialisation_frames(make_payload(1, "histogram", {"learning": "bootstrap", "n_init": 30})) == 0
+    assert initialisation_frames(make_payload(1, "filter", {"model": {"n_init": 500}})) == 80  # capped at n frames
+    assert initialisation_frames(make_payload(1, "sequence", {"window": 5})) == 0
+
+
+def test_new_place_truth_is_shaded_once_per_report(tmp_path, payloads):
+    truth = np.zeros(80, bool)
+    truth[20:30] = True
+    page = write_report(payloads, tmp_path / "r", new_place_truth=truth).read_text()
+    assert "Shaded: frames truly outside the map" in page
