@@ -1,26 +1,34 @@
-"""Particle-filter benchmarks: step time, and observation models compared.
+"""Filter benchmarks: step time, and the filters on every traversal condition.
 
 Usage (from the project root)::
 
-    python benchmarks/bench_filter.py speed            # step timings -> results/filter_speed.md
-    python benchmarks/bench_filter.py compare [NAMES]  # model comparison -> results/filter_compare.md
+    python benchmarks/bench_filter.py speed                 # -> results/filter_speed.md
+    python benchmarks/bench_filter.py conditions [--quick]  # -> results/filter_compare.md (+ .json)
+    python benchmarks/bench_filter.py seeds                 # particle-filter seed spread -> results/filter_seeds.md
 
-``speed`` times :meth:`Localizer.step` with 2,000 particles on a chain of N = 3,576
-places (Nordland's size): (a) with the observation precomputed (a stand-in model that
-returns a fixed log-ratio vector), i.e. motion + injection + reweighting + resampling +
-summary; (b) with the online histogram model. Medians over several runs of many steps.
+``speed`` times one step of the particle filter (2,000 particles, observation
+precomputed) on Nordland's graph size and one step of the grid filter at 3,576 and
+100,000 places (observation excluded), medians of repeated runs.
 
-``compare`` runs :func:`catgraph.compare.compare_models` on the synthetic world,
-Nordland 32×16 summer→winter in order and shuffled (``shuffle_segments(seed=0)``, frame
-tolerance ±2) and UJI Wi-Fi (month 01 trn01 reference vs months 02–06 tst01 queries, 2 m
-on the same floor). Datasets under ``../shared/data`` are skipped when absent. NAMES picks
-datasets (``synthetic,nordland,nordland-shuffled,uji``).
+``conditions`` runs, with the library defaults and nothing tuned per dataset,
 
-Timings are reported, never asserted.
+* single-frame matching (best place of each row; confidence: the margin to the best
+  place outside ± 10 reference frames),
+* the grid filter (:class:`catgraph.grid.GridLocalizer`) with the tempered whole-image
+  model (:class:`catgraph.observation.TemperedObservation`),
+* the particle filter (:class:`catgraph.localizer.Localizer`, 2,000 particles,
+  :class:`catgraph.motion.VelocityMotion`) with the same model,
+
+on the 14 conditions of :func:`catgraph.conditions.condition_table` for Nordland 32×16
+summer→winter, UJI months 02–06 and the synthetic world (``benchmarks/datasets.py``),
+and writes one table per condition. ``--quick`` runs the first condition of each kind.
+Datasets under ``../shared/data`` are skipped where absent. Timings are reported,
+never asserted.
 """
 
 from __future__ import annotations
 
+import json
 import platform
 import statistics
 import sys
@@ -31,7 +39,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
-DATA = ROOT.parent / "shared" / "data"
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 
 class _FixedModel:
@@ -48,8 +56,11 @@ class _FixedModel:
     def observe(self, row):
         return self._obs
 
+    def feedback(self, feedback):
+        pass
 
-def _time_steps(loc, rows, n_warm=20):
+
+def _time_steps(loc, rows, n_warm=10):
     loc.reset()
     for r in rows[:n_warm]:
         loc.step(r)
@@ -59,120 +70,173 @@ def _time_steps(loc, rows, n_warm=20):
     return (time.perf_counter() - start) / (len(rows) - n_warm)
 
 
-def speed(n_places: int = 3576, n_particles: int = 2000, n_steps: int = 220, repeats: int = 5) -> str:
+def speed() -> str:
     from catgraph.graph import PlaceGraph
+    from catgraph.grid import GridLocalizer
     from catgraph.localizer import Localizer
-    from catgraph.observation import HistogramObservation
+    from catgraph.motion import VelocityMotion
 
     rng = np.random.default_rng(0)
-    g = PlaceGraph.chain(n_places)
-    # rows that favour a place moving one frame per step, plus noise
-    j = np.arange(n_places)
-    rows = np.array([np.minimum(np.abs(j - (100 + k)), 10) / 5.0 + rng.normal(0, 0.5, n_places)
-                     for k in range(n_steps)])
-    rows = (rows - rows.mean(1, keepdims=True)) / rows.std(1, keepdims=True)
-    lines = [f"# Particle filter step time\n",
-             f"{platform.processor() or platform.machine()}, Python {platform.python_version()}; "
-             f"N = {n_places} places (chain), {n_particles} particles, median of {repeats} runs of "
-             f"{n_steps - 20} steps (after 20 warm-up steps).\n",
-             "| configuration | median ms/step | min | max |", "|---|---|---|---|"]
-    cases = {
-        "filter step, observation precomputed": lambda: Localizer(g, _FixedModel(-rows[50] ** 2 / 2), n_particles, seed=0),
-        "filter step + online histogram model": lambda: Localizer(g, HistogramObservation(n_init=10), n_particles, seed=0),
-        "online histogram model alone": None,
-    }
-    out = {}
-    for name, make in cases.items():
-        times = []
-        for _ in range(repeats):
-            if make is None:
-                model = HistogramObservation(n_init=10)
-                for r in rows[:20]:
-                    model.observe(r)
-                start = time.perf_counter()
-                for r in rows[20:]:
-                    model.observe(r)
-                times.append((time.perf_counter() - start) / (n_steps - 20))
-            else:
-                times.append(_time_steps(make(), rows))
-        ms = [1000 * t for t in times]
-        out[name] = statistics.median(ms)
-        lines.append(f"| {name} | {statistics.median(ms):.3f} | {min(ms):.3f} | {max(ms):.3f} |")
-    text = "\n".join(lines) + "\n"
-    print(text)
-    return text
+    lines = ["# Filter step time", "", f"{platform.processor() or platform.machine()}, numpy {np.__version__}; "
+             "medians of 5 runs; observation precomputed (a fixed log-ratio vector).", "",
+             "| filter | places | step (ms) |", "|---|---|---|"]
+    n = 3576
+    rows = rng.standard_normal((60, n))
+    g = PlaceGraph.chain(n)
+    t = [_time_steps(Localizer(g, _FixedModel(-rows[0]), 2000, motion=VelocityMotion(), seed=0), rows)
+         for _ in range(5)]
+    lines.append(f"| particle filter, 2,000 particles, VelocityMotion | {n:,} | {1e3 * statistics.median(t):.3f} |")
+    for n in (3576, 100_000):
+        rows = rng.standard_normal((30, n))
+        g = PlaceGraph.chain(n)
+        t = [_time_steps(GridLocalizer(g, _FixedModel(-rows[0])), rows) for _ in range(5)]
+        lines.append(f"| grid filter, 8 velocity bins | {n:,} | {1e3 * statistics.median(t):.3f} |")
+    return "\n".join(lines) + "\n"
 
 
-def _datasets(names):
-    from catgraph.traverse import FrameTolerance, shuffle_segments
-
-    if "synthetic" in names:
-        from catgraph.datasets.synthetic import make_world
-
-        w = make_world(0)
-        yield "synthetic world (seed 0), metric 10 m", w.reference, w.query, w.ground_truth(), {
-            "junctions": w.reference_junctions(), "confidence_radius_m": w.tolerance_m}
-    nordland = DATA / "nordland" / "32x16"
-    if nordland.exists() and ({"nordland", "nordland-shuffled"} & set(names)):
-        from catgraph.datasets import load_traverse
-
-        ref = load_traverse(nordland / "summer")
-        qry = load_traverse(nordland / "winter")
-        gt = FrameTolerance(len(ref), 2)
-        if "nordland" in names:
-            yield "Nordland 32×16 summer→winter, in order, ±2 frames", ref, qry, gt, {}
-        if "nordland-shuffled" in names:
-            yield "Nordland 32×16 summer→winter, shuffled (seed 0), ±2 frames", ref, shuffle_segments(qry, seed=0), gt, {}
-    uji = DATA / "uji-lib" / "db"
-    if uji.exists() and "uji" in names:
-        from catgraph.datasets import load_traverse
-        from catgraph.traverse import MetricTolerance
-
-        ref = load_traverse(uji / "01" / "trn01")
-        for month in ("02", "03", "04", "05", "06"):
-            qry = load_traverse(uji / month / "tst01")
-            yield (f"UJI library Wi-Fi, 01/trn01 → {month}/tst01, 2 m same floor", ref, qry,
-                   MetricTolerance.between(qry, ref, 2.0),
-                   {"edge_length": "frames", "junction_radius_m": 1.0, "confidence_radius_m": 2.0})
+# ---------------------------------------------------------------------- conditions
+def _single_frame(d: np.ndarray, exclusion: int = 10):
+    best = np.argmin(d, 1)
+    n = d.shape[1]
+    idx = np.arange(n)
+    margin = np.empty(len(d))
+    for k, row in enumerate(d):
+        far = np.abs(idx - best[k]) > exclusion
+        margin[k] = (row[far].min() if far.any() else row.max()) - row[best[k]]
+    return best, margin
 
 
-def compare(names=("synthetic", "nordland", "nordland-shuffled", "uji")) -> str:
-    from catgraph.compare import compare_models, format_table
+def _graph(case):
     from catgraph.graph import PlaceGraph
 
-    parts = ["# Observation models in the particle filter, compared\n",
-             "Filter: 2,000 particles, seed 0, systematic resampling at ESS < 0.5 N, 2 % of particles "
-             "re-drawn each step near the 10 best single-frame matches; a frame's confidence is the smaller of "
-             "the posterior log-odds and the model's recent support at the answer (`confidence_score=\"joint\"`); "
-             "the combined model tempers each part by its online reliability. Baselines: the standalone "
-             "sequence matcher (adaptive window; fixed L = 50). ms/frame: the method alone, difference "
-             "matrix excluded. Generated by `benchmarks/bench_filter.py compare`.\n"]
-    for title, ref, qry, gt, extra in _datasets(names):
-        print(title, flush=True)
-        extra = dict(extra)
-        junctions = extra.pop("junctions", None)
-        if junctions is not None:
-            extra["graph"] = PlaceGraph.from_traverse(ref, junctions=junctions)
-        rows = compare_models(ref, qry, gt, progress=lambda s: print("  ", s, time.strftime("%X"), flush=True),
-                              **extra)
-        table = format_table(rows, title)
-        print(table, flush=True)
-        parts.append(table)
-    return "\n".join(parts)
+    if case.name.startswith("synthetic"):
+        from catgraph.datasets.synthetic import make_world
+
+        return PlaceGraph.from_traverse(case.reference, junctions=make_world(seed=0).reference_junctions())
+    return PlaceGraph.chain(len(case.reference))
 
 
-def main(argv=None) -> None:
-    argv = sys.argv[1:] if argv is None else argv
+def _methods():
+    from catgraph.grid import GridLocalizer
+    from catgraph.localizer import Localizer
+    from catgraph.motion import VelocityMotion
+    from catgraph.observation import TemperedObservation
+
+    def grid(case, graph):
+        res = GridLocalizer(graph, TemperedObservation()).run(
+            case.differences, odometry=case.query.odometry, query_index=case.query.index)
+        return res.place, res.log_odds, res.seconds_per_frame
+
+    def particles(case, graph, seed=0):
+        res = Localizer(graph, TemperedObservation(), n_particles=2000, motion=VelocityMotion(), seed=seed).run(
+            case.differences, odometry=case.query.odometry, query_index=case.query.index)
+        return res.place, res.log_odds, res.seconds_per_frame
+
+    def single(case, graph):
+        t = time.perf_counter()
+        m, c = _single_frame(case.differences)
+        return m, c, (time.perf_counter() - t) / len(m)
+
+    return {"single frame": single, "grid filter": grid, "particle filter": particles}
+
+
+def _evaluate(case, match, confidence):
+    from catgraph.metrics import evaluate
+
+    m = evaluate(case.query.index, match, confidence, case.ground_truth).metrics
+    return {"auc": float(m.auc), "r100": float(m.recall_at_100p), "r99": float(m.recall_at_99p),
+            "r90": float(m.recall_at_90p), "mtl": int(m.mtl)}
+
+
+def _cases():
+    import datasets as ds
+
+    out = [ds.synthetic(0)]
+    if ds.have_data():
+        out = [ds.nordland()] + ds.uji_months() + out
+    return out
+
+
+def conditions(quick: bool = False) -> tuple[str, dict]:
+    import datasets as ds
+
+    table = ds.condition_table()
+    if quick:
+        seen, keep = set(), []
+        for c in table:
+            if c.kind not in seen:
+                seen.add(c.kind)
+                keep.append(c)
+        table = keep
+    methods = _methods()
+    results: dict = {}
+    start = time.perf_counter()
+    for case in _cases():
+        graph = _graph(case)
+        for cond in table:
+            c = ds.conditioned(case, cond)
+            for name, fn in methods.items():
+                match, conf, sec = fn(c, graph)
+                r = _evaluate(c, match, conf)
+                r["ms_per_frame"] = 1e3 * sec
+                results.setdefault(cond.label, {}).setdefault(case.name, {})[name] = r
+            print(f"{case.name:12s} {cond.label:28s} " + "  ".join(
+                f"{k}: {v['auc']:.3f}" for k, v in results[cond.label][case.name].items())
+                + f"  ({time.perf_counter() - start:.0f} s)", flush=True)
+    return _markdown(results), results
+
+
+def _markdown(results: dict) -> str:
+    lines = ["# Filters on every traversal condition", "",
+             "`python benchmarks/bench_filter.py conditions`. Library defaults everywhere, nothing tuned per dataset "
+             "or condition: grid filter = `GridLocalizer(graph, TemperedObservation())`; particle filter = "
+             "`Localizer(graph, TemperedObservation(), n_particles=2000, motion=VelocityMotion(), seed=0)`; "
+             "single frame = best place per row, confidence = margin to the best place outside ±10 frames. "
+             "Filters are ranked by the posterior log-odds of the answer's ±2-place neighbourhood. "
+             "Tolerance: Nordland ±2 frames, UJI 3 m (same floor), synthetic world its own.", ""]
+    for label, per_case in results.items():
+        lines += [f"## {label}", "", "| dataset | method | AUC | R@100P | R@99P | R@90P | MTL | ms/frame |",
+                  "|---|---|---|---|---|---|---|---|"]
+        for case, per_method in per_case.items():
+            for name, r in per_method.items():
+                lines.append(f"| {case} | {name} | {r['auc']:.3f} | {r['r100']:.3f} | {r['r99']:.3f} | "
+                             f"{r['r90']:.3f} | {r['mtl']} | {r['ms_per_frame']:.2f} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def seeds() -> str:
+    import datasets as ds
+    from catgraph.conditions import Condition
+
+    methods = _methods()
+    lines = ["# Particle filter: AUC over seeds 0–4", "", "| dataset | condition | AUC per seed | spread |",
+             "|---|---|---|---|"]
+    for case in _cases():
+        graph = _graph(case)
+        for cond in (Condition(), Condition("shuffle", seed=0)):
+            c = ds.conditioned(case, cond)
+            aucs = [_evaluate(c, *methods["particle filter"](c, graph, seed=s)[:2])["auc"] for s in range(5)]
+            lines.append(f"| {case.name} | {cond.label} | {' '.join(f'{a:.3f}' for a in aucs)} | "
+                         f"{max(aucs) - min(aucs):.3f} |")
+            print(lines[-1], flush=True)
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str]) -> None:
     what = argv[0] if argv else "speed"
     RESULTS.mkdir(parents=True, exist_ok=True)
     if what == "speed":
         (RESULTS / "filter_speed.md").write_text(speed())
-    elif what == "compare":
-        names = argv[1].split(",") if len(argv) > 1 else ["synthetic", "nordland", "nordland-shuffled", "uji"]
-        (RESULTS / "filter_compare.md").write_text(compare(names))
+    elif what == "conditions":
+        text, results = conditions(quick="--quick" in argv)
+        (RESULTS / "filter_compare.md").write_text(text)
+        (RESULTS / "filter_compare.json").write_text(json.dumps(results, indent=1))
+    elif what == "seeds":
+        (RESULTS / "filter_seeds.md").write_text(seeds())
     else:
-        raise SystemExit("usage: bench_filter.py speed | compare [synthetic,nordland,nordland-shuffled,uji]")
+        raise SystemExit(f"unknown benchmark {what!r}; use speed, conditions or seeds.")
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

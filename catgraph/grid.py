@@ -381,7 +381,7 @@ class GridLocalizer:
     """
 
     def __init__(self, graph: PlaceGraph, model, velocities=DEFAULT_VELOCITIES, velocity_stay: float = 0.9,
-                 reverse_probability: float = 0.001, blur: float = 0.05, recovery: float = 0.01,
+                 reverse_probability: float = 0.001, blur: float = 0.05, recovery: float = 0.05,
                  junction_probability: float = 0.1, new_place_prior: float = 0.0, new_place_stay: float = 0.8,
                  confidence_radius: int = 2, confidence_radius_m: float | None = None) -> None:
         self.graph = graph

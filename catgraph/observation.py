@@ -42,6 +42,12 @@ Models (all follow :class:`ObservationModel`: ``reset()``, ``observe(row)``):
     log-ratios, exact if the models' errors were independent). A part that is rarely
     right on its own is flattened so that it cannot outvote a reliable one.
 
+:class:`TemperedObservation`
+    The whole-image model that localises on real data: the per-query normalised
+    difference, a hub correction where the map has hubs, and a temperature learned
+    from how often the frame's own best place survives the filter's weighing
+    (:meth:`ObservationModel.feedback`). It learns from the filter, not from ``d_min``.
+
 :class:`SequenceObservation` also reports a *recent support* per place
 (``Observation.support``): ``−log Φ(−z_j)`` of the standardised score at the shortest
 window, the evidence of the most recent frames alone, which caps the filter's
@@ -484,7 +490,7 @@ class CombinedObservation:
 
 
 #: Model names understood by :func:`make_model` (and the command line).
-MODEL_NAMES = ("histogram", "sequence", "adaptive", "combined")
+MODEL_NAMES = ("histogram", "sequence", "adaptive", "combined", "tempered")
 
 
 def make_model(name: str, window: int = 50, **kwargs) -> ObservationModel:
@@ -492,10 +498,11 @@ def make_model(name: str, window: int = 50, **kwargs) -> ObservationModel:
 
     Parameters
     ----------
-    name : {"histogram", "sequence", "adaptive", "combined"}
-        ``"histogram"``: :class:`HistogramObservation` (online); ``"sequence"``:
+    name : {"histogram", "sequence", "adaptive", "combined", "tempered"}
+        ``"histogram"``: :class:`HistogramObservation` (paper 2, online); ``"sequence"``:
         :class:`SequenceObservation` with a fixed ``window``; ``"adaptive"``: the
-        adaptive window; ``"combined"``: histogram + adaptive.
+        adaptive window; ``"combined"``: histogram + adaptive; ``"tempered"``:
+        :class:`TemperedObservation` (the whole-image model that works on real data).
     window : int
         Fixed window length for ``"sequence"``.
     **kwargs
@@ -510,7 +517,17 @@ def make_model(name: str, window: int = 50, **kwargs) -> ObservationModel:
         return SequenceObservation(window="adaptive", **kwargs)
     if name == "combined":
         return CombinedObservation([HistogramObservation(**kwargs), SequenceObservation(window="adaptive", **kwargs)])
+    if name == "tempered":
+        return TemperedObservation(**kwargs)
     raise InvalidParameterError(f"The 'model' parameter must be one of {list(MODEL_NAMES)}. Got {name!r} instead.")
+
+
+def _predictive_scores(base: np.ndarray, log_prior: np.ndarray, taus: np.ndarray) -> np.ndarray:
+    """``log Σ_j prior_j e^{τ b_j} − log mean_j e^{τ b_j}`` for every ``τ`` (compiled)."""
+    from ._grid_kernels import predictive_scores
+
+    return predictive_scores(np.ascontiguousarray(base, dtype=np.float64),
+                             np.ascontiguousarray(log_prior, dtype=np.float64), taus)
 
 
 #: Default grid of temperatures the online temper chooses from.
@@ -518,67 +535,86 @@ DEFAULT_TEMPERATURES = (0.05, 0.1, 0.15, 0.2, 0.3, 0.5, 0.7, 1.0, 1.5)
 
 
 class TemperedObservation:
-    """Whole-image evidence, tempered and hub-corrected by what the filter predicts.
+    """Whole-image evidence, hub-corrected and tempered by the filter's own answers.
 
-    The per-place log-ratio is ``r_j = τ · b(d_j − λ h_j)`` where
+    The per-place log-ratio is ``r_j = τ · b(d_j − c_j)`` where
 
-    * ``b`` is the single-frame log-ratio ``log P(d|L) − log P(d)``:
-      ``likelihood="histogram"`` learns it as paper 2 does, from histograms of the
-      query's own differences, but ``P(d|L)`` is learned from the *filter's*
-      localisations (every place weighted by its posterior mass times the answer's
+    * ``b`` is the single-frame log-ratio ``log P(d|L) − log P(d)`` of the per-query
+      normalised difference. ``likelihood="linear"`` (default) is the Gaussian-shift
+      model, ``b(d) = −d``: ``P(d)`` standard normal (the row is normalised) and
+      ``P(d|L)`` the same shifted down, the form the histograms start from.
+      ``likelihood="histogram"`` learns ``b`` as paper 2 does, from histograms of the
+      query's own differences, except that ``P(d|L)`` is learned from the *filter's*
+      answers (every place weighted by its posterior mass times the answer's
       confidence; :meth:`feedback`) instead of from ``d_min``, which on a season change
-      is mostly a wrong match. It starts as the Gaussian-shift ratio ``−d`` (the
-      per-query normalised difference: ``P(d|L)`` one standard deviation below
-      ``P(d)``) with the weight of ``prior_strength`` frames and is kept
-      non-increasing in ``d`` (pooled adjacent violators). ``likelihood="linear"``
-      keeps ``b(d) = −d``;
-    * ``h_j`` is the hub level of reference ``j``: the mean of its past differences to
-      the query (``hub="online"``, from the frames seen so far), or a vector given
-      from the map (``hub=array``, e.g. :func:`catgraph.likelihood.map_hubness`), or
-      none;
-    * ``τ`` (temperature) and ``λ`` (hub weight) are chosen online, the same way on
-      every dataset: for each pair on the grids ``temperatures × hub_weights`` the model
-      keeps a discounted sum of the *predictive* log Bayes factor of each frame,
-      ``log Σ_j prior_j e^{τ b_j} − log mean_j e^{τ b_j}`` — how much better the
-      filter's prediction explained the frame than a uniform prior — and uses the pair
-      with the largest. Frames are not independent evidence; an over-confident ``τ``
-      is punished by the frames the track's prediction gets wrong, an under-confident
-      one by those it gets right.
+      is mostly a wrong match. It starts from ``−d`` with the weight of
+      ``prior_strength`` frames and is kept non-increasing in ``d`` (pooled adjacent
+      violators). Paper 2's own online scheme stays available as
+      :class:`HistogramObservation`.
+    * ``c_j`` is the hub correction. Each reference's *level* is its mean difference to
+      the query frames so far (``hub="online"``) or a level given from the map
+      (``hub=array``, e.g. :func:`catgraph.likelihood.map_hubness`). A *hub* is a
+      reference whose level is a low outlier (below ``median − hub_threshold ·
+      1.4826 · MAD`` of the levels); ``c = w · (level − mean level)`` with
+      ``w = min(1, f / 1 %)``, ``f`` the fraction of references that are hubs. Maps with
+      a run of flat, textureless frames (Nordland) are corrected fully; maps without
+      hubs (Wi-Fi fingerprints, the synthetic world), where the levels carry place
+      information and correcting them was measured to hurt, are left alone.
+    * ``τ`` is the temperature: frames are not independent evidence, and how much one
+      frame may move the posterior depends on how often single frames are right.
+      ``temperature="agreement"`` (default) learns that from the filter:
+      ``τ = temperature_scale · ρ``, ``ρ`` the discounted mean (half-life ``memory``
+      frames, Beta(1, 1) prior) of ``posterior(best_k) / max posterior``, how probable
+      the frame's own best place is after the filter has weighed it.
+      ``temperature="predictive"`` picks ``τ`` from ``temperatures`` by the discounted
+      predictive log Bayes factor ``log Σ_j prior_j e^{τ b_j} − log mean_j e^{τ b_j}``
+      (measured: it prefers the largest ``τ`` and locks onto hubs, see
+      ``docs/particle_filter.md``); a float fixes ``τ``.
 
     The new-place log-ratio is ``log mean_j e^{r_j}``: a place not in the map looks,
     to this model, like a place drawn at random from the map.
 
     Parameters
     ----------
-    likelihood : {"histogram", "linear"}
+    likelihood : {"linear", "histogram"}
     hub : {"online", None} or ndarray of shape (n_places,)
-    temperature : "online" or float
-        A fixed ``τ`` instead of the online choice.
+    temperature : {"agreement", "predictive"} or float
+    temperature_scale : float
+        ``τ`` per unit of agreement (``"agreement"``).
     temperatures : sequence of float
-        The grid of the online choice.
+        The grid of ``"predictive"``.
     hub_weights : sequence of float
-        Grid of ``λ`` (``hub`` given).
+        Extra weights on the hub correction; with several, ``"predictive"`` also
+        chooses among them.
     memory : float
-        Half-life, in frames, of the predictive score (and of nothing else).
+        Half-life, in frames, of the agreement and of the predictive score.
     n_bins : int
         Histogram bins (``"histogram"``).
     prior_strength : float
-        Frames' worth of weight of the starting ratio ``−d``.
+        Frames' worth of weight of the starting ratio ``−d`` (``"histogram"``).
+    hub_threshold : float
+        Robust z-score below which a reference is a hub.
 
     Attributes
     ----------
     temperature_ : float
-    hub_weight_ : float
-        The current choices.
+    agreement_ : float
+    hub_shrinkage_ : float
+        ``w`` of the hub correction.
+    n_hubs_ : int
     score_ : ndarray, shape (n_temperatures, n_hub_weights)
         Discounted predictive log Bayes factors.
     """
 
-    def __init__(self, likelihood: str = "histogram", hub="online", temperature="online",
-                 temperatures: Sequence[float] = DEFAULT_TEMPERATURES, hub_weights: Sequence[float] = (0.0, 1.0),
-                 memory: float = 200.0, n_bins: int = 64, prior_strength: float = 50.0) -> None:
+    def __init__(self, likelihood: str = "linear", hub="online", temperature="agreement",
+                 temperature_scale: float = 3.0,
+                 temperatures: Sequence[float] = DEFAULT_TEMPERATURES, hub_weights: Sequence[float] = (1.0,),
+                 memory: float = 200.0, n_bins: int = 64, prior_strength: float = 50.0,
+                 hub_threshold: float = 3.0) -> None:
         self.likelihood = likelihood
         self.hub = hub
+        self.hub_threshold = hub_threshold
+        self.temperature_scale = temperature_scale
         self.temperature = temperature
         self.temperatures = temperatures
         self.hub_weights = hub_weights
@@ -596,10 +632,11 @@ class TemperedObservation:
             raise InvalidParameterError(
                 f"The 'likelihood' parameter of {owner} must be 'histogram' or 'linear'. Got {self.likelihood!r} instead."
             )
-        if self.temperature != "online":
+        if self.temperature not in ("predictive", "agreement"):
             check_scalar(self.temperature, "temperature", owner, float, 0.0, low_inclusive=False)
-        taus = np.asarray(self.temperatures, dtype=np.float64) if self.temperature == "online" else np.array(
-            [float(self.temperature)])
+        check_scalar(self.temperature_scale, "temperature_scale", owner, float, 0.0, low_inclusive=False)
+        taus = np.asarray(self.temperatures, dtype=np.float64) if self.temperature == "predictive" else np.array(
+            [float(self.temperature) if not isinstance(self.temperature, str) else 1.0])
         if taus.ndim != 1 or len(taus) == 0 or not np.all(np.isfinite(taus)) or np.any(taus <= 0):
             raise InvalidParameterError(
                 f"The 'temperatures' parameter of {owner} must be a non-empty sequence of positive floats. "
@@ -629,7 +666,10 @@ class TemperedObservation:
         self._hub_sum, self._hub_count = np.zeros(n), 0
         self.score_ = np.zeros((len(taus), len(lams)))
         self._decay = 0.5 ** (1.0 / float(self.memory))
-        self.temperature_, self.hub_weight_ = float(taus[len(taus) // 2]), float(lams[0])
+        self._hits, self._trials = 0.0, 0.0
+        self.agreement_ = 0.5
+        first = float(self.temperature_scale) * 0.5 if self.temperature == "agreement" else float(taus[len(taus) // 2])
+        self.temperature_, self.hub_weight_ = first, float(lams[0])
         self._pick = (len(taus) // 2, 0)
         if self.likelihood == "histogram":
             sd = float(row.std()) or 1.0
@@ -645,10 +685,27 @@ class TemperedObservation:
 
     def _hub(self) -> np.ndarray | None:
         if self._hub_map is not None:
-            return self._hub_map
-        if self.hub == "online" and self._hub_count > 0:
-            return self._hub_sum / self._hub_count
+            return self._hub_excess(self._hub_map)
+        if isinstance(self.hub, str) and self._hub_count > 1:
+            return self._hub_excess(self._hub_sum / self._hub_count)
         return None
+
+    def _hub_excess(self, level: np.ndarray) -> np.ndarray:
+        """The hub correction from reference levels: ``w · (level − mean level)``.
+
+        A hub is a reference whose level is a low outlier among the references': below
+        ``median − hub_threshold · 1.4826 · MAD``. The weight ``w = min(1, f / 0.01)``
+        grows with the fraction ``f`` of references that are hubs: a map with none
+        (Wi-Fi fingerprints, the synthetic world) keeps its levels, which there carry
+        place information; a map with a run of flat, textureless frames (Nordland's
+        tunnels) has its levels removed.
+        """
+        med = float(np.median(level))
+        mad = 1.4826 * float(np.median(np.abs(level - med)))
+        hubs = int(np.count_nonzero(level < med - float(self.hub_threshold) * mad))
+        self.n_hubs_ = hubs
+        self.hub_shrinkage_ = min(1.0, hubs / (0.01 * len(level)))
+        return self.hub_shrinkage_ * (level - level.mean())
 
     def _bins(self, d: np.ndarray) -> np.ndarray:
         return np.clip(np.searchsorted(self._edges, d, side="right") - 1, 0, self.n_bins - 1)
@@ -672,7 +729,7 @@ class TemperedObservation:
         self._row = row
         self._bases = self._base(row)
         i, m = self._pick
-        r = self._taus[i] * self._bases[m]
+        r = self.temperature_ * self._bases[m]
         top = float(r.max())
         new = top + math.log(float(np.mean(np.exp(r - top))))
         return Observation(r, new, True)
@@ -688,17 +745,26 @@ class TemperedObservation:
         log_prior = np.log(np.maximum(prior / total, 1e-300)) if total > 0 else np.full(len(prior), -math.log(len(prior)))
         self.score_ *= self._decay
         for m, b in enumerate(self._bases):
-            for i, tau in enumerate(self._taus):
-                x = tau * b
-                top = float(x.max())
-                e = np.exp(x - top)
-                self.score_[i, m] += math.log(float(np.exp(log_prior + x - top).sum()) + 1e-300) - math.log(float(e.mean()))
+            self.score_[:, m] += _predictive_scores(b, log_prior, self._taus)
         i, m = np.unravel_index(int(np.argmax(self.score_)), self.score_.shape)
-        self._pick = (int(i), int(m))
-        self.temperature_, self.hub_weight_ = float(self._taus[i]), float(self._lams[m])
+        # agreement: how probable is the frame's own best place, relative to the answer?
+        best = int(np.argmax(self._bases[self._pick[1]]))
+        post = np.asarray(feedback.posterior)
+        top = float(post.max())
+        hit = float(post[best]) / top if top > 0 else 0.0
+        self._hits = self._decay * self._hits + hit
+        self._trials = self._decay * self._trials + 1.0
+        self.agreement_ = (self._hits + 1.0) / (self._trials + 2.0)
+        if self.temperature == "agreement":
+            self.temperature_ = float(self.temperature_scale) * self.agreement_
+            self._pick = (0, int(m))
+        else:
+            self._pick = (int(i), int(m))
+            self.temperature_ = float(self._taus[i])
+        self.hub_weight_ = float(self._lams[m])
         if self.likelihood == "histogram":
             self._learn(row, np.asarray(feedback.posterior, dtype=np.float64), feedback.near)
-        if self.hub == "online" and self._hub_map is None:
+        if self._hub_map is None and isinstance(self.hub, str):
             self._hub_sum += row
             self._hub_count += 1
         self._row = None

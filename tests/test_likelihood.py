@@ -415,3 +415,125 @@ def test_recogniser_random_different_samples_and_positions():
     r = np.abs(np.subtract.outer(x, x))
     _, nd = reference_samples(r, gap=2, max_different=300, seed=0, reference_positions=positions, min_distance=3.0)
     assert nd.size == 300 and nd.min() > 3.0
+
+
+# ---------------------------------------------------------------------- split modules, map samples
+def test_likelihood_names_still_importable_from_one_place():
+    import catgraph.histogram
+    import catgraph.recogniser
+    import catgraph.samples
+    from catgraph import likelihood
+
+    assert likelihood.HistogramLikelihood is catgraph.histogram.HistogramLikelihood
+    assert likelihood.HistogramPlaceRecogniser is catgraph.recogniser.HistogramPlaceRecogniser
+    assert likelihood.reference_samples is catgraph.samples.reference_samples
+    for name in likelihood.__all__:
+        assert hasattr(likelihood, name)
+
+
+def test_map_hubness_matches_dense_reference():
+    from catgraph.differences import difference_matrix, normalise_rows
+    from catgraph.likelihood import map_hubness
+
+    rng = np.random.default_rng(0)
+    ref = rng.random((40, 6))
+    ref[5:8] = 0.5  # flat frames: hubs
+    got = map_hubness(ref, metric="sad", n_rows=40, gap=3, seed=0)
+    d = normalise_rows(difference_matrix(ref, ref, metric="sad"))
+    far = np.abs(np.arange(40)[:, None] - np.arange(40)[None, :]) > 3
+    level = (d * far).sum(0) / far.sum(0)
+    np.testing.assert_allclose(got, level - level.mean(), atol=1e-9)
+    assert np.all(got[5:8] < np.median(got))
+
+
+def test_map_samples_are_far_pairs_only():
+    from catgraph.likelihood import map_samples
+
+    ref = np.random.default_rng(1).random((30, 4))
+    values = map_samples(ref, metric="sad", n_rows=30, gap=2, max_different=50, seed=0)
+    assert values.shape == (50,) and np.all(np.isfinite(values))
+    with pytest.raises(DataError):
+        map_samples(ref, gap=40)
+
+
+# ---------------------------------------------------------------------- tempered whole-image model
+def test_predictive_scores_kernel_matches_numpy():
+    from catgraph._grid_kernels import predictive_scores
+
+    rng = np.random.default_rng(2)
+    b = rng.standard_normal(50)
+    prior = rng.random(50)
+    prior /= prior.sum()
+    taus = np.array([0.1, 0.5, 2.0])
+    want = [np.log(np.sum(prior * np.exp(t * b))) - np.log(np.mean(np.exp(t * b))) for t in taus]
+    np.testing.assert_allclose(predictive_scores(b, np.log(prior), taus), want, rtol=1e-10)
+
+
+def test_tempered_hub_correction_only_where_the_map_has_hubs():
+    from catgraph.observation import TemperedObservation
+
+    rng = np.random.default_rng(3)
+    level = rng.uniform(-0.5, 0.5, 500)
+    m = TemperedObservation(hub=level, temperature=1.0)
+    r = m.observe(rng.standard_normal(500)).log_ratio
+    assert m.n_hubs_ == 0 and m.hub_shrinkage_ == 0.0
+    level[:20] = -5.0  # 4 % hubs
+    m = TemperedObservation(hub=level, temperature=1.0)
+    row = rng.standard_normal(500)
+    r = m.observe(row).log_ratio
+    assert m.n_hubs_ == 20 and m.hub_shrinkage_ == 1.0
+    np.testing.assert_allclose(r, -(row - (level - level.mean())))
+
+
+def test_tempered_temperature_follows_agreement():
+    from catgraph.observation import FilterFeedback, TemperedObservation
+
+    rng = np.random.default_rng(4)
+    n = 100
+    agree, disagree = TemperedObservation(hub=None), TemperedObservation(hub=None)
+    for k in range(50):
+        row = rng.standard_normal(n)
+        best = int(np.argmin(row))
+        for model, place in ((agree, best), (disagree, (best + 50) % n)):
+            model.observe(row)
+            post = np.full(n, 1e-4)
+            post[place] = 1.0
+            model.feedback(FilterFeedback(np.full(n, 1 / n), post / post.sum(), slice(place, place + 1)))
+    assert agree.temperature_ > 2.5 > 0.5 > disagree.temperature_
+    assert agree.agreement_ == pytest.approx(agree.temperature_ / agree.temperature_scale)
+
+
+def test_tempered_validates_and_resets():
+    from catgraph.observation import TemperedObservation
+
+    with pytest.raises(InvalidParameterError, match="likelihood"):
+        TemperedObservation(likelihood="nope").observe(np.zeros(5))
+    with pytest.raises(InvalidParameterError, match="temperature"):
+        TemperedObservation(temperature=-1.0).observe(np.zeros(5))
+    with pytest.raises(ShapeMismatchError):
+        TemperedObservation(hub=np.zeros(4)).observe(np.zeros(5))
+    m = TemperedObservation()
+    m.observe(np.arange(5.0))
+    with pytest.raises(ShapeMismatchError):
+        m.observe(np.zeros(6))
+    m.reset()
+    m.observe(np.zeros(6))
+
+
+def test_tempered_histogram_learns_from_the_filter():
+    from catgraph.observation import FilterFeedback, TemperedObservation
+
+    rng = np.random.default_rng(5)
+    n = 200
+    m = TemperedObservation(likelihood="histogram", hub=None, temperature=1.0, prior_strength=1.0)
+    for k in range(60):
+        row = rng.standard_normal(n)
+        row[k] -= 3.0  # the true place is clearly lower
+        m.observe(row)
+        post = np.zeros(n)
+        post[k] = 1.0
+        m.feedback(FilterFeedback(np.full(n, 1 / n), post, slice(k, k + 1)))
+    row = np.linspace(-4, 2, n)
+    r = m.observe(row).log_ratio
+    assert np.all(np.diff(r) <= 1e-12)  # non-increasing in d
+    assert r[0] - r[-1] > 3.0

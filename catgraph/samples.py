@@ -1,0 +1,298 @@
+"""Choosing the samples a histogram model learns from (paper 2 and its variants).
+
+* :func:`online_samples`: the paper's online choice for one frame, ``d_min`` and the
+  smallest difference not from the same location;
+* :func:`labelled_samples`: from a labelled traverse (the "trained" baseline);
+* :func:`reference_samples`: from a reference-vs-reference difference matrix;
+* :func:`map_samples`: from the map's descriptors by *sampled* pairs, never an N × N
+  matrix: ``¬L`` from pairs far apart along the route, each normalised like a query row
+  would be (by the mean and standard deviation of the frame's differences to a random
+  sample of the map);
+* :func:`map_hubness`: each reference's mean normalised difference to map frames far
+  from it, from sampled pairs: a *hub* (a flat, textureless frame) is close to
+  everything and has a low level.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ._validation import as_generator, check_array, check_scalar
+from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
+
+__all__ = ["OnlineSamples", "online_samples", "labelled_samples", "reference_samples", "map_samples", "map_hubness"]
+
+
+@dataclass(frozen=True)
+class OnlineSamples:
+    """The paper's online choice of samples for one frame.
+
+    Attributes
+    ----------
+    best : int
+        Reference index of the smallest difference.
+    d_min : float
+        The smallest difference (to ``L`` after initialisation, else to ``¬L``).
+    d_other : float
+        Smallest difference outside ``best ± exclusion_radius`` (to ``¬L``); NaN when
+        every place lies in that neighbourhood.
+    d_random : tuple of float
+        Differences to places drawn uniformly outside that neighbourhood (also to
+        ``¬L``; empty unless the recogniser asks for them).
+    """
+
+    best: int
+    d_min: float
+    d_other: float
+    d_random: tuple[float, ...] = ()
+
+
+def online_samples(
+    differences: np.ndarray, exclusion_radius: int, same_place: np.ndarray | None = None
+) -> OnlineSamples:
+    """``d_min`` and the smallest difference not from the same location, O(n_ref).
+
+    Parameters
+    ----------
+    differences : ndarray, shape (n_ref,)
+        One frame's difference to every reference place (trusted: finite, 1-D).
+    exclusion_radius : int
+        Reference indices ``best ± exclusion_radius`` count as the same location.
+    same_place : ndarray of int, optional
+        Indices of the places that count as the best match's location (e.g. every place
+        within some metres of it); replaces ``exclusion_radius`` when given.
+    """
+    best = int(np.argmin(differences))
+    if same_place is not None:
+        rest = np.delete(differences, same_place)
+        other = rest.min() if rest.size else math.nan
+        return OnlineSamples(best, float(differences[best]), float(other))
+    lo, hi = max(0, best - exclusion_radius), best + exclusion_radius + 1
+    left, right = differences[:lo], differences[hi:]
+    other = min(left.min() if left.size else np.inf, right.min() if right.size else np.inf)
+    return OnlineSamples(best, float(differences[best]), float(other) if np.isfinite(other) else math.nan)
+
+
+def labelled_samples(
+    differences: Any,
+    ground_truth: Any,
+    query_index: Any = None,
+    max_different: int | None = 100_000,
+    seed: int | np.random.Generator | None = 0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Same- and different-place differences from a labelled traverse ("trained" mode).
+
+    Parameters
+    ----------
+    differences : array_like, shape (n_query, n_reference)
+        Difference matrix; column ``j`` is reference frame ``j`` as loaded.
+    ground_truth : catgraph.traverse.GroundTruth
+        Decides which ``(query, reference)`` pairs show the same place.
+    query_index : array_like of int, shape (n_query,), optional
+        Loaded index of each query row (``Traverse.index``); default ``arange(n_query)``.
+    max_different : int or None
+        Keep at most this many ``¬L`` samples, drawn without replacement with ``seed``
+        (``None``: keep all).
+    seed : int, Generator or None
+
+    Returns
+    -------
+    d_same, d_different : ndarray, float64
+        Pass to ``HistogramLikelihood.fit``.
+    """
+    d = check_array(differences, "differences", ndim=2)
+    n_query, n_ref = d.shape
+    q = np.arange(n_query) if query_index is None else np.asarray(query_index)
+    if q.shape != (n_query,):
+        raise ShapeMismatchError(f"query_index has shape {q.shape} but differences have {n_query} rows.")
+    if max_different is not None:
+        check_scalar(max_different, "max_different", "labelled_samples", int, 1)
+    columns = np.arange(n_ref)
+    same_mask = np.zeros(d.shape, dtype=bool)
+    for row in range(n_query):
+        same_mask[row] = ground_truth.correct(np.full(n_ref, q[row], dtype=np.int64), columns)
+    d_same = d[same_mask]
+    d_diff = d[~same_mask]
+    if max_different is not None and d_diff.size > max_different:
+        d_diff = d_diff[as_generator(seed).choice(d_diff.size, size=max_different, replace=False)]
+    return d_same, d_diff
+
+
+def reference_samples(
+    reference_differences: Any,
+    gap: int,
+    max_different: int = 100_000,
+    same_radius: int = 0,
+    seed: int | np.random.Generator | None = 0,
+    reference_positions: Any = None,
+    min_distance: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Bootstrap samples from the reference map alone (reference vs reference).
+
+    Parameters
+    ----------
+    reference_differences : array_like, shape (n_reference, n_reference)
+        Differences between reference frames (same metric and normalisation as the
+        query differences will have).
+    gap : int
+        Pairs ``(j, j')`` with ``|j − j'| > gap`` count as different places.
+    max_different : int
+        Number of ``¬L`` pairs drawn (seeded, with replacement among eligible pairs).
+    same_radius : int
+        ``0`` (default): no ``L`` samples, ``P(d|L)`` starts uniform (a weak prior) and
+        is learned online. ``r > 0``: the pairs with ``1 ≤ |j − j'| ≤ r`` are ``L``.
+    seed : int, Generator or None
+    reference_positions : array_like, shape (n_reference, n_dims), optional
+        Metric positions; with ``min_distance``, pairs closer than that are never
+        ``¬L`` (a route that passes a place twice is far apart in index there).
+    min_distance : float, optional
+        Needed with ``reference_positions``.
+
+    Returns
+    -------
+    d_same, d_different : ndarray, float64
+    """
+    r = check_array(reference_differences, "reference differences", ndim=2)
+    n = r.shape[0]
+    if r.shape[1] != n:
+        raise ShapeMismatchError(f"reference differences must be square (n_reference, n_reference); got {r.shape}.")
+    check_scalar(gap, "gap", "reference_samples", int, 0, n - 2)
+    check_scalar(max_different, "max_different", "reference_samples", int, 1)
+    check_scalar(same_radius, "same_radius", "reference_samples", int, 0, gap)
+    rng = as_generator(seed)
+    # draw the offset |j − j'| in (gap, n) weighted by how many pairs have it, then j
+    offsets = np.arange(gap + 1, n)
+    weights = (n - offsets).astype(np.float64)
+    k = rng.choice(offsets, size=max_different, p=weights / weights.sum())
+    j = np.floor(rng.random(max_different) * (n - k)).astype(np.int64)
+    flip = rng.random(max_different) < 0.5
+    rows, cols = np.where(flip, j + k, j), np.where(flip, j, j + k)
+    if reference_positions is not None:
+        pos = check_array(reference_positions, "reference_positions", ndim=2)
+        if pos.shape[0] != n:
+            raise ShapeMismatchError(f"reference_positions has {pos.shape[0]} rows for {n} reference frames.")
+        if min_distance is None:
+            raise InvalidParameterError("reference_samples with reference_positions needs min_distance.")
+        check_scalar(min_distance, "min_distance", "reference_samples", float, 0.0)
+        keep = np.linalg.norm(pos[rows] - pos[cols], axis=1) > min_distance
+        # top up with further seeded draws among far pairs, a bounded number of rounds
+        for _ in range(50):
+            if keep.sum() >= max_different:
+                break
+            k2 = rng.choice(offsets, size=max_different, p=weights / weights.sum())
+            j2 = np.floor(rng.random(max_different) * (n - k2)).astype(np.int64)
+            far = np.linalg.norm(pos[j2] - pos[j2 + k2], axis=1) > min_distance
+            rows, cols = np.concatenate([rows[keep], j2[far]]), np.concatenate([cols[keep], (j2 + k2)[far]])
+            keep = np.ones(rows.size, dtype=bool)
+        rows, cols = rows[keep][:max_different], cols[keep][:max_different]
+        if rows.size == 0:
+            raise DataError(
+                f"no reference pairs are more than {min_distance} apart and {gap} frames apart; lower min_distance."
+            )
+    d_diff = r[rows, cols]
+    if same_radius:
+        parts = [np.diagonal(r, o) for o in range(1, same_radius + 1)] + [
+            np.diagonal(r, -o) for o in range(1, same_radius + 1)
+        ]
+        d_same = np.concatenate(parts)
+    else:
+        d_same = np.empty(0, dtype=np.float64)
+    return d_same, d_diff
+
+
+# ---------------------------------------------------------------------- from the map, sampled
+def _sampled_rows(reference: np.ndarray, metric: str, n_rows: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """``n_rows`` map frames drawn at random, each row normalised over the whole map
+    (as a query row is): ``(rows, (n_rows, n_reference))``."""
+    from .differences import difference_matrix, normalise_rows
+
+    n = len(reference)
+    rows = np.sort(rng.choice(n, size=min(n_rows, n), replace=False))
+    d = normalise_rows(difference_matrix(reference[rows], reference, metric=metric))
+    return rows, d
+
+
+def map_hubness(reference: Any, metric: str = "sad", n_rows: int = 256, gap: int | None = None,
+                seed: int | np.random.Generator | None = 0) -> np.ndarray:
+    """Each reference's mean normalised difference to map frames far from it.
+
+    ``n_rows`` map frames are compared with the whole map (``O(n_rows · n_reference)``
+    differences, never ``n_reference²``), each row normalised as a query row would be;
+    the level of reference ``j`` is the mean of its normalised differences to the
+    sampled frames more than ``gap`` places away. A hub, close to every frame, has a low
+    level; subtracting the levels (centred) from a query row is the map's hub correction.
+
+    Parameters
+    ----------
+    reference : ndarray, shape (n_reference, ...)
+        The map's descriptors (what the query is compared with).
+    metric : str
+        Difference metric (:data:`catgraph.differences.METRICS`).
+    n_rows : int
+        Map frames sampled.
+    gap : int, optional
+        Frames within ``gap`` places of ``j`` do not count (default ``max(10, n // 100)``).
+    seed : int, Generator or None
+
+    Returns
+    -------
+    ndarray of float64, shape (n_reference,)
+        Centred levels (mean 0).
+    """
+    r = np.asarray(reference)
+    if r.ndim < 2 or len(r) < 2:
+        raise DataError(f"map_hubness needs at least two reference descriptors, one per row; got shape {r.shape}.")
+    check_scalar(n_rows, "n_rows", "map_hubness", int, 1)
+    n = len(r)
+    gap = max(10, n // 100) if gap is None else gap
+    check_scalar(gap, "gap", "map_hubness", int, 0)
+    rows, d = _sampled_rows(r.reshape(n, -1), metric, n_rows, as_generator(seed))
+    far = np.abs(rows[:, None] - np.arange(n)[None, :]) > gap
+    count = far.sum(0)
+    level = np.where(count > 0, (d * far).sum(0) / np.maximum(count, 1), 0.0)
+    return level - level.mean()
+
+
+def map_samples(reference: Any, metric: str = "sad", n_rows: int = 256, gap: int | None = None,
+                max_different: int = 100_000, seed: int | np.random.Generator | None = 0) -> np.ndarray:
+    """``¬L`` samples from the map by sampled pairs: normalised differences between a
+    random map frame and map frames more than ``gap`` places from it.
+
+    Parameters
+    ----------
+    reference : ndarray, shape (n_reference, ...)
+    metric : str
+    n_rows : int
+        Map frames sampled (each compared with the whole map).
+    gap : int, optional
+        Default ``max(10, n // 100)``.
+    max_different : int
+        At most this many samples are returned (seeded subsample).
+    seed : int, Generator or None
+
+    Returns
+    -------
+    ndarray of float64
+        Pass as ``d_different`` to :meth:`HistogramLikelihood.fit`.
+    """
+    r = np.asarray(reference)
+    if r.ndim < 2 or len(r) < 2:
+        raise DataError(f"map_samples needs at least two reference descriptors, one per row; got shape {r.shape}.")
+    check_scalar(n_rows, "n_rows", "map_samples", int, 1)
+    check_scalar(max_different, "max_different", "map_samples", int, 1)
+    n = len(r)
+    gap = max(10, n // 100) if gap is None else gap
+    check_scalar(gap, "gap", "map_samples", int, 0)
+    rng = as_generator(seed)
+    rows, d = _sampled_rows(r.reshape(n, -1), metric, n_rows, rng)
+    far = np.abs(rows[:, None] - np.arange(n)[None, :]) > gap
+    values = d[far]
+    if values.size == 0:
+        raise DataError(f"no map frames are more than {gap} places apart; lower gap.")
+    if values.size > max_different:
+        values = values[rng.choice(values.size, size=max_different, replace=False)]
+    return values
