@@ -86,7 +86,7 @@ from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .graph import PlaceGraph
 from .motion import FrameMotion, MotionModel, OdometryMotion
 from .observation import Observation, ObservationModel
-from .particles import ParticleSet, get_resampler, place_to_edges
+from .particles import ParticleSet, get_resampler, normalise_in_place, place_to_edges
 
 __all__ = ["Estimate", "LocalizationResult", "Localizer", "check_odometry", "confidence_log_odds"]
 
@@ -137,44 +137,17 @@ def confidence_log_odds(w_in: float, w_out: float, log_map: float, log_new: floa
 
 @numba.njit(cache=True)
 def _reweight_kernel(edge, fraction, log_weight, source, target, log_ratio, informative, weight):  # pragma: no cover
-    """In place: ``log_weight += ℓ`` (interpolated log-ratio), normalised; ``weight`` gets
-    the normalised weights. Returns ``(log E_map, ESS)``, ``E_map = Σ w_prior · e^ℓ``
-    with the prior weights normalised."""
-    n = edge.shape[0]
-    m0 = -np.inf
-    for i in range(n):
-        if log_weight[i] > m0:
-            m0 = log_weight[i]
-    s0 = 0.0
-    for i in range(n):
-        s0 += np.exp(log_weight[i] - m0)
-    lse0 = m0 + np.log(s0)
-    m = -np.inf
-    for i in range(n):
-        v = log_weight[i] - lse0
-        if informative:
+    """In place: normalise the prior weights, add ``ℓ`` (interpolated log-ratio),
+    normalise again (:func:`~catgraph.particles.normalise_in_place` both times);
+    ``weight`` gets the normalised weights. Returns ``(log E_map, ESS)``,
+    ``E_map = Σ w_prior · e^ℓ`` with the prior weights normalised."""
+    normalise_in_place(log_weight, weight)
+    if informative:
+        for i in range(edge.shape[0]):
             e = edge[i]
             f = fraction[i]
-            v += (1.0 - f) * log_ratio[source[e]] + f * log_ratio[target[e]]
-        log_weight[i] = v
-        if v > m:
-            m = v
-    if not np.isfinite(m):  # every particle impossible: keep them, uniformly
-        for i in range(n):
-            log_weight[i] = -np.log(n)
-            weight[i] = 1.0 / n
-        return -np.inf, float(n)
-    s = 0.0
-    for i in range(n):
-        s += np.exp(log_weight[i] - m)
-    lse = m + np.log(s)
-    sq = 0.0
-    for i in range(n):
-        log_weight[i] -= lse
-        w = np.exp(log_weight[i])
-        weight[i] = w
-        sq += w * w
-    return lse, 1.0 / sq
+            log_weight[i] += (1.0 - f) * log_ratio[source[e]] + f * log_ratio[target[e]]
+    return normalise_in_place(log_weight, weight)
 
 
 @numba.njit(cache=True)

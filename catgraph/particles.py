@@ -38,6 +38,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
+import numba
 import numpy as np
 
 from .exceptions import InvalidParameterError
@@ -45,6 +46,7 @@ from .exceptions import InvalidParameterError
 __all__ = [
     "ParticleSet",
     "normalise_log_weights",
+    "normalise_in_place",
     "log_sum_exp",
     "effective_sample_size",
     "systematic_resample",
@@ -143,27 +145,56 @@ def _first_in_edge(graph) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------- log-weights
+@numba.njit(cache=True)
+def normalise_in_place(log_weight, weight):  # pragma: no cover - compiled
+    """The one log-weight normalisation: ``log_weight -= logsumexp(log_weight)``,
+    ``weight = exp(log_weight)``, in place. Returns ``(logsumexp, ESS)``. If every
+    weight is zero (``-inf``) the weights become uniform and ``(-inf, n)`` is returned.
+    The filter's reweighting kernel calls it too."""
+    n = log_weight.shape[0]
+    m = -np.inf
+    for i in range(n):
+        if log_weight[i] > m:
+            m = log_weight[i]
+    if not np.isfinite(m):
+        for i in range(n):
+            log_weight[i] = -np.log(n)
+            weight[i] = 1.0 / n
+        return -np.inf, float(n)
+    s = 0.0
+    for i in range(n):
+        s += np.exp(log_weight[i] - m)
+    lse = m + np.log(s)
+    sq = 0.0
+    for i in range(n):
+        log_weight[i] -= lse
+        w = np.exp(log_weight[i])
+        weight[i] = w
+        sq += w * w
+    return lse, 1.0 / sq
+
+
+def _normalised(log_weight: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
+    lw = np.array(log_weight, dtype=np.float64)
+    w = np.empty_like(lw)
+    lse, ess = normalise_in_place(lw, w)
+    return lw, w, float(lse), float(ess)
+
+
 def log_sum_exp(log_weight: np.ndarray) -> float:
     """``log Σ exp(log_weight)``, stable; ``-inf`` if all are ``-inf``."""
-    m = np.max(log_weight)
-    if not np.isfinite(m):
-        return float(m)
-    return float(m + np.log(np.sum(np.exp(log_weight - m))))
+    return _normalised(log_weight)[2]
 
 
 def normalise_log_weights(log_weight: np.ndarray) -> np.ndarray:
     """Shift log-weights so that they exponentiate to a distribution. If every weight is
     zero (``-inf``), return uniform weights rather than NaN."""
-    lse = log_sum_exp(log_weight)
-    if not np.isfinite(lse):
-        return np.full(len(log_weight), -np.log(len(log_weight)))
-    return log_weight - lse
+    return _normalised(log_weight)[0]
 
 
 def effective_sample_size(log_weight: np.ndarray) -> float:
     """``1 / Σ w²`` of the normalised weights (between 1 and n)."""
-    lw = normalise_log_weights(log_weight)
-    return float(1.0 / np.sum(np.exp(2.0 * lw)))
+    return _normalised(log_weight)[3]
 
 
 # ---------------------------------------------------------------------- resamplers
