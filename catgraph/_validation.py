@@ -112,7 +112,7 @@ def check_array(
         )
     if raw.dtype.kind not in "biuf":
         raise DataError(f"{name} must be a numeric array; got dtype {raw.dtype}.")
-    if dtype is None:
+    if dtype is None or raw.dtype == dtype:
         out = raw
     else:
         with np.errstate(over="ignore", invalid="ignore"):
@@ -123,18 +123,17 @@ def check_array(
             raise DataError(f"{name} must have {' or '.join(map(str, allowed))} dimensions; got shape {out.shape}.")
     if not allow_empty and out.size == 0:
         raise DataError(f"{name} is empty (shape {out.shape}); at least one frame is needed.")
-    if finite and np.issubdtype(out.dtype, np.floating):
+    if finite and out.dtype.kind == "f" and not np.isfinite(out).all():
         bad = ~np.isfinite(out)
-        if bad.any():
-            where = f" (first at row {int(np.argwhere(bad)[0][0])})" if out.ndim else ""
-            converted = (
-                f" after conversion to {np.dtype(dtype).name}"
-                if dtype is not None and np.all(np.isfinite(raw)) else ""
-            )
-            raise DataError(
-                f"{name} contain {int(bad.sum())} NaN or infinite values{converted}{where}; "
-                "clean or drop those frames before localising."
-            )
+        where = f" (first at row {int(np.argwhere(bad)[0][0])})" if out.ndim else ""
+        converted = (
+            f" after conversion to {np.dtype(dtype).name}"
+            if dtype is not None and raw.dtype.kind == "f" and np.all(np.isfinite(raw)) else ""
+        )
+        raise DataError(
+            f"{name} contain {int(bad.sum())} NaN or infinite values{converted}{where}; "
+            "clean or drop those frames before localising."
+        )
     return out
 
 
