@@ -174,6 +174,12 @@ class ShardedReference:
     metric: str
     n_places: int
     dim: int
+    workers: list
+
+    def submit(self, shard: int, fn, *args):
+        """Run ``fn(*args)`` on the worker that holds shard ``shard`` (never elsewhere:
+        moving a block would cost more than computing it)."""
+        return self.client.submit(fn, *args, workers=[self.workers[shard]], allow_other_workers=False, pure=False)
 
     def prepare_query(self, descriptors) -> np.ndarray:
         """Validate query descriptors as a local run would (float32, same width)."""
@@ -217,13 +223,18 @@ def shard_reference(descriptors, metric: str, scheduler, shard_places: int | Non
     check_scalar(shard_places, "shard_places", "shard_reference", int, 1)
     shard_places = -(-int(shard_places) // SUM_CHUNK) * SUM_CHUNK
     bounds = [(lo, min(n, lo + shard_places)) for lo in range(0, n, shard_places)]
-    shards = []
-    for lo, hi in bounds:
-        block = np.ascontiguousarray(ref[lo:hi])
-        fut = client.submit(_prepare_shard, client.scatter(block, direct=False), metric, pure=False)
-        shards.append(fut)
+    addresses = sorted(client.scheduler_info().get("workers", {}))
+    if not addresses:
+        raise InvalidParameterError("the Dask cluster has no workers; start some before sharding a reference.")
+    workers, shards = [], []
+    for s, (lo, hi) in enumerate(bounds):
+        where = addresses[s % len(addresses)]
+        block = client.scatter(np.ascontiguousarray(ref[lo:hi]), workers=[where], direct=False)
+        shards.append(client.submit(_prepare_shard, block, metric, workers=[where], allow_other_workers=False,
+                                    pure=False))
+        workers.append(where)
     dim = ref.shape[1] * (8 if metric == "hamming" and ref.dtype == np.uint8 else 1)
-    return ShardedReference(client, shards, bounds, metric, n, int(dim))
+    return ShardedReference(client, shards, bounds, metric, n, int(dim), workers)
 
 
 # ---------------------------------------------------------------------------------------
@@ -234,15 +245,15 @@ def _normalised_blocks(ref: ShardedReference, q: np.ndarray, normalise: bool) ->
     """Futures of each shard's (normalised) columns for query rows ``q``."""
     c = ref.client
     q_fut = c.scatter(q, broadcast=True, direct=False)
-    raw = [c.submit(_raw, s, q_fut, pure=False) for s in ref.shards]
+    raw = [ref.submit(s, _raw, shard, q_fut) for s, shard in enumerate(ref.shards)]
     if not normalise:
         return raw
-    parts = c.gather([c.submit(_chunk_sums, b, None, 1, pure=False) for b in raw])
+    parts = c.gather([ref.submit(s, _chunk_sums, b, None, 1) for s, b in enumerate(raw)])
     mean = _combine(np.concatenate(parts, axis=1)) / ref.n_places
-    parts = c.gather([c.submit(_chunk_sums, b, mean, 2, pure=False) for b in raw])
+    parts = c.gather([ref.submit(s, _chunk_sums, b, mean, 2) for s, b in enumerate(raw)])
     std = np.sqrt(_combine(np.concatenate(parts, axis=1)) / ref.n_places)
     std[_zero_spread(std, mean)] = 0.0
-    return [c.submit(_scale, b, mean, std, pure=False) for b in raw]
+    return [ref.submit(s, _scale, b, mean, std) for s, b in enumerate(raw)]
 
 
 def difference_matrix(query, ref: ShardedReference, normalise: bool = True, block_rows: int = 256) -> np.ndarray:
@@ -267,12 +278,12 @@ def _score_blocks(ref: ShardedReference, q: np.ndarray, start: int, stop: int, w
     first = max(0, start - window)
     blocks = _normalised_blocks(ref, q[first:stop], True)
     # running sum of the normalised rows' means (the fill before the reference start)
-    parts = c.gather([c.submit(_chunk_sums, b, None, 1, pure=False) for b in blocks])
+    parts = c.gather([ref.submit(s, _chunk_sums, b, None, 1) for s, b in enumerate(blocks)])
     means = _combine(np.concatenate(parts, axis=1)) / ref.n_places
     out = []
     for s, ((lo, hi), block) in enumerate(zip(ref.bounds, blocks)):
-        halo = None if s == 0 else c.submit(_tail, blocks[s - 1], window, pure=False)
-        out.append(c.submit(_scores, block, halo, first, start - first, window, means, lo, pure=False))
+        halo = None if s == 0 else ref.submit(s - 1, _tail, blocks[s - 1], window)  # moves L columns
+        out.append(ref.submit(s, _scores, block, halo, first, start - first, window, means, lo))
     return out
 
 
@@ -327,17 +338,17 @@ def match_fixed_window(query, ref: ShardedReference, window: int, radius: int = 
     for start in range(0, n_q, block_rows):
         stop = min(n_q, start + block_rows)
         scores = _score_blocks(ref, q, start, stop, window)
-        mins = c.gather([c.submit(_row_min, s, lo, pure=False) for s, (lo, _) in zip(scores, ref.bounds)])
+        mins = c.gather([ref.submit(k, _row_min, s, lo) for k, (s, (lo, _)) in enumerate(zip(scores, ref.bounds))])
         values = np.stack([v for v, _ in mins])
         places = np.stack([j for _, j in mins])
         pick = np.argmin(values, axis=0)  # first shard holding the minimum: the lowest index
         rows = np.arange(stop - start)
         best, best_j = values[pick, rows], places[pick, rows]
-        second = np.min(c.gather([c.submit(_row_min_outside, s, lo, best_j, radius, pure=False)
-                                  for s, (lo, _) in zip(scores, ref.bounds)]), axis=0)
-        parts = c.gather([c.submit(_chunk_sums, s, None, 1, pure=False) for s in scores])
+        second = np.min(c.gather([ref.submit(k, _row_min_outside, s, lo, best_j, radius)
+                                  for k, (s, (lo, _)) in enumerate(zip(scores, ref.bounds))]), axis=0)
+        parts = c.gather([ref.submit(k, _chunk_sums, s, None, 1) for k, s in enumerate(scores)])
         mean = _combine(np.concatenate(parts, axis=1)) / ref.n_places
-        parts = c.gather([c.submit(_chunk_sums, s, mean, 2, pure=False) for s in scores])
+        parts = c.gather([ref.submit(k, _chunk_sums, s, mean, 2) for k, s in enumerate(scores)])
         std = np.sqrt(_combine(np.concatenate(parts, axis=1)) / ref.n_places)
         with np.errstate(divide="ignore", invalid="ignore"):
             gap = np.where(std > 0, (second - best) / std, 0.0)
