@@ -1,313 +1,279 @@
-"""Benchmark: fixed vs adaptive sequence windows ("Look No Further") on real data.
+"""Benchmark: sequence matching under every traversal condition (fixed vs adaptive window).
 
-Reproduces the paper's experiment with catgraph's loaders, front-ends and metrics:
+Datasets (``benchmarks/datasets.py``): Nordland 32×16 summer → winter (±2 frames) and the
+UJI library Wi-Fi, month 01 ``trn01`` against months 02–06 ``tst01`` (3 m, same floor;
+figures are means over the five months, MTL also as the worst month). Conditions
+(``catgraph.conditions.condition_table``): in order; shuffled in segments of 2–20 % and of
+0.5–3 % (seeds 0–4 each: mean and worst seed); reversed; speed 2; speed 0.5.
 
-* Nordland 32×16, summer (reference) → winter (query), SeqSLAM front-end (4×4 patch
-  normalisation, SAD, per-query normalisation), ground truth ±2 frames; the query in
-  order and shuffled in segments of 2–20 % (``shuffle_segments``, seed 0).
-* UJI library Wi-Fi, month 01 ``trn01`` (reference) against months 02–06 ``tst01``
-  (queries), in order; correct within 3 m on the same floor. Figures are means over the
-  five query months (MTL: mean of the per-month MTLs; the maximum is in the JSON).
+Every method sees the same difference rows: the project's front-end, normalised per
+query, with the map's hub offsets (``catgraph.hubs``, computed from the reference alone)
+applied. Methods:
 
-Methods: fixed L ∈ {10, 25, 50, 100, 200, 350, 500}; adaptive (L in [10, 500], geometric
-grid of 32) × {gaussian, robust, gmm2, gmm3} × {sustained (default), consistent, literal}. Every
-method uses the same confidence (``gap``: best vs best outside ±10 places). Also: the
-geometric grid vs every integer L (Gaussian), and timings (medians of several runs).
+* single frame (window 1);
+* every fixed window L ∈ {5, 10, 20, 50, 100, 200, 500}, with the default velocity search;
+* the default adaptive matcher (``match_sequences`` defaults);
+* for reference, the previous default (rule "sustained", forward diagonal only, L in
+  [10, 500] on 32 lengths, sub-windows from L/8, no hub offsets).
 
-Writes ``benchmarks/results/sequence.md`` and ``sequence.json``, and the plots
-``docs/figures/sequence_summary.png`` and ``docs/figures/sequence_window_length.png``. Run from the repository root::
+The goal checked per condition: adaptive AUC ≥ the best fixed window's AUC − 0.01 and
+adaptive MTL ≤ the best fixed window's MTL (best fixed chosen per condition, with
+hindsight; for shuffles, per seed).
 
-    python benchmarks/bench_sequence.py [--quick] [--repeats 3]
+Writes ``benchmarks/results/sequence.md`` and ``sequence.json`` and the figure
+``docs/figures/sequence_conditions.png`` (``--quick`` prints its table and writes nothing). Run from the repository root::
 
-``--quick`` skips the mixtures and the every-integer grid.
+    python benchmarks/bench_sequence.py [--quick] [--no-timing]
+
+``--quick`` (a smoke run, under two minutes): seed 0 only, fixed windows {10, 50, 200},
+Nordland's first 600 query frames, no previous-default reference, no timing.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
+import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from catgraph.datasets import load_traverse
-from catgraph.metrics import evaluate
-from catgraph.pipeline import differences
-from catgraph.sequence import SequenceMatcher, fixed_window_scores, match_sequences, window_grid
-from catgraph.traverse import FrameTolerance, MetricTolerance, shuffle_segments
-
 ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT.parent / "shared" / "data"
+sys.path.insert(0, str(ROOT))
+
+from benchmarks.datasets import DATA, conditioned, nordland, uji_months  # noqa: E402
+from catgraph.conditions import condition_table  # noqa: E402
+from catgraph.hubs import hub_offsets  # noqa: E402
+from catgraph.metrics import evaluate  # noqa: E402
+from catgraph.pipeline import differences  # noqa: E402
+from catgraph.sequence import DEFAULT_VELOCITIES, match_sequences  # noqa: E402
+
 RESULTS = ROOT / "benchmarks" / "results"
 FIGURES = ROOT / "docs" / "figures"
-FIXED = (10, 25, 50, 100, 200, 350, 500)
-APPROXIMATIONS = ("gaussian", "robust", "gmm2", "gmm3")
-RULES = ("sustained", "consistent", "literal")
-WIFI_METRES = 3.0
+FIXED = (5, 10, 20, 50, 100, 200, 500)
+QUICK_FIXED = (10, 50, 200)
+ADAPTIVE = "adaptive (default)"
+PREVIOUS = "previous default"
+SINGLE = "single frame"
+PREVIOUS_KWARGS = dict(rule="sustained", velocities=(1.0,), l_min=10, l_max=500, grid=32, recent_fraction=0.125)
+GROUPS = ("in order", "shuffled 2–20 %", "shuffled 0.5–3 %", "reversed", "speed 2", "speed 0.5")
 
 
-def _datasets():
-    """[(name, [(D, query_index, ground_truth), ...])] — several entries = averaged."""
-    nordland = DATA / "nordland" / "32x16"
-    ref = load_traverse(nordland / "summer")
-    query = load_traverse(nordland / "winter")
-    d = differences(ref, query)
-    gt = FrameTolerance(len(ref), 2)
-    shuffled = shuffle_segments(query, seed=0)
-    out = [
-        ("Nordland in order", [(d, query.index, gt)]),
-        ("Nordland shuffled", [(d[shuffled.index], shuffled.index, gt)]),
-    ]
-    uji = DATA / "uji-lib" / "db"
-    wref = load_traverse(uji / "01" / "trn01")
-    months = []
-    for month in range(2, 7):
-        wq = load_traverse(uji / f"{month:02d}" / "tst01")
-        months.append((differences(wref, wq), wq.index, MetricTolerance.between(wq, wref, WIFI_METRES)))
-    out.append(("UJI Wi-Fi (months 02-06)", months))
-    return out
-
-
-def _evaluate(runs, **kwargs):
-    per_run, lengths, seconds = [], [], 0.0
-    for d, index, gt in runs:
-        start = time.perf_counter()
-        result = match_sequences(d, **kwargs)
-        seconds += time.perf_counter() - start
-        metrics = evaluate(index, result.match, result.confidence, gt).metrics
-        per_run.append(metrics.as_dict())
-        lengths.append(result.window_length)
-    keys = ("auc", "recall_at_100p", "recall_at_99p", "mtl", "accuracy")
-    summary = {k: float(np.mean([m[k] for m in per_run])) for k in keys}
-    summary["mtl_max"] = int(max(m["mtl"] for m in per_run))
-    summary["median_window"] = float(np.median(np.concatenate(lengths)))
-    summary["seconds"] = seconds
-    return summary, per_run, lengths[0]
+def _group(condition) -> str:
+    if condition.kind == "shuffle":
+        return "shuffled 2–20 %" if condition.segment_range[1] > 0.1 else "shuffled 0.5–3 %"
+    return condition.label
 
 
 def _methods(quick: bool):
-    for length in FIXED:
-        yield f"fixed L={length}", dict(window=length)
-    for approximation in APPROXIMATIONS[:2] if quick else APPROXIMATIONS:
-        for rule in RULES:
-            yield f"adaptive {approximation} {rule}", dict(window="adaptive", approximation=approximation, rule=rule)
+    yield SINGLE, dict(window=1, velocities=(1.0,)), True
+    for length in QUICK_FIXED if quick else FIXED:
+        yield f"fixed L={length}", dict(window=length), True
+    yield ADAPTIVE, {}, True
     if not quick:
-        yield "adaptive gaussian sustained, every L", dict(window="adaptive", rule="sustained", grid="all")
-        yield "adaptive gaussian consistent, every L", dict(window="adaptive", rule="consistent", grid="all")
-        yield "adaptive gaussian literal, every L", dict(window="adaptive", rule="literal", grid="all")
+        yield PREVIOUS, PREVIOUS_KWARGS, False  # no hub offsets
 
 
-def _timing(repeats: int) -> dict:
-    out = {}
-    nordland = DATA / "nordland" / "32x16"
-    # 1. whole Nordland: difference matrix + adaptive (Gaussian, default rule); load apart
-    ref = load_traverse(nordland / "summer")
-    query = load_traverse(nordland / "winter")
-    match_sequences(np.random.default_rng(0).normal(size=(20, 50)))  # compile / load cache
+def _cases(quick: bool):
+    """[(dataset name, [case, ...], hub offsets)]; several cases = averaged (UJI months)."""
+    nord = nordland()
+    if quick:
+        keep = np.arange(600)
+        nord = replace(nord, query=nord.query.take(keep), differences=nord.differences[keep])
+    out = [("Nordland", [nord], hub_offsets(differences(nord.reference, nord.reference)))]
+    months = uji_months()
+    out.append(("UJI Wi-Fi (months 02–06)", months, hub_offsets(differences(months[0].reference, months[0].reference))))
+    return out
+
+
+def _run(cases, condition, kwargs, offsets):
+    per = []
+    seconds = 0.0
+    for case in cases:
+        c = conditioned(case, condition)
+        start = time.perf_counter()
+        res = match_sequences(c.differences, hub_offsets=offsets, **kwargs)
+        seconds += time.perf_counter() - start
+        m = evaluate(c.query.index, res.match, res.confidence, c.ground_truth).metrics
+        per.append({"auc": m.auc, "recall_at_100p": m.recall_at_100p, "mtl": m.mtl, "accuracy": m.accuracy,
+                    "median_window": float(np.median(res.window_length)),
+                    "velocity_share": {f"{v:g}": float(np.mean(res.velocity == v)) for v in np.unique(res.velocity)}})
+    keys = ("auc", "recall_at_100p", "mtl", "accuracy", "median_window")
+    out = {k: float(np.mean([p[k] for p in per])) for k in keys}
+    out["mtl_max"] = int(max(p["mtl"] for p in per))
+    out["seconds"] = seconds
+    out["per_case"] = per
+    return out
+
+
+def measure(quick: bool) -> dict:
+    conditions = condition_table(seeds=[0] if quick else range(5))
+    table = {}
+    for name, cases, offsets in _cases(quick):
+        table[name] = {"hub_frames": int(np.count_nonzero(offsets)), "conditions": []}
+        for condition in conditions:
+            row = {"condition": condition.as_dict(), "label": condition.label, "group": _group(condition),
+                   "methods": {}}
+            for method, kwargs, with_hubs in _methods(quick):
+                row["methods"][method] = _run(cases, condition, kwargs, offsets if with_hubs else None)
+            table[name]["conditions"].append(row)
+            r = row["methods"][ADAPTIVE]
+            print(f"{name} | {condition.label}: adaptive AUC {r['auc']:.3f} MTL {r['mtl']:.0f} ({r['seconds']:.1f} s)",
+                  flush=True)
+    return table
+
+
+def _check(row) -> dict:
+    fixed = {m: r for m, r in row["methods"].items() if m.startswith("fixed")}
+    best_auc_method = max(fixed, key=lambda m: fixed[m]["auc"])
+    best_auc = fixed[best_auc_method]["auc"]
+    best_mtl = min(r["mtl"] for r in fixed.values())
+    a = row["methods"][ADAPTIVE]
+    return {"best_fixed": best_auc_method, "best_auc": best_auc, "best_mtl": best_mtl,
+            "auc_margin": a["auc"] - best_auc, "mtl_margin": a["mtl"] - best_mtl,
+            "auc_ok": a["auc"] >= best_auc - 0.01, "mtl_ok": a["mtl"] <= best_mtl}
+
+
+def timing(repeats: int = 3) -> dict:
+    """Whole Nordland: difference matrix + default adaptive matcher (hub offsets apart)."""
+    from catgraph.datasets import load_traverse
+
+    ref = load_traverse(DATA / "nordland" / "32x16" / "summer")
+    query = load_traverse(DATA / "nordland" / "32x16" / "winter")
+    start = time.perf_counter()
+    offsets = hub_offsets(differences(ref, ref))
+    hub_s = time.perf_counter() - start
+    match_sequences(np.random.default_rng(0).normal(size=(20, 50)))  # compile / load the kernels
     diff_s, match_s = [], []
     for _ in range(repeats):
         start = time.perf_counter()
         d = differences(ref, query)
         mid = time.perf_counter()
-        match_sequences(d)
+        match_sequences(d, hub_offsets=offsets)
         diff_s.append(mid - start)
         match_s.append(time.perf_counter() - mid)
-    out["nordland_difference_s"] = float(np.median(diff_s))
-    out["nordland_adaptive_s"] = float(np.median(match_s))
-    out["nordland_total_s"] = float(np.median(np.add(diff_s, match_s)))
-    for approximation in ("robust", "gmm2", "gmm3"):
-        start = time.perf_counter()
-        match_sequences(d[:500], approximation=approximation)
-        out[f"nordland_adaptive_{approximation}_s_est"] = (time.perf_counter() - start) * len(d) / 500
-    # 2. slow reference (numpy, window sums without prefix sums) on the first frames
-    n_slow = 150
-    grid = window_grid(10, 500)
-    fast_s, slow_s = [], []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fast = match_sequences(d[:n_slow], rule="literal")
-        fast_s.append(time.perf_counter() - start)
-        start = time.perf_counter()
-        slow_match = _slow_literal_gaussian(d[:n_slow], grid)
-        slow_s.append(time.perf_counter() - start)
-    out["slow_reference_frames"] = n_slow
-    out["slow_reference_s"] = float(np.median(slow_s))
-    out["fast_same_frames_s"] = float(np.median(fast_s))
-    out["speedup_vs_slow_reference"] = out["slow_reference_s"] / out["fast_same_frames_s"]
-    # identical reference frames (Nordland's tunnel) give exactly tied scores, which the
-    # two summation orders may break differently: count those as agreeing
-    differ = np.flatnonzero(slow_match != fast.match)
-    ties = 0
-    for i in differ:
-        s = fixed_window_scores(d[: i + 1], int(fast.window_length[i]))[i]
-        ties += abs(s[slow_match[i]] - s[fast.match[i]]) <= 1e-9 * max(1.0, abs(s[fast.match[i]]))
-    out["slow_reference_same_match"] = int(n_slow - len(differ))
-    out["slow_reference_tied"] = int(ties)
-    # 3. streaming step against N = 100,000 reference places (Gaussian, default rule)
-    n_ref = 100_000
-    rng = np.random.default_rng(0)
-    rows = rng.normal(size=(64, n_ref))
-    matcher = SequenceMatcher()
-    for row in rows[:16]:
-        matcher.step(row)
-    steps = []
-    for row in rows[16:]:
-        start = time.perf_counter()
-        matcher.step(row)
-        steps.append(time.perf_counter() - start)
-    out["stream_n_reference"] = n_ref
-    out["stream_step_ms_median"] = 1e3 * float(np.median(steps))
-    out["stream_step_ms_p90"] = 1e3 * float(np.percentile(steps, 90))
-    out["stream_ring_MiB"] = matcher._ring.nbytes / 2**20
-    out["repeats"] = repeats
-    out["machine"] = f"{platform.machine()}, {platform.python_version()}, {__import__('os').cpu_count()} cpu"
-    return out
+    n = d.shape[1]
+    import numba
+
+    return {"difference_s": float(np.median(diff_s)), "adaptive_s": float(np.median(match_s)),
+            "total_s": float(np.median(np.add(diff_s, match_s))), "hub_offsets_s": hub_s, "repeats": repeats,
+            "threads": numba.get_num_threads(), "velocities": len(DEFAULT_VELOCITIES),
+            "ring_MiB_per_velocity": 8 * n * 501 / 2**20,
+            "load_average": os.getloadavg()[0],
+            "machine": f"{platform.machine()}, Python {platform.python_version()}, {os.cpu_count()} cpu"}
 
 
-def _slow_literal_gaussian(d: np.ndarray, grid: np.ndarray) -> np.ndarray:
-    """Direct window sums (no prefix sums), Gaussian p, literal rule — plain numpy."""
-    from scipy.special import log_ndtr
-
-    n_q, n = d.shape
-    row_mean = d.mean(axis=1)
-    match = np.empty(n_q, dtype=int)
-    for i in range(n_q):
-        best = (np.inf, -1)
-        for length in grid:
-            eff = min(int(length), i + 1)
-            total = np.zeros(n)
-            for k in range(eff):
-                shifted = np.full(n, row_mean[i - k])
-                shifted[k:] = d[i - k, : n - k]
-                total += shifted
-            s = total / eff
-            lp = log_ndtr((s.min() - s.mean()) / s.std())
-            if lp < best[0]:
-                best = (lp, int(np.argmin(s)))
-        match[i] = best[1]
-    return match
+def _fmt(r, wifi):
+    mtl = f"{r['mtl']:.1f} ({r['mtl_max']})" if wifi else f"{r['mtl']:.0f}"
+    return f"{r['auc']:.3f} / {r['recall_at_100p']:.2f} / {mtl}"
 
 
-def _plots(table, lengths, names):
+def markdown(table: dict, timing_: dict | None, quick: bool) -> str:
+    lines = ["# Sequence matching under every traversal condition", "",
+             "Generated by `benchmarks/bench_sequence.py`" + (" `--quick` (seed 0, Nordland's first 600 query frames)"
+                                                               if quick else "") + ". "
+             "Cells: AUC / R@100P / MTL (UJI: mean over months 02–06, worst month's MTL in brackets). Every method "
+             "uses the same rows (per-query normalised, the map's hub offsets applied) except the previous default. "
+             "Fixed windows use the default velocity search. Shuffled rows: mean over the seeds, and the worst "
+             "seed's AUC.", ""]
+    for name, data in table.items():
+        wifi = "UJI" in name
+        rows = data["conditions"]
+        methods = list(rows[0]["methods"])
+        lines += [f"## {name}", "", f"Hub frames corrected in the map: {data['hub_frames']}.", ""]
+        lines += ["| method | " + " | ".join(GROUPS) + " |", "|---" * (len(GROUPS) + 1) + "|"]
+        for method in methods:
+            cells = []
+            for group in GROUPS:
+                rs = [r["methods"][method] for r in rows if r["group"] == group]
+                if not rs:
+                    cells.append("–")
+                    continue
+                mean = {k: float(np.mean([r[k] for r in rs])) for k in ("auc", "recall_at_100p", "mtl")}
+                mean["mtl_max"] = max(r["mtl_max"] for r in rs)
+                cell = _fmt(mean, wifi)
+                if len(rs) > 1:
+                    cell += f" (worst AUC {min(r['auc'] for r in rs):.3f})"
+                cells.append(cell)
+            lines.append(f"| {method} | " + " | ".join(cells) + " |")
+        lines += ["", "Goal per condition (adaptive AUC ≥ best fixed − 0.01; adaptive MTL ≤ best fixed MTL):", "",
+                  "| condition | best fixed (AUC) | adaptive AUC | AUC margin | best fixed MTL | adaptive MTL | goal |",
+                  "|---|---|---|---|---|---|---|"]
+        for row in rows:
+            c = _check(row)
+            a = row["methods"][ADAPTIVE]
+            ok = "✓" if c["auc_ok"] and c["mtl_ok"] else ("AUC ✗" if not c["auc_ok"] else "") + (
+                " MTL ✗" if not c["mtl_ok"] else "")
+            lines.append(f"| {row['label']} | {c['best_fixed']} ({c['best_auc']:.3f}) | {a['auc']:.3f} | "
+                         f"{c['auc_margin']:+.3f} | {c['best_mtl']:.1f} | {a['mtl']:.1f} | {ok.strip()} |")
+        lines.append("")
+    if timing_:
+        t = timing_
+        lines += ["## Timing", "",
+                  f"{t['machine']}; numba threads {t['threads']}; load average at the start {t['load_average']:.1f} "
+                  f"(the machine is shared); medians of {t['repeats']} runs.", "",
+                  "| what | time |", "|---|---|",
+                  f"| Nordland 3,576 × 3,576 difference matrix | {t['difference_s']:.2f} s |",
+                  f"| Nordland adaptive matcher, {t['velocities']} velocities, 13 window lengths | "
+                  f"{t['adaptive_s']:.2f} s |",
+                  f"| **Nordland total (difference matrix + adaptive)** | **{t['total_s']:.2f} s** |",
+                  f"| hub offsets from the map (once per map) | {t['hub_offsets_s']:.2f} s |",
+                  f"| ring buffer per velocity (N = 3,576, l_max = 500, float64) | {t['ring_MiB_per_velocity']:.1f} MiB |",
+                  ""]
+    return "\n".join(lines)
+
+
+def figure(table: dict, path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    datasets = list(table)
-    fig, axes = plt.subplots(2, len(datasets), figsize=(5 * len(datasets), 7), squeeze=False)
-    for c, dataset in enumerate(datasets):
-        rows = table[dataset]
-        labels = [m for m in names if m in rows]
-        colours = ["tab:grey" if m.startswith("fixed") else "tab:green" if "sustained" in m
-                   else "tab:blue" if "consistent" in m else "tab:orange"
-                   for m in labels]
-        for r, key in enumerate(("auc", "mtl")):
-            ax = axes[r, c]
-            ax.barh(range(len(labels)), [rows[m][key] for m in labels], color=colours)
-            ax.set_yticks(range(len(labels)), labels, fontsize=7)
-            ax.invert_yaxis()
-            ax.set_xlabel("AUC" if key == "auc" else "MTL (frames)")
-            if r == 0:
-                ax.set_title(dataset)
+    fig, axes = plt.subplots(1, len(table), figsize=(7 * len(table), 4.2), squeeze=False)
+    for ax, (name, data) in zip(axes[0], table.items()):
+        rows = data["conditions"]
+        methods = list(rows[0]["methods"])
+        x = np.arange(len(GROUPS))
+        for method in methods:
+            ys = [np.mean([r["methods"][method]["auc"] for r in rows if r["group"] == g]) for g in GROUPS]
+            style = dict(lw=2.5, color="tab:green", marker="o") if method == ADAPTIVE else \
+                dict(lw=1.5, color="tab:orange", ls="--", marker="s") if method == PREVIOUS else \
+                dict(lw=1.0, color="0.3", ls=":", marker="x") if method == SINGLE else dict(lw=0.9, marker=".")
+            ax.plot(x, ys, label=method, **style)
+        ax.set_xticks(x, GROUPS, rotation=20, fontsize=8)
+        ax.set_ylim(0, 1.02)
+        ax.set_ylabel("AUC (mean over seeds / months)")
+        ax.set_title(name)
+    axes[0][-1].legend(fontsize=7, loc="lower left")
     fig.tight_layout()
-    FIGURES.mkdir(parents=True, exist_ok=True)
-    fig.savefig(FIGURES / "sequence_summary.png", dpi=110)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
     plt.close(fig)
-    fig, ax = plt.subplots(figsize=(9, 3.5))
-    for dataset, series in lengths.items():
-        ax.plot(series, lw=0.7, label=dataset)
-    ax.set_xlabel("query frame (processing order)")
-    ax.set_ylabel("chosen window L")
-    ax.set_title("Adaptive window length (Gaussian, sustained rule)")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    FIGURES.mkdir(parents=True, exist_ok=True)
-    fig.savefig(FIGURES / "sequence_window_length.png", dpi=110)
-    plt.close(fig)
-
-
-def _markdown(table, timing, names) -> str:
-    lines = ["# Sequence matching: fixed vs adaptive window", "",
-             "Generated by `benchmarks/bench_sequence.py`. Nordland 32×16 summer→winter (±2 frames), in order "
-             "and shuffled (segments of 2–20 %, seed 0); UJI Wi-Fi month 01 trn01 vs months 02–06 tst01 "
-             f"(correct within {WIFI_METRES:g} m, same floor; means over the five months, MTL max in brackets). "
-             "Confidence: best vs best outside ±10 places, in units of the score spread. "
-             "Adaptive: L in [10, 500], geometric grid of 32 unless stated.", ""]
-    for dataset, rows in table.items():
-        fixed = [rows[m] for m in names if m.startswith("fixed") and m in rows]
-        best_auc = max(r["auc"] for r in fixed)
-        best_mtl = min(r["mtl"] for r in fixed)
-        lines += [f"## {dataset}", "", "| method | AUC | R@100P | R@99P | MTL | accuracy | median L | seconds |",
-                  "|---|---|---|---|---|---|---|---|"]
-        for m in names:
-            if m not in rows:
-                continue
-            r = rows[m]
-            mtl = f"{r['mtl']:.1f} ({r['mtl_max']})" if "Wi-Fi" in dataset else f"{r['mtl']:.0f}"
-            flag = ""
-            if not m.startswith("fixed"):
-                flag = " ✓" if (r["auc"] >= best_auc and r["mtl"] <= best_mtl) else ""
-            lines.append(f"| {m}{flag} | {r['auc']:.3f} | {r['recall_at_100p']:.3f} | {r['recall_at_99p']:.3f} | "
-                         f"{mtl} | {r['accuracy']:.3f} | {r['median_window']:.0f} | {r['seconds']:.1f} |")
-        lines += ["", f"Best fixed window: AUC {best_auc:.3f}, MTL {best_mtl:.1f}. ✓ = adaptive method with AUC ≥ "
-                  "and MTL ≤ the best fixed window (both from any fixed L).", ""]
-    if timing:
-        t = timing
-        lines += ["## Timing (medians)", "",
-                  f"Machine: {t['machine']}; medians of {t['repeats']} runs.", "",
-                  "| what | time |", "|---|---|",
-                  f"| Nordland 3,576×3,576 difference matrix (SeqSLAM front-end) | {t['nordland_difference_s']:.2f} s |",
-                  f"| Nordland adaptive, Gaussian, default rule | {t['nordland_adaptive_s']:.2f} s |",
-                  f"| **Nordland total (difference matrix + adaptive)** | **{t['nordland_total_s']:.2f} s** |",
-                  f"| Nordland adaptive, robust (estimated from 500 frames) | {t['nordland_adaptive_robust_s_est']:.1f} s |",
-                  f"| Nordland adaptive, gmm2 (estimated from 500 frames) | {t['nordland_adaptive_gmm2_s_est']:.1f} s |",
-                  f"| Nordland adaptive, gmm3 (estimated from 500 frames) | {t['nordland_adaptive_gmm3_s_est']:.1f} s |",
-                  f"| slow numpy reference (direct window sums, literal Gaussian), first {t['slow_reference_frames']} "
-                  f"frames | {t['slow_reference_s']:.2f} s |",
-                  f"| catgraph on the same frames | {t['fast_same_frames_s']:.3f} s "
-                  f"(×{t['speedup_vs_slow_reference']:.0f}; same match on {t['slow_reference_same_match']} of "
-                  f"{t['slow_reference_frames']} frames, the other {t['slow_reference_tied']} exact score ties) |",
-                  f"| **streaming step, N = {t['stream_n_reference']:,}, Gaussian, default rule** | "
-                  f"**{t['stream_step_ms_median']:.1f} ms** (p90 {t['stream_step_ms_p90']:.1f} ms; ring buffer "
-                  f"{t['stream_ring_MiB']:.0f} MiB) |", ""]
-    return "\n".join(lines)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="skip the mixtures and the every-integer grid")
-    parser.add_argument("--repeats", type=int, default=3, help="runs per timing (median reported)")
+    parser.add_argument("--quick", action="store_true", help="seed 0, three fixed windows, 600 Nordland frames")
     parser.add_argument("--no-timing", action="store_true")
-    parser.add_argument("--timing-only", action="store_true", help="reuse sequence.json's table, redo the timings")
+    parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
     if not DATA.exists():
         raise SystemExit(f"no data at {DATA}; this benchmark needs ../shared/data (see its README)")
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    names = [name for name, _ in _methods(args.quick)]
-    table, per_run, lengths = {}, {}, {}
-    if args.timing_only:
-        previous = json.loads((RESULTS / "sequence.json").read_text())
-        table, per_run, lengths = previous["summary"], previous["per_run"], previous["window_lengths"]
-    for dataset, runs in [] if args.timing_only else _datasets():
-        table[dataset], per_run[dataset] = {}, {}
-        for name, kwargs in _methods(args.quick):
-            summary, runs_metrics, series = _evaluate(runs, **kwargs)
-            table[dataset][name] = summary
-            per_run[dataset][name] = runs_metrics
-            if name == "adaptive gaussian sustained":
-                lengths[dataset] = series.tolist()
-            print(f"{dataset:26s} {name:42s} AUC {summary['auc']:.3f} MTL {summary['mtl']:6.1f} "
-                  f"acc {summary['accuracy']:.3f} ({summary['seconds']:.1f} s)", flush=True)
-    timing = None if args.no_timing else _timing(args.repeats)
-    (RESULTS / "sequence.json").write_text(json.dumps(
-        {"summary": table, "per_run": per_run, "timing": timing, "wifi_metres": WIFI_METRES,
-         "fixed_windows": list(FIXED), "window_lengths": lengths}, indent=1))
-    (RESULTS / "sequence.md").write_text(_markdown(table, timing, names))
-    _plots(table, lengths, names)
-    print((RESULTS / "sequence.md").read_text())
+    start = time.perf_counter()
+    table = measure(args.quick)
+    timing_ = None if (args.quick or args.no_timing) else timing(args.repeats)
+    if args.quick:  # a smoke run: print, keep the committed results
+        print(markdown(table, timing_, args.quick))
+    else:
+        RESULTS.mkdir(parents=True, exist_ok=True)
+        (RESULTS / "sequence.json").write_text(json.dumps({"table": table, "timing": timing_}, indent=1))
+        (RESULTS / "sequence.md").write_text(markdown(table, timing_, args.quick))
+        figure(table, FIGURES / "sequence_conditions.png")
+    print(f"done in {time.perf_counter() - start:.0f} s")
 
 
 if __name__ == "__main__":

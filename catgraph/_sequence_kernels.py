@@ -36,10 +36,9 @@ def position(v, i):
 
 
 @njit(cache=True)
-def advance(ring, mring, i, d_row, velocities):
-    """Write ``C^v_i`` into ``ring[v, i % R]`` for every velocity, and
-    ``M_i = M_{i-1} + mean_j d_ij`` into ``mring[i % R]``."""
-    r = ring.shape[1]
+def advance_means(mring, i, d_row):
+    """Write ``M_i = M_{i-1} + mean_j d_ij`` into ``mring[i % R]``."""
+    r = mring.shape[0]
     n = d_row.shape[0]
     total = 0.0
     for j in range(n):
@@ -48,26 +47,41 @@ def advance(ring, mring, i, d_row, velocities):
         mring[0] = total / n
     else:
         mring[i % r] = mring[(i - 1) % r] + total / n
+
+
+@njit(cache=True)
+def advance_line(ring_v, i, d_row, v):
+    """Write ``C^v_i`` into ``ring_v[i % R]`` (from ``C^v_{i-1}``; zeros before the start)."""
+    r = ring_v.shape[0]
+    n = d_row.shape[0]
+    out = ring_v[i % r]
+    if i == 0:
+        for j in range(n):
+            out[j] = d_row[j]
+        return
+    prev = ring_v[(i - 1) % r]  # a different row because R >= 2
+    delta = position(v, i) - position(v, i - 1)
+    lo = delta if delta > 0 else 0
+    hi = n + delta if delta < 0 else n
+    if lo > n:
+        lo = n
+    if hi < 0:
+        hi = 0
+    for j in range(0, lo):
+        out[j] = d_row[j]
+    for j in range(lo, hi):
+        out[j] = d_row[j] + prev[j - delta]
+    for j in range(max(hi, lo), n):
+        out[j] = d_row[j]
+
+
+@njit(cache=True)
+def advance(ring, mring, i, d_row, velocities):
+    """:func:`advance_means` and :func:`advance_line` for every velocity (``ring`` is
+    ``(V, R, N)``)."""
+    advance_means(mring, i, d_row)
     for vi in range(velocities.shape[0]):
-        out = ring[vi, i % r]
-        if i == 0:
-            for j in range(n):
-                out[j] = d_row[j]
-            continue
-        prev = ring[vi, (i - 1) % r]  # a different row because R >= 2
-        delta = position(velocities[vi], i) - position(velocities[vi], i - 1)
-        lo = delta if delta > 0 else 0
-        hi = n + delta if delta < 0 else n
-        if lo > n:
-            lo = n
-        if hi < 0:
-            hi = 0
-        for j in range(0, lo):
-            out[j] = d_row[j]
-        for j in range(lo, hi):
-            out[j] = d_row[j] + prev[j - delta]
-        for j in range(max(hi, lo), n):
-            out[j] = d_row[j]
+        advance_line(ring[vi], i, d_row, velocities[vi])
 
 
 @njit(cache=True)
@@ -323,7 +337,7 @@ def _velocity_stats(ring_v, mring, i, v, grid, approx, n_iter, em_stride, radius
                 sub[g, h] = score_at(ring_v, mring, i, v, grid[h], best_j[g])
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def frame_stats(ring, mring, i, velocities, grid, approx, n_iter, em_stride, radius,
                 best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
     """Everything the selection rules need for query frame ``i``, per velocity and window.
@@ -335,30 +349,39 @@ def frame_stats(ring, mring, i, velocities, grid, approx, n_iter, em_stride, rad
     scored over window ``h`` along the same line. Mixtures are fitted to every
     ``em_stride``-th score. ``second_s`` is the best score more than ``radius`` places
     from ``best_j`` at the same velocity (``+inf`` where none exists). Scratch ``s, work``
-    ``(V, N)``, ``resp`` ``(V, K, N)``. Velocities run in parallel; each writes only its
-    own outputs, so the result does not depend on the number of threads.
+    ``(V, N)``, ``resp`` ``(V, K, N)``.
     """
-    for vi in prange(velocities.shape[0]):
+    for vi in range(velocities.shape[0]):
         _velocity_stats(ring[vi], mring, i, velocities[vi], grid, approx, n_iter, em_stride, radius,
                         best_j[vi], best_s[vi], second_s[vi], mean[vi], std[vi], weights[vi], locs[vi],
                         scales[vi], sub[vi], s[vi], work[vi], resp[vi])
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def run_batch(d, start, ring, mring, velocities, grid, approx, n_iter, em_stride, radius,
               best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
     """:func:`advance` then :func:`frame_stats` for every row of ``d``, in order; row
     ``t`` of ``d`` is query frame ``start + t``.
 
     ``ring``/``mring`` must have at least ``max(grid) + 1`` rows, start as zeros and
-    carry over from the previous block.
+    carry over from the previous block. The velocities are independent, so they run in
+    parallel threads over the whole block (one parallel region, not one per frame); each
+    keeps its own copy of the row-mean ring, computed by the same arithmetic, so the
+    numbers equal the streaming form's and do not depend on the thread count.
     """
-    for t in range(d.shape[0]):
-        i = start + t
-        advance(ring, mring, i, d[t], velocities)
-        frame_stats(ring, mring, i, velocities, grid, approx, n_iter, em_stride, radius,
-                    best_j[t], best_s[t], second_s[t], mean[t], std[t], weights[t], locs[t],
-                    scales[t], sub[t], s, work, resp)
+    v_count = velocities.shape[0]
+    means = np.empty((v_count, mring.shape[0]))
+    for vi in range(v_count):
+        means[vi] = mring
+    for vi in prange(v_count):
+        for t in range(d.shape[0]):
+            i = start + t
+            advance_means(means[vi], i, d[t])
+            advance_line(ring[vi], i, d[t], velocities[vi])
+            _velocity_stats(ring[vi], means[vi], i, velocities[vi], grid, approx, n_iter, em_stride, radius,
+                            best_j[t, vi], best_s[t, vi], second_s[t, vi], mean[t, vi], std[t, vi],
+                            weights[t, vi], locs[t, vi], scales[t, vi], sub[t, vi], s[vi], work[vi], resp[vi])
+    mring[:] = means[0]
 
 
 @njit(cache=True)

@@ -1,40 +1,54 @@
-"""Sequence matching with a fixed or an adaptive window (SeqSLAM, "Look No Further").
+"""Sequence matching with a fixed or an adaptive window, along lines of any velocity.
 
-Scores
-------
+SeqSLAM and "Look No Further" (paper 1) with the query driven in any order, direction
+and speed (DESIGN.md §4).
+
+Scores along lines
+------------------
 Given a difference matrix ``d`` of shape ``(n_query, N)`` (query frame ``i`` against
 reference place ``j``; usually per-query normalised, see
-:func:`catgraph.differences.normalise_rows`), the causal window score of length ``L`` is
-the mean difference along the diagonal ending at ``(i, j)``::
+:func:`catgraph.differences.normalise_rows`), a *velocity* ``v`` is the number of
+reference places the route advances per query frame: ``1`` is the classic diagonal (the
+query at the reference's frame rate), ``2`` twice as fast, ``0.5`` half as fast, ``-1``
+the route driven backwards. Query frame ``i`` sits at reference offset
+``pos_v(i) = floor(v * i + 1/2)``, and the window score of length ``L`` ending at
+``(i, j)`` is the mean difference along the line through ``(i, j)``::
 
-    s_ij(L) = (1/L) * sum_{k=0}^{L-1} d_{i-k, j-k}
+    s_ij(L, v) = (1/L) * sum_{t=0}^{L-1} d_{i-t, j - (pos_v(i) - pos_v(i-t))}
 
-and the best hypothesis is ``argmin_j s_ij(L)``. With diagonal prefix sums
-``C_i[j] = d_ij + C_{i-1}[j-1]`` (``C_{-1} = 0``, ``C_i[-1] = 0``) every window sum is one
-subtraction, ``C_i[j] - C_{i-L}[j-L]``: ``O(N)`` per query frame and window length, and
-only the last ``L_max + 1`` prefix rows are ever needed (a ring buffer, memory
-``O(N * L_max)``; never an ``N x N`` matrix).
+For an integer ``v`` this is exactly ``d_{i-t, j - v t}``; for ``v = ±0.5`` the line
+advances by 0 and 1 places on alternate frames (a line through the origin of time,
+rounded half up), so it is within half a place of ``j - v t``. With prefix sums along
+the lines, ``C^v_i[j] = d_ij + C^v_{i-1}[j - delta_v(i)]`` where
+``delta_v(i) = pos_v(i) - pos_v(i-1)``, every window sum is one subtraction,
+``C^v_i[j] - C^v_{i-L}[j - (pos_v(i) - pos_v(i-L))]``: ``O(N)`` per query frame,
+velocity and window length. Only the last ``l_max + 1`` prefix rows per velocity are
+ever needed (a ring buffer of ``8 * N * (l_max + 1)`` bytes per velocity: 13.7 MiB for
+Nordland's 3,576 places at ``l_max = 500``; never an ``N x N`` matrix).
 
 Edges (a documented policy). Early query frames (``i < L - 1``) use the
 ``L_eff = min(L, i + 1)`` frames seen so far; the reported ``window_length`` is that
-effective length. A window that would reach before the first reference place has its
-missing terms filled with their query row's mean difference ``mean_j d_{i-k, j}`` — the
-expected difference of an unrelated place (0 for per-query normalised rows), i.e. *no
-evidence either way* — and is divided by the full ``L_eff``. Averaging only the terms
-that exist instead gives the short diagonals near the start of the reference a larger
-spread, so they win by chance (and, on data with featureless frames at the start of the
-reference, by a lot); excluding them would make the first ``L - 1`` places unmatchable.
-Every frame gets an output (no abstention), which is what a localiser embedded in a
-navigation stack needs, and what the MTL metric rewards. With the running sum of row
-means ``M_i`` the fill is ``M_{i-j-1} - M_{i-L_eff}``, still ``O(1)`` per score.
+effective length. A term whose place falls outside ``[0, N)`` (a line running off
+either end of the reference) is filled with its query row's mean difference
+``mean_j d_{i-t, j}`` — the expected difference of an unrelated place (0 for
+normalised rows), i.e. *no evidence either way* — and the sum is divided by the full
+``L_eff``. Averaging only the terms that exist instead gives the short lines near the
+ends of the reference a larger spread, so they win by chance (and, on data with
+featureless frames at the start of the reference, by a lot); excluding them would make
+the first ``L - 1`` places unmatchable. Every frame gets an output (no abstention),
+which is what a localiser embedded in a navigation stack needs, and what the MTL
+metric rewards. With the running sum of row means ``M_i`` the fill is
+``M_{i-t_exit} - M_{i-L_eff}`` (``t_exit``: the first term outside the reference), still
+``O(1)`` per score away from the ends.
 
-Adaptive window
----------------
-For each query frame the candidate lengths ``L`` (a grid in ``[l_min, l_max]``) are
-scored, the distribution of ``{s_ij(L)}_j`` is approximated, and ``p_i(L)``, the
-probability of drawing a value at most the best score ``min_j s_ij(L)`` from that
-approximation, is computed in log space (``scipy.special.log_ndtr``; the probabilities
-underflow for strong matches)::
+Significance, velocity and window
+---------------------------------
+For each query frame, velocity ``v`` (``velocities``, default
+:data:`DEFAULT_VELOCITIES`: ±0.5, ±1, ±2, ±3) and candidate length ``L`` (a grid in
+``[l_min, l_max]``, default 13 geometric lengths from 5 to 500), the distribution of
+``{s_ij(L, v)}_j`` is approximated and ``p_i(L, v)``, the probability of drawing a value
+at most the best score ``min_j s_ij(L, v)``, is computed in log space
+(``scipy.special.log_ndtr``; the probabilities underflow for strong matches)::
 
     gaussian   N(mean, std)
     robust     N(median, 1.4826 * MAD)
@@ -43,52 +57,65 @@ underflow for strong matches)::
                EM runs on every ``ceil(N / 1024)``-th score (a deterministic subsample:
                the fit costs ``O(1024 K)`` per window instead of ``O(N K)``).
 
+Lines of different velocities average different numbers of distinct places, so their
+score spreads differ; judged each against its own spread, a mediocre line of a
+narrow-spread velocity looks significant (measured on the UJI Wi-Fi survey, whose
+reference holds 24 scans per point: choosing the velocity by each line's own spread cut
+the fixed-window AUC at L = 100 from 0.99 to 0.58). Every approximation is therefore
+widened to the *widest* spread over the velocities at that length (with one velocity
+nothing changes). The velocity of a frame is the one whose most significant window is
+the most significant overall; the window is then chosen at that velocity.
+
 The *literal* rule of the paper (``rule="literal"``) picks ``L_i = argmin_L p_i(L)``.
 Its weakness shows on out-of-order queries: after a jump to another part of the route,
-the hypothesis that continues the *old* diagonal stays very significant for long
-windows, because most of such a window still lies on the old, well-matching segment,
-and the literal rule keeps choosing it for hundreds of frames.
+the hypothesis that continues the *old* line stays very significant for long windows,
+because most of such a window still lies on the old, well-matching segment, and the
+literal rule keeps choosing it for hundreds of frames.
 
-The rule ``rule="consistent"`` only admits a window whose best hypothesis is
+The default rule (``rule="consistent"``) only admits a window whose best hypothesis is
 supported by its own recent past: for every shorter candidate ``l`` in the grid with
-``recent_fraction * L <= l < L`` (default ``L/8``), the hypothesis' score over its most
-recent ``l`` frames must lie closer to the window's own score than to the mean score
-of random places at that length,
+``recent_fraction * L <= l < L`` (default ``recent_fraction = 0``: every shorter
+length), the hypothesis' score over its most recent ``l`` frames must lie closer to the
+window's own score than to the mean score of random places at that length,
 
-    s_{i, j*}(l) <= (s_{i, j*}(L) + mean_j s_ij(l)) / 2,
+    s_{i, j*}(l, v) <= (s_{i, j*}(L, v) + mean_j s_ij(l, v)) / 2,
 
 i.e. a likelihood-ratio test between "the recent frames continue the same alignment"
 and "the recent frames are unrelated to it" with equal spreads, and no threshold. A
-window that reaches back across a discontinuity fails it once more than about half of
-a tested sub-window lies after the discontinuity, so the old alignment is dropped
-after roughly ``L/16`` frames instead of ``~L/2``. Sub-windows shorter than ``L/8``
-are not tested: on real data they are too noisy, and testing them rejects correct long
-windows (measured on Nordland: see ``docs/sequence.md``). Among the admitted windows (the
-shortest is always admitted) the one with the smallest ``p_i(L)`` is chosen, as in the
-paper.
+window that reaches back across a discontinuity fails it as soon as more than about
+half of its shortest tested sub-window lies after the discontinuity. Among the admitted
+windows (the shortest is always admitted) the one with the smallest ``p_i(L, v)`` is
+chosen, as in the paper. Testing only the sub-windows from ``L/8`` (the previous
+default) keeps the long windows through hard stretches of an in-order route, but after
+a jump it holds on to the old alignment for ``L/16`` frames; on the condition table
+(``benchmarks/results/sequence.md``) testing every sub-window was the better trade on
+both datasets together, though it costs Nordland's in-order, reversed and speed-2 AUC
+(see ``docs/sequence.md``).
 
-The default rule (``rule="sustained"``) admits the same windows but does not take the
-argmin: it takes the *longest* admitted window whose ``log p_i(L)`` is at most
-``SUSTAINED_FRACTION = 0.5`` times the smallest admitted ``log p_i(L)`` (at least half as
-significant, on the log scale). A short window can be the most significant one by
-accident (on Nordland: short diagonals ending on the featureless tunnel frames at the
-start of the reference, which are close to every query); a longer admitted window that
-is nearly as significant carries more frames of evidence and is preferred. After a
-discontinuity the long windows are not admitted, so the choice still shortens.
+``rule="sustained"`` admits the same windows but takes the *longest* admitted window
+whose ``log p`` is at most ``SUSTAINED_FRACTION = 0.5`` times the smallest admitted
+``log p`` (at least half as significant, on the log scale).
+
+Hub references (flat, textureless frames close to every query) are corrected before
+matching when ``hub_offsets`` (from :func:`catgraph.hubs.hub_offsets`, computed from the
+reference map alone) are given: each row has the offsets subtracted and is normalised
+again.
 
 Confidence
 ----------
 ``confidence="gap"`` (default) is the SeqSLAM-style margin between the best hypothesis
-and the best one more than ``radius`` places away, in units of the score spread at the
-chosen window: ``(s_second - s_best) / std``. ``"neglogp"`` is ``-log p_i(L_i)``; ``"z"``
-is ``(mean - s_best) / std``. Larger is more confident for all three.
+and the best one more than ``radius`` places away (same velocity and window), in units
+of the common score spread: ``(s_second - s_best) / std``. ``"neglogp"`` is
+``-log p_i(L_i, v_i)``; ``"z"`` is ``(mean - s_best) / std``. Larger is more confident
+for all three.
 
 Two forms
 ---------
 :class:`SequenceMatcher` is the streaming form (one :meth:`~SequenceMatcher.step` per
-query frame; time per step independent of how many frames came before) and
-:func:`match_sequences` the batch form. Both call the same compiled kernels in the same
-order, so they return identical numbers.
+query frame; time per step ``O(N V G)`` and independent of how many frames came before)
+and :func:`match_sequences` the batch form. Both call the same compiled kernels in the
+same order, so they return identical numbers; the velocities run in parallel threads,
+each writing only its own outputs, so the result does not depend on the thread count.
 """
 
 from __future__ import annotations
