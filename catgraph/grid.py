@@ -202,17 +202,18 @@ def _shift_frames(p, out, whole, frac, sign, mirror, fwd, bwd, jptr, jdst, p_jun
 
 
 @numba.njit(cache=True)
-def _shift_walk(p, out, whole, frac, sign, fwd, bwd, transition):  # pragma: no cover
+def _shift_walk(p, out, whole, frac, sign, fwd, bwd, t_ptr, t_src, t_val):  # pragma: no cover
     """Velocity transition then ``_shift_frames`` for a graph without junctions, fused:
-    each place's mass walks its hops."""
+    each place's mass walks its hops. The transition comes as sparse columns:
+    ``q_b = Σ_c p[t_src[c]] t_val[c]`` for ``c`` in ``t_ptr[b]:t_ptr[b+1]``."""
     n, nb = p.shape
     out[:] = 0.0
     q = np.empty(nb)
     for j in range(n):
         for b in range(nb):
             acc = 0.0
-            for a in range(nb):
-                acc += p[j, a] * transition[a, b]
+            for c in range(t_ptr[b], t_ptr[b + 1]):
+                acc += p[j, t_src[c]] * t_val[c]
             q[b] = acc
         for b in range(nb):
             m = q[b]
@@ -230,6 +231,26 @@ def _shift_walk(p, out, whole, frac, sign, fwd, bwd, transition):  # pragma: no 
                 u = fwd[t] if sign[b] > 0 else bwd[t]
                 if u >= 0:
                     out[u, b] += frac[b] * m
+
+
+@numba.njit(cache=True)
+def _apply_likelihood(state, log_ratio, top):  # pragma: no cover - compiled
+    """``state[j, b] *= e^{r_j − top}`` in place, then normalise; returns the total
+    before normalising (0: every place impossible, state left as predicted)."""
+    n, nb = state.shape
+    like = np.empty(n)
+    total = 0.0
+    for j in range(n):
+        like[j] = np.exp(log_ratio[j] - top)
+        for b in range(nb):
+            total += state[j, b] * like[j]
+    if not (total > 0.0) or not np.isfinite(total):
+        return 0.0
+    for j in range(n):
+        f = like[j] / total
+        for b in range(nb):
+            state[j, b] *= f
+    return total
 
 
 @numba.njit(cache=True)
@@ -326,7 +347,11 @@ def predict(state: np.ndarray, transition: np.ndarray, velocities: np.ndarray, n
     whole, frac, sign, mirror = _bin_moves(velocities) if moves is None else moves
     moved = np.empty_like(state)
     if odometry is None and len(jdst) == 0:
-        _shift_walk(state, moved, whole, frac, sign, fwd, bwd, transition)
+        nz = transition.T != 0  # columns of the transition, sparse
+        t_ptr = np.concatenate([[0], np.cumsum(nz.sum(1))]).astype(np.int64)
+        t_src = np.nonzero(nz)[1].astype(np.int64)
+        t_val = np.ascontiguousarray(transition.T[nz], dtype=np.float64)
+        _shift_walk(state, moved, whole, frac, sign, fwd, bwd, t_ptr, t_src, t_val)
         p = state
     else:
         p = np.ascontiguousarray(state @ transition)
@@ -486,14 +511,11 @@ class GridLocalizer:
     def _update(self, obs) -> None:
         if not obs.informative:
             return
-        r = np.asarray(obs.log_ratio, dtype=np.float64)
+        r = np.ascontiguousarray(obs.log_ratio, dtype=np.float64)
         top = float(r.max())
-        like = np.exp(r - top)
-        post = self.state_ * like[:, None]
-        total = float(post.sum())
-        if total <= 0.0 or not np.isfinite(total):
+        total = _apply_likelihood(self.state_, r, top)
+        if total <= 0.0:
             return  # every place impossible: keep the prediction
-        self.state_ = post / total
         log_map = math.log(total) + top  # log Σ prior · e^r
         p_new = self.new_place_probability_
         prior = self.new_place_stay * p_new + self.new_place_prior * (1.0 - p_new)
@@ -518,8 +540,8 @@ class GridLocalizer:
             near[self._tree.query_ball_point(g.positions[best], self.confidence_radius_m)] = True
         else:
             near = slice(max(0, best - self.confidence_radius), best + self.confidence_radius + 1)
-        w_in = float(mass[near].sum())
-        confidence, log_odds = confidence_log_odds(w_in, max(0.0, 1.0 - w_in), self._log_map, self._log_new)
+        w_in, w_out = _inside_outside(mass, near)
+        confidence, log_odds = confidence_log_odds(w_in, w_out, self._log_map, self._log_new)
         position = None if g.positions is None else g.positions[best].copy()
         return Estimate(best, position, confidence, self.new_place_probability_, float(g.n_places), False,
                         log_odds, log_odds), near
@@ -572,6 +594,14 @@ class GridLocalizer:
         seconds = (time.perf_counter() - start) / max(n, 1)
         return LocalizationResult(place, conf, p_new, np.full(n, float(self.graph.n_places)), pos, qi, seconds,
                                   log_odds, log_odds.copy(), posterior)
+
+
+def _inside_outside(mass: np.ndarray, near) -> tuple[float, float]:
+    """Mass inside and outside the answer's neighbourhood, each summed directly (the
+    outside is not ``1 − inside``, which would lose it to round-off)."""
+    if isinstance(near, slice):
+        return float(mass[near].sum()), float(mass[:near.start].sum() + mass[near.stop:].sum())
+    return float(mass[near].sum()), float(mass[~near].sum())
 
 
 def _check_row(observation, n_places: int) -> np.ndarray:

@@ -465,8 +465,9 @@ class Localizer:
             near[self._tree.query_ball_point(g.positions[best], self.confidence_radius_m)] = True
         else:
             near = slice(max(0, best - self.confidence_radius), best + self.confidence_radius + 1)
-        w_in = float(mass[near].sum())
-        w_out = max(0.0, float(mass.sum()) - w_in)
+        from .grid import _inside_outside
+
+        w_in, w_out = _inside_outside(mass, near)
         # in log space, so that the new-place mass still ranks frames whose map mass is all inside
         confidence, log_odds = confidence_log_odds(w_in, w_out, self._log_map, self._log_new)
         score = log_odds

@@ -610,11 +610,13 @@ class TemperedObservation:
                  temperature_scale: float = 3.0,
                  temperatures: Sequence[float] = DEFAULT_TEMPERATURES, hub_weights: Sequence[float] = (1.0,),
                  memory: float = 200.0, n_bins: int = 64, prior_strength: float = 50.0,
-                 hub_threshold: float = 3.0) -> None:
+                 hub_threshold: float = 3.0, novelty: bool = True, novelty_cap: float = 2.0) -> None:
         self.likelihood = likelihood
         self.hub = hub
         self.hub_threshold = hub_threshold
         self.temperature_scale = temperature_scale
+        self.novelty = novelty
+        self.novelty_cap = novelty_cap
         self.temperature = temperature
         self.temperatures = temperatures
         self.hub_weights = hub_weights
@@ -623,7 +625,9 @@ class TemperedObservation:
         self.prior_strength = prior_strength
 
     def reset(self) -> None:
-        for k in [k for k in self.__dict__ if k.endswith("_") or k.startswith("_s_")]:
+        params = {"likelihood", "hub", "temperature", "temperature_scale", "temperatures", "hub_weights", "memory",
+                  "n_bins", "prior_strength", "hub_threshold", "novelty", "novelty_cap"}
+        for k in [k for k in self.__dict__ if k not in params]:
             del self.__dict__[k]
 
     def _start(self, row: np.ndarray) -> None:
@@ -667,6 +671,7 @@ class TemperedObservation:
         self.score_ = np.zeros((len(taus), len(lams)))
         self._decay = 0.5 ** (1.0 / float(self.memory))
         self._hits, self._trials = 0.0, 0.0
+        self._rho_sum, self._rho_n, self.novelty_ = 0.0, 0.0, 1.0
         self.agreement_ = 0.5
         first = float(self.temperature_scale) * 0.5 if self.temperature == "agreement" else float(taus[len(taus) // 2])
         self.temperature_, self.hub_weight_ = first, float(lams[0])
@@ -726,13 +731,31 @@ class TemperedObservation:
         row = _check_row(difference_row, getattr(self, "n_reference_", None))
         if not hasattr(self, "n_reference_"):
             self._start(row)
-        self._row = row
         self._bases = self._base(row)
         i, m = self._pick
-        r = self.temperature_ * self._bases[m]
+        r = self.temperature_ * self._novelty(row) * self._bases[m]
+        self._row = row
         top = float(r.max())
         new = top + math.log(float(np.mean(np.exp(r - top))))
         return Observation(r, new, True)
+
+    def _novelty(self, row: np.ndarray) -> float:
+        """How much of this frame is new: ``(1 − ρ_k) / (1 − ρ̄)``, clipped to
+        ``[0, novelty_cap]``, ``ρ_k`` the correlation of this row with the previous one
+        and ``ρ̄`` its discounted mean. A repeated frame (``ρ_k = 1``) adds nothing; a
+        frame unlike its predecessor (after a jump) counts more."""
+        prev = getattr(self, "_previous", None)
+        self._previous = row
+        if not self.novelty or prev is None:
+            return 1.0
+        a, b = row - row.mean(), prev - prev.mean()
+        den = float(np.sqrt((a * a).sum() * (b * b).sum()))
+        rho = float((a * b).sum()) / den if den > 0 else 1.0
+        self._rho_sum = self._decay * self._rho_sum + rho
+        self._rho_n = self._decay * self._rho_n + 1.0
+        mean = self._rho_sum / self._rho_n
+        self.novelty_ = float(np.clip((1.0 - rho) / max(1.0 - mean, 1e-6), 0.0, self.novelty_cap))
+        return self.novelty_
 
     def feedback(self, feedback: FilterFeedback) -> None:
         """Score every (temperature, hub weight) on how well the filter predicted the
