@@ -492,7 +492,9 @@ class GridLocalizer:
 
         if not hasattr(self, "state_"):
             self.reset()
-        row = _check_row(observation, self.graph.n_places)
+        from .localizer import _check_observation
+
+        row = _check_observation(observation, self.graph.n_places)
         odometry = check_odometry(odometry)
         obs = self.model.observe(row)
         self._predict(odometry)
@@ -578,6 +580,14 @@ class GridLocalizer:
             if len(odometry) != n:
                 raise ShapeMismatchError(f"odometry has {len(odometry)} entries for {n} query frames; give one per frame.")
         qi = np.arange(n) if query_index is None else np.asarray(query_index, dtype=np.int64)
+        if d.shape[1] != self.graph.n_places:
+            raise ShapeMismatchError(
+                f"the difference matrix has {d.shape[1]} places but the graph has {self.graph.n_places}; "
+                "give every frame's difference to every reference place of the map."
+            )
+        from .observation import CheckedRow
+
+        rows = d.view(CheckedRow)  # checked once, here
         self.reset()
         place = np.empty(n, dtype=np.int64)
         conf, p_new, log_odds = np.empty(n), np.empty(n), np.empty(n)
@@ -585,7 +595,7 @@ class GridLocalizer:
         posterior = np.empty((n, self.graph.n_places), dtype=np.float32) if return_posterior else None
         start = time.perf_counter()
         for k in range(n):
-            est = self.step(d[k], None if odometry is None or k == 0 else float(odometry[k]))
+            est = self.step(rows[k], None if odometry is None or k == 0 else float(odometry[k]))
             place[k], conf[k], p_new[k], log_odds[k] = est.place, est.confidence, est.new_place_probability, est.log_odds
             if pos is not None:
                 pos[k] = est.position
@@ -602,13 +612,3 @@ def _inside_outside(mass: np.ndarray, near) -> tuple[float, float]:
     if isinstance(near, slice):
         return float(mass[near].sum()), float(mass[:near.start].sum() + mass[near.stop:].sum())
     return float(mass[near].sum()), float(mass[~near].sum())
-
-
-def _check_row(observation, n_places: int) -> np.ndarray:
-    row = check_array(observation, "observation", ndim=1)
-    if len(row) != n_places:
-        raise ShapeMismatchError(
-            f"the observation has {len(row)} places but the graph has {n_places}; "
-            "give the frame's difference to every reference place of the map."
-        )
-    return row

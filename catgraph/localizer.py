@@ -20,8 +20,9 @@ One step (:meth:`Localizer.step`), as in ``particles.SMC.__next__``::
     return estimate
 
 Odometry is checked on every step, the first included: NaN, infinite or negative
-odometry raises :class:`~catgraph.exceptions.DataError`. The row's length is checked
-here, its values by the model (once per step).
+odometry raises :class:`~catgraph.exceptions.DataError`. The row is checked once per
+step, here, and handed to the model as a
+:class:`~catgraph.observation.CheckedRow`, which the model does not scan again.
 
 Reweighting. Particle ``i`` on edge ``a → b`` at fraction ``α`` gains
 ``ℓ_i = (1 − α) r_a + α r_b`` (:mod:`catgraph.observation`). The new-place hypothesis
@@ -169,15 +170,20 @@ def _top_k(values, k):  # pragma: no cover - compiled
     return best_i
 
 
-def _check_length(observation, n_places: int) -> np.ndarray:
-    """The row as a 1-D float array of one value per place (its values are the model's to check)."""
-    row = np.asarray(observation, dtype=np.float64)
-    if row.ndim != 1 or len(row) != n_places:
+def _check_observation(observation, n_places: int) -> np.ndarray:
+    """Check a row once per step (1-D, real, finite, one value per place); return it as
+    a :class:`~catgraph.observation.CheckedRow`, which models do not scan again."""
+    from .observation import CheckedRow
+
+    if type(observation) is CheckedRow and observation.ndim == 1 and len(observation) == n_places:
+        return observation
+    row = check_array(observation, "observation", ndim=1)
+    if len(row) != n_places:
         raise ShapeMismatchError(
-            f"the observation has shape {row.shape} but the graph has {n_places} places; "
-            "give the frame's difference to every reference place of the map, as a 1-D array."
+            f"the observation has {len(row)} places but the graph has {n_places}; "
+            "give the frame's difference to every reference place of the map."
         )
-    return row
+    return row.view(CheckedRow)
 
 
 @dataclass(frozen=True)
@@ -378,9 +384,9 @@ class Localizer:
         """
         if not hasattr(self, "particles_"):
             self.reset()
-        row = _check_length(observation, self.graph.n_places)
+        row = _check_observation(observation, self.graph.n_places)
         odometry = check_odometry(odometry)
-        obs = self.model.observe(row)  # the model checks the row's values, once
+        obs = self.model.observe(row)
         self._move(odometry)
         self._inject(obs)
         w = np.exp(self.particles_.log_weight)
@@ -529,6 +535,14 @@ class Localizer:
         conf, p_new, ess, log_odds, score = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
         pos = None if self.graph.positions is None else np.empty((n, self.graph.positions.shape[1]))
         posterior = np.empty((n, self.graph.n_places), dtype=np.float32) if return_posterior else None
+        from .observation import CheckedRow
+
+        if d.shape[1] != self.graph.n_places:
+            raise ShapeMismatchError(
+                f"the difference matrix has {d.shape[1]} places but the graph has {self.graph.n_places}; "
+                "give every frame's difference to every reference place of the map."
+            )
+        rows_checked = d.view(CheckedRow)  # checked once, here
         rows = range(n)
         if progress:
             from tqdm import tqdm
@@ -536,7 +550,7 @@ class Localizer:
             rows = tqdm(rows, desc="localising", unit="frame", leave=False)
         start = time.perf_counter()
         for k in rows:
-            est = self.step(d[k], None if odometry is None else float(odometry[k]))
+            est = self.step(rows_checked[k], None if odometry is None else float(odometry[k]))
             place[k], conf[k], p_new[k], ess[k] = est.place, est.confidence, est.new_place_probability, est.ess
             log_odds[k], score[k] = est.log_odds, est.score
             if pos is not None:

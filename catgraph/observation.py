@@ -73,6 +73,7 @@ from ._validation import check_array, check_scalar
 from .exceptions import InvalidParameterError, NotFittedError, ShapeMismatchError
 
 __all__ = [
+    "CheckedRow",
     "Observation",
     "FilterFeedback",
     "ObservationModel",
@@ -150,8 +151,20 @@ class ObservationModel(Protocol):
         """
 
 
+class CheckedRow(np.ndarray):
+    """A difference row a filter has already validated (1-D, float64, finite).
+
+    The filters check each row once at their public boundary and hand it to the model
+    as this view; a model's own check then only compares its length. Any other array
+    is checked in full.
+    """
+
+
 def _check_row(row, n_expected: int | None) -> np.ndarray:
-    r = check_array(row, "difference row", ndim=1)
+    if type(row) is CheckedRow:
+        r = row.view(np.ndarray)
+    else:
+        r = check_array(row, "difference row", ndim=1)
     if n_expected is not None and len(r) != n_expected:
         raise ShapeMismatchError(
             f"difference row has {len(r)} places but earlier rows had {n_expected}; "
@@ -571,6 +584,13 @@ class TemperedObservation:
       (measured: it prefers the largest ``τ`` and locks onto hubs, see
       ``docs/particle_filter.md``); a float fixes ``τ``.
 
+    * Each frame's ratios are further weighted by its *novelty* (``novelty=True``):
+      ``ν_k = (1 − ρ_k) / (1 − ρ̄)`` clipped to ``[0, novelty_cap]``, ``ρ_k`` the
+      correlation of the row with the previous one and ``ρ̄`` its discounted mean. A
+      repeated frame (a stop, or a query slower than the reference) adds no evidence;
+      a frame unlike its predecessor (new scenery, or a jump) counts up to
+      ``novelty_cap`` times. So ``r_j = τ ν_k b(d_j − c_j)``.
+
     The new-place log-ratio is ``log mean_j e^{r_j}``: a place not in the map looks,
     to this model, like a place drawn at random from the map.
 
@@ -594,11 +614,17 @@ class TemperedObservation:
         Frames' worth of weight of the starting ratio ``−d`` (``"histogram"``).
     hub_threshold : float
         Robust z-score below which a reference is a hub.
+    novelty : bool
+        Weight frames by their novelty.
+    novelty_cap : float
+        Largest novelty weight.
 
     Attributes
     ----------
     temperature_ : float
     agreement_ : float
+    novelty_ : float
+        ``ν`` of the latest frame.
     hub_shrinkage_ : float
         ``w`` of the hub correction.
     n_hubs_ : int

@@ -123,7 +123,6 @@ def test_known_differences_of_an_empty_3d_reference(which):
             difference_row(np.ones(3), np.zeros((0, 0, 0)))
 
 
-@pytest.mark.xfail(strict=True, reason=LOCALIZER_DTYPES)
 @pytest.mark.parametrize("row", [np.array("x"), np.full(8, "x"), np.ones(8, dtype=complex),
                                  np.array([""] * 8, dtype=object)])
 def test_known_localizer_string_or_complex_rows(row):

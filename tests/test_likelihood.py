@@ -537,3 +537,21 @@ def test_tempered_histogram_learns_from_the_filter():
     r = m.observe(row).log_ratio
     assert np.all(np.diff(r) <= 1e-12)  # non-increasing in d
     assert r[0] - r[-1] > 3.0
+
+
+def test_tempered_repeated_frame_adds_no_evidence():
+    from catgraph.observation import TemperedObservation
+
+    rng = np.random.default_rng(6)
+    m = TemperedObservation(hub=None, temperature=1.0)
+    rows = rng.standard_normal((3, 50))
+    first = m.observe(rows[0]).log_ratio
+    np.testing.assert_allclose(first, -rows[0])  # the first frame: novelty 1
+    m.observe(rows[1])
+    again = m.observe(rows[1]).log_ratio  # the same frame twice
+    assert m.novelty_ == 0.0 and np.all(again == 0.0)
+    m.reset()
+    np.testing.assert_allclose(m.observe(rows[1]).log_ratio, -rows[1])  # reset forgets the previous row
+    off = TemperedObservation(hub=None, temperature=1.0, novelty=False)
+    off.observe(rows[1])
+    np.testing.assert_allclose(off.observe(rows[1]).log_ratio, -rows[1])
