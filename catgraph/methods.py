@@ -243,6 +243,12 @@ def _sequence_kwargs(params: dict) -> dict:
 def _sequence(params: dict, inputs: "MethodInputs") -> RunResult:
     from .sequence import match_sequences
 
+    n_query = len(inputs.differences)
+    shortest = params["window"] if params["window"] != "adaptive" else params.get("l_min", 1)
+    if isinstance(shortest, int) and shortest > n_query:
+        what = "window" if params["window"] != "adaptive" else "l_min (the shortest adaptive window)"
+        raise InvalidParameterError(f"{what} = {shortest} frames is longer than the query ({n_query} frames); "
+                                    f"choose at most {n_query}.")
     start = time.perf_counter()
     res = match_sequences(inputs.differences, radius=params["exclusion"], **_sequence_kwargs(params))
     name = "adaptive" if params["window"] == "adaptive" else f"sequence-L{params['window']}"
@@ -285,6 +291,15 @@ def _histogram(params: dict, inputs: "MethodInputs") -> RunResult:  # noqa: C901
               **_same_place(params, inputs)}
     learning = params["learning"]
     if learning == "online":
+        if params["n_init"] >= len(inputs.differences):
+            import warnings
+
+            from .exceptions import CatgraphWarning
+
+            warnings.warn(
+                f"n_init (T_init) = {params['n_init']} frames is not shorter than the query ({len(inputs.differences)} "
+                "frames): the online model spends every frame learning and localises none (every confidence 0). "
+                "Choose fewer initialisation frames or learning 'bootstrap'.", CatgraphWarning, stacklevel=2)
         recogniser = HistogramPlaceRecogniser(model, n_init=params["n_init"], **common)
     elif learning == "bootstrap":
         rr = inputs.reference_differences()

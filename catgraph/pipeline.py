@@ -95,6 +95,12 @@ def _kind(traverse: Traverse) -> str:
 def describe(traverse: Traverse, frontend: FrontEnd = FrontEnd()) -> tuple[np.ndarray, str]:
     """Descriptors ``(n, d)`` for a traverse and the metric to compare them with."""
     kind = _kind(traverse)
+    if kind != "images" and not traverse.meta.get("described") and (
+            frontend.size is not None or frontend.patch not in (0, FrontEnd.patch)):
+        given = " and ".join(f for f, on in (("--size (size)", frontend.size is not None),
+                                               ("--patch (patch)", frontend.patch not in (0, FrontEnd.patch))) if on)
+        raise InvalidParameterError(f"{given} appl{'ies' if ' and ' not in given else 'y'} to image frames only; "
+                                    f"{traverse.name or 'this traverse'} holds {kind}. Leave {'it' if ' and ' not in given else 'them'} out.")
     if kind == "images":
         return seqslam_preprocess(traverse.frames, size=frontend.size, patch=frontend.patch), frontend.metric or "sad"
     if kind == "wifi":
