@@ -103,8 +103,9 @@ def test_live_steps_give_the_batch_answers(world, short_query, model):
         assert last.window_length is None
 
 
-def test_matcher_mode_equals_match_sequences(world):
+def test_matcher_mode_equals_the_batch_sequence_method(world):
     from catgraph.differences import difference_matrix
+    from catgraph.methods import _sequence_kwargs
     from catgraph.sequence import match_sequences
 
     live_map = LiveMap(world.reference)
@@ -112,7 +113,8 @@ def test_matcher_mode_equals_match_sequences(world):
     got = [live.step(f) for f in world.query.frames[:60]]
     q, _ = describe(world.query)
     d = difference_matrix(q[:60], live_map.reference, live_map.metric, normalise=True)
-    batch = match_sequences(d, window="adaptive", l_max=60, radius=live.params_["exclusion"])
+    p = live.params_  # what the batch `sequence` method calls match_sequences with
+    batch = match_sequences(d, radius=p["exclusion"], **_sequence_kwargs(p))
     assert np.array_equal([g.place for g in got], batch.match)
     assert np.array_equal([g.window_length for g in got], batch.window_length)
     assert np.isnan(got[0].new_place_probability)
