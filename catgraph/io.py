@@ -416,8 +416,17 @@ def save_map(path: str | os.PathLike, catgraph_map: CatgraphMap, compress: bool 
 
 # ---------------------------------------------------------------------------- decoding
 def _read_members(path: Path) -> dict[str, np.ndarray]:
+    try:  # the file is opened here so that it is closed even when the archive is unreadable
+        with open(path, "rb") as fh:
+            return _read_open_members(fh, path)
+    except IsADirectoryError:
+        raise MapFileError(f"{path} is a folder, not a map file; give the .npz that `catgraph build-map` wrote.") \
+            from None
+
+
+def _read_open_members(fh, path: Path) -> dict[str, np.ndarray]:
     try:
-        archive = np.load(path, allow_pickle=False)
+        archive = np.load(fh, allow_pickle=False)
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise MapFileError(f"{path} is not a readable map file (corrupt or truncated: {exc}); "
                            "rebuild it with `catgraph build-map`.") from None

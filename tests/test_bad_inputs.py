@@ -438,3 +438,33 @@ def test_subprocess_exit_code_and_no_progress_bars_in_logs(fresh, tmp_path):
 def test_usage_line_names_one_pair():
     code, stdout, _ = run_cli(["match", "--help"])
     assert code == 0 and "REFERENCE QUERY [REFERENCE QUERY ...]" not in stdout
+
+
+def test_a_truncated_map_leaves_no_file_open(fresh, tmp_path):
+    import gc
+
+    from catgraph.exceptions import MapFileError
+    from catgraph.io import load_map
+
+    data = Path(fresh["map"]).read_bytes()
+    for cut in (100, len(data) // 2, len(data) - 10):
+        (tmp_path / "t.npz").write_bytes(data[:cut])
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with pytest.raises(MapFileError):
+                load_map(tmp_path / "t.npz")
+            gc.collect()
+        assert not [w for w in caught if issubclass(w.category, ResourceWarning)]
+
+
+def test_memory_is_estimated_before_the_map_against_itself(fresh, monkeypatch):
+    """10⁵ places: the (N, N) matrix of the map against itself is refused before it is allocated."""
+    import catgraph._validation as validation
+    from catgraph.exceptions import InsufficientMemoryError
+    from catgraph.io import build_map, reference_differences
+    from catgraph.traverse import Traverse
+
+    monkeypatch.setattr(validation, "available_memory", lambda: 2 ** 30)
+    big = build_map(Traverse(np.random.default_rng(0).random((100_000, 4)).astype(np.float32)), graph=False)
+    with pytest.raises(InsufficientMemoryError, match=r"\(100000, 100000\).*74.5 GiB"):
+        reference_differences(big)

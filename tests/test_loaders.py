@@ -164,3 +164,19 @@ def test_truncated_npz_member(tmp_path, rng):
     (tmp_path / "t.npz").write_bytes(data[: len(data) // 2])
     with pytest.raises(DataError):
         load_traverse(tmp_path / "t.npz")
+
+
+def test_truncated_npz_leaves_no_file_open(tmp_path, rng):
+    import gc
+    import warnings
+
+    np.savez(tmp_path / "x.npz", descriptors=rng.random((50, 40)))
+    data = (tmp_path / "x.npz").read_bytes()
+    for cut in (100, len(data) // 2, len(data) - 10):
+        (tmp_path / "t.npz").write_bytes(data[:cut])
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with pytest.raises(DataError):
+                load_traverse(tmp_path / "t.npz")
+            gc.collect()
+        assert not [w for w in caught if issubclass(w.category, ResourceWarning)]

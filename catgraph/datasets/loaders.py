@@ -235,31 +235,49 @@ _NPZ_FIELDS = ("positions", "floors", "timestamps", "ids", "odometry")
 
 
 def load_array(path: str | Path) -> Traverse:
-    """Load descriptors from ``.npy`` or ``.npz`` (never unpickling)."""
+    """Load descriptors from ``.npy`` or ``.npz`` (never unpickling).
+
+    The file is opened here and closed on every path, a corrupt or truncated one
+    included (``numpy.load`` given a path leaves the file open when the archive is
+    unreadable).
+    """
     path = _as_path(path, "load_array")
     if not path.exists():
         raise DataNotFoundError(f"descriptor file {path} does not exist; check the path.")
     try:
-        loaded = np.load(path, allow_pickle=False)
+        with open(path, "rb") as fh:
+            frames, fields, main = _read_arrays(fh, path)
+    except IsADirectoryError:
+        raise DataError(f"{path} is a folder, not a .npy/.npz file.") from None
+    except OSError as exc:
+        raise DataError(f"cannot read {path}: {exc}") from None
+    if frames.ndim < 2:
+        what = "" if main is None else f" (array {main!r})"
+        raise DataError(
+            f"{path} holds an array{what} of shape {frames.shape}; descriptors need one row per frame, "
+            "shape (n_frames, n_values)."
+        )
+    return Traverse(frames, name=path.stem, meta={"kind": "descriptors", "source": str(path)}, **fields)
+
+
+def _read_arrays(fh, path: Path) -> tuple[np.ndarray, dict, str | None]:
+    """``(frames, optional fields, name of the frames array)`` from an open .npy/.npz file."""
+    try:
+        loaded = np.load(fh, allow_pickle=False)
     except ValueError as exc:
         raise DataError(f"{path} cannot be loaded without pickle ({exc}); save plain numeric arrays.") from None
     except (OSError, zipfile.BadZipFile, EOFError) as exc:
         raise DataError(f"{path} is not a readable .npy/.npz file: {exc}") from None
-    if isinstance(loaded, np.ndarray) and loaded.ndim < 2:
-        raise DataError(
-            f"{path} holds an array of shape {loaded.shape}; descriptors need one row per frame, "
-            "shape (n_frames, n_values)."
-        )
-    kind = {"kind": "descriptors", "source": str(path)}
     if isinstance(loaded, np.ndarray):
-        return Traverse(loaded, name=path.stem, meta=kind)
+        return loaded, {}, None
     with loaded:
         keys = list(loaded.files)
         main = next((k for k in ("descriptors", "frames") if k in keys), None)
         if main is None:
             if len(keys) != 1:
                 raise DataError(
-                    f"{path} holds arrays {keys}; name the descriptor array 'descriptors' (optional: {', '.join(_NPZ_FIELDS)})."
+                    f"{path} holds arrays {keys}; name the descriptor array 'descriptors' (optional: "
+                    f"{', '.join(_NPZ_FIELDS)})."
                 )
             main = keys[0]
         try:
@@ -269,12 +287,7 @@ def load_array(path: str | Path) -> Traverse:
             raise DataError(f"{path} cannot be loaded without pickle ({exc}); save plain numeric arrays.") from None
         except (OSError, zipfile.BadZipFile, EOFError, KeyError) as exc:
             raise DataError(f"{path} is truncated or corrupt ({exc}); write the file again.") from None
-    if frames.ndim < 2:
-        raise DataError(
-            f"{path}: array {main!r} has shape {frames.shape}; descriptors need one row per frame, "
-            "shape (n_frames, n_values)."
-        )
-    return Traverse(frames, name=path.stem, meta=kind, **fields)
+    return frames, fields, main
 
 
 def load_traverse(source: str | Path, progress: bool = False) -> Traverse:
