@@ -468,3 +468,17 @@ def test_memory_is_estimated_before_the_map_against_itself(fresh, monkeypatch):
     big = build_map(Traverse(np.random.default_rng(0).random((100_000, 4)).astype(np.float32)), graph=False)
     with pytest.raises(InsufficientMemoryError, match=r"\(100000, 100000\).*74.5 GiB"):
         reference_differences(big)
+
+
+def test_check_memory_names_the_need_the_supply_and_the_fix():
+    from catgraph._validation import check_memory
+    from catgraph.exceptions import InsufficientMemoryError, InvalidParameterError
+
+    check_memory(10 * 2 ** 20, "a small matrix", "nothing", available=2 ** 30)
+    with pytest.raises(InsufficientMemoryError, match=r"particles needs 1\.5 GiB but 1\.0 GiB .*use fewer particles"):
+        check_memory(1.5 * 2 ** 30, "2e8 particles", "use fewer particles (--particles)", available=2 ** 30)
+    with pytest.raises(MemoryError):  # also a MemoryError, for code that catches that
+        check_memory(2 ** 40, "a huge matrix", "use less", available=2 ** 30)
+    for bad in (float("nan"), -1, float("inf")):
+        with pytest.raises(InvalidParameterError):
+            check_memory(bad, "x", "y", available=2 ** 30)
