@@ -403,3 +403,36 @@ def test_load_array_regressions(tmp_path: Path, array):
         warnings.simplefilter("error")
         with pytest.raises(CatgraphError):
             load_traverse(tmp_path / "x.npy")
+
+
+@FUZZ
+@given(st.binary(max_size=200), st.booleans())
+def test_load_map_typed_or_valid(tmp_path_factory, blob, zip_header):
+    from catgraph.io import load_map
+
+    path = tmp_path_factory.mktemp("map") / "m.npz"
+    path.write_bytes((b"PK\x03\x04" if zip_header else b"") + blob)
+    with only_typed_outcomes():
+        load_map(path)
+        pytest.fail("random bytes were read as a map")
+
+
+_JSON = st.recursive(st.none() | st.booleans() | st.integers() | st.floats(allow_nan=False) | st.text(max_size=3),
+                     lambda children: st.lists(children, max_size=3) | st.dictionaries(
+                         st.sampled_from(["method", "params", "metrics", "frames", "runs", "auc", "match"]), children,
+                         max_size=4), max_leaves=12)
+
+
+@FUZZ
+@given(_JSON)
+def test_report_inputs_typed_or_valid(tmp_path_factory, payload):
+    import json
+
+    from catgraph.report import load_results, markdown_table
+
+    path = tmp_path_factory.mktemp("res") / "r.json"
+    path.write_text(json.dumps(payload))
+    with only_typed_outcomes():
+        runs = load_results([path])
+        assert runs and all(isinstance(r, dict) for r in runs)
+        assert markdown_table(runs).startswith("| method")
