@@ -1,0 +1,180 @@
+"""Soak test: a million steps of the particle filter and of the sequence matcher, memory sampled.
+
+A navigation stack calls ``step()`` once per sensor frame for hours. Whatever a step
+allocates must be released (or live in fixed-size buffers), so memory must stay flat
+however long the run. This benchmark drives
+
+* :meth:`catgraph.localizer.Localizer.step` with the online histogram observation model
+  (it learns from every frame, so its state is exercised too), and
+* :meth:`catgraph.sequence.SequenceMatcher.step` with the adaptive window,
+
+for ``--steps`` frames each (default 10⁶) along a synthetic route that loops over a
+chain of places, with occasional kidnaps (a jump to a random place) and frames with no
+information (constant rows). The resident set size (``VmRSS``) and the Python heap
+(``tracemalloc`` would slow the steps tenfold, so the heap is counted with
+``gc.get_objects`` instead) are sampled every ``--sample-every`` steps. After a warm-up
+(the first 5 % of the steps: JIT compilation, buffers reaching their size) the largest
+sample must stay within 1 % of the warm-up level.
+
+Run::
+
+    python benchmarks/bench_soak.py                       # 10^6 + 10^6 steps, writes results/soak.md
+    python benchmarks/bench_soak.py --steps 20000 --no-write   # a quick check
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+RESULTS = Path(__file__).resolve().parent / "results" / "soak.md"
+
+
+def rss_bytes() -> int:
+    """Resident set size of this process (Linux ``/proc/self/status``)."""
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) * 1024
+    raise RuntimeError("no VmRSS in /proc/self/status")
+
+
+def route_rows(n_places: int, n_rows: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """A pool of normalised difference rows along a looping route: a dip at the true
+    place over noise; every 97th row a kidnap, every 89th a frame with no information."""
+    rng = np.random.default_rng(seed)
+    rows = np.empty((n_rows, n_places))
+    truth = np.empty(n_rows, dtype=np.int64)
+    place = 0
+    cols = np.arange(n_places)
+    for k in range(n_rows):
+        place = int(rng.integers(n_places)) if k % 97 == 96 else (place + 1) % n_places
+        truth[k] = place
+        if k % 89 == 88:
+            rows[k] = 0.0
+            continue
+        dist = np.minimum(np.abs(cols - place), n_places - np.abs(cols - place))
+        row = rng.normal(size=n_places) - 2.5 * np.exp(-0.5 * (dist / 1.5) ** 2)
+        rows[k] = (row - row.mean()) / row.std()
+    return rows, truth
+
+
+def soak(name: str, step, rows: np.ndarray, truth: np.ndarray, n_steps: int, sample_every: int,
+         progress: bool = True) -> dict:
+    """Run ``step(row)`` ``n_steps`` times cycling over ``rows``; sample memory."""
+    warmup = max(sample_every, n_steps // 20)
+    samples: list[tuple[int, int, int]] = []
+    correct = 0
+    gc.collect()
+    start = time.perf_counter()
+    for k in range(n_steps):
+        j = k % len(rows)
+        if step(rows[j]) == truth[j]:
+            correct += 1
+        if (k + 1) % sample_every == 0:
+            samples.append((k + 1, rss_bytes(), len(gc.get_objects())))
+            if progress:
+                print(f"{name}: step {k + 1:,}, RSS {samples[-1][1] / 2**20:.2f} MiB, {samples[-1][2]:,} objects, "
+                      f"{time.perf_counter() - start:.0f} s", flush=True)
+    seconds = time.perf_counter() - start
+    after = [s for s in samples if s[0] >= warmup]
+    base_rss, base_obj = after[0][1], after[0][2]
+    max_rss = max(s[1] for s in after)
+    max_obj = max(s[2] for s in after)
+    return {
+        "name": name, "steps": n_steps, "seconds": seconds, "us_per_step": 1e6 * seconds / n_steps,
+        "warmup_steps": after[0][0], "rss_warm_mib": base_rss / 2**20, "rss_max_mib": max_rss / 2**20,
+        "rss_end_mib": after[-1][1] / 2**20, "rss_growth": (max_rss - base_rss) / base_rss,
+        "objects_warm": base_obj, "objects_max": max_obj, "objects_growth": (max_obj - base_obj) / base_obj,
+        "samples": len(after), "top1": correct / n_steps,
+    }
+
+
+def filter_step(n_places: int, n_particles: int, seed: int):
+    from catgraph.graph import PlaceGraph
+    from catgraph.localizer import Localizer
+    from catgraph.observation import make_model
+
+    loc = Localizer(PlaceGraph.chain(n_places), make_model("histogram"), n_particles=n_particles, seed=seed)
+    return lambda row: loc.step(row).place
+
+
+def matcher_step(l_max: int):
+    from catgraph.sequence import SequenceMatcher
+
+    matcher = SequenceMatcher(window="adaptive", l_min=5, l_max=l_max)
+    return lambda row: matcher.step(row).match
+
+
+def markdown(results: list[dict], args) -> str:
+    lines = [
+        "# Soak: a long run of `step()` with memory sampled",
+        "",
+        "Generated by `python benchmarks/bench_soak.py"
+        + "".join(f" --{k.replace('_', '-')} {getattr(args, k)}" for k in ("filter_steps", "matcher_steps", "places",
+                                                                         "particles", "l_max", "sample_every")) + "`"
+        f" on {platform.machine()} / Python {platform.python_version()} (2 shared cores).",
+        f"Route: a loop over {args.places} places, normalised difference rows (dip at the true place over noise), "
+        "a kidnap every 97 frames and a frame with no information every 89. "
+        f"Filter: online histogram model, {args.particles} particles. Matcher: adaptive window, l_min 5, "
+        f"l_max {args.l_max}. Memory sampled every {args.sample_every} steps; the warm-up is the first 5 %.",
+        "",
+        "| loop | steps | µs/step | RSS after warm-up (MiB) | max RSS (MiB) | RSS at end (MiB) | RSS growth | "
+        "Python objects after warm-up | max objects | object growth | flat within 1 % |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|:---:|",
+    ]
+    for r in results:
+        flat = r["rss_growth"] <= 0.01 and r["objects_growth"] <= 0.01
+        lines.append(
+            f"| {r['name']} | {r['steps']:,} | {r['us_per_step']:.1f} | {r['rss_warm_mib']:.1f} | "
+            f"{r['rss_max_mib']:.1f} | {r['rss_end_mib']:.1f} | {100 * r['rss_growth']:+.2f} % | "
+            f"{r['objects_warm']:,} | {r['objects_max']:,} | {100 * r['objects_growth']:+.2f} % | "
+            f"{'yes' if flat else '**no**'} |"
+        )
+    lines += ["", "Growth = (largest sample after the warm-up − first sample after it) / first sample. "
+              "The RSS counts the whole process (numpy, numba, the row pool), so the bound is on what the "
+              "steps add.", ""]
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=1_000_000, help="steps per loop (default 10^6)")
+    parser.add_argument("--filter-steps", type=int, help="steps of the filter loop (default --steps)")
+    parser.add_argument("--matcher-steps", type=int, help="steps of the matcher loop (default --steps)")
+    parser.add_argument("--places", type=int, default=300, help="places in the map (default 300)")
+    parser.add_argument("--particles", type=int, default=500, help="particles in the filter (default 500)")
+    parser.add_argument("--l-max", type=int, default=100, help="longest window of the matcher (default 100)")
+    parser.add_argument("--sample-every", type=int, default=10_000, help="steps between memory samples")
+    parser.add_argument("--only", choices=("filter", "matcher"), help="run one loop only")
+    parser.add_argument("--no-write", action="store_true", help="print the table, do not write results/soak.md")
+    args = parser.parse_args(argv)
+    args.filter_steps = args.filter_steps or args.steps
+    args.matcher_steps = args.matcher_steps or args.steps
+    if min(args.filter_steps, args.matcher_steps) < 2 * args.sample_every or args.sample_every < 1:
+        parser.error("every loop needs at least twice --sample-every steps")
+    rows, truth = route_rows(args.places, 2000, seed=0)
+    results = []
+    if args.only in (None, "filter"):
+        results.append(soak("Localizer.step (histogram)", filter_step(args.places, args.particles, 0), rows, truth,
+                            args.filter_steps, args.sample_every))
+        print(results[-1], flush=True)
+    if args.only in (None, "matcher"):
+        results.append(soak("SequenceMatcher.step (adaptive)", matcher_step(args.l_max), rows, truth,
+                            args.matcher_steps, args.sample_every))
+        print(results[-1], flush=True)
+    text = markdown(results, args)
+    print(text)
+    if not args.no_write:
+        RESULTS.parent.mkdir(parents=True, exist_ok=True)
+        RESULTS.write_text(text)
+    return 0 if all(r["rss_growth"] <= 0.01 and r["objects_growth"] <= 0.01 for r in results) else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
