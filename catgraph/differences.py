@@ -163,12 +163,12 @@ def _as_descriptors(x, name: str, metric: str, single: bool = False) -> np.ndarr
         arr = arr[None, :]
     elif arr.ndim == 1:
         arr = arr[None, :]
-    elif arr.ndim > 2:
-        arr = arr.reshape(arr.shape[0], -1)  # (n, h, w) frames: flattened per frame
-    elif arr.ndim != 2:
-        raise DataError(f"{name} must have shape (n, d); got shape {arr.shape}.")
+    elif arr.ndim == 0:
+        raise DataError(f"{name} must have shape (n, d); got a single number.")
     if arr.size == 0:
         raise DataError(f"{name} is empty (shape {arr.shape}); at least one frame with at least one value is needed.")
+    if arr.ndim > 2:
+        arr = arr.reshape(arr.shape[0], -1)  # (n, h, w) frames: flattened per frame
     if metric == "hamming":
         if arr.dtype == bool:
             return np.ascontiguousarray(arr, dtype=np.float32)
@@ -450,8 +450,8 @@ def normalise_rows(differences: np.ndarray) -> np.ndarray:
     Raises
     ------
     DataError
-        A value is NaN or infinite, there are no reference places (``N = 0``), or the
-        input is not 1-D or 2-D.
+        A value is NaN or infinite, not a real number (complex, text), there are no
+        reference places (``N = 0``), or the input is not 1-D or 2-D.
 
     Examples
     --------
@@ -461,9 +461,13 @@ def normalise_rows(differences: np.ndarray) -> np.ndarray:
     [0.0, 0.0, 0.0]
     """
     try:
-        d = np.asarray(differences, dtype=np.float64)
+        raw = np.asarray(differences)
     except (TypeError, ValueError) as exc:
         raise DataError(f"differences could not be read as a numeric array: {exc}") from None
+    if raw.dtype.kind not in "biuf":
+        raise DataError(f"differences must be real numbers; got dtype {raw.dtype} (complex, text or objects). "
+                        "Pass the difference values themselves, e.g. from difference_matrix.")
+    d = raw.astype(np.float64, copy=False)
     if d.ndim not in (1, 2):
         raise DataError(f"differences must be one row (N,) or a matrix (n_query, N); got shape {d.shape}.")
     if d.shape[-1] == 0:

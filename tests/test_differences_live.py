@@ -163,3 +163,16 @@ def test_result_does_not_depend_on_thread_count(rng, monkeypatch):
     monkeypatch.setattr(differences, "WORK_PER_THREAD", 1 << 60)  # one thread
     one = difference_matrix(q, r, "sad", normalise=True)
     assert np.array_equal(many, one)
+
+
+def test_complex_rows_and_empty_frames_are_refused_with_a_reason():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(DataError, match="real numbers"):
+            normalise_rows(np.array([1 + 1j, 2]))
+        with pytest.raises(DataError, match="real numbers"):
+            normalise_rows(np.array(["a", "b"]))
+        with pytest.raises(DataError, match="empty"):
+            difference_matrix(np.ones((2, 3)), np.zeros((0, 0, 0)))
+        with pytest.raises(DataError, match="empty"):
+            difference_row(np.ones(3), np.zeros((0, 0, 0)))
