@@ -80,3 +80,28 @@ def test_nan_confidence_with_output_is_an_error():
 def test_shape_mismatch_is_an_error():
     with pytest.raises(ValueError, match="one length"):
         evaluate(np.arange(3), np.arange(2), np.zeros(3), FrameTolerance(3, 0))
+
+
+def test_evaluate_checks_its_inputs():
+    from catgraph.exceptions import DataError
+
+    gt = FrameTolerance(5, tolerance=0)
+    q = np.arange(4)
+    ok = evaluate(q.astype(float), [0, 1, -1, 3], [0.9, 0.8, np.nan, 0.1], gt)
+    assert ok.metrics.accuracy == 0.75  # whole-number floats are indices; no-output confidence is never read
+    for match, message in (([0, 1, -2, 3], "below -1"), ([0, 1, 2, 5], "reference has 5")):
+        with pytest.raises(DataError, match=message):
+            evaluate(q, match, np.ones(4), gt)
+    with pytest.raises(DataError, match="whole-number"):
+        evaluate(q + 0.5, [0, 1, 2, 3], np.ones(4), gt)
+    with pytest.raises(DataError, match="NaN or infinite confidence"):
+        evaluate(q, [0, 1, 2, 3], [1.0, np.inf, 0.5, 0.2], gt)
+    with pytest.raises(DataError, match="complex"):
+        evaluate(q, [0, 1, 2, 3], np.ones(4, dtype=complex), gt)
+
+
+def test_pr_curve_refuses_fewer_positives_than_correct_frames():
+    from catgraph.exceptions import DataError
+
+    with pytest.raises(DataError, match="n_positive"):
+        pr_curve([True, True], [True, True], [0.5, 0.4], 1)
