@@ -21,9 +21,9 @@ once). The stages, each owned by one function:
 3. **Condition** (:class:`~catgraph.conditions.Condition`): the query in order,
    shuffled, reversed or at another speed; ground truth follows the frames.
 4. **Differences**: the query through the map's own front-end against the map's
-   descriptors (:func:`catgraph.io.query_differences`), normalised per query; the
-   reference-vs-reference differences some models bootstrap from come from the map too
-   (:func:`catgraph.io.reference_differences`), computed once and only when needed.
+   descriptors (:func:`catgraph.io.query_differences`), normalised per query; the ``¬L``
+   samples that bootstrapped models learn from come from the map too, by sampled pairs
+   (:meth:`Prepared.bootstrap_samples`), computed once and only when needed.
 5. **Method** (:mod:`catgraph.methods`): by name, with its checked parameters.
 6. **Result**: a :class:`~catgraph.results.RunResult`, its evaluation where there is
    ground truth, and the JSON payload every command writes (:func:`payload`).
@@ -244,7 +244,7 @@ class Prepared:
     sources: dict
     junction_radius_m: float | None = None
     _graph: "PlaceGraph | None" = None
-    _reference_differences: np.ndarray | None = None
+    _bootstrap: dict = field(default_factory=dict)
 
     def graph(self) -> "PlaceGraph":
         """The place graph: the saved map's, or built from the reference (once)."""
@@ -258,13 +258,16 @@ class Prepared:
             self._graph = place_graph(self.reference, self.junction_radius_m)
         return self._graph
 
-    def reference_differences(self) -> np.ndarray:
-        """The map's reference-vs-reference differences (computed once, on first use)."""
-        if self._reference_differences is None:
-            from .io import reference_differences
+    def bootstrap_samples(self, gap: int, max_different: int, seed: int) -> np.ndarray:
+        """``¬L`` samples from the map: normalised differences between places more than
+        ``gap`` apart, drawn by sampled pairs (never an ``N × N`` matrix; computed once per
+        setting). See :func:`catgraph.live.map_bootstrap_samples`."""
+        key = (gap, max_different, seed)
+        if key not in self._bootstrap:
+            from .live import map_bootstrap_samples
 
-            self._reference_differences = reference_differences(self.map)
-        return self._reference_differences
+            self._bootstrap[key] = map_bootstrap_samples(self.map, gap, max_different, seed)[0]
+        return self._bootstrap[key]
 
     def under(self, condition: Condition) -> "Prepared":
         """The same inputs with the query driven under ``condition`` (from the query as loaded)."""
@@ -323,8 +326,8 @@ class MethodInputs:
     def graph(self) -> "PlaceGraph":
         return self.prepared.graph()
 
-    def reference_differences(self) -> np.ndarray:
-        return self.prepared.reference_differences()
+    def bootstrap_samples(self, gap: int, max_different: int, seed: int) -> np.ndarray:
+        return self.prepared.bootstrap_samples(gap, max_different, seed)
 
 
 def _ground_truth(exp: Experiment, reference: Traverse, query: Traverse, n_places: int) -> GroundTruth | None:

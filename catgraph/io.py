@@ -86,7 +86,6 @@ __all__ = [
     "build_map",
     "reference_from_map",
     "query_differences",
-    "reference_differences",
     "place_graph",
     "FORMAT_NAME",
     "FORMAT_VERSION",
@@ -228,19 +227,6 @@ def place_graph(reference: "Traverse", junction_radius_m: float | None = None) -
     from .graph import PlaceGraph
 
     return PlaceGraph.from_traverse(reference, junction_radius_m=junction_radius_m)
-
-
-def reference_differences(catgraph_map: CatgraphMap) -> np.ndarray:
-    """The ``(N, N)`` differences between the map's places, with the map's own metric and
-    normalisation: what models that bootstrap from the map learn from."""
-    from ._validation import check_memory
-    from .differences import difference_matrix
-
-    n = len(catgraph_map.descriptors)
-    check_memory(8.0 * n * n, f"the ({n}, {n}) float64 differences between the map's places",
-                 "use a learning that does not bootstrap from the map, or a shorter reference")
-    return difference_matrix(catgraph_map.descriptors, catgraph_map.descriptors, catgraph_map.metric,
-                             normalise=bool(catgraph_map.frontend.get("normalise", True)))
 
 
 def reference_from_map(catgraph_map: CatgraphMap) -> "Traverse":

@@ -58,6 +58,7 @@ import numpy as np
 from ._validation import as_generator, check_array, check_scalar
 from .differences import PreparedReference
 from .exceptions import DataError, InvalidParameterError
+from .methods import FILTER_MODELS
 
 __all__ = [
     "LIVE_MODELS",
@@ -67,11 +68,12 @@ __all__ = [
     "bootstrap_pairs",
     "describe_frame",
     "map_bootstrap",
+    "map_bootstrap_samples",
 ]
 
 #: Models a :class:`LiveLocalizer` runs: the filter's observation models
-#: (:data:`catgraph.compare.MODEL_NAMES`) and the standalone sequence matcher.
-LIVE_MODELS = ("histogram", "histogram-bootstrap", "sequence", "adaptive", "combined", "matcher")
+#: (:data:`catgraph.methods.FILTER_MODELS`) and the standalone sequence matcher.
+LIVE_MODELS = (*FILTER_MODELS, "matcher")
 
 
 # ---------------------------------------------------------------------------------------
@@ -170,7 +172,17 @@ def _reference_rows(reference: PreparedReference, rows: np.ndarray, normalise: b
 
 def map_bootstrap(catgraph_map, gap: int | None = None, max_different: int = 100_000, seed=0,
                   anchor_rows: int | None = 4096, reference: PreparedReference | None = None):
-    """The bootstrapped ``¬L`` model of a map, without an ``N × N`` matrix.
+    """The bootstrapped ``¬L`` model of a map and its hub statistic (see
+    :func:`map_bootstrap_samples`): ``(HistogramLikelihood, hub)``."""
+    from .likelihood import HistogramLikelihood
+
+    values, hub = map_bootstrap_samples(catgraph_map, gap, max_different, seed, anchor_rows, reference)
+    return HistogramLikelihood().fit(np.empty(0), values), hub
+
+
+def map_bootstrap_samples(catgraph_map, gap: int | None = None, max_different: int = 100_000, seed=0,
+                          anchor_rows: int | None = 4096, reference: PreparedReference | None = None):
+    """The bootstrapped ``¬L`` samples of a map, without an ``N × N`` matrix.
 
     Draws the pairs of :func:`bootstrap_pairs` and computes only the reference rows
     they need, a block at a time. With ``N <= anchor_rows`` the fitted model equals
@@ -193,14 +205,12 @@ def map_bootstrap(catgraph_map, gap: int | None = None, max_different: int = 100
 
     Returns
     -------
-    likelihood : HistogramLikelihood
-        Fitted (``L`` histogram empty: learned online).
+    values : ndarray of float64, shape (max_different,)
+        Normalised differences between map places more than ``gap`` apart.
     hub : ndarray of float64, shape (N,)
         Each place's mean normalised difference to the sampled places more than
         ``gap`` from it (low: close to everything, a hub).
     """
-    from .likelihood import HistogramLikelihood
-
     reference = PreparedReference(catgraph_map.descriptors, catgraph_map.metric) if reference is None else reference
     normalise = bool(catgraph_map.frontend.get("normalise", True))
     n = reference.n_places
@@ -225,7 +235,7 @@ def map_bootstrap(catgraph_map, gap: int | None = None, max_different: int = 100
             hub_sum[near] -= block[t, near]
             hub_count[near] -= 1
     hub = np.divide(hub_sum, hub_count, out=np.zeros(n), where=hub_count > 0)
-    return HistogramLikelihood().fit(np.empty(0), values), hub
+    return values, hub
 
 
 class LiveMap:
@@ -371,39 +381,6 @@ def _sequence_part(model):
     return None
 
 
-def _observation_model(params: dict, live_map: LiveMap, anchor_rows: int | None):
-    """The filter's observation model from the ``filter`` method's parameters, as
-    :mod:`catgraph.methods` builds it, with the bootstrap drawn from the map in blocks."""
-    from .methods import _WINDOW_ADAPTIVE, _bootstrap_gap
-    from .observation import CombinedObservation, HistogramObservation, SequenceObservation
-
-    model = params["model"]
-
-    def histogram(bootstrap: bool) -> HistogramObservation:
-        kw = {"exclusion_radius": params["exclusion_radius"]}
-        if not bootstrap:
-            return HistogramObservation(n_init=params["n_init"], seed=params["seed"], **kw)
-        likelihood = live_map.bootstrap(gap=_bootstrap_gap(params, live_map.n_places),
-                                        max_different=params["max_different"], seed=params["seed"],
-                                        anchor_rows=anchor_rows)
-        return HistogramObservation(mode="bootstrap", likelihood=likelihood, **kw)
-
-    def sequence(default_window) -> SequenceObservation:
-        window = params.get("window") or default_window
-        matcher = {k: params[k] for k in _WINDOW_ADAPTIVE} if window == "adaptive" else {}
-        return SequenceObservation(window=window, matcher_params=matcher)
-
-    if model == "histogram":
-        return histogram(False)
-    if model == "histogram-bootstrap":
-        return histogram(True)
-    if model == "sequence":
-        return sequence(50)
-    if model == "adaptive":
-        return sequence("adaptive")
-    return CombinedObservation([histogram(True), sequence("adaptive")])
-
-
 class LiveLocalizer:
     """Localise one frame at a time against a :class:`LiveMap`.
 
@@ -460,16 +437,20 @@ class LiveLocalizer:
             self.params_ = resolve_params("sequence", {"window": "adaptive", **params})
             self.matcher_ = SequenceMatcher(radius=self.params_["exclusion"], **_sequence_kwargs(self.params_))
             return
-        from .localizer import Localizer
+        from .methods import make_filter, observation_model
 
         self.params_ = p = resolve_params("filter", {"model": model, **params})
-        obs = _observation_model(p, live_map, anchor_rows)
+
+        def bootstrap_samples(gap: int, max_different: int, seed: int) -> np.ndarray:
+            values, self.live_map.hub_ = map_bootstrap_samples(live_map.map, gap, max_different, seed, anchor_rows,
+                                                               live_map.reference)
+            return values
+
+        obs = observation_model(p, live_map.n_places, bootstrap_samples)
         self.model_ = obs
         self._sequence = _sequence_part(obs)
         self.use_odometry = bool(p["use_odometry"]) and live_map.graph.unit == "m"
-        keys = ("n_particles", "seed", "resampler", "ess_threshold", "redraw_fraction", "proposal", "new_place_prior",
-                "confidence_radius", "confidence_radius_m")
-        self.localizer_ = Localizer(live_map.graph, obs, **{k: p[k] for k in keys if k in p})
+        self.localizer_ = make_filter(p, live_map.graph, obs)
         self.localizer_.reset()
 
     def reset(self) -> "LiveLocalizer":

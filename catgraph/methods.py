@@ -53,7 +53,7 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["Param", "Method", "METHODS", "FILTER_MODELS", "get_method", "resolve_params"]
 
 #: Observation models of the particle filter.
-FILTER_MODELS = ("histogram", "histogram-bootstrap", "sequence", "adaptive", "combined")
+FILTER_MODELS = ("tempered", "histogram", "histogram-bootstrap", "sequence", "adaptive", "combined")
 _LEARNING = ("online", "bootstrap", "trained")
 _PROPOSALS = ("best", "uniform")  # TODO-move: the localizer's
 
@@ -282,7 +282,7 @@ def _bootstrap_gap(params: dict, n: int) -> int:
 
 
 def _histogram(params: dict, inputs: "MethodInputs") -> RunResult:  # noqa: C901
-    from .likelihood import HistogramLikelihood, HistogramPlaceRecogniser, labelled_samples, reference_samples
+    from .likelihood import HistogramLikelihood, HistogramPlaceRecogniser, labelled_samples
 
     start = time.perf_counter()
     model = HistogramLikelihood(n_bins=params["n_bins"])
@@ -302,9 +302,8 @@ def _histogram(params: dict, inputs: "MethodInputs") -> RunResult:  # noqa: C901
                 "Choose fewer initialisation frames or learning 'bootstrap'.", CatgraphWarning, stacklevel=2)
         recogniser = HistogramPlaceRecogniser(model, n_init=params["n_init"], **common)
     elif learning == "bootstrap":
-        rr = inputs.reference_differences()
-        model.fit(*reference_samples(rr, _bootstrap_gap(params, len(rr)), max_different=params["max_different"],
-                                     seed=params["seed"]))
+        model.fit(np.empty(0), inputs.bootstrap_samples(_bootstrap_gap(params, inputs.map.n_places),
+                                                        params["max_different"], params["seed"]))
         recogniser = HistogramPlaceRecogniser(model, n_init=0, **common)
     else:  # trained: an oracle baseline fitted on the labelled query
         if inputs.ground_truth is None:
@@ -329,9 +328,15 @@ def _histogram_not_applicable(params: dict) -> dict[str, str]:
     return out
 
 
-def _observation_model(params: dict, inputs: "MethodInputs"):
-    """The filter's observation model, built from the filter's parameters."""
-    from .observation import CombinedObservation, HistogramObservation, SequenceObservation
+def observation_model(params: dict, n_places: int, bootstrap_samples: Callable[[int, int, int], np.ndarray]):
+    """The filter's observation model from the ``filter`` method's resolved parameters.
+
+    ``bootstrap_samples(gap, max_different, seed)`` gives the map's ``¬L`` samples (e.g.
+    :meth:`catgraph.experiment.Prepared.bootstrap_samples`); the batch method and the live
+    API (:mod:`catgraph.live`) build their models here, so both run the same model.
+    """
+    from .likelihood import HistogramLikelihood
+    from .observation import CombinedObservation, HistogramObservation, SequenceObservation, TemperedObservation
 
     model = params["model"]
 
@@ -339,15 +344,16 @@ def _observation_model(params: dict, inputs: "MethodInputs"):
         kw = {"exclusion_radius": params["exclusion_radius"], "seed": params["seed"]}
         if not bootstrap:
             return HistogramObservation(n_init=params["n_init"], **kw)
-        rr = inputs.reference_differences()
-        return HistogramObservation.bootstrap(rr, gap=_bootstrap_gap(params, len(rr)),
-                                              max_different=params["max_different"], **kw)
+        values = bootstrap_samples(_bootstrap_gap(params, n_places), params["max_different"], params["seed"])
+        return HistogramObservation(mode="bootstrap", likelihood=HistogramLikelihood().fit(np.empty(0), values), **kw)
 
     def sequence(default_window) -> SequenceObservation:
         window = params.get("window") or default_window
         matcher = {k: params[k] for k in _WINDOW_ADAPTIVE} if window == "adaptive" else {}
         return SequenceObservation(window=window, matcher_params=matcher)
 
+    if model == "tempered":
+        return TemperedObservation()
     if model == "histogram":
         return histogram(False)
     if model == "histogram-bootstrap":
@@ -359,19 +365,38 @@ def _observation_model(params: dict, inputs: "MethodInputs"):
     return CombinedObservation([histogram(True), sequence("adaptive")])
 
 
-def _filter(params: dict, inputs: "MethodInputs") -> RunResult:
-    from .localizer import Localizer
+_PARTICLE_KEYS = ("n_particles", "resampler", "ess_threshold", "redraw_fraction", "proposal")
 
+
+def make_filter(params: dict, graph, model):
+    """The filter the ``filter`` method's resolved parameters describe, on ``graph`` with
+    observation ``model``: a particle filter (``mode="particles"``) or the exact grid filter."""
+    common = {k: params[k] for k in ("seed", "confidence_radius", "confidence_radius_m") if k in params}
+    if params.get("new_place_prior") is not None:
+        common["new_place_prior"] = params["new_place_prior"]
+    if params["mode"] == "grid":
+        from .grid import GridLocalizer
+
+        common.pop("seed", None)
+        return GridLocalizer(graph, model, **common)
+    from .localizer import Localizer
+    from .motion import VelocityMotion
+
+    motion = VelocityMotion() if params["motion"] == "velocity" else None
+    return Localizer(graph, model, motion=motion, **common, **{k: params[k] for k in _PARTICLE_KEYS})
+
+
+def _filter(params: dict, inputs: "MethodInputs") -> RunResult:
     graph = inputs.graph()
-    obs = _observation_model(params, inputs)
-    keys = ("n_particles", "seed", "resampler", "ess_threshold", "redraw_fraction", "proposal", "new_place_prior",
-            "confidence_radius", "confidence_radius_m")
-    loc = Localizer(graph, obs, **{k: params[k] for k in keys if k in params})
+    obs = observation_model(params, inputs.map.n_places, inputs.bootstrap_samples)
+    loc = make_filter(params, graph, obs)
     odometry = inputs.query.odometry if params["use_odometry"] and graph.unit == "m" else None
     start = time.perf_counter()
-    res = loc.run(inputs.differences, odometry=odometry, query_index=inputs.query.index, progress=inputs.progress)
+    kwargs = {"progress": inputs.progress} if params["mode"] == "particles" else {}
+    res = loc.run(inputs.differences, odometry=odometry, query_index=inputs.query.index, **kwargs)
     seconds = time.perf_counter() - start
-    return RunResult(f"particle-filter/{params['model']}", dict(params), inputs.query.index, res.place, res.score,
+    name = "grid-filter" if params["mode"] == "grid" else "particle-filter"
+    return RunResult(f"{name}/{params['model']}", dict(params), inputs.query.index, res.place, res.score,
                      extra={"posterior_mass": res.confidence, "log_odds": res.log_odds,
                             "p_new_place": res.new_place_probability, "ess": res.ess}, seconds=seconds)
 
@@ -381,6 +406,9 @@ def _filter_not_applicable(params: dict) -> dict[str, str]:
     out: dict[str, str] = {}
     sequence_models = ("sequence", "adaptive", "combined")
     histogram_models = ("histogram", "histogram-bootstrap", "combined")
+    if params["mode"] == "grid":
+        for k in (*_PARTICLE_KEYS, "motion", "seed"):
+            out[k] = "the grid filter has no particles (it is exact); use mode 'particles'"
     if model not in sequence_models:
         for k in ("window", *_WINDOW_ADAPTIVE):
             out[k] = f"model {model!r} has no sequence matcher"
@@ -413,7 +441,12 @@ def _filter_params() -> tuple[Param, ...]:
                           "(default: 50 for model 'sequence', adaptive otherwise)", optional=True)
     hist = {p.name: p for p in _histogram_params()}
     return (
-        Param("model", "str", "histogram", "observation model", choices=FILTER_MODELS),
+        Param("model", "str", "tempered", "observation model", choices=FILTER_MODELS),
+        Param("mode", "str", "particles", "'particles': the CAT-Graph particle filter; 'grid': the exact Bayes "
+              "filter over (place, velocity), for maps up to ~10^5 places", choices=("particles", "grid")),
+        Param("motion", "str", "velocity", "particle motion: 'velocity' (a signed velocity per particle, driven "
+              "forwards or backwards at 0.5-3 places per frame) or 'frame' (one frame per step, odometry where "
+              "given)", choices=("velocity", "frame")),
         Param("n_particles", "int", 2000, "number of particles", low=1, high=10_000_000, flag="--particles"),
         Param("seed", "int", 0, "seed of the filter", low=0),
         Param("confidence_radius", "int", 2, "places either side of the answer counted in its confidence "
@@ -426,7 +459,8 @@ def _filter_params() -> tuple[Param, ...]:
         Param("redraw_fraction", "float", 0.02, "fraction of particles re-drawn from the proposal each step",
               low=0.0, high=0.99),
         Param("proposal", "str", "best", "where re-drawn particles go", choices=_PROPOSALS),
-        Param("new_place_prior", "float", 0.05, "per-step probability of entering unmapped space", low=0.0, high=0.99),
+        Param("new_place_prior", "float", None, "per-step probability of entering unmapped space (default: 0.05 "
+              "for particles, 0 for the grid)", low=0.0, high=0.99, optional=True),
         *seq.values(),
         hist["n_init"], hist["exclusion_radius"], hist["gap"], hist["max_different"],
     )

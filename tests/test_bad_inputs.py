@@ -457,17 +457,22 @@ def test_a_truncated_map_leaves_no_file_open(fresh, tmp_path):
         assert not [w for w in caught if issubclass(w.category, ResourceWarning)]
 
 
-def test_memory_is_estimated_before_the_map_against_itself(fresh, monkeypatch):
-    """10⁵ places: the (N, N) matrix of the map against itself is refused before it is allocated."""
-    import catgraph._validation as validation
-    from catgraph.exceptions import InsufficientMemoryError
-    from catgraph.io import build_map, reference_differences
+def test_bootstrapping_from_a_large_map_needs_no_matrix_of_the_map_against_itself():
+    """10⁵ places: the ¬L samples come from sampled pairs, never the (N, N) matrix (74.5 GiB)."""
+    import tracemalloc
+
+    from catgraph.experiment import prepared_from
     from catgraph.traverse import Traverse
 
-    monkeypatch.setattr(validation, "available_memory", lambda: 2 ** 30)
-    big = build_map(Traverse(np.random.default_rng(0).random((100_000, 4)).astype(np.float32)), graph=False)
-    with pytest.raises(InsufficientMemoryError, match=r"\(100000, 100000\).*74.5 GiB"):
-        reference_differences(big)
+    rng = np.random.default_rng(0)
+    reference = Traverse(rng.random((100_000, 4)).astype(np.float32))
+    prepared = prepared_from(reference, Traverse(rng.random((3, 4)).astype(np.float32)))
+    tracemalloc.start()
+    values = prepared.bootstrap_samples(gap=50, max_different=5000, seed=0)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert values.shape == (5000,) and np.all(np.isfinite(values))
+    assert peak < 512 * 2 ** 20
 
 
 def test_check_memory_names_the_need_the_supply_and_the_fix():
