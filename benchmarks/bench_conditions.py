@@ -44,6 +44,8 @@ METHODS = {
     "fixed L=100": ("sequence", {"window": 100}),
     "adaptive": ("sequence", {"window": "adaptive"}),
     "histogram (online)": ("histogram", {}),
+    "filter (default)": ("filter", {}),
+    "grid filter": ("filter", {"mode": "grid"}),
     "filter + histogram": ("filter", {"model": "histogram"}),
     "filter + combined": ("filter", {"model": "combined"}),
 }
