@@ -23,10 +23,13 @@ Methods
     (fitted from the labelled query: an oracle baseline, the only method that reads
     ground truth).
 ``filter``
-    The CAT-Graph particle filter on the map's place graph with observation ``model``
-    (see :data:`FILTER_MODELS`); the observation model's options (``window``,
-    ``approximation``, ``n_init`` …) are parameters of the filter method, so a sweep
-    can vary them.
+    A Bayes filter on the map's place graph with observation ``model`` (see
+    :data:`FILTER_MODELS`; default ``tempered``, the hub-corrected whole-image evidence
+    tempered by the filter's own answers): the CAT-Graph particle filter
+    (``mode="particles"``, signed-velocity motion by default) or the exact grid filter
+    over (place, velocity) (``mode="grid"``). The observation model's options
+    (``window``, ``approximation``, ``n_init`` …) are parameters of the filter method,
+    so a sweep can vary them.
 
 A method's parameters belong to the method: none is derived from the evaluation (the
 filter's ``confidence_radius`` is its own, in places, whatever tolerance the run is
