@@ -160,13 +160,13 @@ def main(argv=None) -> int:
         parser.error("every loop needs at least twice --sample-every steps")
     rows, truth = route_rows(args.places, 2000, seed=0)
     results = []
-    if args.only in (None, "filter"):
-        results.append(soak("Localizer.step (histogram)", filter_step(args.places, args.particles, 0), rows, truth,
-                            args.filter_steps, args.sample_every))
-        print(results[-1], flush=True)
     if args.only in (None, "matcher"):
         results.append(soak("SequenceMatcher.step (adaptive)", matcher_step(args.l_max), rows, truth,
                             args.matcher_steps, args.sample_every))
+        print(results[-1], flush=True)
+    if args.only in (None, "filter"):
+        results.append(soak("Localizer.step (histogram)", filter_step(args.places, args.particles, 0), rows, truth,
+                            args.filter_steps, args.sample_every))
         print(results[-1], flush=True)
     text = markdown(results, args)
     print(text)
