@@ -245,6 +245,7 @@ class Prepared:
     junction_radius_m: float | None = None
     _graph: "PlaceGraph | None" = None
     _bootstrap: dict = field(default_factory=dict)
+    _hubs: np.ndarray | None = None
 
     def graph(self) -> "PlaceGraph":
         """The place graph: the saved map's, or built from the reference (once)."""
@@ -268,6 +269,14 @@ class Prepared:
 
             self._bootstrap[key] = map_bootstrap_samples(self.map, gap, max_different, seed)[0]
         return self._bootstrap[key]
+
+    def hub_offsets(self) -> np.ndarray:
+        """The map's hub offsets (:func:`catgraph.hubs.map_hub_offsets`; computed once)."""
+        if self._hubs is None:
+            from .hubs import map_hub_offsets
+
+            self._hubs = map_hub_offsets(self.map)
+        return self._hubs
 
     def under(self, condition: Condition) -> "Prepared":
         """The same inputs with the query driven under ``condition`` (from the query as loaded)."""
@@ -328,6 +337,9 @@ class MethodInputs:
 
     def bootstrap_samples(self, gap: int, max_different: int, seed: int) -> np.ndarray:
         return self.prepared.bootstrap_samples(gap, max_different, seed)
+
+    def hub_offsets(self) -> np.ndarray:
+        return self.prepared.hub_offsets()
 
 
 def _ground_truth(exp: Experiment, reference: Traverse, query: Traverse, n_places: int) -> GroundTruth | None:

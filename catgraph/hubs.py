@@ -35,7 +35,7 @@ scale as the input and can be given to any method that takes a difference matrix
 
 Public functions (small and stable)::
 
-    hub_offsets(map_differences, threshold=3.0) -> (N,) float64
+    hub_offsets(map_differences, threshold=3.0, rows=None) -> (N,) float64
     apply_hub_offsets(differences, offsets, renormalise=True) -> (n_query, N) float64
 """
 
@@ -46,13 +46,16 @@ import numpy as np
 from ._validation import check_array, check_scalar
 from .exceptions import ShapeMismatchError
 
-__all__ = ["hub_offsets", "apply_hub_offsets", "HUB_THRESHOLD"]
+__all__ = ["hub_offsets", "map_hub_offsets", "apply_hub_offsets", "HUB_THRESHOLD", "HUB_ROWS"]
 
 #: outlying hubs lie more than this many robust standard deviations below the typical frame
 HUB_THRESHOLD = 3.0
+#: a map's hub offsets are estimated from at most this many of its frames
+HUB_ROWS = 2048
 
 
-def hub_offsets(map_differences: np.ndarray, threshold: float = HUB_THRESHOLD) -> np.ndarray:
+def hub_offsets(map_differences: np.ndarray, threshold: float = HUB_THRESHOLD,
+                rows: np.ndarray | None = None) -> np.ndarray:
     """Per-reference offsets that cancel outlying hubs, ``(N,) float64`` (0 = no correction).
 
     Parameters
@@ -64,6 +67,10 @@ def hub_offsets(map_differences: np.ndarray, threshold: float = HUB_THRESHOLD) -
         A frame is an outlying hub when its typical difference ``h_j`` lies more than
         ``threshold`` robust standard deviations (``1.4826 * MAD``) below the median
         ``h``.
+    rows : ndarray of int, shape (k,), optional
+        With a large map, the medians can come from a sample of ``k`` map frames:
+        ``map_differences`` is then ``(k, N)``, row ``t`` being map frame ``rows[t]``
+        (whose own entry is ignored).
 
     Returns
     -------
@@ -81,18 +88,35 @@ def hub_offsets(map_differences: np.ndarray, threshold: float = HUB_THRESHOLD) -
     (7, True)
     """
     r = check_array(map_differences, "map difference matrix", ndim=2)
-    if r.shape[0] != r.shape[1] or r.shape[0] < 3:
-        raise ShapeMismatchError(
-            f"the map difference matrix must be square (reference x reference) with at least 3 frames; got shape "
-            f"{r.shape}. Compute it as differences(reference, reference).")
+    if rows is None:
+        if r.shape[0] != r.shape[1] or r.shape[0] < 3:
+            raise ShapeMismatchError(
+                f"the map difference matrix must be square (reference x reference) with at least 3 frames; got shape "
+                f"{r.shape}. Compute it as differences(reference, reference).")
+        rows = np.arange(r.shape[0])
+    rows = np.asarray(rows, dtype=np.int64)
+    if rows.shape != (r.shape[0],) or r.shape[0] < 3 or rows.min() < 0 or rows.max() >= r.shape[1]:
+        raise ShapeMismatchError(f"give one map frame index per row of the {r.shape} map differences (at least 3).")
     check_scalar(threshold, "threshold", "hub_offsets", float, 0.0)
     m = np.array(r, dtype=np.float64, copy=True)
-    np.fill_diagonal(m, np.nan)
+    m[np.arange(len(rows)), rows] = np.nan
     typical = np.nanmedian(m, axis=0)
     centre = float(np.median(typical))
     spread = 1.4826 * float(np.median(np.abs(typical - centre)))
     hub = typical < centre - threshold * spread
     return np.where(hub, typical - centre, 0.0)
+
+
+def map_hub_offsets(catgraph_map, threshold: float = HUB_THRESHOLD, max_rows: int = HUB_ROWS) -> np.ndarray:
+    """:func:`hub_offsets` of a :class:`~catgraph.io.CatgraphMap`: the map against itself,
+    or, above ``max_rows`` places, a seeded sample of ``max_rows`` of its frames against
+    the whole map (never an ``N × N`` matrix)."""
+    from .differences import difference_matrix
+
+    d, n = catgraph_map.descriptors, catgraph_map.n_places
+    rows = np.arange(n) if n <= max_rows else np.sort(np.random.default_rng(0).choice(n, max_rows, replace=False))
+    r = difference_matrix(d[rows], d, catgraph_map.metric, normalise=bool(catgraph_map.frontend.get("normalise", True)))
+    return hub_offsets(r, threshold, rows=rows)
 
 
 def apply_hub_offsets(differences: np.ndarray, offsets: np.ndarray, renormalise: bool = True) -> np.ndarray:

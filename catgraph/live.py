@@ -435,7 +435,13 @@ class LiveLocalizer:
             from .sequence import SequenceMatcher
 
             self.params_ = resolve_params("sequence", {"window": "adaptive", **params})
-            self.matcher_ = SequenceMatcher(radius=self.params_["exclusion"], **_sequence_kwargs(self.params_))
+            hubs = None
+            if self.params_["hub_correction"]:
+                from .hubs import map_hub_offsets
+
+                hubs = map_hub_offsets(live_map.map)
+            self.matcher_ = SequenceMatcher(radius=self.params_["exclusion"], hub_offsets=hubs,
+                                            **_sequence_kwargs(self.params_))
             return
         from .methods import make_filter, observation_model
 

@@ -96,6 +96,8 @@ class Param:
             return "'geometric', 'all', an int ≥ 1 or a list of ints ≥ 1"
         if self.kind == "bool":
             return "true or false"
+        if self.kind == "floats":
+            return "a list of 1 to 64 numbers in [-100, 100]"
         what = {"int": "an int", "float": "a number", "str": "a string"}[self.kind]
         if self.low is not None and self.high is not None:
             return f"{what} in [{self.low:g}, {self.high:g}]"
@@ -131,6 +133,13 @@ class Param:
                     isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1 for v in value):
                 return [int(v) for v in value]
             raise bad()
+        if self.kind == "floats":
+            ok = isinstance(value, (list, tuple)) and 0 < len(value) <= 64 and all(
+                isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
+                and abs(v) <= 100 for v in value)
+            if not ok:
+                raise bad()
+            return [float(v) for v in value]
         if self.kind == "bool":
             if not isinstance(value, (bool, np.bool_)):
                 raise bad()
@@ -157,22 +166,41 @@ class Param:
 # shared declarations: one per concept, reused by every method that has it
 _EXCLUSION = Param("exclusion", "int", 10, "confidence = margin to the best match outside ± this many places",
                    low=0, high=1_000_000)
-_WINDOW_ADAPTIVE = ("approximation", "rule", "l_min", "l_max", "grid")
+_WINDOW_ADAPTIVE = ("approximation", "rule", "l_min", "l_max", "grid", "recent_fraction")
 
 
 def _sequence_params(window_default: Any, window_optional: bool = False) -> tuple[Param, ...]:
-    from .sequence import APPROXIMATIONS, RULES
+    import inspect
 
+    from .sequence import APPROXIMATIONS, RULES, match_sequences
+
+    default = {k: v.default for k, v in inspect.signature(match_sequences).parameters.items()}  # one owner
     return (
         Param("window", "window", window_default,
               "sequence length in frames, or 'adaptive' (paper 1: chosen per frame)", optional=window_optional),
-        Param("approximation", "str", APPROXIMATIONS[0], "adaptive window: approximation of the score distribution",
-              choices=APPROXIMATIONS),
-        Param("rule", "str", RULES[0], "adaptive window: how the window length is chosen (see docs/sequence.md)",
+        Param("approximation", "str", default["approximation"],
+              "adaptive window: approximation of the score distribution", choices=APPROXIMATIONS),
+        Param("rule", "str", default["rule"], "adaptive window: how the window length is chosen (see docs/sequence.md)",
               choices=RULES),
-        Param("l_min", "int", 10, "adaptive window: shortest window", low=1, high=100_000),
-        Param("l_max", "int", 500, "adaptive window: longest window", low=1, high=100_000),
-        Param("grid", "grid", "geometric", "adaptive window: candidate lengths ('geometric', 'all', a count or a list)"),
+        Param("l_min", "int", default["l_min"], "adaptive window: shortest window", low=1, high=100_000),
+        Param("l_max", "int", default["l_max"], "adaptive window: longest window", low=1, high=100_000),
+        Param("grid", "grid", default["grid"],
+              "adaptive window: candidate lengths ('geometric', 'all', a count or a list)"),
+        Param("recent_fraction", "float", default["recent_fraction"], "adaptive window: sub-windows from this "
+              "fraction of the window are tested for a discontinuity (0: every shorter one)", low=0.0, high=1.0),
+    )
+
+
+def _velocity_params() -> tuple[Param, ...]:
+    import inspect
+
+    from .sequence import match_sequences
+
+    velocities = inspect.signature(match_sequences).parameters["velocities"].default
+    return (
+        Param("velocities", "floats", list(velocities), "slopes of the sequence lines searched, in places per frame "
+              "(negative: driven backwards; 1 alone: the classic SeqSLAM diagonal)"),
+        Param("hub_correction", "bool", True, "correct outlying hub references found in the map (catgraph.hubs)"),
     )
 
 
@@ -237,7 +265,7 @@ def _single_frame(params: dict, inputs: "MethodInputs") -> RunResult:
 
 
 def _sequence_kwargs(params: dict) -> dict:
-    kwargs = {"window": params["window"]}
+    kwargs = {"window": params["window"], "velocities": tuple(params["velocities"])}
     if params["window"] == "adaptive":
         kwargs.update({k: params[k] for k in _WINDOW_ADAPTIVE})
     return kwargs
@@ -253,7 +281,8 @@ def _sequence(params: dict, inputs: "MethodInputs") -> RunResult:
         raise InvalidParameterError(f"{what} = {shortest} frames is longer than the query ({n_query} frames); "
                                     f"choose at most {n_query}.")
     start = time.perf_counter()
-    res = match_sequences(inputs.differences, radius=params["exclusion"], **_sequence_kwargs(params))
+    hubs = inputs.hub_offsets() if params["hub_correction"] else None
+    res = match_sequences(inputs.differences, radius=params["exclusion"], hub_offsets=hubs, **_sequence_kwargs(params))
     name = "adaptive" if params["window"] == "adaptive" else f"sequence-L{params['window']}"
     return RunResult(name, dict(params), inputs.query.index, res.match, res.confidence,
                      extra={"window_length": res.window_length}, seconds=time.perf_counter() - start)
@@ -353,7 +382,8 @@ def observation_model(params: dict, n_places: int, bootstrap_samples: Callable[[
     def sequence(default_window) -> SequenceObservation:
         window = params.get("window") or default_window
         matcher = {k: params[k] for k in _WINDOW_ADAPTIVE} if window == "adaptive" else {}
-        return SequenceObservation(window=window, matcher_params=matcher)
+        # the observation reads the forward diagonal's scores, so the matcher searches that line only
+        return SequenceObservation(window=window, matcher_params={**matcher, "velocities": (1.0,)})
 
     if model == "tempered":
         return TemperedObservation()
@@ -484,8 +514,8 @@ def _histogram_method_params() -> tuple[Param, ...]:
 def _registry() -> dict[str, Method]:
     return {m.name: m for m in (
         Method("single-frame", "nearest reference place per frame", (_EXCLUSION,), _single_frame),
-        Method("sequence", "SeqSLAM sequence matching, fixed or adaptive window",
-               (*_sequence_params(50), _EXCLUSION), _sequence, _not_adaptive),
+        Method("sequence", "SeqSLAM sequence matching, fixed or adaptive window, with velocity search",
+               (*_sequence_params(50), *_velocity_params(), _EXCLUSION), _sequence, _not_adaptive),
         Method("histogram", "single-frame recognition with the histogram model P(d|L), P(d|¬L)",
                _histogram_method_params(), _histogram, _histogram_not_applicable),
         Method("filter", "CAT-Graph particle filter on the place graph", _filter_params(), _filter,

@@ -57,3 +57,20 @@ def test_typed_errors():
         apply_hub_offsets(np.zeros((2, 5)), np.zeros(4))
     with pytest.raises(CatgraphError, match="threshold"):
         hub_offsets(np.zeros((4, 4)), threshold=-1.0)
+
+
+def test_map_hub_offsets_from_a_sample_of_rows_find_the_same_hubs():
+    from catgraph.hubs import map_hub_offsets
+    from catgraph.io import build_map
+    from catgraph.traverse import Traverse
+
+    rng = np.random.default_rng(4)
+    frames = rng.normal(size=(400, 16)).astype(np.float32)
+    frames[[30, 31, 200]] = 0.05 * rng.normal(size=(3, 16))  # nearly flat: close to everything (SAD)
+    from catgraph.pipeline import FrontEnd
+
+    m = build_map(Traverse(frames), FrontEnd(metric="sad"), graph=False)
+    full = map_hub_offsets(m)
+    sampled = map_hub_offsets(m, max_rows=150)
+    assert set(np.flatnonzero(full)) == {30, 31, 200}
+    assert set(np.flatnonzero(sampled)) == {30, 31, 200}

@@ -89,7 +89,14 @@ def _segment_range(text: str) -> tuple[float, float]:
     return lo, hi
 
 
-_TYPES = {"int": _number(int), "float": _number(float), "window": _window, "grid": _grid}
+def _floats(text: str) -> list[float]:
+    try:
+        return [float(v) for v in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected numbers separated by commas such as -1,1,2; got {text!r}") from None
+
+
+_TYPES = {"int": _number(int), "float": _number(float), "window": _window, "grid": _grid, "floats": _floats}
 
 
 def add_method_options(p: argparse.ArgumentParser, methods: tuple[str, ...], skip: tuple[str, ...] = ()) -> None:
