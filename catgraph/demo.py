@@ -53,7 +53,8 @@ def run_demo(out_dir: str | Path = "catgraph-demo", seed: int = 0, n_particles: 
     log(f"map: {graph!r}")
 
     plan = [("single-frame", {}), ("sequence", {"window": "adaptive"})]
-    plan += [("filter", {"model": model, "n_particles": n_particles, "seed": seed}) for model in ("histogram", "combined")]
+    plan += [("filter", {"model": model, "n_particles": n_particles, "seed": seed})
+             for model in ("tempered", "histogram", "combined")]
     payloads = []
     for method, params in plan:
         result = run_method(method, params, prepared, progress=progress and method == "filter")

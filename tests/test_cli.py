@@ -166,7 +166,7 @@ def test_demo_writes_a_report(tmp_path, capsys):
     html = (tmp_path / "demo" / "index.html").read_text()
     assert html.count("data:image/png;base64") >= 5
     assert (tmp_path / "demo" / "results.md").exists()
-    assert len(list((tmp_path / "demo").glob("*.json"))) == 4
+    assert len(list((tmp_path / "demo").glob("*.json"))) == 5
 
 
 def test_histogram_same_place_by_position(tmp_path, image_pair, capsys):
