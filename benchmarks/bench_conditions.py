@@ -45,7 +45,7 @@ METHODS = {
     "adaptive": ("sequence", {"window": "adaptive"}),
     "histogram (online)": ("histogram", {}),
     "filter (default)": ("filter", {}),
-    "grid filter": ("filter", {"mode": "grid"}),
+    "particle filter": ("filter", {"mode": "particles"}),
     "filter + histogram": ("filter", {"model": "histogram"}),
     "filter + combined": ("filter", {"model": "combined"}),
 }

@@ -103,7 +103,7 @@ def _figures(world, diff, graph, payloads, seed, n_particles):
 
     figures = []
     adaptive = next(p for p in payloads if p["method"] == "adaptive")
-    filt = next(p for p in payloads if p["method"] == "particle-filter/histogram")
+    filt = next(p for p in payloads if p["method"] == "grid-filter/histogram")
     query, reference = world.query, world.reference
 
     fig = Figure(figsize=(9, 4.5), layout="constrained")

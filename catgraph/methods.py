@@ -25,9 +25,10 @@ Methods
 ``filter``
     A Bayes filter on the map's place graph with observation ``model`` (see
     :data:`FILTER_MODELS`; default ``tempered``, the hub-corrected whole-image evidence
-    tempered by the filter's own answers): the CAT-Graph particle filter
-    (``mode="particles"``, signed-velocity motion by default) or the exact grid filter
-    over (place, velocity) (``mode="grid"``). The observation model's options
+    tempered by the filter's own answers): the exact grid filter over (place, velocity)
+    (``mode="grid"``) or the CAT-Graph particle filter (``mode="particles"``,
+    signed-velocity motion by default); ``mode="auto"`` (default) takes the grid up to
+    :data:`GRID_MAX_PLACES` places and particles above. The observation model's options
     (``window``, ``approximation``, ``n_init`` …) are parameters of the filter method,
     so a sweep can vary them.
 
@@ -399,6 +400,15 @@ def observation_model(params: dict, n_places: int, bootstrap_samples: Callable[[
 
 
 _PARTICLE_KEYS = ("n_particles", "resampler", "ess_threshold", "redraw_fraction", "proposal")
+#: ``mode="auto"`` runs the exact grid filter on maps up to this many places
+GRID_MAX_PLACES = 100_000
+
+
+def filter_mode(params: dict, n_places: int) -> str:
+    """``"grid"`` or ``"particles"``: what ``mode`` means on a map of ``n_places``."""
+    if params["mode"] != "auto":
+        return params["mode"]
+    return "grid" if n_places <= GRID_MAX_PLACES else "particles"
 
 
 def make_filter(params: dict, graph, model):
@@ -407,7 +417,7 @@ def make_filter(params: dict, graph, model):
     common = {k: params[k] for k in ("seed", "confidence_radius", "confidence_radius_m") if k in params}
     if params.get("new_place_prior") is not None:
         common["new_place_prior"] = params["new_place_prior"]
-    if params["mode"] == "grid":
+    if filter_mode(params, graph.n_places) == "grid":
         from .grid import GridLocalizer
 
         common.pop("seed", None)
@@ -425,10 +435,11 @@ def _filter(params: dict, inputs: "MethodInputs") -> RunResult:
     loc = make_filter(params, graph, obs)
     odometry = inputs.query.odometry if params["use_odometry"] and graph.unit == "m" else None
     start = time.perf_counter()
-    kwargs = {"progress": inputs.progress} if params["mode"] == "particles" else {}
+    mode = filter_mode(params, graph.n_places)
+    kwargs = {"progress": inputs.progress} if mode == "particles" else {}
     res = loc.run(inputs.differences, odometry=odometry, query_index=inputs.query.index, **kwargs)
     seconds = time.perf_counter() - start
-    name = "grid-filter" if params["mode"] == "grid" else "particle-filter"
+    name = "grid-filter" if mode == "grid" else "particle-filter"
     return RunResult(f"{name}/{params['model']}", dict(params), inputs.query.index, res.place, res.score,
                      extra={"posterior_mass": res.confidence, "log_odds": res.log_odds,
                             "p_new_place": res.new_place_probability, "ess": res.ess}, seconds=seconds)
@@ -439,7 +450,7 @@ def _filter_not_applicable(params: dict) -> dict[str, str]:
     out: dict[str, str] = {}
     sequence_models = ("sequence", "adaptive", "combined")
     histogram_models = ("histogram", "histogram-bootstrap", "combined")
-    if params["mode"] == "grid":
+    if params["mode"] == "grid":  # "auto" keeps them: they apply where it chooses particles
         for k in (*_PARTICLE_KEYS, "motion", "seed"):
             out[k] = "the grid filter has no particles (it is exact); use mode 'particles'"
     if model not in sequence_models:
@@ -475,8 +486,9 @@ def _filter_params() -> tuple[Param, ...]:
     hist = {p.name: p for p in _histogram_params()}
     return (
         Param("model", "str", "tempered", "observation model", choices=FILTER_MODELS),
-        Param("mode", "str", "particles", "'particles': the CAT-Graph particle filter; 'grid': the exact Bayes "
-              "filter over (place, velocity), for maps up to ~10^5 places", choices=("particles", "grid")),
+        Param("mode", "str", "auto", "'grid': the exact Bayes filter over (place, velocity); 'particles': the "
+              "CAT-Graph particle filter; 'auto': the grid up to 100,000 places, particles above",
+              choices=("auto", "grid", "particles")),
         Param("motion", "str", "velocity", "particle motion: 'velocity' (a signed velocity per particle, driven "
               "forwards or backwards at 0.5-3 places per frame) or 'frame' (one frame per step, odometry where "
               "given)", choices=("velocity", "frame")),

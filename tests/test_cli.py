@@ -134,11 +134,11 @@ def test_localize_and_compare_on_the_synthetic_world(tmp_path, capsys):
     assert p_new.shape == (len(world.query),) and np.all((p_new >= 0) & (p_new <= 1))
     assert main(["compare", "synthetic:3", "synthetic:3", "--particles", "200", "-o", str(tmp_path / "c.json")]) == 0
     table = capsys.readouterr().out
-    for name in ("single-frame", "adaptive", "particle-filter/histogram", "particle-filter/combined", "ms/frame"):
+    for name in ("single-frame", "adaptive", "grid-filter/histogram", "grid-filter/combined", "ms/frame"):
         assert name in table
     assert len(json.loads((tmp_path / "c.json").read_text())["runs"]) == 10
     assert main(["report", str(tmp_path / "c.json"), "--out", str(tmp_path / "rep"), "-q"]) == 0
-    assert (tmp_path / "rep" / "results.md").read_text().count("particle-filter/") == 6
+    assert (tmp_path / "rep" / "results.md").read_text().count("grid-filter/") == 6
 
 
 def test_saved_map_gives_the_same_result_as_the_reference(image_pair, tmp_path):
@@ -162,7 +162,7 @@ def test_map_with_two_inputs_is_a_clear_error(image_pair, tmp_path, capsys):
 def test_demo_writes_a_report(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path / "demo"), "--particles", "500"]) == 0
     out = capsys.readouterr().out
-    assert "particle-filter/histogram" in out and "adaptive" in out
+    assert "grid-filter/tempered" in out and "adaptive" in out
     html = (tmp_path / "demo" / "index.html").read_text()
     assert html.count("data:image/png;base64") >= 5
     assert (tmp_path / "demo" / "results.md").exists()
