@@ -255,6 +255,10 @@ class LocalizationResult:
         return self.place
 
 
+#: Where re-drawn particles go (see the module docstring).
+PROPOSALS = ("best", "uniform")
+
+
 class Localizer:
     """CAT-Graph particle filter over a place graph.
 
@@ -339,7 +343,7 @@ class Localizer:
                 f"The 'confidence_score' parameter of {owner} must be 'joint' or 'posterior'. "
                 f"Got {self.confidence_score!r} instead."
             )
-        if self.proposal not in ("best", "uniform"):
+        if self.proposal not in PROPOSALS:
             raise InvalidParameterError(f"The 'proposal' parameter of {owner} must be 'best' or 'uniform'. Got {self.proposal!r} instead.")
         if self.confidence_radius_m is not None:
             check_scalar(self.confidence_radius_m, "confidence_radius_m", owner, float, 0.0)

@@ -59,7 +59,6 @@ __all__ = ["Param", "Method", "METHODS", "FILTER_MODELS", "get_method", "resolve
 #: Observation models of the particle filter.
 FILTER_MODELS = ("tempered", "histogram", "histogram-bootstrap", "sequence", "adaptive", "combined")
 _LEARNING = ("online", "bootstrap", "trained")
-_PROPOSALS = ("best", "uniform")  # TODO-move: the localizer's
 
 
 # ---------------------------------------------------------------------------- parameters
@@ -478,6 +477,7 @@ def _filter_not_applicable(params: dict) -> dict[str, str]:
 
 
 def _filter_params() -> tuple[Param, ...]:
+    from .localizer import PROPOSALS
     from .particles import RESAMPLERS
 
     seq = {p.name: p for p in _sequence_params(None, window_optional=True)}
@@ -503,7 +503,7 @@ def _filter_params() -> tuple[Param, ...]:
         Param("ess_threshold", "float", 0.5, "resample when ESS < this fraction of the particles", low=0.0, high=1.0),
         Param("redraw_fraction", "float", 0.02, "fraction of particles re-drawn from the proposal each step",
               low=0.0, high=0.99),
-        Param("proposal", "str", "best", "where re-drawn particles go", choices=_PROPOSALS),
+        Param("proposal", "str", PROPOSALS[0], "where re-drawn particles go", choices=PROPOSALS),
         Param("new_place_prior", "float", None, "per-step probability of entering unmapped space (default: 0.05 "
               "for particles, 0 for the grid)", low=0.0, high=0.99, optional=True),
         *seq.values(),
