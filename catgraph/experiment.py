@@ -426,9 +426,3 @@ def run(exp: Experiment, progress: bool = False) -> tuple[RunResult, dict, "Eval
 def run_experiment(spec: dict[str, Any]) -> dict[str, Any]:
     """Run one plain-data spec (:meth:`Experiment.from_spec`) and return its payload (for sweeps)."""
     return run(Experiment.from_spec(spec))[1]
-
-
-def default_tolerance_m(source: str | Path) -> float | None:
-    """The synthetic world's own ground-truth tolerance (metres); ``None`` for other sources."""
-    seed = _synthetic_seed(str(source))
-    return None if seed is None else synthetic_world(seed).tolerance_m
