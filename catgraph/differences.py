@@ -26,6 +26,30 @@ compute-bound at twice the float64 rate; the streaming row is memory-bound eithe
 The kernel runs in parallel over blocks of reference places, so one live frame uses
 every core.
 
+Compact layout
+--------------
+A live difference row reads the whole map once per frame, so its floor is the map's
+size divided by the memory bandwidth. ``PreparedReference(..., layout="uint8")`` stores
+one byte per value instead of four: each value ``x`` becomes the code
+``c = round((x − lo) / s)`` in ``0 … 255`` with ``lo, hi`` the reference's smallest
+and largest value and ``s = (hi − lo) / 255`` (``s = 1``, ``lo`` the minimum, when
+the values are integers spanning at most 255 — Wi-Fi strengths in whole dB, bits —
+and then the codes are the values themselves: no error at all). Query values use the
+same ``lo, s``, clipped to ``[lo, hi]``. The kernel sums integer code differences
+exactly (64-bit integers; the result is ``s · Σ|c_q − c_r|`` for SAD and
+``s² · Σ (c_q − c_r)²`` for SSD), so every path — row, block, matrix, bootstrap —
+agrees bit for bit with the slow reference computed on the codes, on any machine.
+Against the float differences of the original values (``e_k = s/2 + s/2`` from the
+two roundings, plus ``δ_k``, the distance of a query value outside ``[lo, hi]`` to
+that range):
+
+* SAD: ``|D_uint8 − D| ≤ Σ_k (s + δ_k)`` (:meth:`PreparedReference.quantisation_bound`);
+* SSD: ``|D_uint8 − D| ≤ Σ_k (2 |q_k − r_k| (s + δ_k) + (s + δ_k)²)``;
+* Hamming: exact (bits are codes 0 and 1).
+
+Cosine keeps the float32 layout (its norms do not survive an offset code). The
+per-query normalisation divides the common factor ``s`` out again.
+
 Per-query normalisation
 -----------------------
 :func:`normalise_rows` is paper 1's ``d_ij = (|Q_i − R_j| − μ_i) / σ_i`` with ``μ_i, σ_i``
@@ -70,6 +94,7 @@ from ._validation import check_scalar
 from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 
 __all__ = [
+    "LAYOUTS",
     "METRICS",
     "PreparedReference",
     "difference_matrix",
@@ -79,6 +104,8 @@ __all__ = [
 ]
 
 METRICS = ("sad", "ssd", "cosine", "hamming")
+#: Memory layouts of a :class:`PreparedReference` (see "Compact layout" above).
+LAYOUTS = ("float32", "uint8")
 
 #: float64 values of scratch per block when the query block size is chosen automatically.
 _BLOCK_VALUES = 1 << 22
@@ -107,16 +134,21 @@ def _threads_available() -> int:
         return os.cpu_count() or 1
 
 
-def _pair_block(q: np.ndarray, r: np.ndarray, code: int, out: np.ndarray) -> None:
+def _pair_block(q: np.ndarray, r: np.ndarray, code: int, out: np.ndarray, step: float | None = None) -> None:
     """The pair kernel over disjoint place ranges, on as many threads as the work is
-    worth (the result is the same on any number)."""
+    worth (the result is the same on any number). ``step`` given: the compact
+    (``uint8`` codes) kernel, whose sums are multiplied by ``step``."""
     global _POOL
     k = _kernels()
     n = r.shape[0]
     threads = int(max(1, min(_threads_available(), (q.shape[0] * n * r.shape[1]) // WORK_PER_THREAD,
                              -(-n // k.PLACE_BLOCK))))
+    if step is None:
+        kernel, extra = k.pair_block, (code,)
+    else:
+        kernel, extra = k.pair_block_codes, (code, float(step))
     if threads == 1:
-        k.pair_block(q, r, 0, n, code, out)
+        kernel(q, r, 0, n, *extra, out)
         return
     if _POOL is None or _POOL._max_workers < threads:
         from concurrent.futures import ThreadPoolExecutor
@@ -124,7 +156,7 @@ def _pair_block(q: np.ndarray, r: np.ndarray, code: int, out: np.ndarray) -> Non
         _POOL = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="catgraph-differences")
     blocks = -(-n // k.PLACE_BLOCK)
     edges = [min(n, (blocks * t // threads) * k.PLACE_BLOCK) for t in range(threads + 1)]
-    jobs = [_POOL.submit(k.pair_block, q, r, lo, hi, code, out) for lo, hi in zip(edges[:-1], edges[1:])]
+    jobs = [_POOL.submit(kernel, q, r, lo, hi, *extra, out) for lo, hi in zip(edges[:-1], edges[1:])]
     for job in jobs:
         job.result()
 
@@ -145,8 +177,11 @@ def _check_finite(x: np.ndarray, name: str, rows: int = 65536) -> None:
             )
 
 
-def _as_descriptors(x, name: str, metric: str, single: bool = False) -> np.ndarray:
-    """``(n, d)`` float32 C-contiguous descriptors (bits as 0/1), validated."""
+def _as_descriptors(x, name: str, metric: str, single: bool = False, convert: bool = True) -> np.ndarray:
+    """``(n, d)`` float32 C-contiguous descriptors (bits as 0/1), validated.
+
+    ``convert=False``: validated only, in the caller's dtype (bits still unpacked to
+    ``uint8`` 0/1), for the compact layout, which converts in row chunks."""
     try:
         arr = np.asarray(x)
     except (TypeError, ValueError) as exc:
@@ -170,13 +205,21 @@ def _as_descriptors(x, name: str, metric: str, single: bool = False) -> np.ndarr
     if arr.ndim > 2:
         arr = arr.reshape(arr.shape[0], -1)  # (n, h, w) frames: flattened per frame
     if metric == "hamming":
+        bits_dtype = np.float32 if convert else np.uint8
         if arr.dtype == bool:
-            return np.ascontiguousarray(arr, dtype=np.float32)
+            return np.ascontiguousarray(arr, dtype=bits_dtype)
         if arr.dtype == np.uint8:
-            return np.ascontiguousarray(np.unpackbits(arr, axis=1), dtype=np.float32)
+            return np.ascontiguousarray(np.unpackbits(arr, axis=1), dtype=bits_dtype)
         raise DataError(f"the hamming metric needs boolean or packed uint8 {name}; got dtype {arr.dtype}.")
     if arr.dtype.kind == "f":
         _check_finite(arr, name)
+    if not convert:
+        if arr.dtype.kind == "f":
+            with np.errstate(over="ignore"):
+                big = max(abs(float(np.min(arr))), abs(float(np.max(arr))))
+            if big > float(np.finfo(np.float32).max):
+                raise DataError(f"{name} hold values too large for float32 (|x| > 3.4e38); rescale them.")
+        return arr
     with np.errstate(over="ignore"):
         out = np.ascontiguousarray(arr, dtype=np.float32)
     if arr.dtype.kind == "f" and arr.dtype != np.float32:
@@ -212,16 +255,34 @@ class PreparedReference:
     [0.0, 2.0, 2.0]
     """
 
-    def __init__(self, descriptors, metric: str = "sad") -> None:
+    def __init__(self, descriptors, metric: str = "sad", layout: str = "float32") -> None:
         if metric not in METRICS:
             raise InvalidParameterError(
                 f"Unknown difference metric {metric!r}; choose one of {', '.join(METRICS)}."
             )
+        if layout not in LAYOUTS:
+            raise InvalidParameterError(
+                f"The 'layout' parameter of PreparedReference must be one of {LAYOUTS}. Got {layout!r} instead."
+            )
+        if layout == "uint8" and metric == "cosine":
+            raise InvalidParameterError(
+                "the uint8 layout serves the sad, ssd and hamming metrics; cosine needs layout='float32' (its norms "
+                "do not survive an offset code)."
+            )
         self.metric = metric
-        self.descriptors = _as_descriptors(descriptors, "reference descriptors", metric)
+        self.layout = layout
         self.norms = None
-        if metric == "cosine":
-            self.norms = self._self_norms(self.descriptors)
+        self.offset, self.step = 0.0, None
+        if layout == "float32":
+            self.descriptors = _as_descriptors(descriptors, "reference descriptors", metric)
+            if metric == "cosine":
+                self.norms = self._self_norms(self.descriptors)
+            return
+        raw = _as_descriptors(descriptors, "reference descriptors", metric, convert=False)
+        self.offset, self.step = _code_scale(raw, metric)
+        self.descriptors = np.empty(raw.shape, dtype=np.uint8)
+        for start in range(0, raw.shape[0], _CODE_ROWS):
+            _encode(raw[start : start + _CODE_ROWS], self.offset, self.step, self.descriptors[start : start + _CODE_ROWS])
 
     @staticmethod
     def _self_norms(x: np.ndarray) -> np.ndarray:
@@ -246,18 +307,51 @@ class PreparedReference:
         return int(self.descriptors.nbytes + (0 if self.norms is None else self.norms.nbytes))
 
     def prepare_query(self, descriptors, single: bool = False) -> np.ndarray:
-        """Query descriptors validated and laid out like the reference, ``(m, d)`` float32."""
-        q = _as_descriptors(descriptors, "query descriptor" if single else "query descriptors", self.metric, single)
+        """Query descriptors validated and laid out like the reference, ``(m, d)``
+        (float32, or ``uint8`` codes with the reference's ``offset`` and ``step``)."""
+        name = "query descriptor" if single else "query descriptors"
+        q = _as_descriptors(descriptors, name, self.metric, single, convert=self.layout == "float32")
         if q.shape[1] != self.dim:
             raise ShapeMismatchError(
                 f"query descriptors have {q.shape[1]} values per frame but reference descriptors have {self.dim}; "
                 "use the same front-end (and image size) for both traverses."
             )
+        if self.layout == "uint8":
+            codes = np.empty(q.shape, dtype=np.uint8)
+            _encode(q, self.offset, self.step, codes)
+            return codes
         return q
+
+    def decode(self, codes: np.ndarray) -> np.ndarray:
+        """The values that ``uint8`` codes stand for, ``offset + step · codes`` (float64)."""
+        if self.layout != "uint8":
+            raise InvalidParameterError("decode applies to the uint8 layout; this reference is float32.")
+        return self.offset + self.step * np.asarray(codes, dtype=np.float64)
+
+    def quantisation_bound(self, descriptor) -> float:
+        """Largest possible ``|D_uint8 − D|`` of one query descriptor's raw SAD row.
+
+        ``D`` is the SAD of the original values (exact arithmetic), ``D_uint8`` what this
+        reference computes: ``Σ_k (step + δ_k)``, ``δ_k`` the distance of query value
+        ``k`` outside the reference's range (see the module docstring). 0 for the
+        float32 layout's quantisation (it has none) and for Hamming.
+        """
+        if self.layout == "float32" or self.metric == "hamming":
+            return 0.0
+        if self.metric != "sad":
+            raise InvalidParameterError("quantisation_bound is stated for SAD rows; the SSD bound depends on "
+                                        "each pair (see the module docstring).")
+        q = _as_descriptors(descriptor, "query descriptor", self.metric, True, convert=False).astype(np.float64)
+        hi = self.offset + 255 * self.step
+        outside = np.maximum(self.offset - q, 0.0) + np.maximum(q - hi, 0.0)
+        return float(q.shape[1] * self.step + outside.sum())
 
     def _raw(self, q: np.ndarray, out: np.ndarray) -> np.ndarray:
         k = _kernels()
-        if self.metric in ("sad", "hamming"):
+        if self.layout == "uint8":
+            code = k.SSD if self.metric == "ssd" else k.SAD
+            _pair_block(q, self.descriptors, code, out, self.step ** 2 if self.metric == "ssd" else self.step)
+        elif self.metric in ("sad", "hamming"):
             _pair_block(q, self.descriptors, k.SAD, out)
         elif self.metric == "ssd":
             _pair_block(q, self.descriptors, k.SSD, out)
@@ -315,7 +409,39 @@ class PreparedReference:
         return out
 
     def __repr__(self) -> str:
-        return f"PreparedReference(n_places={self.n_places}, dim={self.dim}, metric={self.metric!r})"
+        return (f"PreparedReference(n_places={self.n_places}, dim={self.dim}, metric={self.metric!r}, "
+                f"layout={self.layout!r})")
+
+
+#: Rows encoded at once by the compact layout (bounds the float scratch memory).
+_CODE_ROWS = 8192
+
+
+def _code_scale(x: np.ndarray, metric: str) -> tuple[float, float]:
+    """``(offset, step)`` of the uint8 codes for reference values ``x``."""
+    if metric == "hamming":
+        return 0.0, 1.0
+    lo = hi = None
+    integral = True
+    for start in range(0, x.shape[0], _CODE_ROWS):
+        part = x[start : start + _CODE_ROWS]
+        p_lo, p_hi = float(part.min()), float(part.max())
+        lo = p_lo if lo is None else min(lo, p_lo)
+        hi = p_hi if hi is None else max(hi, p_hi)
+        if integral and part.dtype.kind == "f":
+            integral = bool(np.all(part == np.round(part)))
+    if integral and hi - lo <= 255:
+        return lo, 1.0
+    return lo, (hi - lo) / 255.0 if hi > lo else 1.0
+
+
+def _encode(x: np.ndarray, offset: float, step: float, out: np.ndarray) -> None:
+    """``out = clip(round((x − offset) / step), 0, 255)`` as uint8 (in row chunks)."""
+    for start in range(0, x.shape[0], _CODE_ROWS):
+        part = np.asarray(x[start : start + _CODE_ROWS], dtype=np.float64)
+        codes = np.rint((part - offset) / step)
+        np.clip(codes, 0, 255, out=codes)
+        out[start : start + _CODE_ROWS] = codes
 
 
 def _prepared(reference, metric: str) -> PreparedReference:

@@ -41,7 +41,7 @@ run at ``N = 10⁵`` and beyond.
 
 Memory of one step
 ------------------
-The map (``N × d`` float32), one float64 difference row, and what the models hold: the
+The map (``N × d`` float32, or ``N × d`` bytes with ``layout="uint8"``), one float64 difference row, and what the models hold: the
 filter ``O(n_particles + N)``, the sequence matcher its ring buffer of
 ``l_max + 1`` prefix-sum rows (``8 · N · (l_max + 1)`` bytes while it is float64),
 the histogram models ``O(N)``.
@@ -254,6 +254,13 @@ class LiveMap:
         Only with a traverse.
     not_detected : float
         Wi-Fi code for "not seen" in the live scans.
+    layout : {"float32", "uint8"}
+        How the reference is held for the difference kernels
+        (:class:`~catgraph.differences.PreparedReference`): ``"uint8"`` reads a quarter
+        of the bytes per frame (values coded to 256 levels of the map's range; exact for
+        Wi-Fi strengths and bits, within a stated bound otherwise — see
+        :mod:`catgraph.differences`); ``"float32"`` (default) gives the batch commands'
+        differences bit for bit. Cosine maps keep float32.
 
     Attributes
     ----------
@@ -270,7 +277,7 @@ class LiveMap:
     """
 
     def __init__(self, source, frontend=None, junction_radius_m: float | None = None,
-                 not_detected: float = 100.0) -> None:
+                 not_detected: float = 100.0, layout: str = "float32") -> None:
         from .io import CatgraphMap, build_map
         from .pipeline import FrontEnd
         from .traverse import Traverse
@@ -298,7 +305,7 @@ class LiveMap:
         self.positions = source.positions
         self.name = source.name
         self.not_detected = float(not_detected)
-        self.reference = PreparedReference(source.descriptors, self.metric)
+        self.reference = PreparedReference(source.descriptors, self.metric, layout=layout)
 
     @property
     def n_places(self) -> int:
@@ -322,7 +329,7 @@ class LiveMap:
 
     def __repr__(self) -> str:
         return (f"LiveMap(name={self.name!r}, n_places={self.n_places}, kind={self.kind!r}, metric={self.metric!r}, "
-                f"frontend={self.frontend})")
+                f"layout={self.reference.layout!r}, frontend={self.frontend})")
 
 
 # ---------------------------------------------------------------------------------------

@@ -176,3 +176,74 @@ def test_complex_rows_and_empty_frames_are_refused_with_a_reason():
             difference_matrix(np.ones((2, 3)), np.zeros((0, 0, 0)))
         with pytest.raises(DataError, match="empty"):
             difference_row(np.ones(3), np.zeros((0, 0, 0)))
+
+
+# ---------------------------------------------------------------------------------------
+# the compact (uint8) layout
+
+
+def _slow_codes(ref, q, metric):
+    """Obviously correct: integer sums of code differences, times the step."""
+    qc = ref.prepare_query(q).astype(np.int64)
+    diff = qc[:, None, :] - ref.descriptors.astype(np.int64)[None]
+    if metric == "ssd":
+        return (diff**2).sum(-1) * ref.step**2
+    return np.abs(diff).sum(-1) * ref.step
+
+
+@pytest.mark.parametrize("metric", ["sad", "ssd", "hamming"])
+def test_uint8_layout_equals_slow_integer_reference_on_every_path(metric, rng):
+    if metric == "hamming":
+        q, r = rng.random((7, 40)) > 0.5, rng.random((900, 40)) > 0.5
+    else:
+        q = (rng.normal(size=(7, 33)) * 1.5).astype(np.float32)  # some values outside the map's range
+        r = rng.normal(size=(900, 33)).astype(np.float32)
+    ref = PreparedReference(r, metric, layout="uint8")
+    assert ref.descriptors.dtype == np.uint8 and ref.descriptors.nbytes == r.shape[0] * ref.dim
+    slow = _slow_codes(ref, q, metric)
+    assert np.array_equal(ref.block(q), slow)
+    assert np.array_equal(difference_matrix(q, ref, metric, block_rows=3), slow)
+    for i in range(len(q)):
+        assert np.array_equal(ref.row(q[i]), slow[i])
+        assert np.array_equal(ref.row(q[i], normalise=True), normalise_rows(slow[i]))
+
+
+def test_uint8_sad_within_stated_bound_of_float_differences(rng):
+    q = (rng.normal(size=(6, 50)) * 2.0).astype(np.float32)
+    r = rng.normal(size=(400, 50)).astype(np.float32)
+    ref = PreparedReference(r, "sad", layout="uint8")
+    exact = _slow(q, r, "sad")
+    got = ref.block(q)
+    for i in range(len(q)):
+        bound = ref.quantisation_bound(q[i])
+        err = np.abs(got[i] - exact[i])
+        assert err.max() <= bound + 1e-9
+        # the bound is not vacuous: it is within a small factor of the worst error seen
+        assert bound < 50 * max(err.max(), ref.step)
+    # values outside the range widen the bound by exactly their distance to it
+    inside = ref.quantisation_bound(np.zeros(50))
+    outside = np.zeros(50)
+    outside[0] = ref.offset + 255 * ref.step + 3.0
+    assert ref.quantisation_bound(outside) == pytest.approx(inside + 3.0)
+
+
+def test_uint8_layout_is_exact_for_integer_values(rng):
+    # Wi-Fi strengths in whole dB: the codes are the values themselves
+    r = rng.integers(0, 106, size=(300, 20)).astype(np.float32)
+    q = rng.integers(0, 106, size=(4, 20)).astype(np.float32)
+    ref = PreparedReference(r, "sad", layout="uint8")
+    assert ref.step == 1.0 and ref.quantisation_bound(q[0]) == 20.0 * ref.step
+    assert np.array_equal(ref.block(q), _slow(q, r, "sad"))
+    assert np.array_equal(ref.decode(ref.descriptors), r.astype(np.float64))
+
+
+def test_uint8_layout_refusals(rng):
+    r = rng.normal(size=(50, 8)).astype(np.float32)
+    with pytest.raises(InvalidParameterError, match="cosine needs layout='float32'"):
+        PreparedReference(r, "cosine", layout="uint8")
+    with pytest.raises(InvalidParameterError, match="'layout' parameter"):
+        PreparedReference(r, "sad", layout="int4")
+    with pytest.raises(DataError, match="NaN or infinite"):
+        PreparedReference(np.full((3, 2), np.nan), "sad", layout="uint8")
+    with pytest.raises(InvalidParameterError, match="float32"):
+        PreparedReference(r, "sad").decode(np.zeros(8, dtype=np.uint8))

@@ -120,6 +120,30 @@ def test_matcher_mode_equals_the_batch_sequence_method(world):
     assert np.isnan(got[0].new_place_probability)
 
 
+def test_uint8_live_map_equals_the_batch_matcher_on_its_own_differences(world):
+    from catgraph.differences import difference_matrix
+    from catgraph.methods import _sequence_kwargs
+    from catgraph.sequence import match_sequences
+
+    live_map = LiveMap(world.reference, layout="uint8")
+    assert live_map.reference.layout == "uint8" and "uint8" in repr(live_map)
+    live = LiveLocalizer(live_map, model="matcher", l_max=60)
+    got = [live.step(f) for f in world.query.frames[:60]]
+    q, _ = describe(world.query)
+    d = difference_matrix(q[:60], live_map.reference, live_map.metric, normalise=True)
+    # the codes' differences are those of the float map to within the stated bound
+    raw = difference_matrix(q[:5], live_map.reference, live_map.metric)
+    exact = np.abs(q[:5, None, :].astype(float) - live_map.map.descriptors[None].astype(float)).sum(-1)
+    for i in range(5):
+        assert np.abs(raw[i] - exact[i]).max() <= live_map.reference.quantisation_bound(q[i]) + 1e-9
+    p = live.params_
+    batch = match_sequences(d, radius=p["exclusion"], **_sequence_kwargs(p))
+    assert np.array_equal([g.place for g in got], batch.match)
+    # the combined filter runs on the compact map and its bootstrap
+    live = LiveLocalizer(live_map, model="combined", n_particles=100, seed=0)
+    assert 0 <= live.step(world.query.frames[0]).place < live_map.n_places
+
+
 def test_live_map_from_saved_map_and_bad_inputs(world, tmp_path):
     from catgraph.io import build_map, load_map, save_map
 
