@@ -319,6 +319,21 @@ class PlaceGraph:
         return cached
 
     @property
+    def hop_length(self) -> np.ndarray:
+        """``(E,)`` edge lengths in *places*: 1 for every edge, as the grid filter moves
+        its mass one place per hop (a junction edge included). Motion without odometry
+        counts places with these, whatever the metres between them: a metric route
+        surveyed several times at one point (Wi-Fi) has many zero-length chain edges,
+        and a query that advances one sample per frame advances one place, not one
+        mean spacing in metres."""
+        cached = self.__dict__.get("_hop_length")
+        if cached is None:
+            cached = np.ones(self.n_edges)
+            cached.setflags(write=False)
+            object.__setattr__(self, "_hop_length", cached)
+        return cached
+
+    @property
     def n_edges(self) -> int:
         """Number of directed edges ``E``."""
         return int(len(self.source))

@@ -8,9 +8,14 @@ cross several places. Two ways to get ``δ_i``:
   frame), with multiplicative and additive Gaussian noise:
   ``δ_i = max(0, u_k (1 + σ_rel ε₁) + σ_abs ε₂)``;
 * :class:`FrameMotion` — no odometry: the query is assumed to advance ``speed`` reference
-  frames per query frame, with velocity noise:
-  ``δ_i = s · max(0, speed + σ_v ε)`` where ``s`` is the graph's mean chain edge length
-  (1 on a frame graph).
+  frames per query frame, with velocity noise: ``δ_i = max(0, speed + σ_v ε)`` *places*.
+
+Without odometry a step is counted in places, on the graph's ``hop_length`` (1 per
+edge), never in metres: a reference sampled several times at one point (Wi-Fi surveys)
+has runs of zero-length chain edges, and a query advancing one sample per frame
+advances one place, which a mean spacing in metres would not give (it would jump
+every run of repeated samples at once and crawl along the long edges between them).
+With odometry the distance is in graph units along ``graph.length``.
 
 Branch choice at a node: never a U-turn onto the edge just travelled (its reverse); with
 probability ``straight_preference`` the route continuation (``graph.straight``), otherwise
@@ -28,10 +33,14 @@ stays valid and every fraction stays in ``[0, 1]``.
   version of :class:`~catgraph.grid.GridLocalizer`'s motion: each particle carries a
   signed velocity bin ``v_b`` (places per frame; ``v < 0`` drives the route
   backwards), which changes by the grid's sticky transition ``T``; it then travels
-  ``|v_b|`` frame spacings (or the odometry, when the frame has it) in the direction
-  ``sign(v_b)``, plus one spacing either way with probability ``blur`` each. Its
-  defaults are the grid filter's, so the particle filter converges to the grid filter
-  as particles grow (``tests/test_grid.py``).
+  ``⌊|v_b|⌋`` places, one more with probability ``|v_b| − ⌊|v_b|⌋`` (the grid's
+  fractional shift), or the odometry when the frame has it, in the direction
+  ``sign(v_b)``; then one place either way along the route with probability ``blur``
+  each (a route end keeps it). Without odometry particles therefore sit on places,
+  like the grid's point masses. Its defaults are the grid filter's, and one compiled
+  loop does the whole step, so the particle filter is a Monte Carlo version of the
+  grid filter's prediction and converges to it as particles grow
+  (``tests/test_localizer.py``).
 
 Randomness is explicit and bounded: per step, per particle, one normal (two for
 odometry) and one uniform ``u`` for all its branch choices. A choice among ``m`` options
@@ -42,8 +51,10 @@ O(n_particles · hops) in a compiled loop, hops bounded by ``max_hops``.
 
 from __future__ import annotations
 
-import numpy as np
+import math
+
 import numba
+import numpy as np
 
 from ._validation import check_scalar
 from .exceptions import DataError, InvalidParameterError
@@ -52,71 +63,128 @@ from .particles import ParticleSet
 __all__ = ["MotionModel", "OdometryMotion", "FrameMotion", "VelocityMotion", "advance"]
 
 
+@numba.njit(cache=True, inline="always")
+def _advance_one(e, f, d, u, length, target, out_ptr, reverse, straight, p_straight, reflect,
+                 max_hops):  # pragma: no cover - compiled
+    """Move one particle ``d`` along the graph from ``(e, f)``; returns ``(e, f, leftover, u)``
+    (``u``: the branch uniform, rescaled after each choice; see the module docstring)."""
+    hops = 0
+    while True:
+        ln = length[e]
+        left = (1.0 - f) * ln
+        if d < left:
+            f += d / ln
+            break
+        d -= left
+        f = 1.0
+        if hops >= max_hops:
+            break
+        v = target[e]
+        r = reverse[e]
+        start = out_ptr[v]
+        stop = out_ptr[v + 1]
+        n_fwd = stop - start
+        if r >= 0:
+            n_fwd -= 1
+        if n_fwd <= 0:
+            if reflect and r >= 0:
+                e = r
+                f = 0.0
+                hops += 1
+                continue
+            break
+        s = straight[e]
+        nxt = -1
+        if s >= 0 and p_straight > 0.0:
+            if u < p_straight:
+                u = u / p_straight
+                nxt = s
+            else:
+                u = (u - p_straight) / (1.0 - p_straight)
+        if nxt < 0:
+            k = int(u * n_fwd)
+            if k >= n_fwd:
+                k = n_fwd - 1
+            u = u * n_fwd - k
+            for c in range(start, stop):
+                if c == r:
+                    continue
+                if k == 0:
+                    nxt = c
+                    break
+                k -= 1
+        e = nxt
+        f = 0.0
+        hops += 1
+    f = min(max(f, 0.0), 1.0)
+    return e, f, (d if f >= 1.0 else 0.0), u
+
+
 @numba.njit(cache=True)
 def _advance_kernel(edge, fraction, distance, uniform, length, target, out_ptr, reverse, straight,
                     p_straight, reflect, max_hops, leftover):  # pragma: no cover - compiled
-    n = edge.shape[0]
-    for i in range(n):
+    for i in range(edge.shape[0]):
+        e, f, rest, _ = _advance_one(edge[i], fraction[i], distance[i], uniform[i], length, target, out_ptr,
+                                     reverse, straight, p_straight, reflect, max_hops)
+        edge[i] = e
+        fraction[i] = f
+        leftover[i] = rest
+
+
+@numba.njit(cache=True)
+def _velocity_kernel(edge, fraction, log_weight, velocity, uniform, speeds, cumulative, forwards, hop, metric,
+                     odometry, target, out_ptr, reverse, straight, p_straight, blur, max_hops,
+                     tolerance):  # pragma: no cover - compiled
+    """One :class:`VelocityMotion` step for every particle, in place (see its Notes).
+    ``uniform``: ``(5, n)`` — fresh bin, bin transition, fractional speed, branch, blur.
+    ``odometry < 0``: none (move ``|v|`` places on ``hop`` lengths)."""
+    nb = speeds.shape[0]
+    for i in range(edge.shape[0]):
+        b = velocity[i]
+        if b < 0:  # not drawn yet: the uniform velocity prior
+            b = min(int(uniform[0, i] * nb), nb - 1)
+        u = uniform[1, i]
+        k = 0
+        while k < nb - 1 and u > cumulative[b, k]:
+            k += 1
+        velocity[i] = k
+        v = speeds[k]
         e = edge[i]
         f = fraction[i]
-        d = distance[i]
-        u = uniform[i]
-        hops = 0
-        while True:
-            ln = length[e]
-            left = (1.0 - f) * ln
-            if d < left:
-                f += d / ln
-                break
-            d -= left
-            f = 1.0
-            if hops >= max_hops:
-                break
-            v = target[e]
-            r = reverse[e]
-            start = out_ptr[v]
-            stop = out_ptr[v + 1]
-            n_fwd = stop - start
-            if r >= 0:
-                n_fwd -= 1
-            if n_fwd <= 0:
-                if reflect and r >= 0:
-                    e = r
-                    f = 0.0
-                    hops += 1
-                    continue
-                break
-            s = straight[e]
-            nxt = -1
-            if s >= 0 and p_straight > 0.0:
-                if u < p_straight:
-                    u = u / p_straight
-                    nxt = s
-                else:
-                    u = (u - p_straight) / (1.0 - p_straight)
-            if nxt < 0:
-                k = int(u * n_fwd)
-                if k >= n_fwd:
-                    k = n_fwd - 1
-                u = u * n_fwd - k
-                for c in range(start, stop):
-                    if c == r:
-                        continue
-                    if k == 0:
-                        nxt = c
-                        break
-                    k -= 1
-            e = nxt
-            f = 0.0
-            hops += 1
+        if (v < 0.0) == forwards[e] and reverse[e] >= 0:  # face the velocity's direction
+            e = reverse[e]
+            f = 1.0 - f
+        if odometry < 0.0:
+            a = abs(v)
+            whole = math.floor(a)
+            d = whole + (1.0 if uniform[2, i] < a - whole else 0.0)
+            e, f, rest, u = _advance_one(e, f, d, uniform[3, i], hop, target, out_ptr, reverse, straight,
+                                         p_straight, False, max_hops)
+        else:
+            e, f, rest, u = _advance_one(e, f, odometry, uniform[3, i], metric, target, out_ptr, reverse, straight,
+                                         p_straight, False, max_hops)
+        if rest > tolerance:  # ran past the route's end: it leaves the map, as grid mass does
+            log_weight[i] = -np.inf
+        else:
+            c = uniform[4, i]
+            if c < 2.0 * blur:  # one place either way along the route; a route end keeps it
+                back = c >= blur
+                if not back or reverse[e] >= 0:
+                    if back:
+                        e = reverse[e]
+                        f = 1.0 - f
+                    e, f, rest, u = _advance_one(e, f, 1.0, u, hop, target, out_ptr, reverse, straight, 1.0, False,
+                                                 max_hops)
+                    if back and reverse[e] >= 0:
+                        e = reverse[e]
+                        f = 1.0 - f
         edge[i] = e
-        fraction[i] = min(max(f, 0.0), 1.0)
-        leftover[i] = d if f >= 1.0 else 0.0
+        fraction[i] = f
 
 
 def advance(particles: ParticleSet, graph, distance: np.ndarray, rng: np.random.Generator,
             straight_preference: float = 0.0, reverse_probability: float = 0.0,
-            dead_end: str = "reflect", max_hops: int = 256) -> np.ndarray:
+            dead_end: str = "reflect", max_hops: int = 256, lengths: np.ndarray | None = None) -> np.ndarray:
     """Move every particle ``distance[i]`` along the graph, in place.
 
     Parameters
@@ -131,6 +199,9 @@ def advance(particles: ParticleSet, graph, distance: np.ndarray, rng: np.random.
     dead_end : {"reflect", "stop"}
     max_hops : int
         Most places one particle may cross in one step (bounds the time of a step).
+    lengths : ndarray, shape (E,), optional
+        Edge lengths to travel ``distance`` on: ``graph.length`` (default; metres or
+        frames) or ``graph.hop_length`` (places).
 
     Returns
     -------
@@ -148,7 +219,7 @@ def advance(particles: ParticleSet, graph, distance: np.ndarray, rng: np.random.
     uniform = rng.random(n)
     leftover = np.empty(n)
     _advance_kernel(particles.edge, particles.fraction, np.ascontiguousarray(distance, dtype=np.float64), uniform,
-                    graph.length, graph.target, graph.out_ptr, graph.reverse, graph.straight,
+                    graph.length if lengths is None else lengths, graph.target, graph.out_ptr, graph.reverse, graph.straight,
                     float(straight_preference), dead_end == "reflect", int(max_hops), leftover)
     return leftover
 
@@ -196,15 +267,16 @@ class MotionModel:
             )
 
     def distances(self, n: int, graph, odometry: float | None, rng: np.random.Generator) -> np.ndarray:
-        """``(n,)`` distances for this step (graph units)."""
+        """``(n,)`` distances for this step: graph units with odometry, places without."""
         raise NotImplementedError
 
     def move(self, particles: ParticleSet, graph, rng: np.random.Generator, odometry: float | None = None) -> None:
         """Advance ``particles`` in place by one step."""
         self._check()
         d = self.distances(len(particles), graph, odometry, rng)
+        # without odometry the distance is in places (hop lengths); with it, in graph units
         advance(particles, graph, d, rng, self.straight_preference, self.reverse_probability,
-                self.dead_end, self.max_hops)
+                self.dead_end, self.max_hops, graph.hop_length if odometry is None else None)
 
 
 class OdometryMotion(MotionModel):
@@ -259,8 +331,7 @@ class FrameMotion(MotionModel):
         self.speed_noise = speed_noise
 
     def distances(self, n, graph, odometry, rng):
-        spacing = graph.frame_spacing
-        return spacing * np.maximum(0.0, self.speed + self.speed_noise * rng.standard_normal(n))
+        return np.maximum(0.0, self.speed + self.speed_noise * rng.standard_normal(n))
 
     def _validate_params(self) -> None:
         super()._validate_params()
@@ -292,9 +363,12 @@ class VelocityMotion(MotionModel):
     -----
     A particle's direction is its edge's: a bin whose sign disagrees with the edge
     (chain edges run forwards, reverse-chain edges backwards) first turns the particle
-    onto the reverse edge, at the same place. With odometry ``u`` the distance is ``u``
-    (the bins keep only their sign), as in the grid filter. A particle that would run
-    past a dead end gets weight 0 (the grid filter's mass leaves the map there).
+    onto the reverse edge, at the same place. Without odometry it travels ``|v_b|``
+    places (edges of ``graph.hop_length``), whatever their lengths in metres; with
+    odometry ``u`` the distance is ``u`` along the edge lengths (the bins keep only
+    their sign), as in the grid filter. A particle that would run past a dead end gets
+    weight 0 (the grid filter's mass leaves the map there). Randomness: five uniforms
+    per particle per step, drawn into a buffer kept between steps.
     """
 
     def __init__(self, velocities=None, velocity_stay: float = 0.9, reverse_probability: float = 0.001,
@@ -336,41 +410,19 @@ class VelocityMotion(MotionModel):
     def move(self, particles: ParticleSet, graph, rng: np.random.Generator, odometry: float | None = None) -> None:
         self._check()
         n = len(particles)
-        nb = len(self._v)
         if particles.velocity is None:
             particles.velocity = np.full(n, -1, dtype=np.int64)
-        vel = particles.velocity
-        fresh = vel < 0
-        vel[fresh] = rng.integers(0, nb, size=int(fresh.sum()))
-        u = rng.random(n)
-        vel[:] = np.minimum((u[:, None] > self._cumulative[vel]).sum(1), nb - 1)
-        v = self._v[vel]
-        # direction: turn particles whose edge disagrees with their velocity's sign
-        kind = graph.kind[particles.edge]
-        forwards = np.where(kind == 2, graph.target[particles.edge] > graph.source[particles.edge], kind != 1)
-        turn = (v < 0) == forwards
-        rev = graph.reverse[particles.edge]
-        turn &= rev >= 0
-        particles.edge[turn] = rev[turn]
-        particles.fraction[turn] = 1.0 - particles.fraction[turn]
-        spacing = graph.frame_spacing
-        base = np.abs(v) * spacing if odometry is None else np.full(n, float(odometry))
-        b = rng.random(n)
-        extra = np.where(b < self.blur, spacing, np.where(b < 2 * self.blur, -spacing, 0.0))
-        distance = base + extra
-        back = distance < 0  # a backward blur step: turn round for it, then turn back
-        if back.any():
-            rb = graph.reverse[particles.edge[back]]
-            ok = rb >= 0
-            idx = np.flatnonzero(back)[ok]
-            particles.edge[idx] = rb[ok]
-            particles.fraction[idx] = 1.0 - particles.fraction[idx]
-        sub = ParticleSet(particles.edge, particles.fraction, particles.log_weight)
-        leftover = advance(sub, graph, np.abs(distance), rng, self.straight_preference, 0.0, "stop", self.max_hops)
-        # a particle that would run past the route's end leaves the map, as grid mass does
-        particles.log_weight[leftover > 1e-9 * spacing] = -np.inf
-        if back.any():
-            rb = graph.reverse[particles.edge[idx]]
-            ok2 = rb >= 0
-            particles.edge[idx[ok2]] = rb[ok2]
-            particles.fraction[idx[ok2]] = 1.0 - particles.fraction[idx[ok2]]
+        buffer = self.__dict__.get("_uniform")
+        if buffer is None or buffer.shape[1] != n:
+            buffer = self._uniform = np.empty((5, n))
+        rng.random(out=buffer)
+        forwards = graph.__dict__.get("_forwards")
+        if forwards is None:  # a junction edge's direction: towards the larger index
+            forwards = np.where(graph.kind == 2, graph.target > graph.source, graph.kind != 1)
+            object.__setattr__(graph, "_forwards", forwards)
+        metric = odometry is not None
+        _velocity_kernel(particles.edge, particles.fraction, particles.log_weight, particles.velocity, buffer,
+                         self._v, self._cumulative, forwards, graph.hop_length, graph.length,
+                         float(odometry) if metric else -1.0, graph.target, graph.out_ptr, graph.reverse,
+                         graph.straight, float(self.straight_preference), float(self.blur), int(self.max_hops),
+                         1e-9 * (graph.frame_spacing if metric else 1.0))

@@ -135,10 +135,13 @@ def test_odometry_noise_statistics_and_errors():
         FrameMotion(dead_end="bounce").move(ParticleSet.uniform(g, 3, np.random.default_rng(0)), g, np.random.default_rng(0))
 
 
-def test_frame_motion_uses_mean_chain_spacing():
+def test_frame_motion_counts_places_whatever_the_spacing():
     g = PlaceGraph.chain(10, spacing=2.5)
     d = FrameMotion(speed=1.0, speed_noise=0.0).distances(4, g, None, np.random.default_rng(0))
-    np.testing.assert_allclose(d, 2.5)
+    np.testing.assert_allclose(d, 1.0)
+    p = _at(g, 2, 3, 0.0, 4)
+    FrameMotion(speed=2.0, speed_noise=0.0).move(p, g, np.random.default_rng(0))
+    np.testing.assert_allclose(_position(g, p), 4.0)
 
 
 def test_same_seed_same_motion():
@@ -152,3 +155,31 @@ def test_same_seed_same_motion():
         out.append((p.edge.copy(), p.fraction.copy()))
     np.testing.assert_array_equal(out[0][0], out[1][0])
     np.testing.assert_array_equal(out[0][1], out[1][1])
+
+
+def _repeated_positions_graph():
+    """A metric route like a Wi-Fi survey: several samples at each surveyed point, so
+    most chain edges have zero length and a few are metres long."""
+    from catgraph.traverse import Traverse
+
+    points = np.stack([4.0 * np.arange(8), np.zeros(8)], 1)
+    positions = np.repeat(points, 5, axis=0)
+    ref = Traverse(np.zeros((len(positions), 4)), positions=positions)
+    return PlaceGraph.from_traverse(ref)
+
+
+@pytest.mark.parametrize("motion", ["velocity", "frame"])
+def test_frame_based_motion_counts_places_on_a_metric_graph_with_repeated_positions(motion):
+    from catgraph.motion import VelocityMotion
+
+    g = _repeated_positions_graph()
+    assert g.unit == "m" and np.sum(g.length[g.kind == 0] < 1e-3) > g.n_places // 2
+    n, start = 200, 3
+    p = _at(g, start, start + 1, 0.0, n)
+    m = (VelocityMotion(velocities=(1.0,), blur=0.0, reverse_probability=0.0) if motion == "velocity"
+         else FrameMotion(speed=1.0, speed_noise=0.0))
+    rng = np.random.default_rng(0)
+    for k in range(1, 25):
+        m.move(p, g, rng)
+        # one place per frame, as the grid filter moves its mass, whatever the metres between places
+        np.testing.assert_array_equal(p.places(g), start + k)
