@@ -25,8 +25,9 @@ matrix, of any block of it, and of any shard of the reference on another machine
     serial: they cost a few ms at a million places, less than waking the threads on
     a busy machine.
 
-One signature each (float32 descriptors, float64 output, C-contiguous), compiled on
-first use and cached on disk (``cache=True``). None uses numba's ``parallel=True``:
+One signature each (float32 descriptors or uint8 codes, float64 output, C-contiguous),
+compiled on first use and cached on disk (:func:`catgraph._jit.njit`: a writable cache
+folder even where the package folder is read-only). None uses numba's ``parallel=True``:
 measured on this project's 2-core machine, compiling the parallel form of
 :func:`pair_block` took 10.5 s with an empty cache and loading it from the cache 1.2 s
 (the threading layer starts), against a fraction of a second for the serial form
@@ -35,8 +36,9 @@ threaded from Python.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
+
+from ._jit import njit
 
 #: Reference places per parallel task of :func:`pair_block`.
 PLACE_BLOCK = 256
@@ -47,7 +49,7 @@ SUM_CHUNK = 4096
 SAD, SSD, DOT = 0, 1, 2
 
 
-@numba.njit(nogil=True, fastmath=True, cache=True)
+@njit(nogil=True, fastmath=True)
 def pair_block(query, reference, lo, hi, code, out):  # pragma: no cover - compiled
     """``out[i, j] = Σ_k f(query[i, k], reference[j, k])`` for places ``lo <= j < hi``
     (see the module docstring).
@@ -77,7 +79,7 @@ def pair_block(query, reference, lo, hi, code, out):  # pragma: no cover - compi
                 out[i, j] = acc
 
 
-@numba.njit(nogil=True, cache=True)
+@njit(nogil=True)
 def pair_block_codes(query, reference, lo, hi, code, step, out):  # pragma: no cover - compiled
     """:func:`pair_block` for the compact layout: ``uint8`` codes, integer sums.
 
@@ -106,7 +108,7 @@ def pair_block_codes(query, reference, lo, hi, code, step, out):  # pragma: no c
                 out[i, j] = step * acc
 
 
-@numba.njit(nogil=True, fastmath=True, cache=True)
+@njit(nogil=True, fastmath=True)
 def self_products(x, out):  # pragma: no cover - compiled
     """``out[j] = Σ_k x[j, k]²`` (float32 sums, as the product of :func:`pair_block`)."""
     d = x.shape[1]
@@ -118,7 +120,7 @@ def self_products(x, out):  # pragma: no cover - compiled
         out[j] = acc
 
 
-@numba.njit(cache=True)
+@njit
 def chunk_sums(d, centre, power, out):  # pragma: no cover - compiled
     """``out[i, c] = Σ_{j in chunk c} (d[i, j] − centre[i])**power`` (power 1 or 2),
     chunks of :data:`SUM_CHUNK` values, each summed left to right."""
@@ -141,7 +143,7 @@ def chunk_sums(d, centre, power, out):  # pragma: no cover - compiled
         out[i, c] = s
 
 
-@numba.njit(cache=True)
+@njit
 def scale_rows(d, mean, std, out):  # pragma: no cover - compiled
     """``out[i, j] = (d[i, j] − mean[i]) / std[i]``, or 0 where ``std[i] == 0``."""
     m, n = d.shape

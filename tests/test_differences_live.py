@@ -247,3 +247,43 @@ def test_uint8_layout_refusals(rng):
         PreparedReference(np.full((3, 2), np.nan), "sad", layout="uint8")
     with pytest.raises(InvalidParameterError, match="float32"):
         PreparedReference(r, "sad").decode(np.zeros(8, dtype=np.uint8))
+
+
+# ---------------------------------------------------------------------------------------
+# compiled kernels: a writable cache wherever the package lives
+
+
+def test_jit_cache_falls_back_to_a_private_folder_when_nothing_is_writable(tmp_path, monkeypatch):
+    import numba
+
+    from catgraph import _jit
+
+    monkeypatch.setattr(numba.config, "CACHE_DIR", "")
+    monkeypatch.setattr(_jit, "_CHECKED", False)
+    # the folder beside the package and numba's user folder both read-only
+    monkeypatch.setattr(_jit, "_writable", lambda folder: False)
+    monkeypatch.setattr(_jit.tempfile, "gettempdir", lambda: str(tmp_path))
+    where = _jit.cache_location()
+    assert where.parent == tmp_path and where.name.startswith("catgraph-numba-")
+    assert numba.config.CACHE_DIR == str(where)
+
+    @_jit.njit
+    def twice(x):  # pragma: no cover - compiled
+        return 2 * x
+
+    assert twice(21) == 42
+    assert any(where.rglob("*.nbi")), "the compiled kernel is cached in the private folder"
+
+
+def test_jit_uses_numba_locations_when_writable(tmp_path, monkeypatch):
+    import numba
+
+    from catgraph import _jit
+
+    monkeypatch.setattr(numba.config, "CACHE_DIR", "")
+    monkeypatch.setattr(_jit, "_CHECKED", False)
+    where = _jit.cache_location()
+    assert numba.config.CACHE_DIR == "" and where.name in ("__pycache__", "numba")
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+    assert _jit.cache_location() == tmp_path
+    assert _jit.njit(cache=False)(lambda x: x + 1)(1) == 2

@@ -1,0 +1,94 @@
+"""Compiled kernels that start fast: numba's on-disk cache, always somewhere writable.
+
+A numba kernel compiles the first time it is called with a new signature — seconds
+per kernel on a small machine, paid again by every process unless the machine code
+is cached on disk (``cache=True``). numba looks for a cache folder in this order:
+``NUMBA_CACHE_DIR`` when set, the ``__pycache__`` folder beside the module, then the
+user's cache folder (``~/.cache/numba``). Where none of them is writable — an
+installed package in a read-only ``site-packages``, a container whose home directory
+is read-only — numba refuses to decorate a ``cache=True`` function at all
+(``RuntimeError: cannot cache function``), so a library cannot simply ask for caching.
+
+:func:`njit` is ``numba.njit`` with ``cache=True`` and that gap closed: before the
+first kernel is decorated it checks that one of numba's own locations is writable
+and, if none is, points numba at a private folder in the system's temporary
+directory (``catgraph-numba-<user>``; set ``NUMBA_CACHE_DIR`` to choose another).
+The compiled code is then reused by every later process on the machine; the first
+process still compiles (measured figures: ``benchmarks/results/live.md``).
+
+Every kernel module of the package decorates with it::
+
+    from ._jit import njit
+
+    @njit(nogil=True)
+    def kernel(x, out): ...
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+__all__ = ["cache_location", "njit"]
+
+_CHECKED = False
+
+
+def _writable(folder: Path) -> bool:
+    """Whether ``folder`` exists (or can be made) and a file can be written in it."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryFile(dir=folder).close()
+    except OSError:
+        return False
+    return True
+
+
+def _numba_user_cache() -> Path | None:
+    try:
+        from numba.misc.appdirs import AppDirs
+    except ImportError:  # pragma: no cover - older numba
+        return None
+    return Path(AppDirs(appname="numba", appauthor=False).user_cache_dir)
+
+
+def cache_location() -> Path:
+    """The folder the package's compiled kernels are cached in (made writable first).
+
+    ``NUMBA_CACHE_DIR`` when set; else ``catgraph/__pycache__`` when writable; else
+    numba's user cache folder when writable; else a private folder in the system's
+    temporary directory, which is then handed to numba.
+    """
+    global _CHECKED
+    import numba
+
+    if numba.config.CACHE_DIR:
+        return Path(numba.config.CACHE_DIR)
+    beside = Path(__file__).resolve().parent / "__pycache__"
+    if _writable(beside):
+        _CHECKED = True
+        return beside
+    user = _numba_user_cache()
+    if user is not None and _writable(user):
+        _CHECKED = True
+        return user
+    uid = os.getuid() if hasattr(os, "getuid") else "user"
+    private = Path(tempfile.gettempdir()) / f"catgraph-numba-{uid}"
+    private.mkdir(mode=0o700, parents=True, exist_ok=True)
+    numba.config.CACHE_DIR = str(private)
+    _CHECKED = True
+    return private
+
+
+def njit(*args, **options):
+    """``numba.njit`` with ``cache=True`` by default and a writable cache guaranteed.
+
+    Used like ``numba.njit``: ``@njit``, ``@njit(nogil=True)``; ``cache=False`` opts out.
+    """
+    import numba
+
+    options.setdefault("cache", True)
+    if options["cache"] and not _CHECKED:
+        cache_location()
+    return numba.njit(*args, **options)
