@@ -241,8 +241,9 @@ def shard_reference(descriptors, metric: str, scheduler, shard_places: int | Non
 # blocks of query rows
 
 
-def _normalised_blocks(ref: ShardedReference, q: np.ndarray, normalise: bool) -> list:
-    """Futures of each shard's (normalised) columns for query rows ``q``."""
+def _normalised_blocks(ref: ShardedReference, q: np.ndarray, normalise: bool, blank: np.ndarray | None = None) -> list:
+    """Futures of each shard's (normalised) columns for query rows ``q``; rows where
+    ``blank`` is true become zeros (a frame with no information, as locally)."""
     c = ref.client
     q_fut = c.scatter(q, broadcast=True, direct=False)
     raw = [ref.submit(s, _raw, shard, q_fut) for s, shard in enumerate(ref.shards)]
@@ -253,6 +254,8 @@ def _normalised_blocks(ref: ShardedReference, q: np.ndarray, normalise: bool) ->
     parts = c.gather([ref.submit(s, _chunk_sums, b, mean, 2) for s, b in enumerate(raw)])
     std = np.sqrt(_combine(np.concatenate(parts, axis=1)) / ref.n_places)
     std[_zero_spread(std, mean)] = 0.0
+    if blank is not None:
+        std[blank] = 0.0
     return [ref.submit(s, _scale, b, mean, std) for s, b in enumerate(raw)]
 
 
@@ -272,11 +275,12 @@ def difference_matrix(query, ref: ShardedReference, normalise: bool = True, bloc
     return out
 
 
-def _score_blocks(ref: ShardedReference, q: np.ndarray, start: int, stop: int, window: int) -> list:
+def _score_blocks(ref: ShardedReference, q: np.ndarray, start: int, stop: int, window: int,
+                  blank: np.ndarray | None = None) -> list:
     """Futures of each shard's window scores for query rows ``[start, stop)``."""
     c = ref.client
     first = max(0, start - window)
-    blocks = _normalised_blocks(ref, q[first:stop], True)
+    blocks = _normalised_blocks(ref, q[first:stop], True, None if blank is None else blank[first:stop])
     # running sum of the normalised rows' means (the fill before the reference start)
     parts = c.gather([ref.submit(s, _chunk_sums, b, None, 1) for s, b in enumerate(blocks)])
     means = _combine(np.concatenate(parts, axis=1)) / ref.n_places
@@ -310,7 +314,7 @@ class ShardedMatches:
 
 
 def match_fixed_window(query, ref: ShardedReference, window: int, radius: int = 10,
-                       block_rows: int = 256) -> ShardedMatches:
+                       block_rows: int = 256, no_information: np.ndarray | None = None) -> ShardedMatches:
     """Fixed-window sequence matching on the cluster (SeqSLAM gap confidence).
 
     The same answers as :func:`catgraph.sequence.match_sequences` with ``window=L``,
@@ -327,6 +331,10 @@ def match_fixed_window(query, ref: ShardedReference, window: int, radius: int = 
         Places either side of the best excluded when finding the second best.
     block_rows : int
         Query rows per round.
+    no_information : ndarray of bool, shape (n_query,), optional
+        Frames with no information (:func:`catgraph.frontends.check_information`):
+        their normalised rows are zeros, as :func:`catgraph.io.query_differences`
+        makes them.
     """
     check_scalar(window, "window", "match_fixed_window", int, 1, SHARD_UNIT)
     check_scalar(radius, "radius", "match_fixed_window", int, 0)
@@ -334,10 +342,16 @@ def match_fixed_window(query, ref: ShardedReference, window: int, radius: int = 
     c = ref.client
     q = ref.prepare_query(query)
     n_q = q.shape[0]
+    blank = None
+    if no_information is not None:
+        blank = np.asarray(no_information, dtype=bool)
+        if blank.shape != (n_q,):
+            raise InvalidParameterError(f"no_information must have one flag per query frame ({n_q}); got shape "
+                                        f"{blank.shape}.")
     match, score, conf = np.empty(n_q, dtype=np.int64), np.empty(n_q), np.empty(n_q)
     for start in range(0, n_q, block_rows):
         stop = min(n_q, start + block_rows)
-        scores = _score_blocks(ref, q, start, stop, window)
+        scores = _score_blocks(ref, q, start, stop, window, blank)
         mins = c.gather([ref.submit(k, _row_min, s, lo) for k, (s, (lo, _)) in enumerate(zip(scores, ref.bounds))])
         values = np.stack([v for v, _ in mins])
         places = np.stack([j for _, j in mins])

@@ -30,6 +30,15 @@ once). The stages, each owned by one function:
 
 An experiment is plain data (:meth:`Experiment.from_spec` / :meth:`Experiment.spec`),
 so sweeps can run it in any process or on any Dask worker: same spec, same result.
+
+A map too large for one machine
+-------------------------------
+:func:`run_on_cluster` runs a fixed-window ``sequence`` experiment on a Dask cluster
+(``catgraph match --scheduler ADDRESS``): stages 1–3 as above, then the map's
+descriptors are sharded over the workers (:mod:`catgraph.distributed`) and stage 4
+happens there — difference rows, normalisation and window scores are computed where
+the shards live, and only per-frame matches return. No ``n_query × N`` matrix exists
+anywhere; the matches are those of :func:`run` on one machine (tested).
 """
 
 from __future__ import annotations
@@ -53,7 +62,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from .metrics import Evaluation
 
 __all__ = ["Experiment", "Prepared", "MethodInputs", "prepare", "prepared_from", "run_method", "run", "payload", "run_experiment",
-           "load_input", "SPEC_KEYS", "FRONTEND_KEYS"]
+           "run_on_cluster", "load_input", "SPEC_KEYS", "FRONTEND_KEYS"]
 
 SPEC_KEYS = ("name", "reference", "map", "query", "method", "params", "tolerance", "tolerance_m", "ground_truth",
              "condition", "frontend", "junction_radius_m")
@@ -359,9 +368,9 @@ def _ground_truth(exp: Experiment, reference: Traverse, query: Traverse, n_place
     return load_ground_truth(exp.ground_truth, len(query), n_places)
 
 
-def prepare(exp: Experiment) -> Prepared:
-    """Load and describe an experiment's inputs (stages 1–4 of the module docstring)."""
-    from .io import build_map, load_map, query_differences, reference_from_map
+def _inputs(exp: Experiment) -> tuple:
+    """Stages 1–2: ``(map, reference or None, graph or None, sources, query, ground_truth)``."""
+    from .io import build_map, load_map, reference_from_map
 
     query = load_input(exp.query, "query")
     if exp.map is not None:
@@ -383,6 +392,14 @@ def prepare(exp: Experiment) -> Prepared:
     sources["query"] = _source_name(exp.query)
     ground_truth = _ground_truth(exp, reference if reference is not None else reference_from_map(the_map), query,
                                  the_map.n_places)
+    return the_map, reference, graph, sources, query, ground_truth
+
+
+def prepare(exp: Experiment) -> Prepared:
+    """Load and describe an experiment's inputs (stages 1–4 of the module docstring)."""
+    from .io import query_differences
+
+    the_map, reference, graph, sources, query, ground_truth = _inputs(exp)
     prepared = Prepared(the_map, reference, query, query_differences(the_map, query), ground_truth, sources,
                         junction_radius_m=exp.junction_radius_m, _graph=graph)
     return prepared if exp.condition.kind == "in-order" else prepared.under(exp.condition)
@@ -419,6 +436,83 @@ def run(exp: Experiment, progress: bool = False) -> tuple[RunResult, dict, "Eval
     """Prepare, run and evaluate one experiment: ``(result, payload, evaluation)``."""
     prepared = prepare(exp)
     result = run_method(exp.method, exp.params, prepared, progress=progress)
+    out, evaluation = payload(result, prepared, exp)
+    return result, out, evaluation
+
+
+def _cluster_params(exp: Experiment) -> dict:
+    """The resolved ``sequence`` parameters, refused where the cluster path would not
+    give the local answers."""
+    if exp.method != "sequence":
+        raise InvalidParameterError(
+            f"a cluster run (--scheduler) does fixed-window sequence matching; got method {exp.method!r}. Give "
+            "--window N (N ≥ 2), or run without --scheduler.")
+    params = get_method("sequence").resolve(exp.params)
+    fixes = []
+    if params["window"] == "adaptive":
+        fixes.append("a fixed --window N instead of adaptive")
+    if [float(v) for v in params["velocities"]] != [1.0]:
+        fixes.append("--velocities 1 (the cluster searches the forward diagonal only)")
+    if params["hub_correction"]:
+        fixes.append("--no-hub-correction (hub offsets need the whole map on one machine)")
+    if fixes:
+        raise InvalidParameterError("a cluster run (--scheduler) needs " + "; ".join(fixes) + ".")
+    return params
+
+
+def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
+                   block_rows: int = 256) -> tuple[RunResult, dict, "Evaluation | None"]:
+    """Run a fixed-window ``sequence`` experiment with the map sharded over a Dask cluster.
+
+    Parameters
+    ----------
+    exp : Experiment
+        Method ``sequence`` with a fixed ``window``, ``velocities=[1.0]`` and
+        ``hub_correction=False`` (anything else is refused: the cluster path would not
+        give the local answers); a map whose differences are normalised.
+    scheduler : str or distributed.Client
+        A scheduler address (``"tcp://host:8786"``) or a client.
+    shard_places : int, optional
+        Places per shard (default: the map split evenly over the workers).
+    block_rows : int
+        Query frames per round trip.
+
+    Returns
+    -------
+    (RunResult, payload, Evaluation or None)
+        As :func:`run`: the same matches and (to rounding) confidences.
+    """
+    import time
+
+    from .distributed import _client, match_fixed_window, shard_reference
+    from .io import describe_query
+
+    params = _cluster_params(exp)
+    the_map, reference, graph, sources, query, ground_truth = _inputs(exp)
+    if not the_map.frontend_settings().normalise:
+        raise InvalidParameterError("a cluster run normalises every difference row; this map was built with "
+                                    "normalise off: build it again with normalisation, or run without --scheduler.")
+    if exp.condition.kind != "in-order":
+        query = exp.condition.apply(query)
+    window = int(params["window"])
+    if window > len(query):
+        raise InvalidParameterError(f"window = {window} frames is longer than the query ({len(query)} frames); "
+                                    f"choose at most {len(query)}.")
+    q, informative = describe_query(the_map, query)
+    start = time.perf_counter()
+    client = _client(scheduler)
+    try:
+        sharded = shard_reference(the_map.descriptors, the_map.metric, client, shard_places)
+        res = match_fixed_window(q, sharded, window, radius=int(params["exclusion"]), block_rows=block_rows,
+                                 no_information=~informative)
+    finally:
+        if client is not scheduler:  # a client made here from an address is closed here
+            client.close()
+    result = RunResult(f"sequence-L{window}", dict(params), query.index, res.match, res.confidence,
+                       extra={"window_length": np.minimum(np.arange(1, len(query) + 1), window)},
+                       seconds=time.perf_counter() - start)
+    prepared = Prepared(the_map, reference, query, np.empty((len(query), 0)), ground_truth, sources,
+                        junction_radius_m=exp.junction_radius_m, _graph=graph)
     out, evaluation = payload(result, prepared, exp)
     return result, out, evaluation
 

@@ -85,6 +85,7 @@ __all__ = [
     "load_map",
     "build_map",
     "reference_from_map",
+    "describe_query",
     "query_differences",
     "place_graph",
     "FORMAT_NAME",
@@ -247,15 +248,15 @@ def reference_from_map(catgraph_map: CatgraphMap) -> "Traverse":
                     ids=catgraph_map.ids, name=catgraph_map.name, meta=meta)
 
 
-def query_differences(catgraph_map: CatgraphMap, query: "Traverse") -> np.ndarray:
-    """The ``(n_query, N)`` difference matrix of a query against a map.
+def describe_query(catgraph_map: CatgraphMap, query: "Traverse") -> tuple[np.ndarray, np.ndarray]:
+    """A query through a map's front-end: ``(descriptors (n_query, d), informative (n_query,) bool)``.
 
-    The query goes through the map's front-end; the stored metric and normalisation
-    are used, so the result equals :func:`catgraph.pipeline.differences` on the
-    original reference.
+    ``informative`` is false for frames with no information
+    (:func:`catgraph.frontends.check_information`), whose normalised difference rows
+    are zeros ("no evidence").
     """
-    from .differences import difference_matrix
     from .exceptions import ShapeMismatchError
+    from .frontends import check_information
     from .pipeline import _kind, describe
 
     frontend = catgraph_map.frontend_settings()
@@ -268,10 +269,21 @@ def query_differences(catgraph_map: CatgraphMap, query: "Traverse") -> np.ndarra
             f"query frames give {q.shape[1]} values per descriptor but the map holds {catgraph_map.descriptors.shape[1]}; "
             f"the map was built with front-end {catgraph_map.frontend}: use query data of the same kind and size."
         )
-    from ._validation import check_memory
-    from .frontends import check_information
+    return q, check_information(q, "query")
 
-    informative = check_information(q, "query")
+
+def query_differences(catgraph_map: CatgraphMap, query: "Traverse") -> np.ndarray:
+    """The ``(n_query, N)`` difference matrix of a query against a map.
+
+    The query goes through the map's front-end (:func:`describe_query`); the stored
+    metric and normalisation are used, so the result equals
+    :func:`catgraph.pipeline.differences` on the original reference.
+    """
+    from ._validation import check_memory
+    from .differences import difference_matrix
+
+    frontend = catgraph_map.frontend_settings()
+    q, informative = describe_query(catgraph_map, query)
     n_query, n_places = len(q), len(catgraph_map.descriptors)
     check_memory(8.0 * n_query * n_places, f"the ({n_query}, {n_places}) float64 difference matrix",
                  "use a shorter query or reference")

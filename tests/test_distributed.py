@@ -78,3 +78,66 @@ def test_bad_inputs(client, data):
     ref = dd.shard_reference(r, "sad", client)
     with pytest.raises(InvalidParameterError, match="window"):
         dd.match_fixed_window(q, ref, dd.SHARD_UNIT + 1)
+
+
+@pytest.mark.parametrize("condition", ["in-order", "reverse"])
+def test_cluster_experiment_equals_the_local_run(client, data, condition):
+    import warnings
+
+    from catgraph.conditions import Condition
+    from catgraph.experiment import Experiment, run, run_on_cluster
+    from catgraph.traverse import Traverse
+
+    q, r = data
+    q = q.copy()
+    q[40] = 1.0  # a constant frame: no information, a zero row in both runs
+    reference = Traverse(r, meta={"kind": "descriptors"}, name="ref")
+    query = Traverse(q, meta={"kind": "descriptors"}, name="query")
+    params = {"window": 12, "velocities": [1.0], "hub_correction": False, "exclusion": 5}
+    exp = Experiment(query=query, reference=reference, method="sequence", params=params,
+                     frontend={"metric": "sad"}, condition=Condition(condition))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        local, local_out, _ = run(exp)
+        remote, remote_out, _ = run_on_cluster(exp, client, shard_places=4096, block_rows=37)
+    assert np.array_equal(remote.match, local.match)
+    assert np.array_equal(remote.query_index, local.query_index)
+    np.testing.assert_allclose(remote.confidence, local.confidence, rtol=1e-9, atol=1e-12)
+    assert np.array_equal(remote.extra["window_length"], local.extra["window_length"])
+    assert remote_out["method"] == local_out["method"] and remote_out["params"] == local_out["params"]
+
+
+def test_cluster_experiment_refuses_what_it_cannot_match_locally(client, data):
+    from catgraph.experiment import Experiment, run_on_cluster
+    from catgraph.traverse import Traverse
+
+    q, r = data
+    kw = {"query": Traverse(q, meta={"kind": "descriptors"}), "reference": Traverse(r, meta={"kind": "descriptors"})}
+    with pytest.raises(InvalidParameterError, match="--velocities 1.*--no-hub-correction"):
+        run_on_cluster(Experiment(method="sequence", params={"window": 12}, **kw), client)
+    with pytest.raises(InvalidParameterError, match="fixed --window"):
+        run_on_cluster(Experiment(method="sequence", params={"window": "adaptive", "velocities": [1.0],
+                                                             "hub_correction": False}, **kw), client)
+    with pytest.raises(InvalidParameterError, match="fixed-window sequence"):
+        run_on_cluster(Experiment(method="single-frame", **kw), client)
+
+
+def test_match_command_with_scheduler_writes_the_local_results(client, data, tmp_path, capsys):
+    import json
+
+    from catgraph.cli.main import main
+
+    q, r = data
+    np.save(tmp_path / "ref.npy", r)
+    np.save(tmp_path / "query.npy", q)
+    common = [str(tmp_path / "ref.npy"), str(tmp_path / "query.npy"), "--metric", "sad", "--window", "12",
+              "--velocities", "1", "--no-hub-correction", "--tolerance", "2", "-q"]
+    assert main(["match", *common, "-o", str(tmp_path / "local.json")]) == 0
+    assert main(["match", *common, "--scheduler", client.scheduler.address, "-o", str(tmp_path / "cluster.json")]) == 0
+    local, cluster = (json.loads((tmp_path / f"{k}.json").read_text()) for k in ("local", "cluster"))
+    assert cluster["frames"]["match"] == local["frames"]["match"]
+    np.testing.assert_allclose(cluster["frames"]["confidence"], local["frames"]["confidence"], rtol=1e-9)
+    assert cluster["metrics"]["auc"] == pytest.approx(local["metrics"]["auc"])
+    common.remove("--no-hub-correction")
+    assert main(["match", *common, "--scheduler", client.scheduler.address]) == 1
+    assert "--no-hub-correction" in capsys.readouterr().err

@@ -303,6 +303,9 @@ def register_match(sub) -> None:
     p.add_argument("--model", choices=("sequence", "histogram"), default="sequence",
                    help="'sequence' (SeqSLAM; --window 1 = single frame) or 'histogram' (P(d|L), P(d|¬L) model)")
     add_method_options(p, ("sequence", "single-frame", "histogram"))
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run on a Dask cluster (tcp://host:8786), the map sharded over its workers: fixed --window N "
+                        "with --velocities 1 --no-hub-correction; needs pip install \"catgraph[dask]\"")
     p.set_defaults(func=cmd_match)
 
 
@@ -314,7 +317,17 @@ def cmd_match(args) -> int:
         method = "single-frame" if given.get("window", 1) == 1 else "sequence"
         if method == "single-frame":
             vars(args).pop("param_window", None)
-    return run_and_report(args, experiment_from(args, method, method_params(args, method)))
+    exp = experiment_from(args, method, method_params(args, method))
+    if args.scheduler is None:
+        return run_and_report(args, exp)
+    from ..experiment import run_on_cluster
+    from ..results import write_json_atomic
+
+    result, out, _ = run_on_cluster(exp, args.scheduler)
+    if args.output is not None:
+        write_json_atomic(args.output, out)
+    print_results([(result.method, out["metrics"], result.seconds)], per_frame=len(result.match))
+    return 0
 
 
 # ---------------------------------------------------------------------------- localize
