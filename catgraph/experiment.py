@@ -400,9 +400,13 @@ def prepare(exp: Experiment) -> Prepared:
     from .io import query_differences
 
     the_map, reference, graph, sources, query, ground_truth = _inputs(exp)
-    prepared = Prepared(the_map, reference, query, query_differences(the_map, query), ground_truth, sources,
-                        junction_radius_m=exp.junction_radius_m, _graph=graph)
-    return prepared if exp.condition.kind == "in-order" else prepared.under(exp.condition)
+    # the condition reorders the frames before they are described: each difference row
+    # depends on its own frame only, so this equals Prepared.under without a second
+    # n_query × N matrix in memory
+    if exp.condition.kind != "in-order":
+        query = exp.condition.apply(query)
+    return Prepared(the_map, reference, query, query_differences(the_map, query), ground_truth, sources,
+                    junction_radius_m=exp.junction_radius_m, _graph=graph)
 
 
 # ---------------------------------------------------------------------------- running
