@@ -98,9 +98,10 @@ def soak(name: str, step, rows: np.ndarray, truth: np.ndarray, n_steps: int, sam
 def filter_step(n_places: int, n_particles: int, seed: int):
     from catgraph.graph import PlaceGraph
     from catgraph.localizer import Localizer
-    from catgraph.observation import make_model
+    from catgraph.methods import observation_model, resolve_params
 
-    loc = Localizer(PlaceGraph.chain(n_places), make_model("histogram"), n_particles=n_particles, seed=seed)
+    model = observation_model(resolve_params("filter", {"model": "histogram"}), n_places, None)
+    loc = Localizer(PlaceGraph.chain(n_places), model, n_particles=n_particles, seed=seed)
     return lambda row: loc.step(row).place
 
 

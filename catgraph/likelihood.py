@@ -106,8 +106,7 @@ from __future__ import annotations
 
 from .histogram import HistogramLikelihood, _monotone_tables
 from .recogniser import HistogramPlaceRecogniser, Recognition, Recognitions
-from .samples import (OnlineSamples, labelled_samples, map_hubness, map_samples, online_samples,
-                      reference_samples)
+from .samples import OnlineSamples, labelled_samples, online_samples, reference_samples
 
 __all__ = [
     "HistogramLikelihood",
@@ -116,8 +115,6 @@ __all__ = [
     "Recognition",
     "Recognitions",
     "labelled_samples",
-    "map_hubness",
-    "map_samples",
     "online_samples",
     "reference_samples",
 ]

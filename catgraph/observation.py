@@ -81,8 +81,6 @@ __all__ = [
     "HistogramObservation",
     "SequenceObservation",
     "CombinedObservation",
-    "make_model",
-    "MODEL_NAMES",
 ]
 
 
@@ -502,39 +500,6 @@ class CombinedObservation:
         return Observation(np.asarray(log_ratio, dtype=np.float64), float(new), True, support)
 
 
-#: Model names understood by :func:`make_model` (and the command line).
-MODEL_NAMES = ("histogram", "sequence", "adaptive", "combined", "tempered")
-
-
-def make_model(name: str, window: int = 50, **kwargs) -> ObservationModel:
-    """A default observation model by name.
-
-    Parameters
-    ----------
-    name : {"histogram", "sequence", "adaptive", "combined", "tempered"}
-        ``"histogram"``: :class:`HistogramObservation` (paper 2, online); ``"sequence"``:
-        :class:`SequenceObservation` with a fixed ``window``; ``"adaptive"``: the
-        adaptive window; ``"combined"``: histogram + adaptive; ``"tempered"``:
-        :class:`TemperedObservation` (the whole-image model that works on real data).
-    window : int
-        Fixed window length for ``"sequence"``.
-    **kwargs
-        Passed to the model's constructor (``"combined"``: to both parts' ``temperature``
-        only via ``temperature``).
-    """
-    if name == "histogram":
-        return HistogramObservation(**kwargs)
-    if name == "sequence":
-        return SequenceObservation(window=window, **kwargs)
-    if name == "adaptive":
-        return SequenceObservation(window="adaptive", **kwargs)
-    if name == "combined":
-        return CombinedObservation([HistogramObservation(**kwargs), SequenceObservation(window="adaptive", **kwargs)])
-    if name == "tempered":
-        return TemperedObservation(**kwargs)
-    raise InvalidParameterError(f"The 'model' parameter must be one of {list(MODEL_NAMES)}. Got {name!r} instead.")
-
-
 def _predictive_scores(base: np.ndarray, log_prior: np.ndarray, taus: np.ndarray) -> np.ndarray:
     """``log Σ_j prior_j e^{τ b_j} − log mean_j e^{τ b_j}`` for every ``τ`` (compiled)."""
     from ._grid_kernels import predictive_scores
@@ -566,7 +531,7 @@ class TemperedObservation:
       :class:`HistogramObservation`.
     * ``c_j`` is the hub correction. Each reference's *level* is its mean difference to
       the query frames so far (``hub="online"``) or a level given from the map
-      (``hub=array``, e.g. :func:`catgraph.likelihood.map_hubness`). A *hub* is a
+      (``hub=array``, e.g. the map's levels, :func:`catgraph.hubs.map_hub_offsets`). A *hub* is a
       reference whose level is a low outlier (below ``median − hub_threshold ·
       1.4826 · MAD`` of the levels); ``c = w · (level − mean level)`` with
       ``w = min(1, f / 1 %)``, ``f`` the fraction of references that are hubs. Maps with

@@ -3,14 +3,11 @@
 * :func:`online_samples`: the paper's online choice for one frame, ``d_min`` and the
   smallest difference not from the same location;
 * :func:`labelled_samples`: from a labelled traverse (the "trained" baseline);
-* :func:`reference_samples`: from a reference-vs-reference difference matrix;
-* :func:`map_samples`: from the map's descriptors by *sampled* pairs, never an N × N
-  matrix: ``¬L`` from pairs far apart along the route, each normalised like a query row
-  would be (by the mean and standard deviation of the frame's differences to a random
-  sample of the map);
-* :func:`map_hubness`: each reference's mean normalised difference to map frames far
-  from it, from sampled pairs: a *hub* (a flat, textureless frame) is close to
-  everything and has a low level.
+* :func:`reference_samples`: from a reference-vs-reference difference matrix.
+
+From a saved map, by sampled pairs and never an N × N matrix, the ``¬L`` samples are
+:func:`catgraph.live.map_bootstrap_samples`' and the hub levels
+:func:`catgraph.hubs.map_hub_offsets`'.
 """
 
 from __future__ import annotations
@@ -24,7 +21,7 @@ import numpy as np
 from ._validation import as_generator, check_array, check_scalar
 from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 
-__all__ = ["OnlineSamples", "online_samples", "labelled_samples", "reference_samples", "map_samples", "map_hubness"]
+__all__ = ["OnlineSamples", "online_samples", "labelled_samples", "reference_samples"]
 
 
 @dataclass(frozen=True)
@@ -202,97 +199,3 @@ def reference_samples(
     else:
         d_same = np.empty(0, dtype=np.float64)
     return d_same, d_diff
-
-
-# ---------------------------------------------------------------------- from the map, sampled
-def _sampled_rows(reference: np.ndarray, metric: str, n_rows: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """``n_rows`` map frames drawn at random, each row normalised over the whole map
-    (as a query row is): ``(rows, (n_rows, n_reference))``."""
-    from .differences import difference_matrix, normalise_rows
-
-    n = len(reference)
-    rows = np.sort(rng.choice(n, size=min(n_rows, n), replace=False))
-    d = normalise_rows(difference_matrix(reference[rows], reference, metric=metric))
-    return rows, d
-
-
-def map_hubness(reference: Any, metric: str = "sad", n_rows: int = 256, gap: int | None = None,
-                seed: int | np.random.Generator | None = 0) -> np.ndarray:
-    """Each reference's mean normalised difference to map frames far from it.
-
-    ``n_rows`` map frames are compared with the whole map (``O(n_rows · n_reference)``
-    differences, never ``n_reference²``), each row normalised as a query row would be;
-    the level of reference ``j`` is the mean of its normalised differences to the
-    sampled frames more than ``gap`` places away. A hub, close to every frame, has a low
-    level; subtracting the levels (centred) from a query row is the map's hub correction.
-
-    Parameters
-    ----------
-    reference : ndarray, shape (n_reference, ...)
-        The map's descriptors (what the query is compared with).
-    metric : str
-        Difference metric (:data:`catgraph.differences.METRICS`).
-    n_rows : int
-        Map frames sampled.
-    gap : int, optional
-        Frames within ``gap`` places of ``j`` do not count (default ``max(10, n // 100)``).
-    seed : int, Generator or None
-
-    Returns
-    -------
-    ndarray of float64, shape (n_reference,)
-        Centred levels (mean 0).
-    """
-    r = np.asarray(reference)
-    if r.ndim < 2 or len(r) < 2:
-        raise DataError(f"map_hubness needs at least two reference descriptors, one per row; got shape {r.shape}.")
-    check_scalar(n_rows, "n_rows", "map_hubness", int, 1)
-    n = len(r)
-    gap = max(10, n // 100) if gap is None else gap
-    check_scalar(gap, "gap", "map_hubness", int, 0)
-    rows, d = _sampled_rows(r.reshape(n, -1), metric, n_rows, as_generator(seed))
-    far = np.abs(rows[:, None] - np.arange(n)[None, :]) > gap
-    count = far.sum(0)
-    level = np.where(count > 0, (d * far).sum(0) / np.maximum(count, 1), 0.0)
-    return level - level.mean()
-
-
-def map_samples(reference: Any, metric: str = "sad", n_rows: int = 256, gap: int | None = None,
-                max_different: int = 100_000, seed: int | np.random.Generator | None = 0) -> np.ndarray:
-    """``¬L`` samples from the map by sampled pairs: normalised differences between a
-    random map frame and map frames more than ``gap`` places from it.
-
-    Parameters
-    ----------
-    reference : ndarray, shape (n_reference, ...)
-    metric : str
-    n_rows : int
-        Map frames sampled (each compared with the whole map).
-    gap : int, optional
-        Default ``max(10, n // 100)``.
-    max_different : int
-        At most this many samples are returned (seeded subsample).
-    seed : int, Generator or None
-
-    Returns
-    -------
-    ndarray of float64
-        Pass as ``d_different`` to :meth:`HistogramLikelihood.fit`.
-    """
-    r = np.asarray(reference)
-    if r.ndim < 2 or len(r) < 2:
-        raise DataError(f"map_samples needs at least two reference descriptors, one per row; got shape {r.shape}.")
-    check_scalar(n_rows, "n_rows", "map_samples", int, 1)
-    check_scalar(max_different, "max_different", "map_samples", int, 1)
-    n = len(r)
-    gap = max(10, n // 100) if gap is None else gap
-    check_scalar(gap, "gap", "map_samples", int, 0)
-    rng = as_generator(seed)
-    rows, d = _sampled_rows(r.reshape(n, -1), metric, n_rows, rng)
-    far = np.abs(rows[:, None] - np.arange(n)[None, :]) > gap
-    values = d[far]
-    if values.size == 0:
-        raise DataError(f"no map frames are more than {gap} places apart; lower gap.")
-    if values.size > max_different:
-        values = values[rng.choice(values.size, size=max_different, replace=False)]
-    return values

@@ -106,9 +106,10 @@ def test_differences_refuse_an_empty_3d_reference(which):
 def test_localizer_refuses_string_object_or_complex_rows(row):
     from catgraph.graph import PlaceGraph
     from catgraph.localizer import Localizer
-    from catgraph.observation import make_model
+    from catgraph.methods import observation_model, resolve_params
 
-    loc = Localizer(PlaceGraph.chain(8), make_model("histogram"), n_particles=50, seed=0)
+    model = observation_model(resolve_params("filter", {"model": "histogram"}), 8, None)
+    loc = Localizer(PlaceGraph.chain(8), model, n_particles=50, seed=0)
     with only_typed_outcomes():
         loc.step(row)
         pytest.fail("a string or complex row was accepted")
@@ -259,9 +260,10 @@ def test_sequence_matcher_step_typed_or_valid(rows, window):
 def test_localizer_step_typed_or_valid(steps):
     from catgraph.graph import PlaceGraph
     from catgraph.localizer import Localizer
-    from catgraph.observation import make_model
+    from catgraph.methods import observation_model, resolve_params
 
-    loc = Localizer(PlaceGraph.chain(8), make_model("histogram"), n_particles=50, seed=0)
+    model = observation_model(resolve_params("filter", {"model": "histogram"}), 8, None)
+    loc = Localizer(PlaceGraph.chain(8), model, n_particles=50, seed=0)
     for row, odometry in steps:
         with only_typed_outcomes():
             est = loc.step(row, odometry=odometry)
@@ -274,9 +276,10 @@ def test_localizer_step_typed_or_valid(steps):
 def test_localizer_refuses_non_finite_odometry_on_the_first_step(odometry):
     from catgraph.graph import PlaceGraph
     from catgraph.localizer import Localizer
-    from catgraph.observation import make_model
+    from catgraph.methods import observation_model, resolve_params
 
-    loc = Localizer(PlaceGraph.chain(8), make_model("histogram"), n_particles=50, seed=0)
+    model = observation_model(resolve_params("filter", {"model": "histogram"}), 8, None)
+    loc = Localizer(PlaceGraph.chain(8), model, n_particles=50, seed=0)
     with pytest.raises(CatgraphError):
         loc.step(np.linspace(0, 1, 8), odometry=odometry)
 

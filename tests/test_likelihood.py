@@ -431,31 +431,6 @@ def test_likelihood_names_still_importable_from_one_place():
         assert hasattr(likelihood, name)
 
 
-def test_map_hubness_matches_dense_reference():
-    from catgraph.differences import difference_matrix, normalise_rows
-    from catgraph.likelihood import map_hubness
-
-    rng = np.random.default_rng(0)
-    ref = rng.random((40, 6))
-    ref[5:8] = 0.5  # flat frames: hubs
-    got = map_hubness(ref, metric="sad", n_rows=40, gap=3, seed=0)
-    d = normalise_rows(difference_matrix(ref, ref, metric="sad"))
-    far = np.abs(np.arange(40)[:, None] - np.arange(40)[None, :]) > 3
-    level = (d * far).sum(0) / far.sum(0)
-    np.testing.assert_allclose(got, level - level.mean(), atol=1e-9)
-    assert np.all(got[5:8] < np.median(got))
-
-
-def test_map_samples_are_far_pairs_only():
-    from catgraph.likelihood import map_samples
-
-    ref = np.random.default_rng(1).random((30, 4))
-    values = map_samples(ref, metric="sad", n_rows=30, gap=2, max_different=50, seed=0)
-    assert values.shape == (50,) and np.all(np.isfinite(values))
-    with pytest.raises(DataError):
-        map_samples(ref, gap=40)
-
-
 # ---------------------------------------------------------------------- tempered whole-image model
 def test_predictive_scores_kernel_matches_numpy():
     from catgraph._grid_kernels import predictive_scores
