@@ -14,6 +14,8 @@ cost — so ratios survive a busy machine. Writes ``benchmarks/results/live.md``
 Cases (per N):
 
 ``row``        :meth:`PreparedReference.row` with normalisation (SAD), all cores
+``row-u8``     the same on the compact layout (``layout="uint8"``: one byte per value),
+               beside its own floor (one parallel read of the uint8 codes)
 ``row-1t``     the same on one thread
 ``cosine-raw`` :func:`difference_row` on the raw reference, cosine, as a user without a
                prepared map calls it (validates and recomputes norms every call)
@@ -21,6 +23,10 @@ Cases (per N):
 ``matcher``    :meth:`SequenceMatcher.step`, adaptive, ``l_max`` 500, on normalised rows
 ``live``       :meth:`LiveLocalizer.step`, combined model, 2000 particles: front-end +
                difference + matcher + filter, the full per-frame path
+``live-u8``    the same on a ``LiveMap(..., layout="uint8")``
+
+``--cold-start`` also records which kernels compile in the cold run and for how long
+(numba's compile events; callees are counted inside their callers).
 
 ``matcher`` and ``live`` first fill the matcher's ring buffer with ``l_max + 1``
 untimed rows (``live``: one live step, then the model's matcher stepped directly), so
@@ -69,6 +75,12 @@ def _floor_ms(reference: np.ndarray, repeats: int = 7) -> float:
     return _median_ms(lambda: read_all(reference), repeats)[0]
 
 
+def _floor_codes_ms(n: int, repeats: int = 7) -> float:
+    """:func:`_floor_ms` for the compact layout: one parallel read of ``N × d`` bytes."""
+    codes = np.random.default_rng(0).integers(0, 256, size=(n, DIM), dtype=np.uint8)
+    return _floor_ms(codes, repeats)
+
+
 def _median_ms(fn, repeats: int) -> tuple[float, float]:
     times = []
     for _ in range(repeats):
@@ -113,12 +125,18 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
     reference = _reference(n)
     out["floor_ms"] = _floor_ms(reference)
     query = rng.standard_normal((frames, DIM), dtype=np.float32)
-    if case in ("row", "row-1t", "cosine"):
+    if case.endswith("-u8"):
+        out["floor_u8_ms"] = _floor_codes_ms(n)
+    if case in ("row", "row-1t", "cosine", "row-u8"):
         if case == "row-1t":
             import catgraph.differences
 
             catgraph.differences.WORK_PER_THREAD = 1 << 62  # every call on one thread
-        prepared = PreparedReference(reference, "cosine" if case == "cosine" else "sad")
+        prepared = PreparedReference(reference, "cosine" if case == "cosine" else "sad",
+                                     layout="uint8" if case == "row-u8" else "float32")
+        if case == "row-u8":
+            del reference  # the live process keeps the codes only
+            out["map_mb"] = prepared.nbytes / 2**20
         buf = np.empty(n)
         prepared.row(query[0], normalise=True, out=buf)
         it = iter(range(10**9))
@@ -130,7 +148,7 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
         out["median_ms"], out["p99_ms"] = _median_ms(lambda: difference_row(query[next(it) % frames], reference,
                                                                             "cosine", normalise=True),
                                                      max(3, frames // 4))
-    elif case == "live":
+    elif case in ("live", "live-u8"):
         from catgraph.graph import PlaceGraph
         from catgraph.io import CatgraphMap
         from catgraph.live import LiveLocalizer, LiveMap
@@ -138,7 +156,7 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
         the_map = CatgraphMap(reference, "sad", {"size": None, "patch": 4, "metric": None, "normalise": True},
                               PlaceGraph.chain(n), meta={"kind": "images"})
         start = time.perf_counter()
-        live_map = LiveMap(the_map)
+        live_map = LiveMap(the_map, layout="uint8" if case == "live-u8" else "float32")
         live = LiveLocalizer(live_map, model="combined", n_particles=2000, l_max=l_max, anchor_rows=anchor_rows)
         out["prepare_s"] = time.perf_counter() - start
         images = rng.uniform(0, 255, (frames + 1, 16, 32)).astype(np.float32)
@@ -178,11 +196,29 @@ def _subprocess(args: list[str], env: dict | None = None) -> dict:
 
 _COLD_SCRIPT = """
 import time, json, numpy as np
+from collections import defaultdict
+from numba.core import event
+
+compiled, stack = defaultdict(float), []
+
+
+class Compiles(event.Listener):
+    def on_start(self, ev):
+        stack.append(time.perf_counter())
+
+    def on_end(self, ev):
+        seconds = time.perf_counter() - stack.pop()
+        if not stack:  # top level only: callees compile inside their callers
+            f = ev.data["dispatcher"].py_func
+            compiled[f"{f.__module__}.{f.__qualname__}"] += seconds
+
+
+event.register("numba:compile", Compiles())
 t0 = time.perf_counter()
 from catgraph.datasets.synthetic import make_world
 from catgraph.live import LiveMap, LiveLocalizer
 world = make_world(seed=1, blocks=(2, 2), as_images=True)
-live_map = LiveMap(world.reference)
+live_map = LiveMap(world.reference, layout=LAYOUT)
 t1 = time.perf_counter()
 live_map.reference.row(live_map.describe(world.query.frames[0]), normalise=True)
 t2 = time.perf_counter()
@@ -191,26 +227,31 @@ for f in world.query.frames[:20]:
     live.step(f)
 t3 = time.perf_counter()
 print(json.dumps({"import_and_map_s": t1 - t0, "first_row_s": t2 - t1, "twenty_combined_steps_s": t3 - t2,
-                  "total_s": t3 - t0}))
+                  "total_s": t3 - t0, "compiled_s": dict(sorted(compiled.items(), key=lambda kv: -kv[1]))}))
 """
 
 
-def cold_start() -> dict:
+def cold_start(layout: str = "uint8", tree: str | None = None) -> dict:
     """The same short live run three times in fresh processes with an empty numba cache
-    directory (cold, then warm twice)."""
+    directory (cold, then warm twice). ``tree``: import catgraph from that checkout
+    (a frozen copy, so no file changes between the runs and invalidates the cache)."""
     runs = []
+    env = dict(os.environ)
+    if tree:
+        env["PYTHONPATH"] = tree + os.pathsep + env.get("PYTHONPATH", "")
+    script = _COLD_SCRIPT.replace("LAYOUT", repr(layout))
     with tempfile.TemporaryDirectory() as cache:
         for label in ("cold", "warm", "warm"):
             start = time.perf_counter()
-            proc = subprocess.run([sys.executable, "-c", _COLD_SCRIPT], capture_output=True, text=True,
-                                  env={**os.environ, "NUMBA_CACHE_DIR": cache})
+            proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                                  env={**env, "NUMBA_CACHE_DIR": cache})
             wall = time.perf_counter() - start
             if proc.returncode != 0:
                 raise SystemExit(proc.stderr)
             row = json.loads(proc.stdout.strip().splitlines()[-1])
             row.update(label=label, process_s=wall)
             runs.append(row)
-    return {"runs": runs}
+    return {"runs": runs, "layout": layout, "tree": tree}
 
 
 # ---------------------------------------------------------------------------------------
@@ -274,11 +315,12 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
              f"Python {platform.python_version()}, {os.cpu_count()} cores shared with other work "
              "(medians are noisy: compare each figure with the floor measured in the same process). "
              "Generated by `benchmarks/bench_live.py`.", "",
-             "Floor = one parallel read of the reference (N × 2 KiB), the least a difference row can cost.", "",
+             "Floor = one parallel read of the reference (N × 2 KiB as float32, N × 512 B as uint8 codes), the "
+             "least a difference row can cost; each figure is beside the floor measured in the same process.", "",
              "| per frame | " + " | ".join(f"N = {n:,}" for n in sizes) + " |",
              "|---|" + "---|" * len(sizes)]
 
-    def row(label, case, key="median_ms", ratio=True):
+    def row(label, case, key="median_ms", ratio=True, floor="floor_ms"):
         cells = []
         for n in sizes:
             r = by.get((case, n))
@@ -288,17 +330,19 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
             text = f"{_fmt(r[key])} ms"
             if key == "median_ms":
                 text += f" (p99 {_fmt(r['p99_ms'])})"
-            if ratio and np.isfinite(r.get("floor_ms", float("nan"))):
-                text += f", ×{r[key] / r['floor_ms']:.1f} floor"
+            if ratio and np.isfinite(r.get(floor, float("nan"))):
+                text += f", ×{r[key] / r[floor]:.1f} floor" + (" (uint8)" if floor == "floor_u8_ms" else "")
             cells.append(text)
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
 
-    def floor_row():
-        cells = [f"{_fmt(by[(c, n)]['floor_ms'])} ms" if (c := "row", n) in by else "—" for n in sizes]
-        lines.append("| floor: read the reference once, all cores | " + " | ".join(cells) + " |")
+    def floor_row(case="row", key="floor_ms", label="floor: read the float32 reference once, all cores"):
+        cells = [f"{_fmt(by[(case, n)][key])} ms" if (case, n) in by else "—" for n in sizes]
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
 
     floor_row()
+    floor_row("row-u8", "floor_u8_ms", "floor (uint8): read the compact reference (N × 512 bytes) once, all cores")
     row("difference row + normalisation (SAD, prepared map, all cores)", "row")
+    row("**compact layout** (uint8 codes): row + normalisation, all cores", "row-u8", floor="floor_u8_ms")
     row("the same, one thread", "row-1t")
     row("`difference_row`, cosine, raw reference (validates every call)", "cosine-raw")
     row("prepared cosine row + normalisation", "cosine")
@@ -307,16 +351,22 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
     row("… of which front-end", "live", "frontend_ms", ratio=False)
     row("… of which difference row", "live", "difference_ms", ratio=False)
     row("… of which models + filter", "live", "model_ms", ratio=False)
+    row("**full live step on the compact map** (combined, 2000 particles)", "live-u8", floor="floor_u8_ms")
+    row("… of which front-end", "live-u8", "frontend_ms", ratio=False)
+    row("… of which difference row", "live-u8", "difference_ms", ratio=False)
+    row("… of which models + filter", "live-u8", "model_ms", ratio=False)
     lines += ["", "Peak RSS of each process (reference, buffers, models; Python and numba ≈ 150–200 MB):", "",
               "| process | " + " | ".join(f"N = {n:,}" for n in sizes) + " |", "|---|" + "---|" * len(sizes)]
-    for label, case in (("difference rows (SAD)", "row"), ("matcher alone (float64 ring, l_max 500)", "matcher"),
-                        ("full live step (combined)", "live")):
+    for label, case in (("difference rows (SAD)", "row"), ("difference rows, compact layout (codes only)", "row-u8"),
+                        ("matcher alone (adaptive, l_max 500)", "matcher"),
+                        ("full live step (combined)", "live"),
+                        ("full live step (combined), compact map (the float map is held too)", "live-u8")):
         cells = []
         for n in sizes:
             r = by.get((case, n))
             cells.append("not run" if r is None else f"{_fmt(r['peak_rss_mb'], 0)} MB")
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    live = [by[("live", n)] for n in sizes if ("live", n) in by]
+    live = [by[(c, n)] for c in ("live", "live-u8") for n in sizes if (c, n) in by][:len(sizes)]
     if live:
         lines += ["", "Preparing the live map (validation, layout, bootstrap from sampled pairs): " +
                   ", ".join(f"N = {r['n']:,}: {r['prepare_s']:.1f} s (anchor rows {r['anchor_rows']})"
@@ -334,6 +384,18 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
                          f"{r['first_row_s']:.2f} | {r['twenty_combined_steps_s']:.2f} |")
         warm = np.median([r["process_s"] for r in cold["runs"] if r["label"] == "warm"])
         lines += ["", f"Cold / warm: ×{cold['runs'][0]['process_s'] / warm:.2f}."]
+        first = cold["runs"][0].get("compiled_s")
+        if first is not None:
+            lines += ["", "Kernels compiled in each run (numba compile events, top level; seconds):", "",
+                      "| kernel | " + " | ".join(r["label"] for r in cold["runs"]) + " |",
+                      "|---|" + "---|" * len(cold["runs"])]
+            names = list(dict.fromkeys(k for r in cold["runs"] for k in r.get("compiled_s", {})))
+            for name in names:
+                cells = [f"{r['compiled_s'][name]:.2f}" if name in r.get("compiled_s", {}) else "cached"
+                         for r in cold["runs"]]
+                lines.append(f"| `{name}` | " + " | ".join(cells) + " |")
+            totals = [f"{sum(r.get('compiled_s', {}).values()):.2f}" for r in cold["runs"]]
+            lines.append("| total | " + " | ".join(totals) + " |")
     if shards:
         s = shards
         per_shard_mb = s["shard_places"] * DIM * 4 / 2**20
@@ -355,10 +417,12 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000, 1_000_000])
-    parser.add_argument("--cases", nargs="+", default=["row", "row-1t", "cosine-raw", "cosine", "matcher", "live"])
+    parser.add_argument("--cases", nargs="+", default=["row", "row-u8", "row-1t", "cosine-raw", "cosine", "matcher", "live",
+                                                          "live-u8"])
     parser.add_argument("--frames", type=int, default=60)
     parser.add_argument("--l-max", type=int, default=500)
     parser.add_argument("--cold-start", action="store_true", help="measure only the cold start")
+    parser.add_argument("--tree", help="with --cold-start: import catgraph from this checkout (a frozen copy)")
     parser.add_argument("--dask", action="store_true", help="measure only the Dask shards")
     parser.add_argument("--case", help=argparse.SUPPRESS)
     parser.add_argument("--n", type=int, help=argparse.SUPPRESS)
@@ -371,7 +435,7 @@ def main() -> None:
     store = RESULTS / "live.json"
     previous = json.loads(store.read_text()) if store.exists() else {"results": [], "cold": None}
     if args.cold_start:
-        previous["cold"] = cold_start()
+        previous["cold"] = cold_start(tree=args.tree)
     elif args.dask:
         previous["shards"] = dask_shards()
     else:
