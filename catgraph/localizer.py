@@ -87,7 +87,7 @@ from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .graph import PlaceGraph
 from .motion import FrameMotion, MotionModel, OdometryMotion
 from .observation import Observation, ObservationModel
-from .particles import ParticleSet, get_resampler, normalise_in_place, place_to_edges
+from .particles import ParticleSet, _first_in_edge, get_resampler, normalise_in_place
 
 __all__ = ["Estimate", "LocalizationResult", "Localizer", "check_odometry", "confidence_log_odds"]
 
@@ -137,18 +137,239 @@ def confidence_log_odds(w_in: float, w_out: float, log_map: float, log_new: floa
 
 
 @numba.njit(cache=True)
-def _reweight_kernel(edge, fraction, log_weight, source, target, log_ratio, informative, weight):  # pragma: no cover
-    """In place: normalise the prior weights, add ``ℓ`` (interpolated log-ratio),
-    normalise again (:func:`~catgraph.particles.normalise_in_place` both times);
-    ``weight`` gets the normalised weights. Returns ``(log E_map, ESS)``,
-    ``E_map = Σ w_prior · e^ℓ`` with the prior weights normalised."""
-    normalise_in_place(log_weight, weight)
-    if informative:
-        for i in range(edge.shape[0]):
+def _reweight_kernel(edge, fraction, log_weight, source, target, log_ratio, n_cloud, log_recovery, weight,
+                     mass):  # pragma: no cover - compiled
+    """Reweight the cloud and the recovery particles, normalise, and sum the posterior
+    mass per place. ``log_weight`` holds the prediction: the cloud (slots
+    ``< n_cloud``) sums to ``1 − ε``, the recovery share is ``ε`` — exactly
+    ``log_recovery`` after reweighting, ``log(ε / n · Σ_j e^{r_j})``, or ``-inf`` without
+    recovery. Particle ``i`` gains ``ℓ_i`` (interpolated log-ratio); the recovery
+    particles are then scaled so that they carry exactly that mass, so only *where* a
+    jump went is sampled, never *how likely* it was. ``mass[j]`` gets the cloud's
+    particles plus the recovery share's exact distribution ``∝ e^{r_j}`` (Rao–
+    Blackwellised): the outside of any neighbourhood keeps the mass of a jump there,
+    as in the grid filter. Returns ``(log E_map, ESS)``, ``E_map = Σ prior · e^ℓ``."""
+    k = edge.shape[0]
+    for i in range(k):
+        e = edge[i]
+        f = fraction[i]
+        log_weight[i] += (1.0 - f) * log_ratio[source[e]] + f * log_ratio[target[e]]
+    mx = -np.inf
+    for i in range(n_cloud):
+        if log_weight[i] > mx:
+            mx = log_weight[i]
+    t = 0.0
+    if np.isfinite(mx):
+        for i in range(n_cloud):
+            t += np.exp(log_weight[i] - mx)
+        log_cloud = mx + np.log(t)
+    else:
+        log_cloud = -np.inf
+    if k > n_cloud and np.isfinite(log_recovery):  # recovery particles: they carry the share
+        mr = -np.inf
+        for i in range(n_cloud, k):
+            if log_weight[i] > mr:
+                mr = log_weight[i]
+        tr = 0.0
+        for i in range(n_cloud, k):
+            tr += np.exp(log_weight[i] - mr)
+        shift = log_recovery - (mr + np.log(tr))
+        for i in range(n_cloud, k):
+            log_weight[i] += shift
+    log_map = np.logaddexp(log_cloud, log_recovery)
+    if not np.isfinite(log_map):  # nothing left: uniform, as normalise_in_place does
+        lse, ess = normalise_in_place(log_weight, weight)
+        mass[:] = 0.0
+        for i in range(k):
             e = edge[i]
-            f = fraction[i]
-            log_weight[i] += (1.0 - f) * log_ratio[source[e]] + f * log_ratio[target[e]]
-    return normalise_in_place(log_weight, weight)
+            mass[source[e] if fraction[i] < 0.5 else target[e]] += weight[i]
+        return lse, ess
+    sq = 0.0
+    mass[:] = 0.0
+    for i in range(k):
+        log_weight[i] -= log_map
+        w = np.exp(log_weight[i])
+        weight[i] = w
+        sq += w * w
+        if i < n_cloud:
+            e = edge[i]
+            mass[source[e] if fraction[i] < 0.5 else target[e]] += w
+    if np.isfinite(log_recovery):
+        r_max = -np.inf
+        for j in range(log_ratio.shape[0]):
+            if log_ratio[j] > r_max:
+                r_max = log_ratio[j]
+        z = 0.0
+        for j in range(log_ratio.shape[0]):
+            z += np.exp(log_ratio[j] - r_max)
+        share = np.exp(log_recovery - log_map) / z
+        for j in range(log_ratio.shape[0]):
+            mass[j] += share * np.exp(log_ratio[j] - r_max)
+    return log_map, 1.0 / sq
+
+
+@numba.njit(cache=True)
+def _recovery_kernel(log_ratio, kind, top, log_keep, log_recovery, n_cloud, edge, fraction, log_weight, velocity,
+                     uniform, cumulative, out_ptr, first_in):  # pragma: no cover - compiled
+    """The prediction's recovery share, exactly as the grid filter mixes it:
+    ``(1 − ε) · cloud + ε · uniform``. The cloud (slots ``< n_cloud``) is normalised and
+    scaled by ``1 − ε``; the ``M`` slots after it get places drawn from a proposal ``q``
+    (systematically: one offset ``uniform[0]``, positions ``(u + m) / M``), each with
+    the weight ``ε / (n_places · M · q_j)`` of an importance sample of the uniform
+    share. ``kind``: 0 likelihood (``q ∝ e^{r}``, so after reweighting every recovery
+    particle weighs the same, ``ε Σ_j e^{r_j} / (n_places M)``: the mass of a jump is
+    exact, only where it went is sampled), 1 best (half uniform, half the ``top``
+    places), 2 uniform."""
+    n = log_ratio.shape[0]
+    m_slots = edge.shape[0] - n_cloud
+    # the cloud: normalise (a cloud that left the map entirely becomes uniform), times 1 − ε
+    mx = -np.inf
+    for i in range(n_cloud):
+        if log_weight[i] > mx:
+            mx = log_weight[i]
+    if np.isfinite(mx):
+        t = 0.0
+        for i in range(n_cloud):
+            t += np.exp(log_weight[i] - mx)
+        shift = mx + np.log(t) - log_keep
+        for i in range(n_cloud):
+            log_weight[i] -= shift
+    else:
+        for i in range(n_cloud):
+            log_weight[i] = log_keep - np.log(n_cloud)
+    # the proposal's cumulative distribution over places
+    if kind == 0:
+        r_max = -np.inf
+        for j in range(n):
+            if log_ratio[j] > r_max:
+                r_max = log_ratio[j]
+        acc = 0.0
+        for j in range(n):
+            acc += np.exp(log_ratio[j] - r_max)
+            cumulative[j] = acc
+    elif kind == 1:
+        acc = 0.0
+        for j in range(n):
+            acc += 0.5 / n
+            cumulative[j] = acc
+        for t in range(top.shape[0]):
+            j = top[t]
+            if j >= 0:
+                for jj in range(j, n):
+                    cumulative[jj] += 0.5 / top.shape[0]
+    else:
+        for j in range(n):
+            cumulative[j] = (j + 1.0) / n
+    total = cumulative[n - 1]
+    j = 0
+    for m in range(m_slots):
+        pos = (uniform[0] + m) / m_slots * total
+        while j < n - 1 and cumulative[j] <= pos:
+            j += 1
+        q = (cumulative[j] - (cumulative[j - 1] if j > 0 else 0.0)) / total
+        k = n_cloud + m
+        n_out = out_ptr[j + 1] - out_ptr[j]
+        if n_out > 0:
+            edge[k] = out_ptr[j] + min(int(uniform[m + 1] * n_out), n_out - 1)
+            fraction[k] = 0.0
+        else:
+            edge[k] = first_in[j]
+            fraction[k] = 1.0
+        velocity[k] = -1 - m  # drawn by the motion model from its prior, stratified by slot
+        log_weight[k] = log_recovery - np.log(n * m_slots * q)
+
+
+@numba.njit(cache=True)
+def _place_mass_kernel(edge, fraction, weight, source, target, out):  # pragma: no cover - compiled
+    """``out[j] = Σ_{i: place(i) = j} weight[i]``; a particle's place is the nearer of
+    its edge's two places. ``weight`` may be log-weights (``log=True`` callers exp first)."""
+    out[:] = 0.0
+    for i in range(edge.shape[0]):
+        e = edge[i]
+        j = source[e] if fraction[i] < 0.5 else target[e]
+        out[j] += weight[i]
+
+
+@numba.njit(cache=True)
+def _systematic_gather(weight, u, edge, fraction, velocity, n_out, edge_out, fraction_out,
+                       velocity_out):  # pragma: no cover - compiled
+    """Systematic resampling of ``weight`` (any length) to ``n_out`` particles, written
+    into ``*_out``: the indices :func:`~catgraph.particles.systematic_resample` gives for
+    the same uniform ``u``, without building them."""
+    total = 0.0
+    for i in range(weight.shape[0]):
+        total += weight[i]
+    acc = weight[0]
+    i = 0
+    last = weight.shape[0] - 1
+    for k in range(n_out):
+        pos = (u + k) / n_out
+        while i < last and acc / total <= pos:
+            i += 1
+            acc += weight[i]
+        edge_out[k] = edge[i]
+        fraction_out[k] = fraction[i]
+        velocity_out[k] = velocity[i]
+
+
+@numba.njit(cache=True)
+def _fill_recovery(start, n_new, u_places, cumulative, out_ptr, first_in, edge_out, fraction_out,
+                   velocity_out):  # pragma: no cover - compiled
+    """Slots ``start .. start + n_new``: places drawn systematically (offset ``u_places``)
+    from ``cumulative``, each on an out-edge chosen by where its position falls inside
+    the place's interval (uniform, independent of the place), velocity stratified."""
+    n = cumulative.shape[0]
+    z = cumulative[n - 1]
+    j = 0
+    for m in range(n_new):
+        pos = (u_places + m) / n_new * z
+        while j < n - 1 and cumulative[j] <= pos:
+            j += 1
+        low = cumulative[j - 1] if j > 0 else 0.0
+        within = (pos - low) / (cumulative[j] - low) if cumulative[j] > low else 0.0
+        k = start + m
+        n_edges = out_ptr[j + 1] - out_ptr[j]
+        if n_edges > 0:
+            edge_out[k] = out_ptr[j] + min(int(within * n_edges), n_edges - 1)
+            fraction_out[k] = 0.0
+        else:
+            edge_out[k] = first_in[j]
+            fraction_out[k] = 1.0
+        velocity_out[k] = -1 - m  # drawn by the motion model from its prior, stratified
+
+
+@numba.njit(cache=True)
+def _systematic_gather_recovering(weight, recovery_weight, u, u_places, edge, fraction, velocity, n_out, cumulative,
+                                  out_ptr, first_in, edge_out, fraction_out,
+                                  velocity_out):  # pragma: no cover - compiled
+    """Systematic resampling of the cloud (``weight``) and the recovery share (one more
+    entry, ``recovery_weight``) to ``n_out`` particles. The slots the recovery share
+    earns are filled with places drawn afresh — systematically, offset ``u_places`` —
+    from its exact posterior, ``cumulative`` (``∝ e^{r_j}``): every slot a new place, so
+    the share is as diverse as its mass allows. A slot's out-edge comes from where its
+    position falls inside the place's interval (uniform, independent of the place)."""
+    total = recovery_weight
+    for i in range(weight.shape[0]):
+        total += weight[i]
+    acc = 0.0
+    i = -1
+    last = weight.shape[0] - 1
+    n_cloud_slots = n_out
+    for k in range(n_out):
+        pos = (u + k) / n_out * total
+        while i < last and acc <= pos:
+            i += 1
+            acc += weight[i]
+        if acc <= pos:  # past the cloud: the rest of the slots go to the recovery share
+            n_cloud_slots = k
+            break
+        edge_out[k] = edge[i]
+        fraction_out[k] = fraction[i]
+        velocity_out[k] = velocity[i]
+    n_new = n_out - n_cloud_slots
+    _fill_recovery(n_cloud_slots, n_new, u_places, cumulative, out_ptr, first_in, edge_out, fraction_out,
+                   velocity_out)
+    return n_new
 
 
 @numba.njit(cache=True)
@@ -255,8 +476,9 @@ class LocalizationResult:
         return self.place
 
 
-#: Where re-drawn particles go (see the module docstring).
-PROPOSALS = ("best", "uniform")
+#: Where recovery particles are drawn (see the module docstring); the first is the default.
+PROPOSALS = ("likelihood", "best", "uniform")
+_PROPOSAL_CODE = {name: k for k, name in enumerate(PROPOSALS)}
 
 
 class Localizer:
@@ -273,10 +495,21 @@ class Localizer:
         :class:`~catgraph.motion.FrameMotion` otherwise.
     resampler : {"systematic", "stratified", "residual", "multinomial"}
     ess_threshold : float in [0, 1]
-        Resample when ESS < ``ess_threshold · n_particles``.
+        Without recovery particles: resample when ESS < ``ess_threshold · n_particles``
+        (with them, every step folds them into the cloud).
+    recovery : float in [0, 1)
+        ``ε``: prior probability per frame of a jump anywhere on the map, the grid
+        filter's ``recovery``.
     redraw_fraction : float in [0, 1)
-        Fraction of particles re-drawn from the proposal each step.
-    proposal : {"best", "uniform"}
+        0 turns recovery off. Otherwise, for the ``"best"`` and ``"uniform"`` proposals,
+        the recovery particles drawn each step, as a fraction of ``n_particles``; the
+        ``"likelihood"`` proposal needs none (the share's mass is exact and its places
+        are drawn at resampling, as many as the mass earns).
+    proposal : {"likelihood", "best", "uniform"}
+        Where the recovery share's particles come from: its exact posterior ``∝ e^{r}``
+        (drawn at resampling; the default), or importance samples — half uniform and
+        half the ``proposal_top_k`` best places, or uniform. Every choice targets the
+        same posterior (the grid filter's); they differ in variance.
     proposal_top_k : int
         Number of best places the ``"best"`` proposal draws from.
     new_place_prior : float in [0, 1)
@@ -296,22 +529,25 @@ class Localizer:
     Attributes
     ----------
     particles_ : ParticleSet
+        The cloud (``n_particles``), views into the filter's fixed arrays.
     new_place_probability_ : float
+    place_posterior_ : ndarray of float64, shape (n_places,)
     n_steps_ : int
     """
 
     def __init__(self, graph: PlaceGraph, model: ObservationModel, n_particles: int = 2000,
                  motion: MotionModel | None = None, resampler: str = "systematic", ess_threshold: float = 0.5,
-                 redraw_fraction: float = 0.02, proposal: str = "best", proposal_top_k: int = 10,
-                 new_place_prior: float = 0.05, new_place_stay: float = 0.8, confidence_radius: int = 2,
-                 confidence_radius_m: float | None = None, confidence_score: str = "joint",
-                 seed: int | np.random.Generator | None = 0) -> None:
+                 recovery: float = 0.05, redraw_fraction: float = 0.1, proposal: str = "likelihood",
+                 proposal_top_k: int = 10, new_place_prior: float = 0.0, new_place_stay: float = 0.8,
+                 confidence_radius: int = 2, confidence_radius_m: float | None = None,
+                 confidence_score: str = "joint", seed: int | np.random.Generator | None = 0) -> None:
         self.graph = graph
         self.model = model
         self.n_particles = n_particles
         self.motion = motion
         self.resampler = resampler
         self.ess_threshold = ess_threshold
+        self.recovery = recovery
         self.redraw_fraction = redraw_fraction
         self.proposal = proposal
         self.proposal_top_k = proposal_top_k
@@ -333,6 +569,7 @@ class Localizer:
             )
         check_scalar(self.n_particles, "n_particles", owner, int, 1)
         check_scalar(self.ess_threshold, "ess_threshold", owner, float, 0.0, 1.0)
+        check_scalar(self.recovery, "recovery", owner, float, 0.0, 1.0, True, False)
         check_scalar(self.redraw_fraction, "redraw_fraction", owner, float, 0.0, 1.0, True, False)
         check_scalar(self.proposal_top_k, "proposal_top_k", owner, int, 1)
         check_scalar(self.new_place_prior, "new_place_prior", owner, float, 0.0, 1.0, True, False)
@@ -344,7 +581,9 @@ class Localizer:
                 f"Got {self.confidence_score!r} instead."
             )
         if self.proposal not in PROPOSALS:
-            raise InvalidParameterError(f"The 'proposal' parameter of {owner} must be 'best' or 'uniform'. Got {self.proposal!r} instead.")
+            raise InvalidParameterError(
+                f"The 'proposal' parameter of {owner} must be one of {', '.join(map(repr, PROPOSALS))}. "
+                f"Got {self.proposal!r} instead.")
         if self.confidence_radius_m is not None:
             check_scalar(self.confidence_radius_m, "confidence_radius_m", owner, float, 0.0)
             if self.graph.positions is None:
@@ -352,16 +591,40 @@ class Localizer:
         self._resample = get_resampler(self.resampler)
 
     def reset(self) -> "Localizer":
-        """Start afresh: particles uniform over the graph, ``P(new) = 0``, model reset."""
+        """Start afresh: particles uniform over the graph, ``P(new) = 0``, model reset.
+
+        Every array a step touches is allocated here, once: the cloud and the recovery
+        slots after it, the weights, the resampling and proposal buffers."""
         self._validate()
+        g, n = self.graph, self.n_particles
         self._rng = as_generator(self.seed) if not isinstance(self.seed, np.random.Generator) else self.seed
-        self.particles_ = ParticleSet.uniform(self.graph, self.n_particles, self._rng)
+        # the likelihood proposal is exact: the share's mass in closed form, its places drawn
+        # from its posterior at resampling; the others are importance samples, m of them
+        self._exact_recovery = self.recovery > 0 and self.redraw_fraction > 0 and self.proposal == "likelihood"
+        m = int(round(self.redraw_fraction * n)) if self.recovery > 0 and not self._exact_recovery else 0
+        self._n_recovery = m
+        cloud = ParticleSet.uniform(g, n, self._rng)
+        self._edge = np.concatenate([cloud.edge, np.zeros(m, dtype=np.int64)])
+        self._fraction = np.concatenate([cloud.fraction, np.zeros(m)])
+        self._log_weight = np.concatenate([cloud.log_weight, np.full(m, -np.inf)])
+        self._velocity = -1 - np.arange(n + m, dtype=np.int64)  # stratified draws from the velocity prior
+        self.particles_ = ParticleSet(self._edge[:n], self._fraction[:n], self._log_weight[:n], self._velocity[:n])
+        self._weight = np.exp(self._log_weight)
+        self._gathered = (np.empty(n, dtype=np.int64), np.empty(n), np.empty(n, dtype=np.int64))
+        self._uniform = np.empty(m + 1)
+        self._u2 = np.empty(2)
+        self._recovery_weight = 0.0
+        self._cumulative = np.empty(g.n_places)
+        self._mass = np.empty(g.n_places)
+        self._prior = np.empty(g.n_places)
+        self._first_in = _first_in_edge(g)
+        self._top = np.full(min(self.proposal_top_k, g.n_places), -1, dtype=np.int64)
         self.new_place_probability_ = 0.0
         self.n_steps_ = 0
-        self._weight = np.exp(self.particles_.log_weight)
         self._log_new, self._log_map = -math.inf, 0.0
         self._support = None
-        self._no_ratio = np.zeros(self.graph.n_places)
+        self._recovered = False
+        self._no_ratio = np.zeros(g.n_places)
         self._motions = (self.motion or FrameMotion(), self.motion or OdometryMotion())
         self.model.reset()
         self._has_feedback = callable(getattr(self.model, "feedback", None))
@@ -393,26 +656,37 @@ class Localizer:
         obs = self.model.observe(row)
         self._move(odometry)
         self._inject(obs)
-        w = np.exp(self.particles_.log_weight)
-        prior = self._place_mass(w / w.sum())
+        prior = self._predicted_mass() if self._has_feedback else None
         ess = self._reweight(obs)
         self._support = obs.support if obs.informative else None
+        mass = self._mass
         resampled = self._resample_if_degenerate(ess)
-        estimate, near = self._summarise(ess, resampled)
+        estimate, near = self._summarise(mass, ess, resampled)
         self._feedback(prior, near)
         self.n_steps_ += 1
         return estimate
 
     def _place_mass(self, weight: np.ndarray) -> np.ndarray:
         g = self.graph
-        return np.bincount(self.particles_.places(g), weights=weight, minlength=g.n_places)
+        _place_mass_kernel(self._edge, self._fraction, weight, g.source, g.target, self._mass)
+        return self._mass
 
-    def _feedback(self, prior: np.ndarray, near) -> None:
+    def _predicted_mass(self) -> np.ndarray:
+        """The prediction's place masses, ``(1 − ε) · cloud + ε / n_places`` (the grid's
+        ``prior_``): the cloud's, plus the recovery share exactly rather than sampled."""
+        g, n = self.graph, self.n_particles
+        np.exp(self._log_weight[:n], out=self._weight[:n])
+        _place_mass_kernel(self._edge[:n], self._fraction[:n], self._weight[:n], g.source, g.target, self._prior)
+        if self._recovered:
+            self._prior += self.recovery / g.n_places
+        return self._prior
+
+    def _feedback(self, prior, near) -> None:
         """Tell the model the filter's prediction and answer (``ObservationModel.feedback``)."""
         if self._has_feedback:
             from .observation import FilterFeedback
 
-            self.model.feedback(FilterFeedback(prior, self.place_posterior_, near))
+            self.model.feedback(FilterFeedback(prior.copy(), self.place_posterior_, near))
 
     def _move(self, odometry: float | None) -> None:
         if self.n_steps_ == 0:
@@ -421,29 +695,40 @@ class Localizer:
         motion.move(self.particles_, self.graph, self._rng, odometry)
 
     def _inject(self, obs: Observation) -> None:
-        n_new = int(round(self.redraw_fraction * self.n_particles))
-        if n_new == 0 or not obs.informative:
+        """The recovery share ``ε`` (see :func:`_recovery_kernel`); none on the first frame."""
+        n, m = self.n_particles, self._n_recovery
+        self._recovered = (m > 0 or self._exact_recovery) and self.n_steps_ > 0
+        if not self._recovered:
+            normalise_in_place(self._log_weight[:n], self._weight[:n])
             return
-        p, rng = self.particles_, self._rng
-        who = rng.integers(0, self.n_particles, size=n_new)  # repeats are harmless
+        g = self.graph
+        log_ratio = obs.log_ratio if obs.informative else self._no_ratio
+        log_ratio = np.ascontiguousarray(log_ratio, dtype=np.float64)
         if self.proposal == "best":
-            k = min(self.proposal_top_k, self.graph.n_places)
-            top = _top_k(obs.log_ratio, k)
-            places = top[rng.integers(0, k, size=n_new)]
-        else:
-            places = rng.integers(0, self.graph.n_places, size=n_new)
-        p.edge[who], p.fraction[who] = place_to_edges(self.graph, places, rng)
-        if p.velocity is not None:
-            p.velocity[who] = -1  # drawn afresh by the motion model
-        p.log_weight[who] = -math.log(self.n_particles)  # the mean weight (log-weights are normalised)
+            self._top[:] = _top_k(log_ratio, len(self._top))
+        self._rng.random(out=self._uniform)
+        k = n + m
+        _recovery_kernel(log_ratio, _PROPOSAL_CODE[self.proposal], self._top, math.log1p(-self.recovery),
+                         math.log(self.recovery), n, self._edge[:k], self._fraction[:k], self._log_weight[:k],
+                         self._velocity[:k], self._uniform, self._cumulative, g.out_ptr, self._first_in)
 
     def _reweight(self, obs: Observation) -> float:
-        p, g = self.particles_, self.graph
-        log_ratio = obs.log_ratio if obs.informative else self._no_ratio
-        log_map, ess = _reweight_kernel(p.edge, p.fraction, p.log_weight, g.source, g.target,
-                                        np.ascontiguousarray(log_ratio, dtype=np.float64), bool(obs.informative),
-                                        self._weight)
-        if obs.informative:
+        g, n = self.graph, self.n_particles
+        k = n + (self._n_recovery if self._recovered else 0)
+        self._active = k
+        log_ratio = np.ascontiguousarray(obs.log_ratio if obs.informative else self._no_ratio, dtype=np.float64)
+        if k < len(self._log_weight):
+            self._log_weight[k:] = -np.inf
+            self._weight[k:] = 0.0
+        log_recovery = -math.inf
+        if self._recovered:
+            r_max = float(log_ratio.max())
+            log_recovery = (math.log(self.recovery / g.n_places) + r_max
+                            + math.log(float(np.exp(log_ratio - r_max).sum())))
+        log_map, ess = _reweight_kernel(self._edge[:k], self._fraction[:k], self._log_weight[:k], g.source, g.target,
+                                        log_ratio, n, log_recovery, self._weight[:k], self._mass)
+        self._recovery_weight = math.exp(log_recovery - log_map) if k == n and np.isfinite(log_map) else 0.0
+        if obs.informative and np.isfinite(log_map):
             prior = self.new_place_stay * self.new_place_probability_ + self.new_place_prior * (
                 1.0 - self.new_place_probability_)
             if prior > 0.0:
@@ -458,16 +743,43 @@ class Localizer:
         return float(ess)
 
     def _resample_if_degenerate(self, ess: float) -> bool:
-        if ess >= self.ess_threshold * self.n_particles:
+        """Fold the recovery share into the cloud (every step that has one), else
+        resample when ESS < ``ess_threshold · n_particles``."""
+        n = self.n_particles
+        if not self._recovered and ess >= self.ess_threshold * n:
             return False
-        idx = self._resample(self._weight, self._rng)
-        self.particles_ = self.particles_.take(idx)
-        self._weight = np.full(self.n_particles, 1.0 / self.n_particles)
+        k = self._active
+        e_out, f_out, v_out = self._gathered
+        g = self.graph
+        if self._recovered and self._exact_recovery:
+            self._rng.random(out=self._u2)
+            if self.resampler == "systematic":  # compiled, no index array
+                _systematic_gather_recovering(self._weight[:n], self._recovery_weight, self._u2[0], self._u2[1],
+                                              self._edge, self._fraction, self._velocity, n, self._cumulative,
+                                              g.out_ptr, self._first_in, e_out, f_out, v_out)
+            else:
+                w = np.append(self._weight[:n], self._recovery_weight)
+                idx = np.sort(self._resample(w, self._rng))
+                keep = idx[idx < n]
+                e_out[:len(keep)], f_out[:len(keep)], v_out[:len(keep)] = (
+                    self._edge[keep], self._fraction[keep], self._velocity[keep])
+                _fill_recovery(len(keep), n - len(keep), self._u2[1], self._cumulative, g.out_ptr, self._first_in,
+                               e_out, f_out, v_out)
+        elif self.resampler == "systematic":  # compiled, no index array
+            _systematic_gather(self._weight[:k], self._rng.random(), self._edge, self._fraction, self._velocity, n,
+                               e_out, f_out, v_out)
+        else:
+            idx = self._resample(self._weight[:k], self._rng)[:n]
+            if len(idx) != n:  # drawn for k particles; keep n of them at random
+                idx = idx[self._rng.permutation(len(idx))[:n]]
+            e_out[:], f_out[:], v_out[:] = self._edge[idx], self._fraction[idx], self._velocity[idx]
+        self._edge[:n], self._fraction[:n], self._velocity[:n] = e_out, f_out, v_out
+        self._log_weight[:n] = -math.log(n)
+        self._weight[:n] = 1.0 / n
         return True
 
-    def _summarise(self, ess: float, resampled: bool) -> tuple[Estimate, slice | np.ndarray]:
+    def _summarise(self, mass: np.ndarray, ess: float, resampled: bool) -> tuple[Estimate, slice | np.ndarray]:
         g = self.graph
-        mass = self._place_mass(self._weight)
         self.place_posterior_ = mass * (1.0 - self.new_place_probability_)
         best = int(np.argmax(mass))
         if self.confidence_radius_m is not None:

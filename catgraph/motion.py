@@ -136,14 +136,14 @@ def _velocity_kernel(edge, fraction, log_weight, velocity, uniform, speeds, cumu
                      odometry, target, out_ptr, reverse, straight, p_straight, blur, max_hops,
                      tolerance):  # pragma: no cover - compiled
     """One :class:`VelocityMotion` step for every particle, in place (see its Notes).
-    ``uniform``: ``(5, n)`` — fresh bin, bin transition, fractional speed, branch, blur.
+    ``uniform``: ``(4, n)`` — bin transition, fractional speed, branch, blur.
     ``odometry < 0``: none (move ``|v|`` places on ``hop`` lengths)."""
     nb = speeds.shape[0]
     for i in range(edge.shape[0]):
         b = velocity[i]
-        if b < 0:  # not drawn yet: the uniform velocity prior
-            b = min(int(uniform[0, i] * nb), nb - 1)
-        u = uniform[1, i]
+        if b < 0:  # not drawn yet: the uniform velocity prior, stratified (bin −1 − b mod nb)
+            b = (-1 - b) % nb
+        u = uniform[0, i]
         k = 0
         while k < nb - 1 and u > cumulative[b, k]:
             k += 1
@@ -157,16 +157,16 @@ def _velocity_kernel(edge, fraction, log_weight, velocity, uniform, speeds, cumu
         if odometry < 0.0:
             a = abs(v)
             whole = math.floor(a)
-            d = whole + (1.0 if uniform[2, i] < a - whole else 0.0)
-            e, f, rest, u = _advance_one(e, f, d, uniform[3, i], hop, target, out_ptr, reverse, straight,
+            d = whole + (1.0 if uniform[1, i] < a - whole else 0.0)
+            e, f, rest, u = _advance_one(e, f, d, uniform[2, i], hop, target, out_ptr, reverse, straight,
                                          p_straight, False, max_hops)
         else:
-            e, f, rest, u = _advance_one(e, f, odometry, uniform[3, i], metric, target, out_ptr, reverse, straight,
+            e, f, rest, u = _advance_one(e, f, odometry, uniform[2, i], metric, target, out_ptr, reverse, straight,
                                          p_straight, False, max_hops)
         if rest > tolerance:  # ran past the route's end: it leaves the map, as grid mass does
             log_weight[i] = -np.inf
         else:
-            c = uniform[4, i]
+            c = uniform[3, i]
             if c < 2.0 * blur:  # one place either way along the route; a route end keeps it
                 back = c >= blur
                 if not back or reverse[e] >= 0:
@@ -367,7 +367,7 @@ class VelocityMotion(MotionModel):
     places (edges of ``graph.hop_length``), whatever their lengths in metres; with
     odometry ``u`` the distance is ``u`` along the edge lengths (the bins keep only
     their sign), as in the grid filter. A particle that would run past a dead end gets
-    weight 0 (the grid filter's mass leaves the map there). Randomness: five uniforms
+    weight 0 (the grid filter's mass leaves the map there). Randomness: four uniforms
     per particle per step, drawn into a buffer kept between steps.
     """
 
@@ -411,10 +411,10 @@ class VelocityMotion(MotionModel):
         self._check()
         n = len(particles)
         if particles.velocity is None:
-            particles.velocity = np.full(n, -1, dtype=np.int64)
+            particles.velocity = -1 - np.arange(n, dtype=np.int64)
         buffer = self.__dict__.get("_uniform")
         if buffer is None or buffer.shape[1] != n:
-            buffer = self._uniform = np.empty((5, n))
+            buffer = self._uniform = np.empty((4, n))
         rng.random(out=buffer)
         forwards = graph.__dict__.get("_forwards")
         if forwards is None:  # a junction edge's direction: towards the larger index
