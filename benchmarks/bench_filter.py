@@ -71,27 +71,59 @@ def _time_steps(loc, rows, n_warm=10):
     return (time.perf_counter() - start) / (len(rows) - n_warm)
 
 
+def _median_ms(fn, repeats: int = 5) -> float:
+    return 1e3 * statistics.median(fn() for _ in range(repeats))
+
+
+def _memory_reference(n_values: int, repeats: int = 20) -> float:
+    """Seconds of one ``np.add`` over two arrays of ``n_values`` float64 (a measure of the
+    machine's memory bandwidth at this moment, taken beside each filter timing)."""
+    a, b = np.random.default_rng(1).random((2, n_values))
+    c = np.empty_like(a)
+    t = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        np.add(a, b, out=c)
+        t.append(time.perf_counter() - start)
+    return statistics.median(t)
+
+
 def speed() -> str:
     from catgraph.graph import PlaceGraph
-    from catgraph.grid import GridLocalizer
+    from catgraph.grid import DEFAULT_VELOCITIES, GridLocalizer
     from catgraph.localizer import Localizer
     from catgraph.motion import VelocityMotion
 
     rng = np.random.default_rng(0)
-    lines = ["# Filter step time", "", f"{platform.processor() or platform.machine()}, numpy {np.__version__}; "
-             "medians of 5 runs; observation precomputed (a fixed log-ratio vector).", "",
-             "| filter | places | step (ms) |", "|---|---|---|"]
+    nb = len(DEFAULT_VELOCITIES)
+    lines = ["# Filter step time", "", f"`python benchmarks/bench_filter.py speed`. {platform.processor() or platform.machine()}, "
+             f"numpy {np.__version__}; medians of 5 runs; observation precomputed (a fixed log-ratio vector). The "
+             "machine is shared, so each row also gives, measured in the same run, one `np.add` over an array of the "
+             f"grid's size ({nb} × places float64) and the step as a multiple of it.", "",
+             "| filter | places | step (ms) | np.add of the state (ms) | step / np.add |", "|---|---|---|---|---|"]
     n = 3576
     rows = rng.standard_normal((60, n))
     g = PlaceGraph.chain(n)
-    t = [_time_steps(Localizer(g, _FixedModel(-rows[0]), 2000, motion=VelocityMotion(), seed=0), rows)
-         for _ in range(5)]
-    lines.append(f"| particle filter, 2,000 particles, VelocityMotion | {n:,} | {1e3 * statistics.median(t):.3f} |")
+    t = _median_ms(lambda: _time_steps(Localizer(g, _FixedModel(-rows[0]), 2000, motion=VelocityMotion(), seed=0),
+                                        rows))
+    ref = 1e3 * _memory_reference(2000 * 4)
+    lines.append(f"| particle filter, 2,000 particles, VelocityMotion | {n:,} | {t:.3f} | {ref:.3f} | {t / ref:.1f} |")
     for n in (3576, 100_000):
         rows = rng.standard_normal((30, n))
-        g = PlaceGraph.chain(n)
-        t = [_time_steps(GridLocalizer(g, _FixedModel(-rows[0])), rows) for _ in range(5)]
-        lines.append(f"| grid filter, 8 velocity bins | {n:,} | {1e3 * statistics.median(t):.3f} |")
+        for label, graph in (("line graph (fast path)", PlaceGraph.chain(n)),
+                             ("general path (the reference)", None)):
+            g = PlaceGraph.chain(n)
+
+            def one():
+                loc = GridLocalizer(g, _FixedModel(-rows[0])).reset()
+                loc._line = graph is not None
+                loc.reset = lambda: loc  # keep the path chosen above
+                return _time_steps(loc, rows)
+
+            t = _median_ms(one)
+            ref = 1e3 * _memory_reference(nb * n)
+            lines.append(f"| grid filter, {nb} velocity bins, {label} | {n:,} | {t:.3f} | {ref:.3f} | {t / ref:.1f} |")
+            print(lines[-1], flush=True)
     return "\n".join(lines) + "\n"
 
 
@@ -242,9 +274,13 @@ def threshold() -> str:
     from catgraph.metrics import evaluate
     from catgraph.observation import TemperedObservation
 
+    from catgraph.sequence import match_sequences
+
     cases = [c for c in _cases() if not c.name.startswith("synthetic")]
+    sequences = {"sequence score, fixed L=50": 50, "sequence score, fixed L=100": 100,
+                 "sequence score, adaptive": "adaptive"}
     runs: dict[str, list] = {"grid filter posterior log-odds": [], "raw difference (−d_min)": [],
-                             "single-frame margin": []}
+                             "single-frame margin": [], **{k: [] for k in sequences}}
     names = []
     for case in cases:
         graph = _graph(case)
@@ -254,9 +290,13 @@ def threshold() -> str:
             names.append(f"{case.name} {cond.label}")
             res = GridLocalizer(graph, TemperedObservation()).run(c.differences, query_index=c.query.index)
             best, margin = _single_frame(c.differences)
-            for key, match, score in (("grid filter posterior log-odds", res.place, res.log_odds),
-                                      ("raw difference (−d_min)", best, -c.differences.min(1)),
-                                      ("single-frame margin", best, margin)):
+            scored = [("grid filter posterior log-odds", res.place, res.log_odds),
+                      ("raw difference (−d_min)", best, -c.differences.min(1)),
+                      ("single-frame margin", best, margin)]
+            for key, window in sequences.items():  # the matcher's defaults (velocity search included)
+                seq = match_sequences(c.differences, window=window)
+                scored.append((key, seq.match, seq.confidence))
+            for key, match, score in scored:
                 ev = evaluate(c.query.index, match, score, c.ground_truth)
                 runs[key].append((np.asarray(score, dtype=float), ev.correct.astype(bool), ev.has_true_match))
             print(names[-1], flush=True)

@@ -38,10 +38,26 @@ every backward-moving hypothesis up at place 0. With odometry ``u`` (metres sinc
 last frame) the shift is ``u`` along the route instead of ``|v_b|`` places, walking the
 chain's edge lengths (junctions are taken only by frame-based motion).
 
-Recovery and jumps. ``ε`` is the prior probability of a jump anywhere on the map; a
+Recovery and jumps. ``ε`` is the probability per frame of a jump anywhere on the map; a
 jump is then found by Bayes' rule: the uniform share is weighted by the frame's
 likelihood like everything else, so a run of frames the current track cannot explain
-moves the mass. :attr:`Estimate.score` and the confidence drop as soon as it does.
+moves the mass. A jump changes the place, not the speed: the recovery share's velocity
+distribution is half the current velocity marginal, half uniform. ``ε`` is learned
+online (``learn_recovery``, default): after each frame the posterior share of that
+frame's recovery mass, ``ε · mean_j e^{r_j} / Σ_j prior_j e^{r_j}`` (the E-step of EM
+for a mixture weight), enters a discounted mean (half-life ``RECOVERY_MEMORY`` frames,
+the ``recovery`` argument as a prior worth ``RECOVERY_PRIOR_FRAMES`` frames). A query in
+order drives ``ε`` down, so the track is held tightly; a query that jumps drives it up,
+so the filter lets go of a track sooner.
+
+New place. ``P(new)`` is a two-state hypothesis "this frame is a place the map does
+not cover", entered with probability ``new_place_prior`` per frame and kept with
+``new_place_stay``, weighted by the model's ``new_place_log_ratio`` against the map's
+``log Σ_j prior_j e^{r_j}``. When the track stops explaining the frames (after a jump,
+or in unmapped space) the map's evidence falls below the new place's and ``P(new)``
+rises, so the confidence ``P(map) · mass near the answer`` falls at once, before the
+mass has moved to the new place. :attr:`Estimate.score` and the confidence drop as
+soon as either happens.
 
 Estimate. Mass per place ``m_j = (1 − P(new)) Σ_b P[j, b]``; the answer ``argmax_j m_j``,
 its confidence the mass within ``confidence_radius`` places (or metres, on a graph with
@@ -53,9 +69,15 @@ Feedback. After each step the filter calls ``model.feedback(FilterFeedback)`` wi
 predicted (prior) and posterior place masses (:class:`~catgraph.observation.FilterFeedback`):
 models that learn from the filter (the tempered whole-image model) do it there.
 
-Cost. A step is ``O(n_places · (n_bins · max|v| + n_bins²))`` in compiled loops:
-about 1 ms at 10⁵ places with the default 8 velocity bins on one core (see
-``benchmarks/bench_filter.py``); memory ``O(n_places · n_bins)``.
+Cost. On a *line* graph (the chain of a route: place ``j``'s neighbours are ``j ± 1``,
+no junctions) without odometry, the prediction is a per-velocity shift by index
+arithmetic plus the blur, fused into one compiled pass per velocity bin over a
+velocity-major state, and the update is kept factored (prediction × the frame's
+likelihood per place), so a step reads the state about twice: ``O(n_places · n_bins)``
+(see ``benchmarks/results/filter_speed.md``). Branching graphs and odometry take the
+general path (:func:`predict`: a walk along the graph's edges, junctions included),
+which is also the slow reference the line path is tested against. Memory
+``O(n_places · n_bins)``.
 """
 
 from __future__ import annotations
@@ -73,6 +95,12 @@ from .graph import PlaceGraph
 __all__ = ["GridLocalizer", "route_neighbours", "velocity_transition", "predict"]
 
 _CHAIN, _REVERSE, _JUNCTION = 0, 1, 2
+
+#: The learned jump rate: half-life (frames) of its running mean, weight (frames) of
+#: the ``recovery`` prior, and its range.
+RECOVERY_MEMORY = 100.0
+RECOVERY_PRIOR_FRAMES = 20.0
+RECOVERY_RANGE = (1e-4, 0.5)
 
 #: Default signed velocity bins (places per query frame).
 DEFAULT_VELOCITIES = (-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0)
@@ -233,24 +261,108 @@ def _shift_walk(p, out, whole, frac, sign, fwd, bwd, t_ptr, t_src, t_val):  # pr
                     out[u, b] += frac[b] * m
 
 
-@numba.njit(cache=True)
-def _apply_likelihood(state, log_ratio, top):  # pragma: no cover - compiled
-    """``state[j, b] *= e^{r_j − top}`` in place, then normalise; returns the total
-    before normalising (0: every place impossible, state left as predicted)."""
-    n, nb = state.shape
-    like = np.empty(n)
+@numba.njit(cache=True, fastmath=True)
+def _likelihood(state, log_ratio, top, prior_mass, like, velocity):  # pragma: no cover - compiled
+    """The update, kept factored: ``like[j] = e^{r_j − top} / Σ_j prior_mass_j e^{r_j − top}``,
+    so that the posterior is ``state[b, j] · like[j]`` (velocity-major ``state``, the
+    prediction, left untouched); ``velocity`` gets the posterior velocity marginal.
+    Returns ``(total, mean likelihood)``: the normaliser before division (0: every
+    place impossible, ``like`` left as it was) and ``mean_j e^{r_j − top}``."""
+    nb, n = state.shape
+    like_sum = 0.0
     total = 0.0
     for j in range(n):
-        like[j] = np.exp(log_ratio[j] - top)
-        for b in range(nb):
-            total += state[j, b] * like[j]
+        e = np.exp(log_ratio[j] - top)
+        like_sum += e
+        total += prior_mass[j] * e
     if not (total > 0.0) or not np.isfinite(total):
-        return 0.0
+        return 0.0, like_sum / n
     for j in range(n):
-        f = like[j] / total
-        for b in range(nb):
-            state[j, b] *= f
-    return total
+        like[j] = np.exp(log_ratio[j] - top) / total
+    for b in range(nb):
+        row = state[b]
+        acc = 0.0
+        for j in range(n):
+            acc += row[j] * like[j]
+        velocity[b] = acc
+    return total, like_sum / n
+
+
+@numba.njit(cache=True, fastmath=True)
+def _line_predict(p, like, prior_mass, out, t_row, m_row, mass, t_ptr, t_src, t_val, whole, frac, sign, blur,
+                  recovery, velocity_prior):  # pragma: no cover - compiled
+    """:func:`predict` on a line graph (place ``j``'s neighbours are ``j ± 1``, no
+    junctions, no odometry) from the factored posterior ``p[b, j] · like[j]``
+    (velocity-major), one velocity row at a time: transition (into ``t_row``), shift by
+    index arithmetic (into ``m_row``), blur and recovery (into ``out[b]``); ``mass`` gets
+    the predicted place masses. The mass that runs past a route end, needed before the
+    first row is written, is summed first from the few places within reach of the ends."""
+    nb, n = p.shape
+    total_in = 0.0
+    for j in range(n):
+        total_in += prior_mass[j] * like[j]
+    lost = 0.0
+    for b in range(nb):
+        for part in range(2):
+            hops = whole[b] + part
+            share = 1.0 - frac[b] if part == 0 else frac[b]
+            if share == 0.0 or hops == 0:
+                continue
+            lo, hi = (n - hops, n) if sign[b] > 0 else (0, hops)
+            if lo < 0:
+                lo = 0
+            if hi > n:
+                hi = n
+            for j in range(lo, hi):
+                acc = 0.0
+                for c in range(t_ptr[b], t_ptr[b + 1]):
+                    acc += t_val[c] * p[t_src[c], j]
+                lost += share * acc * like[j]
+    total = total_in - lost
+    keep = (1.0 - recovery) / total if total > 0 else 0.0
+    share0 = recovery / n if total > 0 else 1.0 / n
+    for j in range(n):
+        mass[j] = 0.0
+    centre = keep * (1.0 - 2.0 * blur)
+    side = keep * blur
+    for b in range(nb):
+        t_row[:] = 0.0
+        c0 = t_ptr[b]
+        if c0 < t_ptr[b + 1]:
+            src, w = p[t_src[c0]], t_val[c0]
+            for j in range(n):
+                t_row[j] = w * src[j]
+        for c in range(c0 + 1, t_ptr[b + 1]):
+            src, w = p[t_src[c]], t_val[c]
+            for j in range(n):
+                t_row[j] += w * src[j]
+        for j in range(n):
+            t_row[j] *= like[j]
+        # moved[j] = (1 − f) T[j − s w] + f T[j − s (w + 1)]
+        m_row[:] = 0.0
+        for part in range(2):
+            hops = whole[b] + part
+            share = 1.0 - frac[b] if part == 0 else frac[b]
+            if share == 0.0 or hops >= n:
+                continue
+            if sign[b] > 0:
+                for j in range(hops, n):
+                    m_row[j] += share * t_row[j - hops]
+            else:
+                for j in range(n - hops):
+                    m_row[j] += share * t_row[j + hops]
+        # blur one place either way (a route end keeps what would leave it), then recovery
+        o = out[b]
+        base = share0 * velocity_prior[b]
+        if n == 1:
+            o[0] = keep * m_row[0] + base
+        else:
+            o[0] = centre * m_row[0] + side * (m_row[0] + m_row[1]) + base
+            for j in range(1, n - 1):
+                o[j] = centre * m_row[j] + side * (m_row[j - 1] + m_row[j + 1]) + base
+            o[n - 1] = centre * m_row[n - 1] + side * (m_row[n - 2] + m_row[n - 1]) + base
+        for j in range(n):
+            mass[j] += o[j]
 
 
 @numba.njit(cache=True)
@@ -377,17 +489,23 @@ class GridLocalizer:
     velocities : sequence of float
         Signed speed bins, places per query frame (default ``±0.5, ±1, ±2, ±3``).
     velocity_stay : float in [0, 1]
-        Probability of keeping the velocity bin from one frame to the next.
+        Probability of keeping the velocity bin from one frame to the next (default
+        0.99: a query's speed changes slowly, and a looser velocity lets a slow
+        hypothesis leak into the faster bins; measured in ``docs/particle_filter.md``).
     reverse_probability : float in [0, 1]
         Probability per frame of turning round (``v → −v``).
     blur : float in [0, 0.5)
-        Share of mass moved one place either way after the shift.
+        Share of mass moved one place either way after the shift (default 0.01).
     recovery : float in [0, 1)
-        ``ε``: prior probability per frame of a jump anywhere on the map.
+        ``ε``: prior probability per frame of a jump anywhere on the map (0: never).
+    learn_recovery : bool
+        Learn ``ε`` online from the frames (see the module docstring), starting from
+        and shrunk towards ``recovery``.
     junction_probability : float in [0, 0.5]
         Share of mass taking each junction edge at a junction place.
     new_place_prior, new_place_stay : float in [0, 1)
-        The new-place hypothesis' two-state prior (as :class:`~catgraph.localizer.Localizer`).
+        The new-place hypothesis' two-state prior (as :class:`~catgraph.localizer.Localizer`,
+        with its defaults 0.05 and 0.8; ``new_place_prior=0`` switches it off).
     confidence_radius : int
         Places either side of the answer counted in its confidence.
     confidence_radius_m : float, optional
@@ -402,13 +520,16 @@ class GridLocalizer:
     place_posterior_ : ndarray of float64, shape (n_places,)
         ``(1 − P(new)) Σ_b state_[:, b]``.
     new_place_probability_ : float
+    recovery_ : float
+        The jump rate ``ε`` used by the latest prediction (learned, or ``recovery``).
     n_steps_ : int
     """
 
-    def __init__(self, graph: PlaceGraph, model, velocities=DEFAULT_VELOCITIES, velocity_stay: float = 0.9,
-                 reverse_probability: float = 0.001, blur: float = 0.05, recovery: float = 0.05,
-                 junction_probability: float = 0.1, new_place_prior: float = 0.0, new_place_stay: float = 0.8,
-                 confidence_radius: int = 2, confidence_radius_m: float | None = None) -> None:
+    def __init__(self, graph: PlaceGraph, model, velocities=DEFAULT_VELOCITIES, velocity_stay: float = 0.99,
+                 reverse_probability: float = 0.001, blur: float = 0.01, recovery: float = 0.05,
+                 junction_probability: float = 0.1, new_place_prior: float = 0.05, new_place_stay: float = 0.8,
+                 confidence_radius: int = 2, confidence_radius_m: float | None = None,
+                 learn_recovery: bool = True) -> None:
         self.graph = graph
         self.model = model
         self.velocities = velocities
@@ -421,6 +542,12 @@ class GridLocalizer:
         self.new_place_stay = new_place_stay
         self.confidence_radius = confidence_radius
         self.confidence_radius_m = confidence_radius_m
+        self.learn_recovery = learn_recovery
+
+    @property
+    def state_(self) -> np.ndarray:
+        """Posterior over (place, velocity bin), shape ``(n_places, n_bins)`` (a view)."""
+        return (self._state * self._like).T
 
     # ------------------------------------------------------------------ setup
     def _validate(self) -> None:
@@ -445,6 +572,9 @@ class GridLocalizer:
         check_scalar(self.new_place_prior, "new_place_prior", owner, float, 0.0, 1.0, True, False)
         check_scalar(self.new_place_stay, "new_place_stay", owner, float, 0.0, 1.0, True, False)
         check_scalar(self.confidence_radius, "confidence_radius", owner, int, 0)
+        if not isinstance(self.learn_recovery, (bool, np.bool_)):
+            raise InvalidParameterError(f"The 'learn_recovery' parameter of {owner} must be a bool. "
+                                        f"Got {self.learn_recovery!r} instead.")
         if self.confidence_radius_m is not None:
             check_scalar(self.confidence_radius_m, "confidence_radius_m", owner, float, 0.0)
             if self.graph.positions is None:
@@ -459,10 +589,27 @@ class GridLocalizer:
         self._neighbours = route_neighbours(g)
         self._transition = velocity_transition(self._v, self.velocity_stay, self.reverse_probability)
         self._moves = _bin_moves(self._v)
+        fwd, bwd, _, _, _, jdst = self._neighbours
+        idx = np.arange(g.n_places)
+        self._line = len(jdst) == 0 and bool(np.all(fwd == np.where(idx + 1 < g.n_places, idx + 1, -1))
+                                             and np.all(bwd == idx - 1))
+        nz = self._transition.T != 0  # the transition's columns, sparse
+        self._t_sparse = (np.concatenate([[0], np.cumsum(nz.sum(1))]).astype(np.int64),
+                          np.nonzero(nz)[1].astype(np.int64),
+                          np.ascontiguousarray(self._transition.T[nz], dtype=np.float64))
         self._velocity_prior = np.full(nb, 1.0 / nb)
-        self.state_ = np.full((g.n_places, nb), 1.0 / (g.n_places * nb))
-        self.prior_ = self.state_.sum(1)
+        self._velocity = self._velocity_prior.copy()
+        self.recovery_ = float(self.recovery)
+        self._jumps, self._frames = 0.0, 0.0
+        self._rows = (np.empty(g.n_places), np.empty(g.n_places))
+        self._spare = np.empty((nb, g.n_places))
+        # the posterior, factored: the prediction (velocity-major, so that shifts are
+        # contiguous) times the latest frame's normalised likelihood per place
+        self._state = np.full((nb, g.n_places), 1.0 / (g.n_places * nb))
+        self._like = np.ones(g.n_places)
+        self.prior_ = self._state.sum(0)
         self.place_posterior_ = self.prior_.copy()
+        self._mass = self.prior_.copy()
         self.new_place_probability_ = 0.0
         self._log_new, self._log_map = -math.inf, 0.0
         self.n_steps_ = 0
@@ -490,7 +637,7 @@ class GridLocalizer:
         """
         from .localizer import check_odometry
 
-        if not hasattr(self, "state_"):
+        if not hasattr(self, "_state"):
             self.reset()
         from .localizer import _check_observation
 
@@ -506,18 +653,44 @@ class GridLocalizer:
 
     def _predict(self, odometry: float | None) -> None:
         if self.n_steps_ > 0:
-            self.state_ = predict(self.state_, self._transition, self._v, self._neighbours, self.blur, self.recovery,
-                                  self._velocity_prior, self.junction_probability, odometry, self._moves)
-        self.prior_ = self.state_.sum(1)
+            jump_velocity = self._jump_velocity()
+            if self._line and odometry is None:
+                out = self._spare
+                whole, frac, sign, _ = self._moves
+                mass = np.empty(self.graph.n_places)
+                _line_predict(self._state, self._like, self.prior_, out, *self._rows, mass, *self._t_sparse, whole,
+                              frac, sign, float(self.blur), self.recovery_, jump_velocity)
+                self._spare, self._state = self._state, out
+                self._like = np.ones(self.graph.n_places)
+                self.prior_ = mass
+                self._mass = mass
+                return
+            state = predict(np.ascontiguousarray(self.state_), self._transition, self._v, self._neighbours,
+                            self.blur, self.recovery_, jump_velocity, self.junction_probability, odometry, self._moves)
+            self._state = np.ascontiguousarray(state.T)
+            self._like = np.ones(self.graph.n_places)
+        self.prior_ = self._state.sum(0)
+        self._mass = self.prior_
+
+    def _jump_velocity(self) -> np.ndarray:
+        """Velocity distribution of the recovery share: a jump changes the place, not the
+        speed, so half the current velocity marginal and half uniform."""
+        return 0.5 * self._velocity + 0.5 * self._velocity_prior
 
     def _update(self, obs) -> None:
         if not obs.informative:
             return
         r = np.ascontiguousarray(obs.log_ratio, dtype=np.float64)
         top = float(r.max())
-        total = _apply_likelihood(self.state_, r, top)
+        velocity = np.empty(len(self._v))
+        like = np.empty(len(r))
+        total, like_mean = _likelihood(self._state, r, top, self.prior_, like, velocity)
         if total <= 0.0:
             return  # every place impossible: keep the prediction
+        self._like, self._velocity = like, velocity
+        self._mass = self.prior_ * like
+        if self.n_steps_ > 0:
+            self._learn_recovery(like_mean / total)
         log_map = math.log(total) + top  # log Σ prior · e^r
         p_new = self.new_place_probability_
         prior = self.new_place_stay * p_new + self.new_place_prior * (1.0 - p_new)
@@ -530,11 +703,24 @@ class GridLocalizer:
         else:
             self._log_new, self._log_map, self.new_place_probability_ = -math.inf, 0.0, 0.0
 
+    def _learn_recovery(self, ratio: float) -> None:
+        """Online EM for the jump rate: the posterior share of this step's recovery mass
+        (``ε · mean_j e^{r_j} / Σ prior · e^r``), averaged over the recent frames."""
+        if not self.learn_recovery or self.recovery == 0.0:
+            return
+        responsibility = min(1.0, self.recovery_ * ratio)
+        decay = 0.5 ** (1.0 / getattr(self, "_jump_memory", RECOVERY_MEMORY))
+        self._jumps = decay * self._jumps + responsibility
+        self._frames = decay * self._frames + 1.0
+        strength = RECOVERY_PRIOR_FRAMES
+        eps = (self._jumps + strength * float(self.recovery)) / (self._frames + strength)
+        self.recovery_ = float(min(max(eps, RECOVERY_RANGE[0]), RECOVERY_RANGE[1]))
+
     def _summarise(self):
         from .localizer import Estimate, confidence_log_odds
 
         g = self.graph
-        mass = self.state_.sum(1)
+        mass = self._mass
         self.place_posterior_ = mass * (1.0 - self.new_place_probability_)
         best = int(np.argmax(mass))
         if self.confidence_radius_m is not None:

@@ -382,8 +382,8 @@ def observation_model(params: dict, n_places: int, bootstrap_samples: Callable[[
     def sequence(default_window) -> SequenceObservation:
         window = params.get("window") or default_window
         matcher = {k: params[k] for k in _WINDOW_ADAPTIVE} if window == "adaptive" else {}
-        # the observation reads the forward diagonal's scores, so the matcher searches that line only
-        return SequenceObservation(window=window, matcher_params={**matcher, "velocities": (1.0,)})
+        # the matcher searches its velocities; the observation reads the lines of the chosen one
+        return SequenceObservation(window=window, matcher_params=matcher)
 
     if model == "tempered":
         return TemperedObservation()
@@ -504,8 +504,8 @@ def _filter_params() -> tuple[Param, ...]:
         Param("redraw_fraction", "float", 0.02, "fraction of particles re-drawn from the proposal each step",
               low=0.0, high=0.99),
         Param("proposal", "str", PROPOSALS[0], "where re-drawn particles go", choices=PROPOSALS),
-        Param("new_place_prior", "float", None, "per-step probability of entering unmapped space (default: 0.05 "
-              "for particles, 0 for the grid)", low=0.0, high=0.99, optional=True),
+        Param("new_place_prior", "float", None, "per-step probability of entering unmapped space (default: 0.05)",
+              low=0.0, high=0.99, optional=True),
         *seq.values(),
         hist["n_init"], hist["exclusion_radius"], hist["gap"], hist["max_different"],
     )

@@ -349,7 +349,9 @@ class SequenceObservation:
         self.recogniser_ = HistogramPlaceRecogniser(n_init=self.n_init, exclusion_radius=self.exclusion_radius)
 
     def window_scores(self, length: int | None = None) -> np.ndarray:
-        """``(n_places,)`` scores ``s_kj(L)`` of the latest frame.
+        """``(n_places,)`` scores ``s_kj(L, v)`` of the latest frame, along the lines of
+        the velocity ``v`` the matcher chose for it (its velocity search: a query driven
+        backwards or at another speed is scored along its own lines, not the diagonal).
 
         Parameters
         ----------
@@ -358,7 +360,7 @@ class SequenceObservation:
         """
         m = self.matcher_
         length = int(self.last_match_.window_length) if length is None else int(length)
-        return m.window_scores(length)
+        return m.window_scores(length, float(self.last_match_.velocity))
 
     def observe(self, difference_row: np.ndarray) -> Observation:
         if not hasattr(self, "matcher_"):
@@ -598,7 +600,7 @@ class TemperedObservation:
     """
 
     def __init__(self, likelihood: str = "linear", hub="online", temperature="agreement",
-                 temperature_scale: float = 3.0,
+                 temperature_scale: float = 4.0,
                  temperatures: Sequence[float] = DEFAULT_TEMPERATURES, hub_weights: Sequence[float] = (1.0,),
                  memory: float = 200.0, n_bins: int = 64, prior_strength: float = 50.0,
                  hub_threshold: float = 3.0, novelty: bool = True, novelty_cap: float = 2.0) -> None:
@@ -754,12 +756,14 @@ class TemperedObservation:
         row = getattr(self, "_row", None)
         if row is None:
             return
-        prior = np.asarray(feedback.prior, dtype=np.float64)
-        total = prior.sum()
-        log_prior = np.log(np.maximum(prior / total, 1e-300)) if total > 0 else np.full(len(prior), -math.log(len(prior)))
-        self.score_ *= self._decay
-        for m, b in enumerate(self._bases):
-            self.score_[:, m] += _predictive_scores(b, log_prior, self._taus)
+        if self.temperature == "predictive" or len(self._lams) > 1:
+            prior = np.asarray(feedback.prior, dtype=np.float64)
+            total = prior.sum()
+            log_prior = (np.log(np.maximum(prior / total, 1e-300)) if total > 0
+                         else np.full(len(prior), -math.log(len(prior))))
+            self.score_ *= self._decay
+            for m, b in enumerate(self._bases):
+                self.score_[:, m] += _predictive_scores(b, log_prior, self._taus)
         i, m = np.unravel_index(int(np.argmax(self.score_)), self.score_.shape)
         # agreement: how probable is the frame's own best place, relative to the answer?
         best = int(np.argmax(self._bases[self._pick[1]]))

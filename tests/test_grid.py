@@ -146,7 +146,7 @@ def test_confidence_falls_after_a_jump():
 def test_log_odds_finite_when_confidence_is_one():
     g = PlaceGraph.chain(2)
     rows = np.array([[0.0, 1.0], [0.0, 1.0], [1.0, 0.0]])
-    res = GridLocalizer(g, _fixed(), confidence_radius=2).run(rows)
+    res = GridLocalizer(g, _fixed(), confidence_radius=2, new_place_prior=0.0).run(rows)
     np.testing.assert_allclose(res.confidence, 1.0)
     assert np.all(np.isfinite(res.log_odds)) and np.all(res.log_odds > 600)
     loc = Localizer(g, _fixed(), n_particles=1, confidence_radius=2, new_place_prior=0.0)
@@ -204,7 +204,8 @@ def test_model_receives_feedback_once_per_step():
 
     g = PlaceGraph.chain(20)
     rows = np.random.default_rng(0).standard_normal((5, 20))
-    for loc in (GridLocalizer(g, Counting()), Localizer(g, Counting(), n_particles=50, new_place_prior=0.0)):
+    for loc in (GridLocalizer(g, Counting(), new_place_prior=0.0),
+                Localizer(g, Counting(), n_particles=50, new_place_prior=0.0)):
         loc.run(rows)
         assert len(loc.model.calls) == 5
         np.testing.assert_allclose(np.array(loc.model.calls), 1.0)
@@ -236,3 +237,71 @@ def test_particle_filter_converges_to_grid_filter():
         tv[n_particles] = np.mean(d)
     assert tv[10_000] < tv[100]
     assert tv[10_000] < 0.05
+
+
+# ---------------------------------------------------------------------- the line graph's fast path
+@pytest.mark.parametrize("velocities", [(-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0), (-1.0, 0.0, 1.5, 2.0)])
+def test_line_fast_path_equals_the_general_path(velocities):
+    """The fused line kernel (index arithmetic) against the general graph walk, step by
+    step: same predicted and posterior place masses, same learned jump rate."""
+    rng = np.random.default_rng(5)
+    n = 60
+    rows = _track_rows(n, 3 + np.arange(40), rng, depth=1.5)
+    rows[25:] = _track_rows(n, 50 - np.arange(15), rng, depth=1.5)  # a jump and a turn
+    fast = GridLocalizer(PlaceGraph.chain(n), _fixed(0.8), velocities=velocities).reset()
+    slow = GridLocalizer(PlaceGraph.chain(n), _fixed(0.8), velocities=velocities).reset()
+    assert fast._line
+    slow._line = False
+    for row in rows:
+        a, b = fast.step(row), slow.step(row)
+        np.testing.assert_allclose(fast.prior_, slow.prior_, rtol=1e-9, atol=1e-15)
+        np.testing.assert_allclose(fast.place_posterior_, slow.place_posterior_, rtol=1e-9, atol=1e-15)
+        np.testing.assert_allclose(fast.state_, slow.state_, rtol=1e-9, atol=1e-15)
+        assert a.place == b.place and fast.recovery_ == pytest.approx(slow.recovery_, rel=1e-9)
+
+
+def test_line_detection():
+    from catgraph.traverse import Traverse
+
+    assert GridLocalizer(PlaceGraph.chain(10), _fixed()).reset()._line
+    assert not GridLocalizer(PlaceGraph.chain(10, bidirectional=False), _fixed()).reset()._line
+    g = PlaceGraph.from_traverse(Traverse(np.zeros((10, 2))), junctions=np.array([(2, 7)]))
+    assert not GridLocalizer(g, _fixed()).reset()._line
+
+
+# ---------------------------------------------------------------------- new place and jumps
+def test_new_place_probability_rises_after_a_jump_and_in_unmapped_space():
+    rng = np.random.default_rng(6)
+    n = 300
+    rows = _track_rows(n, 20 + np.arange(60), rng, depth=2.5)
+    jump = _track_rows(n, 200 + np.arange(30), rng, depth=2.5)
+    unmapped = rng.standard_normal((20, n))  # frames like no place of the map
+    res = GridLocalizer(PlaceGraph.chain(n), _fixed(1.0), new_place_prior=0.05).run(np.vstack([rows, jump, unmapped]))
+    p_new = res.new_place_probability
+    on_track = p_new[45:60].mean()
+    assert on_track < 0.05  # on a track the map explains the frames
+    assert p_new[60:63].max() > 0.3  # the track stops explaining them: at once
+    assert res.confidence[60:63].min() < 0.5 < res.confidence[45:60].min()
+    assert np.all(np.abs(res.place[70:90] - (200 + np.arange(10, 30))) <= 2)  # the new track is found
+    assert p_new[70:90].mean() < 0.05
+    assert p_new[95:].mean() > 5 * on_track and res.confidence[95:].max() < 0.8  # unmapped frames
+
+
+def test_jump_rate_is_learned_from_the_frames():
+    rng = np.random.default_rng(7)
+    n = 400
+    in_order = _track_rows(n, 10 + np.arange(300), rng, depth=2.0)
+    starts = rng.integers(0, n - 10, size=30)
+    jumping = np.vstack([_track_rows(n, s + np.arange(10), rng, depth=2.0) for s in starts])
+    rates = []
+    for rows in (in_order, jumping):
+        loc = GridLocalizer(PlaceGraph.chain(n), _fixed(1.0), recovery=0.05)
+        loc.run(rows)
+        rates.append(loc.recovery_)
+    assert rates[0] < 0.02 < rates[1]
+    loc = GridLocalizer(PlaceGraph.chain(n), _fixed(1.0), recovery=0.05, learn_recovery=False)
+    loc.run(jumping)
+    assert loc.recovery_ == 0.05
+    loc = GridLocalizer(PlaceGraph.chain(n), _fixed(1.0), recovery=0.0)
+    loc.run(jumping)
+    assert loc.recovery_ == 0.0  # no jumps means none, learned or not
