@@ -12,9 +12,9 @@ One step (:meth:`Localizer.step`), as in ``particles.SMC.__next__``::
 
     observation = model.observe(row)       # r_j, r_new from the frame
     move(odometry)                         # motion model: predict
-    inject(observation)                    # a few particles re-drawn from a proposal
+    inject(observation)                    # the recovery share ε: (1 − ε) · cloud + ε · uniform
     reweight(observation)                  # w_i ∝ w_i · exp(ℓ_i), update P(new)
-    resample_if_degenerate()               # ESS < ess_threshold · n
+    resample_if_degenerate()               # fold the recovery share in; else ESS < threshold · n
     estimate = summarise()                 # Estimate
     feedback(prior, posterior, answer)     # model.feedback(FilterFeedback)
     return estimate
@@ -37,15 +37,25 @@ and gains ``r_new``::
 so the new place takes part in the normalisation with the map particles, as in paper 2
 (eq. 10). Everything is in log space.
 
-Recovery. Every step a fraction ``redraw_fraction`` of the particles (chosen at random)
-is replaced by draws from a proposal — ``"best"``: places among the ``proposal_top_k``
-best single-frame log-ratios, ``"uniform"``: any place — each given the mean weight of
-the cloud before reweighting (mixture Monte Carlo localisation). This lets the filter
-recover after a jump to another part of the route (shuffled queries, kidnapping), at the
-price of a small bias towards the current frame's best matches.
+Recovery. The prediction is the grid filter's (:mod:`catgraph.grid`): the moved cloud
+mixed with a share ``ε = recovery`` spread uniformly over the places, the prior
+probability of a jump anywhere (shuffled queries, kidnapping). The particle filter
+keeps that share *exact* rather than sampling it: after reweighting its mass is
+``ε / n · Σ_j e^{r_j}`` in closed form, and its posterior over places is
+``∝ e^{r_j}``. So the place masses, the confidence and ``P(new)`` see exactly the mass a
+jump has, and when the cloud is resampled (every step with a recovery share) the slots
+the share earns get places drawn afresh from ``∝ e^{r_j}`` — systematically, so every
+slot is a new place — with velocities drawn from the prior (stratified). With
+``proposal="best"`` or ``"uniform"`` the share is carried by ``redraw_fraction ·
+n_particles`` importance-weighted particles instead (weight ``ε / (n · M · q_j)``),
+which target the same posterior with more variance. Either way the particle filter
+converges to the grid filter as particles grow (``tests/test_localizer.py``), which a
+mean-weight redraw at the best single-frame matches (mixture MCL) does not: it gives a
+jump far more prior mass than ``ε`` wherever the frame alone looks good.
 
-Estimate. Posterior mass per place ``m_j = (1 − P(new)) Σ_{i: place(i) = j} w_i``
-(``np.bincount``; a particle belongs to the nearer of its two places); the answer is
+Estimate. Posterior mass per place ``m_j = (1 − P(new)) (Σ_{i: place(i) = j} w_i + ρ_j)``
+(a particle belongs to the nearer of its two places; ``ρ_j`` the recovery share's exact
+mass at ``j``); the answer is
 ``argmax_j m_j``, its confidence the mass within ``± confidence_radius`` places (along the
 reference index), or within ``confidence_radius_m`` metres where the graph has positions
 and that is given. A loop closure is declared when confidence ≥ a threshold; sweeping
@@ -68,9 +78,11 @@ after the frame and the answer's neighbourhood) through ``ObservationModel.feedb
 its own named step: the tempered whole-image model chooses its temperature and learns
 ``P(d|L)`` from it, the combined model its parts' reliability.
 
-Cost. A step is O(n_particles · hops + n_places): the motion kernel is compiled, the
-rest is vectorised numpy; memory is fixed at construction. Same seed, same output:
-every random draw comes from the one ``numpy.random.Generator`` made from ``seed``.
+Cost. A step is O(n_particles · hops + n_places), in compiled loops (motion, recovery,
+reweighting with the place masses, systematic resampling) over arrays allocated once in
+:meth:`Localizer.reset`; no per-particle Python and no per-step particle arrays. Same
+seed, same output: every random draw comes from the one ``numpy.random.Generator`` made
+from ``seed``.
 """
 
 from __future__ import annotations
@@ -137,7 +149,7 @@ def confidence_log_odds(w_in: float, w_out: float, log_map: float, log_new: floa
 
 
 @numba.njit(cache=True)
-def _reweight_kernel(edge, fraction, log_weight, source, target, log_ratio, n_cloud, log_recovery, weight,
+def _reweight_kernel(edge, fraction, log_weight, source, target, log_ratio, n_cloud, log_recovery, like, weight,
                      mass):  # pragma: no cover - compiled
     """Reweight the cloud and the recovery particles, normalise, and sum the posterior
     mass per place. ``log_weight`` holds the prediction: the cloud (slots
@@ -194,18 +206,27 @@ def _reweight_kernel(edge, fraction, log_weight, source, target, log_ratio, n_cl
         if i < n_cloud:
             e = edge[i]
             mass[source[e] if fraction[i] < 0.5 else target[e]] += w
-    if np.isfinite(log_recovery):
-        r_max = -np.inf
-        for j in range(log_ratio.shape[0]):
-            if log_ratio[j] > r_max:
-                r_max = log_ratio[j]
-        z = 0.0
-        for j in range(log_ratio.shape[0]):
-            z += np.exp(log_ratio[j] - r_max)
-        share = np.exp(log_recovery - log_map) / z
-        for j in range(log_ratio.shape[0]):
-            mass[j] += share * np.exp(log_ratio[j] - r_max)
+    if np.isfinite(log_recovery):  # like: cumulative e^{r − max r} (_likelihood_cumulative)
+        share = np.exp(log_recovery - log_map) / like[like.shape[0] - 1]
+        below = 0.0
+        for j in range(like.shape[0]):
+            mass[j] += share * (like[j] - below)
+            below = like[j]
     return log_map, 1.0 / sq
+
+
+@numba.njit(cache=True)
+def _likelihood_cumulative(log_ratio, out):  # pragma: no cover - compiled
+    """``out[j] = Σ_{i ≤ j} e^{r_i − max r}``; returns ``max r``."""
+    r_max = -np.inf
+    for j in range(log_ratio.shape[0]):
+        if log_ratio[j] > r_max:
+            r_max = log_ratio[j]
+    acc = 0.0
+    for j in range(log_ratio.shape[0]):
+        acc += np.exp(log_ratio[j] - r_max)
+        out[j] = acc
+    return r_max
 
 
 @numba.njit(cache=True)
@@ -239,14 +260,7 @@ def _recovery_kernel(log_ratio, kind, top, log_keep, log_recovery, n_cloud, edge
             log_weight[i] = log_keep - np.log(n_cloud)
     # the proposal's cumulative distribution over places
     if kind == 0:
-        r_max = -np.inf
-        for j in range(n):
-            if log_ratio[j] > r_max:
-                r_max = log_ratio[j]
-        acc = 0.0
-        for j in range(n):
-            acc += np.exp(log_ratio[j] - r_max)
-            cumulative[j] = acc
+        pass  # cumulative already holds the likelihood's (_likelihood_cumulative)
     elif kind == 1:
         acc = 0.0
         for j in range(n):
@@ -261,6 +275,18 @@ def _recovery_kernel(log_ratio, kind, top, log_keep, log_recovery, n_cloud, edge
         for j in range(n):
             cumulative[j] = (j + 1.0) / n
     total = cumulative[n - 1]
+    # velocities as the grid filter's jump: half from the cloud's velocity marginal
+    # (systematic positions over its weights, which now sum to e^{log_keep}), half the prior
+    n_copy = (m_slots + 1) // 2
+    keep = np.exp(log_keep)
+    acc = 0.0
+    c = -1
+    for t in range(n_copy):
+        pos = (uniform[0] + t) / n_copy * keep
+        while c < n_cloud - 1 and acc <= pos:
+            c += 1
+            acc += np.exp(log_weight[c])
+        velocity[n_cloud + 2 * t] = velocity[max(c, 0)]
     j = 0
     for m in range(m_slots):
         pos = (uniform[0] + m) / m_slots * total
@@ -275,7 +301,8 @@ def _recovery_kernel(log_ratio, kind, top, log_keep, log_recovery, n_cloud, edge
         else:
             edge[k] = first_in[j]
             fraction[k] = 1.0
-        velocity[k] = -1 - m  # drawn by the motion model from its prior, stratified by slot
+        if m % 2 == 1:
+            velocity[k] = -1 - m // 2  # drawn by the motion model from its prior, stratified
         log_weight[k] = log_recovery - np.log(n * m_slots * q)
 
 
@@ -317,7 +344,11 @@ def _fill_recovery(start, n_new, u_places, cumulative, out_ptr, first_in, edge_o
                    velocity_out):  # pragma: no cover - compiled
     """Slots ``start .. start + n_new``: places drawn systematically (offset ``u_places``)
     from ``cumulative``, each on an out-edge chosen by where its position falls inside
-    the place's interval (uniform, independent of the place), velocity stratified."""
+    the place's interval (uniform, independent of the place). Velocities as the grid
+    filter's jump: half the slots copy the velocity of the cloud's slots ``< start``
+    (evenly spaced through them: its velocity marginal, the cloud being equally
+    weighted), half draw from the prior (stratified)."""
+    n_copy = (n_new + 1) // 2 if start > 0 else 0
     n = cumulative.shape[0]
     z = cumulative[n - 1]
     j = 0
@@ -335,7 +366,10 @@ def _fill_recovery(start, n_new, u_places, cumulative, out_ptr, first_in, edge_o
         else:
             edge_out[k] = first_in[j]
             fraction_out[k] = 1.0
-        velocity_out[k] = -1 - m  # drawn by the motion model from its prior, stratified
+        if m % 2 == 0 and n_copy > 0:
+            velocity_out[k] = velocity_out[((m // 2) * start) // n_copy]
+        else:
+            velocity_out[k] = -1 - m // 2  # drawn by the motion model from its prior, stratified
 
 
 @numba.njit(cache=True)
@@ -476,6 +510,12 @@ class LocalizationResult:
         return self.place
 
 
+#: The learned jump rate (``learn_recovery``), as the grid filter's: half-life (frames)
+#: of its running mean, weight (frames) of the ``recovery`` prior, and its range.
+RECOVERY_MEMORY = 100.0
+RECOVERY_PRIOR_FRAMES = 20.0
+RECOVERY_RANGE = (1e-4, 0.5)
+
 #: Where recovery particles are drawn (see the module docstring); the first is the default.
 PROPOSALS = ("likelihood", "best", "uniform")
 _PROPOSAL_CODE = {name: k for k, name in enumerate(PROPOSALS)}
@@ -498,8 +538,11 @@ class Localizer:
         Without recovery particles: resample when ESS < ``ess_threshold · n_particles``
         (with them, every step folds them into the cloud).
     recovery : float in [0, 1)
-        ``ε``: prior probability per frame of a jump anywhere on the map, the grid
-        filter's ``recovery``.
+        ``ε``: probability per frame of a jump anywhere on the map, the grid filter's
+        ``recovery``.
+    learn_recovery : bool
+        Learn ``ε`` online from the frames (the grid filter's online EM, shrunk towards
+        ``recovery``); its current value is ``recovery_``.
     redraw_fraction : float in [0, 1)
         0 turns recovery off. Otherwise, for the ``"best"`` and ``"uniform"`` proposals,
         the recovery particles drawn each step, as a fraction of ``n_particles``; the
@@ -531,13 +574,16 @@ class Localizer:
     particles_ : ParticleSet
         The cloud (``n_particles``), views into the filter's fixed arrays.
     new_place_probability_ : float
+    recovery_ : float
+        The jump rate ``ε`` of the latest prediction (learned, or ``recovery``).
     place_posterior_ : ndarray of float64, shape (n_places,)
     n_steps_ : int
     """
 
     def __init__(self, graph: PlaceGraph, model: ObservationModel, n_particles: int = 2000,
                  motion: MotionModel | None = None, resampler: str = "systematic", ess_threshold: float = 0.5,
-                 recovery: float = 0.05, redraw_fraction: float = 0.1, proposal: str = "likelihood",
+                 recovery: float = 0.05, learn_recovery: bool = True, redraw_fraction: float = 0.1,
+                 proposal: str = "likelihood",
                  proposal_top_k: int = 10, new_place_prior: float = 0.0, new_place_stay: float = 0.8,
                  confidence_radius: int = 2, confidence_radius_m: float | None = None,
                  confidence_score: str = "joint", seed: int | np.random.Generator | None = 0) -> None:
@@ -548,6 +594,7 @@ class Localizer:
         self.resampler = resampler
         self.ess_threshold = ess_threshold
         self.recovery = recovery
+        self.learn_recovery = learn_recovery
         self.redraw_fraction = redraw_fraction
         self.proposal = proposal
         self.proposal_top_k = proposal_top_k
@@ -570,6 +617,9 @@ class Localizer:
         check_scalar(self.n_particles, "n_particles", owner, int, 1)
         check_scalar(self.ess_threshold, "ess_threshold", owner, float, 0.0, 1.0)
         check_scalar(self.recovery, "recovery", owner, float, 0.0, 1.0, True, False)
+        if not isinstance(self.learn_recovery, (bool, np.bool_)):
+            raise InvalidParameterError(f"The 'learn_recovery' parameter of {owner} must be a bool. "
+                                        f"Got {self.learn_recovery!r} instead.")
         check_scalar(self.redraw_fraction, "redraw_fraction", owner, float, 0.0, 1.0, True, False)
         check_scalar(self.proposal_top_k, "proposal_top_k", owner, int, 1)
         check_scalar(self.new_place_prior, "new_place_prior", owner, float, 0.0, 1.0, True, False)
@@ -614,7 +664,11 @@ class Localizer:
         self._uniform = np.empty(m + 1)
         self._u2 = np.empty(2)
         self._recovery_weight = 0.0
+        self.recovery_ = float(self.recovery)
+        self._jumps, self._frames = 0.0, 0.0
+        self._log_like_mean = 0.0
         self._cumulative = np.empty(g.n_places)
+        self._like = np.empty(g.n_places)
         self._mass = np.empty(g.n_places)
         self._prior = np.empty(g.n_places)
         self._first_in = _first_in_edge(g)
@@ -678,7 +732,7 @@ class Localizer:
         np.exp(self._log_weight[:n], out=self._weight[:n])
         _place_mass_kernel(self._edge[:n], self._fraction[:n], self._weight[:n], g.source, g.target, self._prior)
         if self._recovered:
-            self._prior += self.recovery / g.n_places
+            self._prior += self.recovery_ / g.n_places
         return self._prior
 
     def _feedback(self, prior, near) -> None:
@@ -696,21 +750,24 @@ class Localizer:
 
     def _inject(self, obs: Observation) -> None:
         """The recovery share ``ε`` (see :func:`_recovery_kernel`); none on the first frame."""
-        n, m = self.n_particles, self._n_recovery
+        n, m, g = self.n_particles, self._n_recovery, self.graph
+        log_ratio = obs.log_ratio if obs.informative else self._no_ratio
+        log_ratio = np.ascontiguousarray(log_ratio, dtype=np.float64)
+        r_max = _likelihood_cumulative(log_ratio, self._like)
+        self._log_like_mean = r_max + math.log(self._like[-1] / g.n_places)  # log mean_j e^{r_j}
         self._recovered = (m > 0 or self._exact_recovery) and self.n_steps_ > 0
         if not self._recovered:
             normalise_in_place(self._log_weight[:n], self._weight[:n])
             return
-        g = self.graph
-        log_ratio = obs.log_ratio if obs.informative else self._no_ratio
-        log_ratio = np.ascontiguousarray(log_ratio, dtype=np.float64)
+        self._log_recovery = math.log(self.recovery_) + self._log_like_mean
         if self.proposal == "best":
             self._top[:] = _top_k(log_ratio, len(self._top))
         self._rng.random(out=self._uniform)
         k = n + m
-        _recovery_kernel(log_ratio, _PROPOSAL_CODE[self.proposal], self._top, math.log1p(-self.recovery),
-                         math.log(self.recovery), n, self._edge[:k], self._fraction[:k], self._log_weight[:k],
-                         self._velocity[:k], self._uniform, self._cumulative, g.out_ptr, self._first_in)
+        _recovery_kernel(log_ratio, _PROPOSAL_CODE[self.proposal], self._top, math.log1p(-self.recovery_),
+                         math.log(self.recovery_), n, self._edge[:k], self._fraction[:k], self._log_weight[:k],
+                         self._velocity[:k], self._uniform, self._like if self.proposal == "likelihood"
+                         else self._cumulative, g.out_ptr, self._first_in)
 
     def _reweight(self, obs: Observation) -> float:
         g, n = self.graph, self.n_particles
@@ -720,15 +777,12 @@ class Localizer:
         if k < len(self._log_weight):
             self._log_weight[k:] = -np.inf
             self._weight[k:] = 0.0
-        log_recovery = -math.inf
-        if self._recovered:
-            r_max = float(log_ratio.max())
-            log_recovery = (math.log(self.recovery / g.n_places) + r_max
-                            + math.log(float(np.exp(log_ratio - r_max).sum())))
+        log_recovery = self._log_recovery if self._recovered else -math.inf
         log_map, ess = _reweight_kernel(self._edge[:k], self._fraction[:k], self._log_weight[:k], g.source, g.target,
-                                        log_ratio, n, log_recovery, self._weight[:k], self._mass)
+                                        log_ratio, n, log_recovery, self._like, self._weight[:k], self._mass)
         self._recovery_weight = math.exp(log_recovery - log_map) if k == n and np.isfinite(log_map) else 0.0
         if obs.informative and np.isfinite(log_map):
+            self._learn_recovery(math.exp(self._log_like_mean - log_map))
             prior = self.new_place_stay * self.new_place_probability_ + self.new_place_prior * (
                 1.0 - self.new_place_probability_)
             if prior > 0.0:
@@ -741,6 +795,20 @@ class Localizer:
                 self.new_place_probability_ = 0.0
                 self._log_new, self._log_map = -math.inf, 0.0
         return float(ess)
+
+    def _learn_recovery(self, ratio: float) -> None:
+        """Online EM for the jump rate, as the grid filter learns it: the posterior share
+        of this step's recovery mass, ``ε · mean_j e^{r_j} / Σ prior · e^r``, averaged
+        over the recent frames (half-life :data:`RECOVERY_MEMORY`) and shrunk towards
+        ``recovery`` (worth :data:`RECOVERY_PRIOR_FRAMES` frames)."""
+        if not self.learn_recovery or self.recovery == 0.0:
+            return
+        responsibility = min(1.0, self.recovery_ * ratio)
+        decay = 0.5 ** (1.0 / RECOVERY_MEMORY)
+        self._jumps = decay * self._jumps + responsibility
+        self._frames = decay * self._frames + 1.0
+        eps = (self._jumps + RECOVERY_PRIOR_FRAMES * float(self.recovery)) / (self._frames + RECOVERY_PRIOR_FRAMES)
+        self.recovery_ = float(min(max(eps, RECOVERY_RANGE[0]), RECOVERY_RANGE[1]))
 
     def _resample_if_degenerate(self, ess: float) -> bool:
         """Fold the recovery share into the cloud (every step that has one), else
@@ -755,7 +823,7 @@ class Localizer:
             self._rng.random(out=self._u2)
             if self.resampler == "systematic":  # compiled, no index array
                 _systematic_gather_recovering(self._weight[:n], self._recovery_weight, self._u2[0], self._u2[1],
-                                              self._edge, self._fraction, self._velocity, n, self._cumulative,
+                                              self._edge, self._fraction, self._velocity, n, self._like,
                                               g.out_ptr, self._first_in, e_out, f_out, v_out)
             else:
                 w = np.append(self._weight[:n], self._recovery_weight)
@@ -763,7 +831,7 @@ class Localizer:
                 keep = idx[idx < n]
                 e_out[:len(keep)], f_out[:len(keep)], v_out[:len(keep)] = (
                     self._edge[keep], self._fraction[keep], self._velocity[keep])
-                _fill_recovery(len(keep), n - len(keep), self._u2[1], self._cumulative, g.out_ptr, self._first_in,
+                _fill_recovery(len(keep), n - len(keep), self._u2[1], self._like, g.out_ptr, self._first_in,
                                e_out, f_out, v_out)
         elif self.resampler == "systematic":  # compiled, no index array
             _systematic_gather(self._weight[:k], self._rng.random(), self._edge, self._fraction, self._velocity, n,

@@ -345,17 +345,19 @@ class VelocityMotion(MotionModel):
     Parameters
     ----------
     velocities : sequence of float
-        Signed speed bins (places per query frame); default
-        :data:`catgraph.grid.DEFAULT_VELOCITIES`.
+        Signed speed bins (places per query frame).
     velocity_stay : float in [0, 1]
         Probability of keeping the bin from one frame to the next.
     reverse_probability : float in [0, 1 − velocity_stay]
         Probability per frame of turning round (``v → −v``).
     blur : float in [0, 0.5)
-        Probability of one extra spacing forwards, and likewise backwards.
+        Probability of one extra place forwards, and likewise backwards.
     junction_probability : float in [0, 1]
         Probability of leaving the route at a node that has other out-edges (the branch
         choice of :class:`MotionModel`, as ``1 − straight_preference``).
+
+    Each one left ``None`` is :class:`~catgraph.grid.GridLocalizer`'s default (read from
+    its signature), so the two filters share one motion model by construction.
     **kwargs
         ``max_hops`` of :class:`MotionModel`.
 
@@ -371,9 +373,9 @@ class VelocityMotion(MotionModel):
     per particle per step, drawn into a buffer kept between steps.
     """
 
-    def __init__(self, velocities=None, velocity_stay: float = 0.9, reverse_probability: float = 0.001,
-                 blur: float = 0.05, junction_probability: float = 0.1, **kwargs) -> None:
-        super().__init__(straight_preference=1.0 - junction_probability, **kwargs)
+    def __init__(self, velocities=None, velocity_stay: float | None = None, reverse_probability: float | None = None,
+                 blur: float | None = None, junction_probability: float | None = None, **kwargs) -> None:
+        super().__init__(**kwargs)
         self.velocities = velocities
         self.velocity_stay = velocity_stay
         self.velocity_reverse_probability = reverse_probability
@@ -386,25 +388,33 @@ class VelocityMotion(MotionModel):
         return rest + (None if v is None else tuple(np.asarray(v, dtype=float).ravel().tolist()),)
 
     def _validate_params(self) -> None:
-        from .grid import DEFAULT_VELOCITIES, velocity_transition
+        import inspect
 
-        self.straight_preference = 1.0 - self.junction_probability
+        from .grid import GridLocalizer, velocity_transition
+
+        # one owner for the motion's defaults: the grid filter's signature
+        grid = {k: p.default for k, p in inspect.signature(GridLocalizer.__init__).parameters.items()}
+        resolved = {k: grid[k] if getattr(self, attr) is None else getattr(self, attr) for k, attr in (
+            ("velocities", "velocities"), ("velocity_stay", "velocity_stay"),
+            ("reverse_probability", "velocity_reverse_probability"), ("blur", "blur"),
+            ("junction_probability", "junction_probability"))}
+        self.straight_preference = 1.0 - resolved["junction_probability"]
         super()._validate_params()
         name = type(self).__name__
-        v = np.asarray(DEFAULT_VELOCITIES if self.velocities is None else self.velocities, dtype=np.float64)
+        v = np.asarray(resolved["velocities"], dtype=np.float64)
         if v.ndim != 1 or len(v) == 0 or not np.all(np.isfinite(v)) or len(np.unique(v)) != len(v):
             raise InvalidParameterError(
                 f"The 'velocities' parameter of {name} must be a non-empty sequence of distinct finite speeds. "
                 f"Got {self.velocities!r} instead."
             )
-        check_scalar(self.velocity_stay, "velocity_stay", name, float, 0.0, 1.0)
-        check_scalar(self.velocity_reverse_probability, "reverse_probability", name, float, 0.0,
-                     1.0 - self.velocity_stay)
-        check_scalar(self.blur, "blur", name, float, 0.0, 0.5, True, False)
-        check_scalar(self.junction_probability, "junction_probability", name, float, 0.0, 1.0)
+        stay, reverse = resolved["velocity_stay"], resolved["reverse_probability"]
+        check_scalar(stay, "velocity_stay", name, float, 0.0, 1.0)
+        check_scalar(reverse, "reverse_probability", name, float, 0.0, 1.0 - stay)
+        check_scalar(resolved["blur"], "blur", name, float, 0.0, 0.5, True, False)
+        check_scalar(resolved["junction_probability"], "junction_probability", name, float, 0.0, 1.0)
         self._v = v
-        self._cumulative = np.cumsum(velocity_transition(v, self.velocity_stay, self.velocity_reverse_probability),
-                                     axis=1)
+        self._blur = float(resolved["blur"])
+        self._cumulative = np.cumsum(velocity_transition(v, stay, reverse), axis=1)
         self._cumulative[:, -1] = 1.0
 
     def move(self, particles: ParticleSet, graph, rng: np.random.Generator, odometry: float | None = None) -> None:
@@ -424,5 +434,5 @@ class VelocityMotion(MotionModel):
         _velocity_kernel(particles.edge, particles.fraction, particles.log_weight, particles.velocity, buffer,
                          self._v, self._cumulative, forwards, graph.hop_length, graph.length,
                          float(odometry) if metric else -1.0, graph.target, graph.out_ptr, graph.reverse,
-                         graph.straight, float(self.straight_preference), float(self.blur), int(self.max_hops),
+                         graph.straight, float(self.straight_preference), self._blur, int(self.max_hops),
                          1e-9 * (graph.frame_spacing if metric else 1.0))
