@@ -100,6 +100,7 @@ __all__ = [
     "difference_matrix",
     "difference_row",
     "iter_difference_blocks",
+    "iter_difference_columns",
     "normalise_rows",
 ]
 
@@ -408,6 +409,15 @@ class PreparedReference:
             _normalise_into(view, view)
         return out
 
+    def _places(self, lo: int, hi: int) -> "PreparedReference":
+        """Places ``lo:hi`` of this reference (views, no copy)."""
+        part = object.__new__(PreparedReference)
+        part.__dict__.update(self.__dict__)
+        part.descriptors = self.descriptors[lo:hi]
+        if self.norms is not None:
+            part.norms = self.norms[lo:hi]
+        return part
+
     def __repr__(self) -> str:
         return (f"PreparedReference(n_places={self.n_places}, dim={self.dim}, metric={self.metric!r}, "
                 f"layout={self.layout!r})")
@@ -478,6 +488,63 @@ def iter_difference_blocks(
     for start in range(0, q.shape[0], block_rows):
         part = q[start : start + block_rows]
         yield start, ref._fill(part, normalise, np.empty((part.shape[0], ref.n_places)))
+
+
+def iter_difference_columns(
+    query: np.ndarray, reference, metric: str = "sad", block_places: int | None = None, normalise: bool = False
+) -> Iterator[tuple[int, np.ndarray]]:
+    """Yield ``(start, block)`` with ``block = D[:, start:start + block_places]`` (float64).
+
+    For many query rows against a large map when the caller reduces over the *query*
+    axis (a median per place, say): only ``n_query × block_places`` values are held at
+    once, never ``n_query × N``. The blocks equal the columns of
+    :func:`difference_matrix`, bit for bit, normalised ones included: the per-row mean
+    and spread are gathered first from the fixed-chunk partial sums the normalisation
+    adds (``block_places`` is a multiple of the chunk, so they are the same sums), at
+    the price of computing the raw differences three times (sums, squared deviations,
+    the blocks) instead of once.
+
+    Parameters
+    ----------
+    query : ndarray, shape (n_query, d)
+    reference : ndarray, shape (N, d), or PreparedReference
+    metric : str
+    block_places : int, optional
+        Places per block, rounded up to a multiple of 4096 (default: about 32 MiB per
+        block).
+    normalise : bool
+    """
+    ref = _prepared(reference, metric)
+    k = _kernels()
+    q = ref.prepare_query(query)
+    m, n = q.shape[0], ref.n_places
+    if block_places is None:
+        block_places = max(1, _BLOCK_VALUES // max(m, 1))
+    check_scalar(block_places, "block_places", "iter_difference_columns", int, 1)
+    block_places = -(-int(block_places) // k.SUM_CHUNK) * k.SUM_CHUNK
+    edges = list(range(0, n, block_places))
+
+    def raw(lo: int) -> np.ndarray:
+        part = ref._places(lo, lo + block_places)
+        return part._raw(q, np.empty((m, part.n_places)))
+
+    if normalise:  # the row sums of normalise_rows, chunk by chunk, block by block
+        parts = np.empty((m, -(-n // k.SUM_CHUNK)))
+        for power in (1, 2):
+            centre = np.zeros(m) if power == 1 else mean
+            for lo in edges:
+                block = raw(lo)
+                first = lo // k.SUM_CHUNK
+                k.chunk_sums(block, centre, power, parts[:, first : first + -(-block.shape[1] // k.SUM_CHUNK)])
+            if power == 1:
+                mean = _combine(parts) / n
+        std = np.sqrt(_combine(parts) / n)
+        std[_zero_spread(std, mean)] = 0.0
+    for lo in edges:
+        block = raw(lo)
+        if normalise:
+            k.scale_rows(block, mean, std, block)
+        yield lo, block
 
 
 def difference_matrix(

@@ -287,3 +287,24 @@ def test_jit_uses_numba_locations_when_writable(tmp_path, monkeypatch):
     monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
     assert _jit.cache_location() == tmp_path
     assert _jit.njit(cache=False)(lambda x: x + 1)(1) == 2
+
+
+@pytest.mark.parametrize("metric, layout", [("sad", "float32"), ("sad", "uint8"), ("cosine", "float32"),
+                                            ("hamming", "float32")])
+def test_column_blocks_equal_the_matrix_columns_bit_for_bit(metric, layout, rng):
+    from catgraph.differences import iter_difference_columns
+
+    if metric == "hamming":
+        r = rng.random((9000, 24)) > 0.5
+    else:
+        r = rng.normal(size=(9000, 24)).astype(np.float32)
+    q = r[::311]
+    ref = PreparedReference(r, metric, layout)
+    for normalise in (False, True):
+        full = difference_matrix(q, ref, metric, normalise=normalise)
+        starts = []
+        for start, block in iter_difference_columns(q, ref, metric, block_places=5000, normalise=normalise):
+            starts.append(start)
+            assert block.shape[0] == len(q) and block.shape[1] <= 8192
+            assert np.array_equal(block, full[:, start : start + block.shape[1]])
+        assert starts == [0, 8192]  # 5000 rounded up to whole chunks of 4096
