@@ -269,16 +269,18 @@ def _likelihood(state, log_ratio, top, prior_mass, like, velocity):  # pragma: n
     Returns ``(total, mean likelihood)``: the normaliser before division (0: every
     place impossible, ``like`` left as it was) and ``mean_j e^{r_j − top}``."""
     nb, n = state.shape
+    e = np.empty(n)
     like_sum = 0.0
     total = 0.0
     for j in range(n):
-        e = np.exp(log_ratio[j] - top)
-        like_sum += e
-        total += prior_mass[j] * e
+        e[j] = np.exp(log_ratio[j] - top)
+        like_sum += e[j]
+        total += prior_mass[j] * e[j]
     if not (total > 0.0) or not np.isfinite(total):
         return 0.0, like_sum / n
+    inv = 1.0 / total
     for j in range(n):
-        like[j] = np.exp(log_ratio[j] - top) / total
+        like[j] = e[j] * inv
     for b in range(nb):
         row = state[b]
         acc = 0.0
@@ -289,13 +291,13 @@ def _likelihood(state, log_ratio, top, prior_mass, like, velocity):  # pragma: n
 
 
 @numba.njit(cache=True, fastmath=True)
-def _line_predict(p, like, prior_mass, out, t_row, m_row, mass, t_ptr, t_src, t_val, whole, frac, sign, blur,
+def _line_predict(p, like, prior_mass, out, t_row, mass, t_ptr, t_src, t_val, whole, frac, sign, blur,
                   recovery, velocity_prior):  # pragma: no cover - compiled
     """:func:`predict` on a line graph (place ``j``'s neighbours are ``j ± 1``, no
     junctions, no odometry) from the factored posterior ``p[b, j] · like[j]``
-    (velocity-major), one velocity row at a time: transition (into ``t_row``), shift by
-    index arithmetic (into ``m_row``), blur and recovery (into ``out[b]``); ``mass`` gets
-    the predicted place masses. The mass that runs past a route end, needed before the
+    (velocity-major), one velocity row at a time: transition (into ``t_row``), then
+    shift by index arithmetic, blur and recovery in one pass (into ``out[b]``); ``mass``
+    gets the predicted place masses. The mass that runs past a route end, needed before the
     first row is written, is summed first from the few places within reach of the ends."""
     nb, n = p.shape
     total_in = 0.0
@@ -326,43 +328,70 @@ def _line_predict(p, like, prior_mass, out, t_row, m_row, mass, t_ptr, t_src, t_
     centre = keep * (1.0 - 2.0 * blur)
     side = keep * blur
     for b in range(nb):
-        t_row[:] = 0.0
-        c0 = t_ptr[b]
-        if c0 < t_ptr[b + 1]:
-            src, w = p[t_src[c0]], t_val[c0]
-            for j in range(n):
-                t_row[j] = w * src[j]
-        for c in range(c0 + 1, t_ptr[b + 1]):
-            src, w = p[t_src[c]], t_val[c]
-            for j in range(n):
-                t_row[j] += w * src[j]
-        for j in range(n):
-            t_row[j] *= like[j]
-        # moved[j] = (1 − f) T[j − s w] + f T[j − s (w + 1)]
-        m_row[:] = 0.0
-        for part in range(2):
-            hops = whole[b] + part
-            share = 1.0 - frac[b] if part == 0 else frac[b]
-            if share == 0.0 or hops >= n:
-                continue
-            if sign[b] > 0:
-                for j in range(hops, n):
-                    m_row[j] += share * t_row[j - hops]
-            else:
-                for j in range(n - hops):
-                    m_row[j] += share * t_row[j + hops]
-        # blur one place either way (a route end keeps what would leave it), then recovery
+        # the transition, in blocks that stay in the first-level cache
+        for j0 in range(0, n, 2048):
+            j1 = min(n, j0 + 2048)
+            blk = t_row[j0:j1]
+            blk[:] = 0.0
+            for c in range(t_ptr[b], t_ptr[b + 1]):
+                src, w = p[t_src[c], j0:j1], t_val[c]
+                for j in range(j1 - j0):
+                    blk[j] += w * src[j]
+            lk = like[j0:j1]
+            for j in range(j1 - j0):
+                blk[j] *= lk[j]
+        # moved[j] = (1 − f) T[j − s h] + f T[j − s (h + 1)]; blurred one place either way
+        # (a route end keeps what would leave it), then recovery: one pass
         o = out[b]
         base = share0 * velocity_prior[b]
-        if n == 1:
-            o[0] = keep * m_row[0] + base
-        else:
-            o[0] = centre * m_row[0] + side * (m_row[0] + m_row[1]) + base
-            for j in range(1, n - 1):
-                o[j] = centre * m_row[j] + side * (m_row[j - 1] + m_row[j + 1]) + base
-            o[n - 1] = centre * m_row[n - 1] + side * (m_row[n - 2] + m_row[n - 1]) + base
-        for j in range(n):
-            mass[j] += o[j]
+        step = sign[b] * whole[b]
+        f0, f1 = 1.0 - frac[b], frac[b]
+        lo = max(1, 1 + max(step, step + sign[b]))
+        hi = min(n - 1, n - 1 + min(step, step + sign[b]))
+        if hi < lo:
+            hi = lo
+        for j in range(min(lo, n)):
+            x = centre * _moved(t_row, j, step, sign[b], f0, f1, n) + side * _neighbours_moved(t_row, j, step, sign[b], f0, f1, n) + base
+            o[j] = x
+            mass[j] += x
+        # every term inside the route: no bounds to check, and views indexed from 0 (so the
+        # loop compiles without negative-index handling and vectorises)
+        w = hi - lo
+        ti = t_row[lo - step - 1:hi - step + 1]  # ti[q] = T[lo + q − s h − 1]
+        tk = t_row[lo - step - sign[b] - 1:hi - step - sign[b] + 1]
+        oo = o[lo:hi]
+        mm = mass[lo:hi]
+        for q in range(w):
+            x = (centre * (f0 * ti[q + 1] + f1 * tk[q + 1])
+                 + side * (f0 * (ti[q] + ti[q + 2]) + f1 * (tk[q] + tk[q + 2])) + base)
+            oo[q] = x
+            mm[q] += x
+        for j in range(max(hi, lo), n):
+            x = centre * _moved(t_row, j, step, sign[b], f0, f1, n) + side * _neighbours_moved(t_row, j, step, sign[b], f0, f1, n) + base
+            o[j] = x
+            mass[j] += x
+
+
+@numba.njit(cache=True, inline="always")
+def _neighbours_moved(t_row, j, step, sign, f0, f1, n):  # pragma: no cover - compiled
+    """Moved mass at ``j − 1`` plus at ``j + 1``; a route end counts ``j`` itself instead."""
+    here = _moved(t_row, j, step, sign, f0, f1, n)
+    left = _moved(t_row, j - 1, step, sign, f0, f1, n) if j > 0 else here
+    right = _moved(t_row, j + 1, step, sign, f0, f1, n) if j + 1 < n else here
+    return left + right
+
+
+@numba.njit(cache=True, inline="always")
+def _moved(t_row, j, step, sign, f0, f1, n):  # pragma: no cover - compiled
+    """``(1 − f) T[j − s h] + f T[j − s (h + 1)]``, zero outside the route."""
+    i = j - step
+    k = i - sign
+    m = 0.0
+    if 0 <= i < n:
+        m += f0 * t_row[i]
+    if f1 > 0.0 and 0 <= k < n:
+        m += f1 * t_row[k]
+    return m
 
 
 @numba.njit(cache=True)
@@ -601,12 +630,13 @@ class GridLocalizer:
         self._velocity = self._velocity_prior.copy()
         self.recovery_ = float(self.recovery)
         self._jumps, self._frames = 0.0, 0.0
-        self._rows = (np.empty(g.n_places), np.empty(g.n_places))
+        self._row = np.empty(g.n_places)
         self._spare = np.empty((nb, g.n_places))
         # the posterior, factored: the prediction (velocity-major, so that shifts are
         # contiguous) times the latest frame's normalised likelihood per place
         self._state = np.full((nb, g.n_places), 1.0 / (g.n_places * nb))
-        self._like = np.ones(g.n_places)
+        self._ones = np.ones(g.n_places)  # the likelihood of a prediction not yet updated (never written)
+        self._like = self._ones
         self.prior_ = self._state.sum(0)
         self.place_posterior_ = self.prior_.copy()
         self._mass = self.prior_.copy()
@@ -658,17 +688,17 @@ class GridLocalizer:
                 out = self._spare
                 whole, frac, sign, _ = self._moves
                 mass = np.empty(self.graph.n_places)
-                _line_predict(self._state, self._like, self.prior_, out, *self._rows, mass, *self._t_sparse, whole,
+                _line_predict(self._state, self._like, self.prior_, out, self._row, mass, *self._t_sparse, whole,
                               frac, sign, float(self.blur), self.recovery_, jump_velocity)
                 self._spare, self._state = self._state, out
-                self._like = np.ones(self.graph.n_places)
+                self._like = self._ones
                 self.prior_ = mass
                 self._mass = mass
                 return
             state = predict(np.ascontiguousarray(self.state_), self._transition, self._v, self._neighbours,
                             self.blur, self.recovery_, jump_velocity, self.junction_probability, odometry, self._moves)
             self._state = np.ascontiguousarray(state.T)
-            self._like = np.ones(self.graph.n_places)
+            self._like = self._ones
         self.prior_ = self._state.sum(0)
         self._mass = self.prior_
 

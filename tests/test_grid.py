@@ -305,3 +305,14 @@ def test_jump_rate_is_learned_from_the_frames():
     loc = GridLocalizer(PlaceGraph.chain(n), _fixed(1.0), recovery=0.0)
     loc.run(jumping)
     assert loc.recovery_ == 0.0  # no jumps means none, learned or not
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 7])
+def test_line_fast_path_on_maps_shorter_than_a_hop(n):
+    rows = np.random.default_rng(n).standard_normal((6, n))
+    fast = GridLocalizer(PlaceGraph.chain(n), _fixed(0.8)).reset()
+    slow = GridLocalizer(PlaceGraph.chain(n), _fixed(0.8)).reset()
+    slow._line = False
+    for row in rows:
+        fast.step(row), slow.step(row)
+        np.testing.assert_allclose(fast.place_posterior_, slow.place_posterior_, rtol=1e-9, atol=1e-15)
