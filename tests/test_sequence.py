@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.special import log_ndtr, logsumexp
+from scipy.special import log_ndtr, logsumexp, ndtr
 
 from catgraph.exceptions import InvalidParameterError, ShapeMismatchError
 from catgraph.sequence import (
@@ -122,6 +122,48 @@ def test_fixed_window_gap_confidence_matches_definition():
         j = int(np.argmin(s[i]))
         far = np.abs(np.arange(80) - j) > 3
         assert result.confidence[i] == pytest.approx((s[i][far].min() - s[i, j]) / s[i].std(), rel=1e-9)
+
+
+def test_support_confidence_sums_the_agreeing_windows_gaps():
+    # literal rule: every window is admitted, so support = sum of the gaps of the lengths
+    # whose own best place lies within the radius of the match
+    d = planted(50, 60, seed=5)
+    grid = [2, 4, 8, 16]
+    result = match_sequences(d, window="adaptive", rule="literal", grid=grid, radius=3, velocities=V1)
+    gaps, best = [], []
+    for length in grid:
+        s = slow_scores(d, length)
+        j = np.argmin(s, axis=1)
+        far = np.abs(np.arange(60)[None, :] - j[:, None]) > 3
+        second = np.where(far, s, np.inf).min(axis=1)
+        gaps.append((second - s[np.arange(50), j]) / s.std(axis=1))
+        best.append(j)
+    gaps, best = np.array(gaps), np.array(best)
+    expected = np.where(np.abs(best - result.match[None, :]) <= 3, gaps, 0.0).sum(axis=0)
+    rows = np.arange(50)
+    current = (d[rows, result.match] - d.mean(axis=1)) / d.std(axis=1)
+    expected = expected * ndtr(-current)
+    np.testing.assert_allclose(result.confidence, expected, rtol=1e-9, atol=1e-12)
+
+
+def test_support_confidence_is_the_gap_for_a_fixed_window():
+    d = np.random.default_rng(6).normal(size=(40, 70))
+    support = match_sequences(d, window=5, confidence="support")
+    gap = match_sequences(d, window=5, confidence="gap")
+    np.testing.assert_array_equal(support.match, gap.match)
+    np.testing.assert_array_equal(support.confidence, gap.confidence)
+
+
+def test_support_confidence_falls_when_the_current_frame_leaves_the_line():
+    # a clean diagonal, then one frame whose difference at the continued line is poor:
+    # the match may still follow the line, but its confidence must drop
+    d = planted(60, 80, seed=7)
+    clean = match_sequences(d, window="adaptive", l_min=3, l_max=30, grid=6, velocities=V1)
+    broken = d.copy()
+    j = clean.match[-1]
+    broken[-1, j] = broken[-1].max()
+    out = match_sequences(broken, window="adaptive", l_min=3, l_max=30, grid=6, velocities=V1)
+    assert out.confidence[-1] < 0.1 * clean.confidence[-1]
 
 
 # ------------------------------------------------------------------ streaming = batch
