@@ -504,7 +504,8 @@ def _filter_params() -> tuple[Param, ...]:
         Param("redraw_fraction", "float", 0.02, "fraction of particles re-drawn from the proposal each step",
               low=0.0, high=0.99),
         Param("proposal", "str", PROPOSALS[0], "where re-drawn particles go", choices=PROPOSALS),
-        Param("new_place_prior", "float", None, "per-step probability of entering unmapped space (default: 0.05)",
+        Param("new_place_prior", "float", None, "per-step probability of entering unmapped space (default: the "
+              "filter's own, 0.05 for the grid)",
               low=0.0, high=0.99, optional=True),
         *seq.values(),
         hist["n_init"], hist["exclusion_radius"], hist["gap"], hist["max_different"],
