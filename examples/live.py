@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 
-def load_live_map(source: str):
+def load_live_map(source: str, layout: str = "float32"):
     """A LiveMap from a saved map (``*.npz`` written by build-map) or a reference source."""
     from catgraph.experiment import load_input
     from catgraph.live import LiveMap
@@ -36,8 +36,8 @@ def load_live_map(source: str):
     if path.suffix == ".npz" and path.is_file():
         from catgraph.io import load_map
 
-        return LiveMap(load_map(path))
-    return LiveMap(load_input(source, "reference"))
+        return LiveMap(load_map(path), layout=layout)
+    return LiveMap(load_input(source, "reference"), layout=layout)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -52,9 +52,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--output", type=Path, help="write the per-frame answers (JSON, 'frames' as localize writes)")
     parser.add_argument("--every", type=int, default=0, help="print every N-th answer (0: none)")
+    parser.add_argument("--layout", choices=("float32", "uint8"), default="float32",
+                        help="the map in memory: float32 (the batch commands' numbers) or uint8 codes (a quarter "
+                             "of the bytes per frame; see docs/live.md)")
     args = parser.parse_args(argv)
 
-    live_map = load_live_map(args.reference)
+    live_map = load_live_map(args.reference, args.layout)
     query = load_input(args.query, "query")
     params = {} if args.model == "matcher" else {"n_particles": args.particles, "seed": args.seed}
     live = LiveLocalizer(live_map, model=args.model, **params)

@@ -194,3 +194,9 @@ def test_example_matches_the_localize_command(world, tmp_path, capsys, monkeypat
     assert live_frames["match"] == batch_frames["match"]
     assert live_frames["confidence"] == batch_frames["confidence"]
     assert live_frames["p_new_place"] == batch_frames["p_new_place"]
+    # the compact map runs from the example too
+    monkeypatch.setattr(sys, "argv", ["live.py", str(map_path), str(qry), "--model", "adaptive", "--particles", "100",
+                                      "--layout", "uint8"])
+    with pytest.raises(SystemExit) as stop:
+        runpy.run_path(str(EXAMPLE), run_name="__main__")
+    assert stop.value.code == 0 and "per-frame ms: median" in capsys.readouterr().out
