@@ -14,7 +14,7 @@ One step (:meth:`Localizer.step`), as in ``particles.SMC.__next__``::
     move(odometry)                         # motion model: predict
     inject(observation)                    # the recovery share ε: (1 − ε) · cloud + ε · uniform
     reweight(observation)                  # w_i ∝ w_i · exp(ℓ_i), update P(new)
-    resample_if_degenerate()               # fold the recovery share in; else ESS < threshold · n
+    resample_if_degenerate()               # the cloud and the oldest young generation
     estimate = summarise()                 # Estimate
     feedback(prior, posterior, answer)     # model.feedback(FilterFeedback)
     return estimate
@@ -37,21 +37,32 @@ and gains ``r_new``::
 so the new place takes part in the normalisation with the map particles, as in paper 2
 (eq. 10). Everything is in log space.
 
-Recovery. The prediction is the grid filter's (:mod:`catgraph.grid`): the moved cloud
-mixed with a share ``ε = recovery`` spread uniformly over the places, the prior
-probability of a jump anywhere (shuffled queries, kidnapping). The particle filter
-keeps that share *exact* rather than sampling it: after reweighting its mass is
-``ε / n · Σ_j e^{r_j}`` in closed form, and its posterior over places is
-``∝ e^{r_j}``. So the place masses, the confidence and ``P(new)`` see exactly the mass a
-jump has, and when the cloud is resampled (every step with a recovery share) the slots
-the share earns get places drawn afresh from ``∝ e^{r_j}`` — systematically, so every
-slot is a new place — with velocities drawn from the prior (stratified). With
-``proposal="best"`` or ``"uniform"`` the share is carried by ``redraw_fraction ·
-n_particles`` importance-weighted particles instead (weight ``ε / (n · M · q_j)``),
-which target the same posterior with more variance. Either way the particle filter
-converges to the grid filter as particles grow (``tests/test_localizer.py``), which a
-mean-weight redraw at the best single-frame matches (mixture MCL) does not: it gives a
-jump far more prior mass than ``ε`` wherever the frame alone looks good.
+Recovery. The prediction is the grid filter's (:mod:`catgraph.grid`): the moved
+particles mixed with a share ``ε`` spread uniformly over the places — the probability
+per frame of a jump anywhere (shuffled queries, kidnapping), learned online as the grid
+filter learns it (``learn_recovery``). Each step a new *generation* of
+``M = redraw_fraction · n_particles`` particles carries that share: places drawn
+systematically from a proposal ``q`` (``"likelihood"``: ``q ∝ e^{r}``, the frame's
+own evidence; ``"best"``; ``"uniform"``), importance weights ``ε / (n · M · q_j)``,
+velocities half from the current velocity marginal, half from the prior (the grid's
+jump). After reweighting the generation is scaled to carry exactly the share's
+posterior mass ``ε · mean_j e^{r_j} / E_map``, so the confidence and ``P(new)`` see
+exactly how likely a jump was; the place masses use that share's exact distribution
+(``∝ e^{r_j}``) for the newborn generation.
+
+Young particles are not resampled at once. The particles live in ``n_particles``
+fixed slots: the *cloud*, then ``recovery_frames`` generations of ``M`` slots in a
+ring. Every step the cloud and the *oldest* generation are resampled together
+(systematic) into the cloud's slots, and the freed slots take the next births; the
+younger generations keep their weights. A jump's particles are thus weighed over
+``recovery_frames`` frames of evidence before they must compete with the tracking
+cloud — resampled at birth, a hypothesis that the frame alone barely supports would be
+dropped before the next frames could confirm it. Resampling a subset while keeping its
+mass leaves the weighted particle set a valid approximation of the same posterior, so
+the particle filter still converges to the grid filter as particles grow
+(``tests/test_localizer.py``). (A mean-weight redraw at the best single-frame matches,
+mixture MCL, does not: it gives a jump far more prior mass than ``ε`` wherever the
+frame alone looks good.)
 
 Estimate. Posterior mass per place ``m_j = (1 − P(new)) (Σ_{i: place(i) = j} w_i + ρ_j)``
 (a particle belongs to the nearer of its two places; ``ρ_j`` the recovery share's exact
@@ -149,73 +160,6 @@ def confidence_log_odds(w_in: float, w_out: float, log_map: float, log_new: floa
 
 
 @numba.njit(cache=True)
-def _reweight_kernel(edge, fraction, log_weight, source, target, log_ratio, n_cloud, log_recovery, like, weight,
-                     mass):  # pragma: no cover - compiled
-    """Reweight the cloud and the recovery particles, normalise, and sum the posterior
-    mass per place. ``log_weight`` holds the prediction: the cloud (slots
-    ``< n_cloud``) sums to ``1 − ε``, the recovery share is ``ε`` — exactly
-    ``log_recovery`` after reweighting, ``log(ε / n · Σ_j e^{r_j})``, or ``-inf`` without
-    recovery. Particle ``i`` gains ``ℓ_i`` (interpolated log-ratio); the recovery
-    particles are then scaled so that they carry exactly that mass, so only *where* a
-    jump went is sampled, never *how likely* it was. ``mass[j]`` gets the cloud's
-    particles plus the recovery share's exact distribution ``∝ e^{r_j}`` (Rao–
-    Blackwellised): the outside of any neighbourhood keeps the mass of a jump there,
-    as in the grid filter. Returns ``(log E_map, ESS)``, ``E_map = Σ prior · e^ℓ``."""
-    k = edge.shape[0]
-    for i in range(k):
-        e = edge[i]
-        f = fraction[i]
-        log_weight[i] += (1.0 - f) * log_ratio[source[e]] + f * log_ratio[target[e]]
-    mx = -np.inf
-    for i in range(n_cloud):
-        if log_weight[i] > mx:
-            mx = log_weight[i]
-    t = 0.0
-    if np.isfinite(mx):
-        for i in range(n_cloud):
-            t += np.exp(log_weight[i] - mx)
-        log_cloud = mx + np.log(t)
-    else:
-        log_cloud = -np.inf
-    if k > n_cloud and np.isfinite(log_recovery):  # recovery particles: they carry the share
-        mr = -np.inf
-        for i in range(n_cloud, k):
-            if log_weight[i] > mr:
-                mr = log_weight[i]
-        tr = 0.0
-        for i in range(n_cloud, k):
-            tr += np.exp(log_weight[i] - mr)
-        shift = log_recovery - (mr + np.log(tr))
-        for i in range(n_cloud, k):
-            log_weight[i] += shift
-    log_map = np.logaddexp(log_cloud, log_recovery)
-    if not np.isfinite(log_map):  # nothing left: uniform, as normalise_in_place does
-        lse, ess = normalise_in_place(log_weight, weight)
-        mass[:] = 0.0
-        for i in range(k):
-            e = edge[i]
-            mass[source[e] if fraction[i] < 0.5 else target[e]] += weight[i]
-        return lse, ess
-    sq = 0.0
-    mass[:] = 0.0
-    for i in range(k):
-        log_weight[i] -= log_map
-        w = np.exp(log_weight[i])
-        weight[i] = w
-        sq += w * w
-        if i < n_cloud:
-            e = edge[i]
-            mass[source[e] if fraction[i] < 0.5 else target[e]] += w
-    if np.isfinite(log_recovery):  # like: cumulative e^{r − max r} (_likelihood_cumulative)
-        share = np.exp(log_recovery - log_map) / like[like.shape[0] - 1]
-        below = 0.0
-        for j in range(like.shape[0]):
-            mass[j] += share * (like[j] - below)
-            below = like[j]
-    return log_map, 1.0 / sq
-
-
-@numba.njit(cache=True)
 def _likelihood_cumulative(log_ratio, out):  # pragma: no cover - compiled
     """``out[j] = Σ_{i ≤ j} e^{r_i − max r}``; returns ``max r``."""
     r_max = -np.inf
@@ -230,180 +174,211 @@ def _likelihood_cumulative(log_ratio, out):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _recovery_kernel(log_ratio, kind, top, log_keep, log_recovery, n_cloud, edge, fraction, log_weight, velocity,
-                     uniform, cumulative, out_ptr, first_in):  # pragma: no cover - compiled
-    """The prediction's recovery share, exactly as the grid filter mixes it:
-    ``(1 − ε) · cloud + ε · uniform``. The cloud (slots ``< n_cloud``) is normalised and
-    scaled by ``1 − ε``; the ``M`` slots after it get places drawn from a proposal ``q``
-    (systematically: one offset ``uniform[0]``, positions ``(u + m) / M``), each with
-    the weight ``ε / (n_places · M · q_j)`` of an importance sample of the uniform
-    share. ``kind``: 0 likelihood (``q ∝ e^{r}``, so after reweighting every recovery
-    particle weighs the same, ``ε Σ_j e^{r_j} / (n_places M)``: the mass of a jump is
-    exact, only where it went is sampled), 1 best (half uniform, half the ``top``
-    places), 2 uniform."""
-    n = log_ratio.shape[0]
-    m_slots = edge.shape[0] - n_cloud
-    # the cloud: normalise (a cloud that left the map entirely becomes uniform), times 1 − ε
+def _birth_kernel(kind, like, proposal, top, log_keep, log_recovery, start, stop, edge, fraction, log_weight,
+                  velocity, uniform, out_ptr, first_in):  # pragma: no cover - compiled
+    """The prediction's mixture ``(1 − ε) · particles + ε · uniform``, in place.
+
+    The particles outside the birth slots ``start .. stop`` are normalised and scaled
+    by ``1 − ε`` (``log_keep``); the birth slots get places drawn systematically
+    (offset ``uniform[0]``) from a proposal ``q`` — ``kind`` 0: the likelihood
+    (``like``, cumulative ``e^{r}``), 1: half uniform, half the ``top`` places, 2:
+    uniform (``proposal`` is filled for 1 and 2) — each with the importance weight
+    ``ε / (n_places · M · q_j)`` (``log_recovery = log ε``). A slot's out-edge comes from
+    where its position falls inside the place's interval. Velocities as the grid
+    filter's jump: even slots copy the velocity of a particle drawn systematically
+    (offset ``uniform[1]``) from the others' weights — the velocity marginal — odd
+    slots draw from the prior (stratified, resolved by the motion model)."""
+    n_all = edge.shape[0]
+    n = like.shape[0]
     mx = -np.inf
-    for i in range(n_cloud):
-        if log_weight[i] > mx:
+    for i in range(n_all):
+        if (i < start or i >= stop) and log_weight[i] > mx:
             mx = log_weight[i]
+    n_rest = n_all - (stop - start)
     if np.isfinite(mx):
         t = 0.0
-        for i in range(n_cloud):
-            t += np.exp(log_weight[i] - mx)
+        for i in range(n_all):
+            if i < start or i >= stop:
+                t += np.exp(log_weight[i] - mx)
         shift = mx + np.log(t) - log_keep
-        for i in range(n_cloud):
-            log_weight[i] -= shift
-    else:
-        for i in range(n_cloud):
-            log_weight[i] = log_keep - np.log(n_cloud)
-    # the proposal's cumulative distribution over places
-    if kind == 0:
-        pass  # cumulative already holds the likelihood's (_likelihood_cumulative)
-    elif kind == 1:
+        for i in range(n_all):
+            if i < start or i >= stop:
+                log_weight[i] -= shift
+    else:  # every particle left the map: start again from uniform weights
+        for i in range(n_all):
+            if i < start or i >= stop:
+                log_weight[i] = log_keep - np.log(n_rest)
+    m_slots = stop - start
+    if m_slots == 0:
+        return
+    if kind == 1:
         acc = 0.0
         for j in range(n):
             acc += 0.5 / n
-            cumulative[j] = acc
+            proposal[j] = acc
         for t in range(top.shape[0]):
             j = top[t]
             if j >= 0:
                 for jj in range(j, n):
-                    cumulative[jj] += 0.5 / top.shape[0]
-    else:
+                    proposal[jj] += 0.5 / top.shape[0]
+    elif kind == 2:
         for j in range(n):
-            cumulative[j] = (j + 1.0) / n
+            proposal[j] = (j + 1.0) / n
+    cumulative = like if kind == 0 else proposal
     total = cumulative[n - 1]
-    # velocities as the grid filter's jump: half from the cloud's velocity marginal
-    # (systematic positions over its weights, which now sum to e^{log_keep}), half the prior
-    n_copy = (m_slots + 1) // 2
-    keep = np.exp(log_keep)
-    acc = 0.0
-    c = -1
-    for t in range(n_copy):
-        pos = (uniform[0] + t) / n_copy * keep
-        while c < n_cloud - 1 and acc <= pos:
-            c += 1
-            acc += np.exp(log_weight[c])
-        velocity[n_cloud + 2 * t] = velocity[max(c, 0)]
     j = 0
     for m in range(m_slots):
         pos = (uniform[0] + m) / m_slots * total
         while j < n - 1 and cumulative[j] <= pos:
             j += 1
-        q = (cumulative[j] - (cumulative[j - 1] if j > 0 else 0.0)) / total
-        k = n_cloud + m
+        low = cumulative[j - 1] if j > 0 else 0.0
+        width = cumulative[j] - low
+        within = (pos - low) / width if width > 0 else 0.0
+        k = start + m
         n_out = out_ptr[j + 1] - out_ptr[j]
         if n_out > 0:
-            edge[k] = out_ptr[j] + min(int(uniform[m + 1] * n_out), n_out - 1)
+            edge[k] = out_ptr[j] + min(int(within * n_out), n_out - 1)
             fraction[k] = 0.0
         else:
             edge[k] = first_in[j]
             fraction[k] = 1.0
-        if m % 2 == 1:
-            velocity[k] = -1 - m // 2  # drawn by the motion model from its prior, stratified
-        log_weight[k] = log_recovery - np.log(n * m_slots * q)
+        log_weight[k] = log_recovery - np.log(n * m_slots * width / total)
+        velocity[k] = -1 - m // 2  # the prior, stratified (even slots are overwritten below)
+    n_copy = (m_slots + 1) // 2
+    keep = np.exp(log_keep)
+    acc = 0.0
+    c = -1
+    for t in range(n_copy):
+        pos = (uniform[1] + t) / n_copy * keep
+        while acc <= pos and c < n_all - 1:
+            c += 1
+            if c < start or c >= stop:
+                acc += np.exp(log_weight[c])
+        if c >= 0 and (c < start or c >= stop) and velocity[c] >= 0:
+            velocity[start + 2 * t] = velocity[c]
 
 
 @numba.njit(cache=True)
-def _place_mass_kernel(edge, fraction, weight, source, target, out):  # pragma: no cover - compiled
-    """``out[j] = Σ_{i: place(i) = j} weight[i]``; a particle's place is the nearer of
-    its edge's two places. ``weight`` may be log-weights (``log=True`` callers exp first)."""
+def _reweight_kernel(edge, fraction, log_weight, source, target, log_ratio, start, stop, log_recovery, like, weight,
+                     mass):  # pragma: no cover - compiled
+    """Reweight every particle, normalise, and sum the posterior mass per place.
+
+    ``log_weight`` holds the prediction (:func:`_birth_kernel`); particle ``i`` gains
+    ``ℓ_i`` (its interpolated log-ratio). The newborn particles (slots ``start ..
+    stop``) are then scaled to carry exactly the recovery share's posterior mass,
+    ``log_recovery = log(ε · mean_j e^{r_j})`` (``-inf``: none), so only *where* a jump
+    went is sampled, never *how likely* it was. ``mass[j]`` gets the other particles
+    plus that share's exact distribution ``∝ e^{r_j}`` (``like``, cumulative;
+    Rao–Blackwellised), so the outside of any neighbourhood keeps the mass of a jump
+    there, as in the grid filter. Returns ``(log E_map, ESS)``, ``E_map = Σ prior · e^ℓ``."""
+    k = edge.shape[0]
+    for i in range(k):
+        e = edge[i]
+        f = fraction[i]
+        log_weight[i] += (1.0 - f) * log_ratio[source[e]] + f * log_ratio[target[e]]
+    mx = -np.inf
+    for i in range(k):
+        if (i < start or i >= stop) and log_weight[i] > mx:
+            mx = log_weight[i]
+    log_rest = -np.inf
+    if np.isfinite(mx):
+        t = 0.0
+        for i in range(k):
+            if i < start or i >= stop:
+                t += np.exp(log_weight[i] - mx)
+        log_rest = mx + np.log(t)
+    if stop > start and np.isfinite(log_recovery):
+        mr = -np.inf
+        for i in range(start, stop):
+            if log_weight[i] > mr:
+                mr = log_weight[i]
+        tr = 0.0
+        for i in range(start, stop):
+            tr += np.exp(log_weight[i] - mr)
+        shift = log_recovery - (mr + np.log(tr))
+        for i in range(start, stop):
+            log_weight[i] += shift
+    else:
+        log_recovery = -np.inf
+        for i in range(start, stop):
+            log_weight[i] = -np.inf
+    log_map = np.logaddexp(log_rest, log_recovery)
+    mass[:] = 0.0
+    if not np.isfinite(log_map):  # nothing left: uniform, as normalise_in_place does
+        lse, ess = normalise_in_place(log_weight, weight)
+        for i in range(k):
+            e = edge[i]
+            mass[source[e] if fraction[i] < 0.5 else target[e]] += weight[i]
+        return lse, ess
+    sq = 0.0
+    for i in range(k):
+        log_weight[i] -= log_map
+        w = np.exp(log_weight[i])
+        weight[i] = w
+        sq += w * w
+        if i < start or i >= stop:
+            e = edge[i]
+            mass[source[e] if fraction[i] < 0.5 else target[e]] += w
+    if np.isfinite(log_recovery):
+        share = np.exp(log_recovery - log_map) / like[like.shape[0] - 1]
+        below = 0.0
+        for j in range(like.shape[0]):
+            mass[j] += share * (like[j] - below)
+            below = like[j]
+    return log_map, 1.0 / sq
+
+
+@numba.njit(cache=True)
+def _place_mass_kernel(edge, fraction, weight, source, target, out, skip_start, skip_stop):  # pragma: no cover
+    """``out[j] = Σ_{i: place(i) = j} weight[i]`` over the particles outside
+    ``skip_start .. skip_stop``; a particle's place is the nearer of its edge's two."""
     out[:] = 0.0
     for i in range(edge.shape[0]):
+        if skip_start <= i < skip_stop:
+            continue
         e = edge[i]
-        j = source[e] if fraction[i] < 0.5 else target[e]
-        out[j] += weight[i]
+        out[source[e] if fraction[i] < 0.5 else target[e]] += weight[i]
 
 
 @numba.njit(cache=True)
-def _systematic_gather(weight, u, edge, fraction, velocity, n_out, edge_out, fraction_out,
-                       velocity_out):  # pragma: no cover - compiled
-    """Systematic resampling of ``weight`` (any length) to ``n_out`` particles, written
-    into ``*_out``: the indices :func:`~catgraph.particles.systematic_resample` gives for
-    the same uniform ``u``, without building them."""
+def _resample_pool(weight, n_out, start, stop, u, edge, fraction, velocity, log_weight, edge_tmp, fraction_tmp,
+                   velocity_tmp):  # pragma: no cover - compiled
+    """Systematic resampling of the pool — slots ``0 .. n_out`` and ``start .. stop`` — into
+    slots ``0 .. n_out``, each then weighing the pool's mass ``/ n_out``; the other
+    slots keep their particles and weights. The indices are the ones
+    :func:`~catgraph.particles.systematic_resample` gives the pool's weights for the
+    same uniform ``u``, without building them. Returns the pool's mass."""
     total = 0.0
-    for i in range(weight.shape[0]):
+    for i in range(n_out):
         total += weight[i]
-    acc = weight[0]
+    for i in range(start, stop):
+        total += weight[i]
+    if not total > 0.0:
+        for i in range(n_out):
+            log_weight[i] = -np.inf
+            weight[i] = 0.0
+        return 0.0
+    size = n_out + stop - start
+    acc = 0.0
+    p = -1
     i = 0
-    last = weight.shape[0] - 1
     for k in range(n_out):
         pos = (u + k) / n_out
-        while i < last and acc / total <= pos:
-            i += 1
+        while p < size - 1 and acc / total <= pos:
+            p += 1
+            i = p if p < n_out else start + p - n_out
             acc += weight[i]
-        edge_out[k] = edge[i]
-        fraction_out[k] = fraction[i]
-        velocity_out[k] = velocity[i]
-
-
-@numba.njit(cache=True)
-def _fill_recovery(start, n_new, u_places, cumulative, out_ptr, first_in, edge_out, fraction_out,
-                   velocity_out):  # pragma: no cover - compiled
-    """Slots ``start .. start + n_new``: places drawn systematically (offset ``u_places``)
-    from ``cumulative``, each on an out-edge chosen by where its position falls inside
-    the place's interval (uniform, independent of the place). Velocities as the grid
-    filter's jump: half the slots copy the velocity of the cloud's slots ``< start``
-    (evenly spaced through them: its velocity marginal, the cloud being equally
-    weighted), half draw from the prior (stratified)."""
-    n_copy = (n_new + 1) // 2 if start > 0 else 0
-    n = cumulative.shape[0]
-    z = cumulative[n - 1]
-    j = 0
-    for m in range(n_new):
-        pos = (u_places + m) / n_new * z
-        while j < n - 1 and cumulative[j] <= pos:
-            j += 1
-        low = cumulative[j - 1] if j > 0 else 0.0
-        within = (pos - low) / (cumulative[j] - low) if cumulative[j] > low else 0.0
-        k = start + m
-        n_edges = out_ptr[j + 1] - out_ptr[j]
-        if n_edges > 0:
-            edge_out[k] = out_ptr[j] + min(int(within * n_edges), n_edges - 1)
-            fraction_out[k] = 0.0
-        else:
-            edge_out[k] = first_in[j]
-            fraction_out[k] = 1.0
-        if m % 2 == 0 and n_copy > 0:
-            velocity_out[k] = velocity_out[((m // 2) * start) // n_copy]
-        else:
-            velocity_out[k] = -1 - m // 2  # drawn by the motion model from its prior, stratified
-
-
-@numba.njit(cache=True)
-def _systematic_gather_recovering(weight, recovery_weight, u, u_places, edge, fraction, velocity, n_out, cumulative,
-                                  out_ptr, first_in, edge_out, fraction_out,
-                                  velocity_out):  # pragma: no cover - compiled
-    """Systematic resampling of the cloud (``weight``) and the recovery share (one more
-    entry, ``recovery_weight``) to ``n_out`` particles. The slots the recovery share
-    earns are filled with places drawn afresh — systematically, offset ``u_places`` —
-    from its exact posterior, ``cumulative`` (``∝ e^{r_j}``): every slot a new place, so
-    the share is as diverse as its mass allows. A slot's out-edge comes from where its
-    position falls inside the place's interval (uniform, independent of the place)."""
-    total = recovery_weight
-    for i in range(weight.shape[0]):
-        total += weight[i]
-    acc = 0.0
-    i = -1
-    last = weight.shape[0] - 1
-    n_cloud_slots = n_out
+        edge_tmp[k] = edge[i]
+        fraction_tmp[k] = fraction[i]
+        velocity_tmp[k] = velocity[i]
+    each = total / n_out
     for k in range(n_out):
-        pos = (u + k) / n_out * total
-        while i < last and acc <= pos:
-            i += 1
-            acc += weight[i]
-        if acc <= pos:  # past the cloud: the rest of the slots go to the recovery share
-            n_cloud_slots = k
-            break
-        edge_out[k] = edge[i]
-        fraction_out[k] = fraction[i]
-        velocity_out[k] = velocity[i]
-    n_new = n_out - n_cloud_slots
-    _fill_recovery(n_cloud_slots, n_new, u_places, cumulative, out_ptr, first_in, edge_out, fraction_out,
-                   velocity_out)
-    return n_new
+        edge[k] = edge_tmp[k]
+        fraction[k] = fraction_tmp[k]
+        velocity[k] = velocity_tmp[k]
+        weight[k] = each
+        log_weight[k] = np.log(each)
+    return total
 
 
 @numba.njit(cache=True)
@@ -535,8 +510,8 @@ class Localizer:
         :class:`~catgraph.motion.FrameMotion` otherwise.
     resampler : {"systematic", "stratified", "residual", "multinomial"}
     ess_threshold : float in [0, 1]
-        Without recovery particles: resample when ESS < ``ess_threshold · n_particles``
-        (with them, every step folds them into the cloud).
+        Without recovery: resample when ESS < ``ess_threshold · n_particles`` (with
+        recovery the cloud and the oldest young generation are resampled every step).
     recovery : float in [0, 1)
         ``ε``: probability per frame of a jump anywhere on the map, the grid filter's
         ``recovery``.
@@ -544,15 +519,17 @@ class Localizer:
         Learn ``ε`` online from the frames (the grid filter's online EM, shrunk towards
         ``recovery``); its current value is ``recovery_``.
     redraw_fraction : float in [0, 1)
-        0 turns recovery off. Otherwise, for the ``"best"`` and ``"uniform"`` proposals,
-        the recovery particles drawn each step, as a fraction of ``n_particles``; the
-        ``"likelihood"`` proposal needs none (the share's mass is exact and its places
-        are drawn at resampling, as many as the mass earns).
+        Particles born each step to carry the recovery share, as a fraction of
+        ``n_particles`` (0 turns recovery off).
+    recovery_frames : int
+        Frames a generation of recovery particles is weighed before it is first
+        resampled (capped so that the young generations hold at most half the
+        particles).
     proposal : {"likelihood", "best", "uniform"}
-        Where the recovery share's particles come from: its exact posterior ``∝ e^{r}``
-        (drawn at resampling; the default), or importance samples — half uniform and
-        half the ``proposal_top_k`` best places, or uniform. Every choice targets the
-        same posterior (the grid filter's); they differ in variance.
+        Where recovery particles are born: ``∝ e^{r}`` (the frame's likelihood), half
+        uniform and half the ``proposal_top_k`` best places, or uniform. Importance
+        weights make every choice target the same posterior (the grid filter's); they
+        differ in variance.
     proposal_top_k : int
         Number of best places the ``"best"`` proposal draws from.
     new_place_prior : float in [0, 1)
@@ -572,7 +549,8 @@ class Localizer:
     Attributes
     ----------
     particles_ : ParticleSet
-        The cloud (``n_particles``), views into the filter's fixed arrays.
+        All ``n_particles`` particles (the cloud, then the young generations), weighted:
+        the filter's fixed arrays.
     new_place_probability_ : float
     recovery_ : float
         The jump rate ``ε`` of the latest prediction (learned, or ``recovery``).
@@ -583,7 +561,7 @@ class Localizer:
     def __init__(self, graph: PlaceGraph, model: ObservationModel, n_particles: int = 2000,
                  motion: MotionModel | None = None, resampler: str = "systematic", ess_threshold: float = 0.5,
                  recovery: float = 0.05, learn_recovery: bool = True, redraw_fraction: float = 0.1,
-                 proposal: str = "likelihood",
+                 recovery_frames: int = 8, proposal: str = "likelihood",
                  proposal_top_k: int = 10, new_place_prior: float = 0.0, new_place_stay: float = 0.8,
                  confidence_radius: int = 2, confidence_radius_m: float | None = None,
                  confidence_score: str = "joint", seed: int | np.random.Generator | None = 0) -> None:
@@ -596,6 +574,7 @@ class Localizer:
         self.recovery = recovery
         self.learn_recovery = learn_recovery
         self.redraw_fraction = redraw_fraction
+        self.recovery_frames = recovery_frames
         self.proposal = proposal
         self.proposal_top_k = proposal_top_k
         self.new_place_prior = new_place_prior
@@ -622,6 +601,7 @@ class Localizer:
                                         f"Got {self.learn_recovery!r} instead.")
         check_scalar(self.redraw_fraction, "redraw_fraction", owner, float, 0.0, 1.0, True, False)
         check_scalar(self.proposal_top_k, "proposal_top_k", owner, int, 1)
+        check_scalar(self.recovery_frames, "recovery_frames", owner, int, 1)
         check_scalar(self.new_place_prior, "new_place_prior", owner, float, 0.0, 1.0, True, False)
         check_scalar(self.new_place_stay, "new_place_stay", owner, float, 0.0, 1.0, True, False)
         check_scalar(self.confidence_radius, "confidence_radius", owner, int, 0)
@@ -643,41 +623,39 @@ class Localizer:
     def reset(self) -> "Localizer":
         """Start afresh: particles uniform over the graph, ``P(new) = 0``, model reset.
 
-        Every array a step touches is allocated here, once: the cloud and the recovery
-        slots after it, the weights, the resampling and proposal buffers."""
+        Every array a step touches is allocated here, once: the particles (the cloud,
+        then ``recovery_frames`` generations of ``M = redraw_fraction · n_particles``
+        young particles), the weights, the resampling and proposal buffers."""
         self._validate()
         g, n = self.graph, self.n_particles
         self._rng = as_generator(self.seed) if not isinstance(self.seed, np.random.Generator) else self.seed
-        # the likelihood proposal is exact: the share's mass in closed form, its places drawn
-        # from its posterior at resampling; the others are importance samples, m of them
-        self._exact_recovery = self.recovery > 0 and self.redraw_fraction > 0 and self.proposal == "likelihood"
-        m = int(round(self.redraw_fraction * n)) if self.recovery > 0 and not self._exact_recovery else 0
-        self._n_recovery = m
+        m = int(round(self.redraw_fraction * n)) if self.recovery > 0 and n >= 2 else 0
+        m = min(m, n // 2)
+        k = max(1, min(self.recovery_frames, (n // 2) // m)) if m > 0 else 0
+        self._births, self._generations = m, k
+        self._n_cloud = n - m * k
         cloud = ParticleSet.uniform(g, n, self._rng)
-        self._edge = np.concatenate([cloud.edge, np.zeros(m, dtype=np.int64)])
-        self._fraction = np.concatenate([cloud.fraction, np.zeros(m)])
-        self._log_weight = np.concatenate([cloud.log_weight, np.full(m, -np.inf)])
-        self._velocity = -1 - np.arange(n + m, dtype=np.int64)  # stratified draws from the velocity prior
-        self.particles_ = ParticleSet(self._edge[:n], self._fraction[:n], self._log_weight[:n], self._velocity[:n])
+        self._edge, self._fraction, self._log_weight = cloud.edge, cloud.fraction, cloud.log_weight
+        self._velocity = -1 - np.arange(n, dtype=np.int64)  # stratified draws from the velocity prior
+        self.particles_ = ParticleSet(self._edge, self._fraction, self._log_weight, self._velocity)
         self._weight = np.exp(self._log_weight)
         self._gathered = (np.empty(n, dtype=np.int64), np.empty(n), np.empty(n, dtype=np.int64))
-        self._uniform = np.empty(m + 1)
-        self._u2 = np.empty(2)
-        self._recovery_weight = 0.0
-        self.recovery_ = float(self.recovery)
-        self._jumps, self._frames = 0.0, 0.0
-        self._log_like_mean = 0.0
-        self._cumulative = np.empty(g.n_places)
+        self._uniform = np.empty(3)
+        self._proposal = np.empty(g.n_places)
         self._like = np.empty(g.n_places)
         self._mass = np.empty(g.n_places)
         self._prior = np.empty(g.n_places)
         self._first_in = _first_in_edge(g)
         self._top = np.full(min(self.proposal_top_k, g.n_places), -1, dtype=np.int64)
+        self._newborn = (0, 0)
+        self.recovery_ = float(self.recovery)
+        self._jumps, self._frames = 0.0, 0.0
+        self._log_like_mean = 0.0
+        self._log_recovery = -math.inf
         self.new_place_probability_ = 0.0
         self.n_steps_ = 0
         self._log_new, self._log_map = -math.inf, 0.0
         self._support = None
-        self._recovered = False
         self._no_ratio = np.zeros(g.n_places)
         self._motions = (self.motion or FrameMotion(), self.motion or OdometryMotion())
         self.model.reset()
@@ -687,6 +665,11 @@ class Localizer:
 
             self._tree = cKDTree(self.graph.positions)
         return self
+
+    def _generation(self, step: int) -> tuple[int, int]:
+        """Slots of the young generation ``step mod recovery_frames``."""
+        start = self._n_cloud + (step % self._generations) * self._births
+        return start, start + self._births
 
     # ------------------------------------------------------------------ one step
     def step(self, observation: np.ndarray, odometry: float | None = None) -> Estimate:
@@ -720,18 +703,13 @@ class Localizer:
         self.n_steps_ += 1
         return estimate
 
-    def _place_mass(self, weight: np.ndarray) -> np.ndarray:
-        g = self.graph
-        _place_mass_kernel(self._edge, self._fraction, weight, g.source, g.target, self._mass)
-        return self._mass
-
     def _predicted_mass(self) -> np.ndarray:
-        """The prediction's place masses, ``(1 − ε) · cloud + ε / n_places`` (the grid's
-        ``prior_``): the cloud's, plus the recovery share exactly rather than sampled."""
-        g, n = self.graph, self.n_particles
-        np.exp(self._log_weight[:n], out=self._weight[:n])
-        _place_mass_kernel(self._edge[:n], self._fraction[:n], self._weight[:n], g.source, g.target, self._prior)
-        if self._recovered:
+        """The prediction's place masses, ``(1 − ε) · particles + ε / n_places`` (the
+        grid's ``prior_``): the particles', plus the recovery share exactly."""
+        g = self.graph
+        np.exp(self._log_weight, out=self._weight)
+        _place_mass_kernel(self._edge, self._fraction, self._weight, g.source, g.target, self._prior, *self._newborn)
+        if self._newborn[1] > self._newborn[0]:
             self._prior += self.recovery_ / g.n_places
         return self._prior
 
@@ -749,38 +727,30 @@ class Localizer:
         motion.move(self.particles_, self.graph, self._rng, odometry)
 
     def _inject(self, obs: Observation) -> None:
-        """The recovery share ``ε`` (see :func:`_recovery_kernel`); none on the first frame."""
-        n, m, g = self.n_particles, self._n_recovery, self.graph
+        """The recovery share ``ε``: a new generation of particles in the slots the
+        oldest one left at the last resampling (:func:`_birth_kernel`); none on the
+        first frame."""
+        g = self.graph
         log_ratio = obs.log_ratio if obs.informative else self._no_ratio
-        log_ratio = np.ascontiguousarray(log_ratio, dtype=np.float64)
+        self._log_ratio = log_ratio = np.ascontiguousarray(log_ratio, dtype=np.float64)
         r_max = _likelihood_cumulative(log_ratio, self._like)
         self._log_like_mean = r_max + math.log(self._like[-1] / g.n_places)  # log mean_j e^{r_j}
-        self._recovered = (m > 0 or self._exact_recovery) and self.n_steps_ > 0
-        if not self._recovered:
-            normalise_in_place(self._log_weight[:n], self._weight[:n])
-            return
-        self._log_recovery = math.log(self.recovery_) + self._log_like_mean
-        if self.proposal == "best":
+        born = self._births > 0 and self.n_steps_ > 0
+        self._newborn = self._generation(self.n_steps_ - 1) if born else (0, 0)
+        self._log_recovery = math.log(self.recovery_) + self._log_like_mean if born else -math.inf
+        if self.proposal == "best" and born:
             self._top[:] = _top_k(log_ratio, len(self._top))
         self._rng.random(out=self._uniform)
-        k = n + m
-        _recovery_kernel(log_ratio, _PROPOSAL_CODE[self.proposal], self._top, math.log1p(-self.recovery_),
-                         math.log(self.recovery_), n, self._edge[:k], self._fraction[:k], self._log_weight[:k],
-                         self._velocity[:k], self._uniform, self._like if self.proposal == "likelihood"
-                         else self._cumulative, g.out_ptr, self._first_in)
+        _birth_kernel(_PROPOSAL_CODE[self.proposal], self._like, self._proposal, self._top,
+                      math.log1p(-self.recovery_) if born else 0.0, math.log(self.recovery_) if born else -math.inf,
+                      *self._newborn, self._edge, self._fraction, self._log_weight, self._velocity, self._uniform,
+                      g.out_ptr, self._first_in)
 
     def _reweight(self, obs: Observation) -> float:
-        g, n = self.graph, self.n_particles
-        k = n + (self._n_recovery if self._recovered else 0)
-        self._active = k
-        log_ratio = np.ascontiguousarray(obs.log_ratio if obs.informative else self._no_ratio, dtype=np.float64)
-        if k < len(self._log_weight):
-            self._log_weight[k:] = -np.inf
-            self._weight[k:] = 0.0
-        log_recovery = self._log_recovery if self._recovered else -math.inf
-        log_map, ess = _reweight_kernel(self._edge[:k], self._fraction[:k], self._log_weight[:k], g.source, g.target,
-                                        log_ratio, n, log_recovery, self._like, self._weight[:k], self._mass)
-        self._recovery_weight = math.exp(log_recovery - log_map) if k == n and np.isfinite(log_map) else 0.0
+        g = self.graph
+        log_map, ess = _reweight_kernel(self._edge, self._fraction, self._log_weight, g.source, g.target,
+                                        self._log_ratio, *self._newborn, self._log_recovery, self._like, self._weight,
+                                        self._mass)
         if obs.informative and np.isfinite(log_map):
             self._learn_recovery(math.exp(self._log_like_mean - log_map))
             prior = self.new_place_stay * self.new_place_probability_ + self.new_place_prior * (
@@ -811,39 +781,32 @@ class Localizer:
         self.recovery_ = float(min(max(eps, RECOVERY_RANGE[0]), RECOVERY_RANGE[1]))
 
     def _resample_if_degenerate(self, ess: float) -> bool:
-        """Fold the recovery share into the cloud (every step that has one), else
-        resample when ESS < ``ess_threshold · n_particles``."""
+        """With recovery: every step, resample the cloud together with the oldest young
+        generation into the cloud's slots (that generation's slots take the next
+        births); the younger generations keep their weights, so a jump's particles are
+        weighed over ``recovery_frames`` frames before they must compete. Without:
+        resample everything when ESS < ``ess_threshold · n_particles``."""
         n = self.n_particles
-        if not self._recovered and ess >= self.ess_threshold * n:
-            return False
-        k = self._active
-        e_out, f_out, v_out = self._gathered
-        g = self.graph
-        if self._recovered and self._exact_recovery:
-            self._rng.random(out=self._u2)
-            if self.resampler == "systematic":  # compiled, no index array
-                _systematic_gather_recovering(self._weight[:n], self._recovery_weight, self._u2[0], self._u2[1],
-                                              self._edge, self._fraction, self._velocity, n, self._like,
-                                              g.out_ptr, self._first_in, e_out, f_out, v_out)
-            else:
-                w = np.append(self._weight[:n], self._recovery_weight)
-                idx = np.sort(self._resample(w, self._rng))
-                keep = idx[idx < n]
-                e_out[:len(keep)], f_out[:len(keep)], v_out[:len(keep)] = (
-                    self._edge[keep], self._fraction[keep], self._velocity[keep])
-                _fill_recovery(len(keep), n - len(keep), self._u2[1], self._like, g.out_ptr, self._first_in,
-                               e_out, f_out, v_out)
-        elif self.resampler == "systematic":  # compiled, no index array
-            _systematic_gather(self._weight[:k], self._rng.random(), self._edge, self._fraction, self._velocity, n,
-                               e_out, f_out, v_out)
+        if self._births > 0:
+            n_out, (start, stop) = self._n_cloud, self._generation(self.n_steps_)
+        elif ess < self.ess_threshold * n:
+            n_out, start, stop = n, 0, 0
         else:
-            idx = self._resample(self._weight[:k], self._rng)[:n]
-            if len(idx) != n:  # drawn for k particles; keep n of them at random
-                idx = idx[self._rng.permutation(len(idx))[:n]]
-            e_out[:], f_out[:], v_out[:] = self._edge[idx], self._fraction[idx], self._velocity[idx]
-        self._edge[:n], self._fraction[:n], self._velocity[:n] = e_out, f_out, v_out
-        self._log_weight[:n] = -math.log(n)
-        self._weight[:n] = 1.0 / n
+            return False
+        e_tmp, f_tmp, v_tmp = self._gathered
+        if self.resampler == "systematic":  # compiled, no index array
+            _resample_pool(self._weight, n_out, start, stop, self._uniform[2], self._edge, self._fraction,
+                           self._velocity, self._log_weight, e_tmp, f_tmp, v_tmp)
+            return True
+        pool = np.concatenate([np.arange(n_out), np.arange(start, stop)])
+        total = float(self._weight[pool].sum())
+        if total > 0:
+            idx = pool[self._resample(self._weight[pool] / total, self._rng)]
+            idx = idx[self._rng.permutation(len(idx))[:n_out]]
+            self._edge[:n_out], self._fraction[:n_out] = self._edge[idx], self._fraction[idx]
+            self._velocity[:n_out] = self._velocity[idx]
+        self._weight[:n_out] = total / n_out
+        self._log_weight[:n_out] = math.log(total / n_out) if total > 0 else -math.inf
         return True
 
     def _summarise(self, mass: np.ndarray, ess: float, resampled: bool) -> tuple[Estimate, slice | np.ndarray]:

@@ -403,21 +403,36 @@ def test_recovery_share_is_exact_in_the_prediction_and_the_jump_is_found():
     assert np.mean(np.abs(pf.place - grid.place) <= 3) > 0.9
 
 
-def test_compiled_resampling_gathers_what_systematic_resample_picks():
-    from catgraph.localizer import _systematic_gather
+def test_compiled_pool_resampling_picks_what_systematic_resample_picks():
+    """The cloud and one young generation resampled into the cloud's slots: the same
+    particles as filterpy-style systematic resampling of the pool's weights; the
+    other slots untouched; the pool's mass kept."""
+    from catgraph.localizer import _resample_pool
     from catgraph.particles import systematic_resample
 
     rng = np.random.default_rng(0)
-    for k, n in ((50, 50), (60, 50), (7, 30)):
-        w = rng.random(k) ** 4
-        w[rng.random(k) < 0.3] = 0.0
+    for n, n_out, start, stop in ((60, 60, 0, 0), (60, 40, 50, 60), (30, 10, 10, 20)):
+        w = rng.random(n) ** 4
+        w[rng.random(n) < 0.3] = 0.0
         w[0] += 1e-3
-        u = float(rng.random())
-        idx = systematic_resample(w[:n] if k == n else w, np.random.default_rng([7]))  # shape check only
-        want = np.minimum(np.searchsorted(np.cumsum(w) / np.cumsum(w)[-1], (u + np.arange(n)) / n, side="right"),
-                          k - 1)
-        src = np.arange(k)
-        e, f, v = np.empty(n, dtype=np.int64), np.empty(n), np.empty(n, dtype=np.int64)
-        _systematic_gather(w, u, src, src.astype(float), src, n, e, f, v)
-        np.testing.assert_array_equal(e, want)
-        assert np.all(w[e] > 0) and len(idx) == (n if k == n else k)
+        w /= w.sum()
+        pool = np.concatenate([np.arange(n_out), np.arange(start, stop)])
+        u = float(np.random.default_rng(7).random())
+        want = pool[systematic_resample(w[pool], np.random.default_rng(7))]
+        want = want[:n_out] if len(pool) == n_out else None
+        src = np.arange(n)
+        e, f, v, lw, ww = src.copy(), src.astype(float), src.copy(), np.log(w), w.copy()
+        total = _resample_pool(ww, n_out, start, stop, u, e, f, v, lw, np.empty(n, dtype=np.int64), np.empty(n),
+                               np.empty(n, dtype=np.int64))
+        assert total == pytest.approx(w[pool].sum())
+        if want is not None:
+            np.testing.assert_array_equal(e[:n_out], want)
+        else:  # a pool larger than its slots: the positions (u + k) / n_out over the pool
+            c = np.cumsum(w[pool]) / w[pool].sum()
+            np.testing.assert_array_equal(e[:n_out], pool[np.searchsorted(c, (u + np.arange(n_out)) / n_out,
+                                                                          side="right")])
+        assert np.all(w[e[:n_out]] > 0)
+        np.testing.assert_allclose(ww[:n_out], total / n_out)
+        rest = np.setdiff1d(np.arange(n), np.arange(n_out))
+        np.testing.assert_array_equal(e[rest], rest)
+        np.testing.assert_array_equal(ww[rest], w[rest])
