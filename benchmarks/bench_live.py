@@ -231,17 +231,25 @@ print(json.dumps({"import_and_map_s": t1 - t0, "first_row_s": t2 - t1, "twenty_c
 """
 
 
-def cold_start(layout: str = "uint8", tree: str | None = None) -> dict:
+def cold_start(layout: str = "uint8", tree: str | None = None, warm_up: bool = False) -> dict:
     """The same short live run three times in fresh processes with an empty numba cache
     directory (cold, then warm twice). ``tree``: import catgraph from that checkout
-    (a frozen copy, so no file changes between the runs and invalidates the cache)."""
+    (a frozen copy, so no file changes between the runs and invalidates the cache).
+    ``warm_up``: first run :func:`catgraph.live.warm_up` in its own process (what an
+    install step would do) and time it; the three runs come after it."""
     runs = []
     env = dict(os.environ)
     if tree:
         env["PYTHONPATH"] = tree + os.pathsep + env.get("PYTHONPATH", "")
     script = _COLD_SCRIPT.replace("LAYOUT", repr(layout))
+    warm_up_s = None
     with tempfile.TemporaryDirectory() as cache:
-        for label in ("cold", "warm", "warm"):
+        if warm_up:
+            start = time.perf_counter()
+            subprocess.run([sys.executable, "-c", "import catgraph.live as l; l.warm_up()"], check=True,
+                           env={**env, "NUMBA_CACHE_DIR": cache})
+            warm_up_s = time.perf_counter() - start
+        for label in ("first after warm-up" if warm_up else "cold", "warm", "warm"):
             start = time.perf_counter()
             proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                                   env={**env, "NUMBA_CACHE_DIR": cache})
@@ -251,7 +259,7 @@ def cold_start(layout: str = "uint8", tree: str | None = None) -> dict:
             row = json.loads(proc.stdout.strip().splitlines()[-1])
             row.update(label=label, process_s=wall)
             runs.append(row)
-    return {"runs": runs, "layout": layout, "tree": tree}
+    return {"runs": runs, "layout": layout, "tree": tree, "warm_up_s": warm_up_s}
 
 
 # ---------------------------------------------------------------------------------------
@@ -307,7 +315,8 @@ def _fmt(v, digits=1):
     return "—" if v is None or (isinstance(v, float) and not np.isfinite(v)) else f"{v:.{digits}f}"
 
 
-def write_report(results: list[dict], cold: dict | None, path: Path, shards: dict | None = None) -> None:
+def write_report(results: list[dict], cold: dict | None, path: Path, shards: dict | None = None,
+                 after_warm_up: dict | None = None) -> None:
     by = {(r.get("case"), r.get("n")): r for r in results if "error" not in r}
     sizes = sorted({r["n"] for r in results if "n" in r})
     lines = ["# Live localisation: time per frame, memory, cold start", "",
@@ -396,6 +405,18 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
                 lines.append(f"| `{name}` | " + " | ".join(cells) + " |")
             totals = [f"{sum(r.get('compiled_s', {}).values()):.2f}" for r in cold["runs"]]
             lines.append("| total | " + " | ".join(totals) + " |")
+    if after_warm_up:
+        runs = after_warm_up["runs"]
+        warm = np.median([r["process_s"] for r in runs[1:]])
+        lines += ["", f"After `catgraph.live.warm_up()` in its own process ({after_warm_up['warm_up_s']:.1f} s, "
+                  "an install step), the same empty cache otherwise:", "",
+                  "| run | process wall s | import + map s | first row s | 20 combined steps s | compiled s |",
+                  "|---|---|---|---|---|---|"]
+        for r in runs:
+            lines.append(f"| {r['label']} | {r['process_s']:.2f} | {r['import_and_map_s']:.2f} | "
+                         f"{r['first_row_s']:.2f} | {r['twenty_combined_steps_s']:.2f} | "
+                         f"{sum(r.get('compiled_s', {}).values()):.2f} |")
+        lines += ["", f"First run / warm: ×{runs[0]['process_s'] / warm:.2f}."]
     if shards:
         s = shards
         per_shard_mb = s["shard_places"] * DIM * 4 / 2**20
@@ -423,6 +444,7 @@ def main() -> None:
     parser.add_argument("--l-max", type=int, default=500)
     parser.add_argument("--cold-start", action="store_true", help="measure only the cold start")
     parser.add_argument("--tree", help="with --cold-start: import catgraph from this checkout (a frozen copy)")
+    parser.add_argument("--warm-up", action="store_true", help="with --cold-start: run catgraph.live.warm_up first")
     parser.add_argument("--dask", action="store_true", help="measure only the Dask shards")
     parser.add_argument("--case", help=argparse.SUPPRESS)
     parser.add_argument("--n", type=int, help=argparse.SUPPRESS)
@@ -435,7 +457,8 @@ def main() -> None:
     store = RESULTS / "live.json"
     previous = json.loads(store.read_text()) if store.exists() else {"results": [], "cold": None}
     if args.cold_start:
-        previous["cold"] = cold_start(tree=args.tree)
+        key = "cold_after_warm_up" if args.warm_up else "cold"
+        previous[key] = cold_start(tree=args.tree, warm_up=args.warm_up)
     elif args.dask:
         previous["shards"] = dask_shards()
     else:
@@ -450,7 +473,8 @@ def main() -> None:
                 keep.append(res)
         previous["results"] = keep
     store.write_text(json.dumps(previous, indent=1))
-    write_report(previous["results"], previous.get("cold"), RESULTS / "live.md", previous.get("shards"))
+    write_report(previous["results"], previous.get("cold"), RESULTS / "live.md", previous.get("shards"),
+                 previous.get("cold_after_warm_up"))
     print((RESULTS / "live.md").read_text())
 
 

@@ -39,6 +39,16 @@ of ``anchor_rows`` places (columns anywhere at least ``gap`` away): cost
 ``O(anchor_rows × N × d)`` instead of ``O(N² d)``, so bootstrap and combined models
 run at ``N = 10⁵`` and beyond.
 
+Cold start
+----------
+Every compiled kernel is cached on disk the first time a process compiles it
+(:mod:`catgraph._jit`), but that first process pays the compilation — seconds per
+kernel, dominated by the sequence matcher's and the grid filter's. :func:`warm_up` runs
+a tiny map through every live path (both layouts, the filter's models, the matcher)
+so that a deployment can pay it once, at install or image-build time
+(``python -c "import catgraph.live as l; l.warm_up()"``); the first real run then
+starts as fast as any later one.
+
 Memory of one step
 ------------------
 The map (``N × d`` float32, or ``N × d`` bytes with ``layout="uint8"``), one float64 difference row, and what the models hold: the
@@ -69,6 +79,7 @@ __all__ = [
     "describe_frame",
     "map_bootstrap",
     "map_bootstrap_samples",
+    "warm_up",
 ]
 
 #: Models a :class:`LiveLocalizer` runs: the filter's observation models
@@ -516,3 +527,45 @@ class LiveLocalizer:
         """:meth:`step` through frames (a convenience for tests and examples)."""
         odometry = None if odometry is None else check_array(odometry, "odometry", ndim=1)
         return [self.step(f, None if odometry is None or k == 0 else float(odometry[k])) for k, f in enumerate(frames)]
+
+
+def warm_up(models: tuple[str, ...] = ("combined", "tempered", "histogram-bootstrap", "matcher"),
+            layouts: tuple[str, ...] = ("float32", "uint8"), steps: int = 3) -> dict[str, float]:
+    """Compile (and cache on disk) the kernels of the live paths once, on a tiny map.
+
+    Parameters
+    ----------
+    models : tuple of str
+        Models of :data:`LIVE_MODELS` to step.
+    layouts : tuple of str
+        Map layouts to prepare (:data:`catgraph.differences.LAYOUTS`).
+    steps : int
+        Frames stepped per model and layout.
+
+    Returns
+    -------
+    dict
+        Seconds spent per ``"model/layout"``.
+    """
+    from .graph import PlaceGraph
+    from .io import CatgraphMap
+
+    unknown = [m for m in models if m not in LIVE_MODELS]
+    if unknown:
+        raise InvalidParameterError(f"unknown live models {unknown}; choose from {LIVE_MODELS}.")
+    rng = np.random.default_rng(0)
+    n, dim = 600, 16
+    descriptors = np.cumsum(rng.standard_normal((n, dim)), axis=0).astype(np.float32)
+    the_map = CatgraphMap(descriptors, "sad", {"size": None, "patch": 0, "metric": "sad", "normalise": True},
+                          PlaceGraph.chain(n), meta={"kind": "descriptors"})
+    seconds = {}
+    for layout in layouts:
+        live_map = LiveMap(the_map, layout=layout)
+        for model in models:
+            start = time.perf_counter()
+            params = {} if model == "matcher" else {"n_particles": 100}
+            live = LiveLocalizer(live_map, model=model, **params)
+            for k in range(steps):
+                live.step(descriptors[100 + k])
+            seconds[f"{model}/{layout}"] = time.perf_counter() - start
+    return seconds

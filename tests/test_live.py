@@ -200,3 +200,13 @@ def test_example_matches_the_localize_command(world, tmp_path, capsys, monkeypat
     with pytest.raises(SystemExit) as stop:
         runpy.run_path(str(EXAMPLE), run_name="__main__")
     assert stop.value.code == 0 and "per-frame ms: median" in capsys.readouterr().out
+
+
+def test_warm_up_steps_every_requested_path():
+    from catgraph.live import warm_up
+
+    seconds = warm_up(models=("matcher", "histogram"), layouts=("float32", "uint8"), steps=2)
+    assert set(seconds) == {"matcher/float32", "histogram/float32", "matcher/uint8", "histogram/uint8"}
+    assert all(v >= 0 for v in seconds.values())
+    with pytest.raises(InvalidParameterError, match="unknown live models"):
+        warm_up(models=("kalman",))
