@@ -375,11 +375,12 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
             r = by.get((case, n))
             cells.append("not run" if r is None else f"{_fmt(r['peak_rss_mb'], 0)} MB")
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    live = [by[(c, n)] for c in ("live", "live-u8") for n in sizes if (c, n) in by][:len(sizes)]
-    if live:
-        lines += ["", "Preparing the live map (validation, layout, bootstrap from sampled pairs): " +
-                  ", ".join(f"N = {r['n']:,}: {r['prepare_s']:.1f} s (anchor rows {r['anchor_rows']})"
-                            for r in live) + "."]
+    for case, what in (("live", "float32"), ("live-u8", "uint8 codes")):
+        live = [by[(case, n)] for n in sizes if (case, n) in by]
+        if live:
+            lines += ["", f"Preparing the live map ({what}: validation, layout, bootstrap from sampled pairs): " +
+                      ", ".join(f"N = {r['n']:,}: {r['prepare_s']:.1f} s (anchor rows {r['anchor_rows']})"
+                                for r in live) + "."]
     errors = [r for r in results if "error" in r]
     if errors:
         lines += ["", "Failed cases:", ""] + [f"- `{' '.join(e['args'])}`: {e['error']}" for e in errors]
