@@ -313,8 +313,11 @@ class SequenceObservation:
         Frames of online initialisation of the score histograms (ratios 0 meanwhile).
     exclusion_radius : int
         Places ``best ± r`` excluded when choosing the ``¬L`` sample.
-    temperature : float
-        Multiplies every log-ratio.
+    temperature : float or "window"
+        Multiplies every log-ratio. ``"window"``: ``1 / L_k``, the frame's window length:
+        consecutive frames' window scores share ``L − 1`` of their ``L`` frames, so a
+        filter that multiplies them frame after frame counts each frame's evidence
+        about ``L`` times; ``1 / L_k`` counts it about once.
 
     Attributes
     ----------
@@ -326,7 +329,7 @@ class SequenceObservation:
     """
 
     def __init__(self, window: int | str = "adaptive", matcher_params: dict | None = None, n_init: int = 20,
-                 exclusion_radius: int = 5, temperature: float = 1.0) -> None:
+                 exclusion_radius: int = 5, temperature: float | str = 1.0) -> None:
         self.window = window
         self.matcher_params = matcher_params
         self.n_init = n_init
@@ -344,7 +347,8 @@ class SequenceObservation:
         from .likelihood import HistogramPlaceRecogniser
         from .sequence import SequenceMatcher
 
-        check_scalar(self.temperature, "temperature", type(self).__name__, float, 0.0, low_inclusive=False)
+        if self.temperature != "window":
+            check_scalar(self.temperature, "temperature", type(self).__name__, float, 0.0, low_inclusive=False)
         self.matcher_ = SequenceMatcher(window=self.window, **(self.matcher_params or {}))
         self.recogniser_ = HistogramPlaceRecogniser(n_init=self.n_init, exclusion_radius=self.exclusion_radius)
 
@@ -375,7 +379,8 @@ class SequenceObservation:
         rec.update(z)
         if not informative:
             return Observation(np.zeros(len(row)), 0.0, False)
-        tau = float(self.temperature)
+        tau = (1.0 / max(int(self.last_match_.window_length), 1) if self.temperature == "window"
+               else float(self.temperature))
         model = rec.model_
         return Observation(tau * np.asarray(model.log_likelihood_ratio(z), dtype=np.float64),
                            tau * float(model.new_place_log_likelihood()), True, self._recent_support())

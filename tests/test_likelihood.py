@@ -530,3 +530,20 @@ def test_tempered_repeated_frame_adds_no_evidence():
     off = TemperedObservation(hub=None, temperature=1.0, novelty=False)
     off.observe(rows[1])
     np.testing.assert_allclose(off.observe(rows[1]).log_ratio, -rows[1])
+
+
+def test_sequence_observation_window_temperature_counts_each_frame_once():
+    from catgraph.observation import SequenceObservation
+
+    rows = np.random.default_rng(3).standard_normal((40, 30))
+    plain = SequenceObservation(window=8, n_init=5)
+    once = SequenceObservation(window=8, n_init=5, temperature="window")
+    for row in rows:
+        a, b = plain.observe(row), once.observe(row)
+        assert a.informative == b.informative
+        if a.informative:
+            length = once.last_match_.window_length
+            np.testing.assert_allclose(b.log_ratio, a.log_ratio / length, rtol=1e-12, atol=1e-15)
+            assert b.new_place_log_ratio == pytest.approx(a.new_place_log_ratio / length)
+    with pytest.raises(InvalidParameterError):
+        SequenceObservation(temperature="hot").observe(rows[0])
