@@ -97,6 +97,7 @@ __all__ = [
     "LAYOUTS",
     "METRICS",
     "PreparedReference",
+    "code_scale",
     "difference_matrix",
     "difference_row",
     "iter_difference_blocks",
@@ -239,11 +240,18 @@ class PreparedReference:
     descriptors : array_like, shape (N, d)
         Reference descriptors (float, or bool / packed uint8 for ``hamming``).
     metric : {"sad", "ssd", "cosine", "hamming"}
+    layout : {"float32", "uint8"}
+        ``"uint8"``: one byte per value (see "Compact layout" in the module docstring).
+    code_scale : (offset, step), optional
+        ``"uint8"`` only: the codes' offset and step instead of the descriptors' own
+        range (:func:`code_scale` of the whole map, for shards of one map).
 
     Attributes
     ----------
-    descriptors : ndarray of float32, shape (N, d_bits or d)
-        C-contiguous kernel layout (Hamming bits unpacked to 0/1).
+    descriptors : ndarray of float32 or uint8, shape (N, d_bits or d)
+        C-contiguous kernel layout (Hamming bits unpacked to 0/1; codes for ``"uint8"``).
+    offset, step : float
+        ``"uint8"``: a code ``c`` stands for ``offset + step · c``.
     norms : ndarray of float64, shape (N,) or None
         ``|r_j|`` (cosine only).
     n_places, dim : int
@@ -256,7 +264,8 @@ class PreparedReference:
     [0.0, 2.0, 2.0]
     """
 
-    def __init__(self, descriptors, metric: str = "sad", layout: str = "float32") -> None:
+    def __init__(self, descriptors, metric: str = "sad", layout: str = "float32",
+                 code_scale: tuple[float, float] | None = None) -> None:
         if metric not in METRICS:
             raise InvalidParameterError(
                 f"Unknown difference metric {metric!r}; choose one of {', '.join(METRICS)}."
@@ -280,7 +289,14 @@ class PreparedReference:
                 self.norms = self._self_norms(self.descriptors)
             return
         raw = _as_descriptors(descriptors, "reference descriptors", metric, convert=False)
-        self.offset, self.step = _code_scale(raw, metric)
+        if code_scale is None:
+            self.offset, self.step = _code_scale(raw, metric)
+        else:
+            offset, step = (float(v) for v in code_scale)
+            if not (np.isfinite(offset) and np.isfinite(step) and step > 0):
+                raise InvalidParameterError(f"code_scale must be (offset, step) with finite values and step > 0; "
+                                            f"got {code_scale!r}.")
+            self.offset, self.step = offset, step
         self.descriptors = np.empty(raw.shape, dtype=np.uint8)
         for start in range(0, raw.shape[0], _CODE_ROWS):
             _encode(raw[start : start + _CODE_ROWS], self.offset, self.step, self.descriptors[start : start + _CODE_ROWS])
@@ -425,6 +441,16 @@ class PreparedReference:
 
 #: Rows encoded at once by the compact layout (bounds the float scratch memory).
 _CODE_ROWS = 8192
+
+
+def code_scale(descriptors, metric: str = "sad") -> tuple[float, float]:
+    """``(offset, step)`` of the ``uint8`` codes :class:`PreparedReference` gives these
+    reference descriptors (read in row chunks: a memory-mapped map is never copied whole).
+    Shards of one map pass the whole map's scale (``code_scale=``) so their codes are
+    those of the whole map."""
+    if metric not in METRICS or metric == "cosine":
+        raise InvalidParameterError(f"the uint8 layout serves the sad, ssd and hamming metrics; got {metric!r}.")
+    return _code_scale(_as_descriptors(descriptors, "reference descriptors", metric, convert=False), metric)
 
 
 def _code_scale(x: np.ndarray, metric: str) -> tuple[float, float]:

@@ -141,3 +141,22 @@ def test_match_command_with_scheduler_writes_the_local_results(client, data, tmp
     common.remove("--no-hub-correction")
     assert main(["match", *common, "--scheduler", client.scheduler.address]) == 1
     assert "--no-hub-correction" in capsys.readouterr().err
+
+
+def test_uint8_shards_equal_the_local_compact_reference(client, data):
+    from catgraph.differences import PreparedReference, code_scale
+
+    q, r = data
+    ref = dd.shard_reference(r, "sad", client, shard_places=4096, layout="uint8")
+    assert ref.code_scale == code_scale(r, "sad")
+    local = PreparedReference(r, "sad", layout="uint8")
+    assert (local.offset, local.step) == ref.code_scale
+    for normalise in (False, True):
+        got = dd.difference_matrix(q, ref, normalise=normalise, block_rows=50)
+        assert np.array_equal(got, difference_matrix(q, local, "sad", normalise=normalise))
+    res = dd.match_fixed_window(q, ref, 12, radius=5, block_rows=37)
+    assert np.all(np.abs(res.match[20:100] - (4050 + np.arange(20, 100))) <= 1)
+    with pytest.raises(InvalidParameterError, match="layout"):
+        dd.shard_reference(r, "sad", client, layout="int4")
+    with pytest.raises(InvalidParameterError, match="step > 0"):
+        PreparedReference(r, "sad", layout="uint8", code_scale=(0.0, 0.0))
