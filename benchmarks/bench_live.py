@@ -267,7 +267,7 @@ def cold_start(layout: str = "uint8", tree: str | None = None, warm_up: bool = F
 
 
 def dask_shards(shard_places: int = 1 << 18, n_shards: int = 2, block_rows: int = 32, window: int = 50,
-                n_query: int = 96) -> dict:
+                n_query: int = 96, layout: str = "float32") -> dict:
     """Per-shard figures of :func:`catgraph.distributed.match_fixed_window` on a local
     cluster of ``n_shards`` one-thread worker processes (one shard each)."""
     import distributed
@@ -290,7 +290,7 @@ def dask_shards(shard_places: int = 1 << 18, n_shards: int = 2, block_rows: int 
                                   dashboard_address=None, memory_limit=None) as cluster, \
             distributed.Client(cluster) as client:
         t0 = time.perf_counter()
-        ref = dd.shard_reference(reference, "sad", client, shard_places=shard_places)
+        ref = dd.shard_reference(reference, "sad", client, shard_places=shard_places, layout=layout)
         client.gather(ref.shards)
         prepare_s = time.perf_counter() - t0
         before = client.run(counters)
@@ -300,7 +300,7 @@ def dask_shards(shard_places: int = 1 << 18, n_shards: int = 2, block_rows: int 
         seconds = time.perf_counter() - t1
         after = client.run(counters)
     correct = float(np.mean(np.abs(res.match[window:] - (start_place + np.arange(window, n_query))) <= 1))
-    return {"shard_places": shard_places, "n_shards": n_shards, "block_rows": block_rows, "window": window,
+    return {"layout": layout, "shard_places": shard_places, "n_shards": n_shards, "block_rows": block_rows, "window": window,
             "n_query": n_query, "prepare_s": prepare_s, "ms_per_frame": 1000 * seconds / n_query,
             "worker_rss_mb": [a["rss"] / 2**20 for a in after.values()],
             "bytes_out_per_frame": [(a["out"] - b["out"]) / n_query for a, b in zip(after.values(), before.values())],
@@ -316,7 +316,7 @@ def _fmt(v, digits=1):
 
 
 def write_report(results: list[dict], cold: dict | None, path: Path, shards: dict | None = None,
-                 after_warm_up: dict | None = None) -> None:
+                 after_warm_up: dict | None = None, shards_uint8: dict | None = None) -> None:
     by = {(r.get("case"), r.get("n")): r for r in results if "error" not in r}
     sizes = sorted({r["n"] for r in results if "n" in r})
     lines = ["# Live localisation: time per frame, memory, cold start", "",
@@ -418,12 +418,15 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
                          f"{r['first_row_s']:.2f} | {r['twenty_combined_steps_s']:.2f} | "
                          f"{sum(r.get('compiled_s', {}).values()):.2f} |")
         lines += ["", f"First run / warm: ×{runs[0]['process_s'] / warm:.2f}."]
-    if shards:
-        s = shards
-        per_shard_mb = s["shard_places"] * DIM * 4 / 2**20
-        lines += ["", "## Dask shards", "",
+    for s in (shards, shards_uint8):
+        if not s:
+            continue
+        compact = s.get("layout", "float32") == "uint8"
+        per_shard_mb = s["shard_places"] * DIM * (1 if compact else 4) / 2**20
+        lines += ["", "## Dask shards" + (", compact layout (uint8 codes)" if compact else ""), "",
                   f"`catgraph.distributed.match_fixed_window` on a `LocalCluster` of {s['n_shards']} one-thread worker "
-                  f"processes, one shard of {s['shard_places']:,} places × {DIM} float32 ({per_shard_mb:.0f} MiB) each, "
+                  f"processes, one shard of {s['shard_places']:,} places × {DIM} {'uint8 codes' if compact else 'float32'} "
+                  f"({per_shard_mb:.0f} MiB) each, "
                   f"window {s['window']}, {s['n_query']} query frames in blocks of {s['block_rows']} (the route "
                   "crosses the shard edge):", "",
                   "| figure | measured |", "|---|---|",
@@ -447,6 +450,7 @@ def main() -> None:
     parser.add_argument("--tree", help="with --cold-start: import catgraph from this checkout (a frozen copy)")
     parser.add_argument("--warm-up", action="store_true", help="with --cold-start: run catgraph.live.warm_up first")
     parser.add_argument("--dask", action="store_true", help="measure only the Dask shards")
+    parser.add_argument("--layout", default="float32", help="with --dask: the shards' layout (float32 or uint8)")
     parser.add_argument("--case", help=argparse.SUPPRESS)
     parser.add_argument("--n", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--anchor-rows", type=int, default=None, help=argparse.SUPPRESS)
@@ -461,7 +465,7 @@ def main() -> None:
         key = "cold_after_warm_up" if args.warm_up else "cold"
         previous[key] = cold_start(tree=args.tree, warm_up=args.warm_up)
     elif args.dask:
-        previous["shards"] = dask_shards()
+        previous["shards" if args.layout == "float32" else f"shards_{args.layout}"] = dask_shards(layout=args.layout)
     else:
         keep = [r for r in previous["results"] if (r.get("case"), r.get("n")) not in
                 {(c, n) for c in args.cases for n in args.sizes}]
@@ -475,7 +479,7 @@ def main() -> None:
         previous["results"] = keep
     store.write_text(json.dumps(previous, indent=1))
     write_report(previous["results"], previous.get("cold"), RESULTS / "live.md", previous.get("shards"),
-                 previous.get("cold_after_warm_up"))
+                 previous.get("cold_after_warm_up"), previous.get("shards_uint8"))
     print((RESULTS / "live.md").read_text())
 
 
