@@ -739,7 +739,7 @@ class GridLocalizer:
         if not self.learn_recovery or self.recovery == 0.0:
             return
         responsibility = min(1.0, self.recovery_ * ratio)
-        decay = 0.5 ** (1.0 / getattr(self, "_jump_memory", RECOVERY_MEMORY))
+        decay = 0.5 ** (1.0 / RECOVERY_MEMORY)
         self._jumps = decay * self._jumps + responsibility
         self._frames = decay * self._frames + 1.0
         strength = RECOVERY_PRIOR_FRAMES
