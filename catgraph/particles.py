@@ -72,8 +72,9 @@ class ParticleSet:
         Normalised log-weights (``logsumexp == 0``).
     velocity : ndarray of int64, shape (n,), or None
         Velocity bin of each particle, for motion models with a velocity state
-        (:class:`~catgraph.motion.VelocityMotion`); ``None`` otherwise. A bin index
-        ``< 0`` means "not drawn yet": the motion model draws it from its prior.
+        (:class:`~catgraph.motion.VelocityMotion`); ``None`` otherwise. A value
+        ``−1 − s < 0`` means "not drawn yet": the motion model draws it from its
+        uniform prior, stratified by ``s`` (bin ``s mod n_bins``).
     """
 
     edge: np.ndarray

@@ -183,3 +183,24 @@ def test_frame_based_motion_counts_places_on_a_metric_graph_with_repeated_positi
         m.move(p, g, rng)
         # one place per frame, as the grid filter moves its mass, whatever the metres between places
         np.testing.assert_array_equal(p.places(g), start + k)
+
+
+def test_velocity_motion_defaults_are_the_grid_filters():
+    import inspect
+
+    from catgraph.grid import GridLocalizer, velocity_transition
+    from catgraph.motion import VelocityMotion
+
+    grid = {k: p.default for k, p in inspect.signature(GridLocalizer).parameters.items()}
+    m = VelocityMotion()
+    g = PlaceGraph.chain(10)
+    rng = np.random.default_rng(0)
+    m.move(ParticleSet.uniform(g, 4, rng), g, rng)
+    want = np.cumsum(velocity_transition(np.asarray(grid["velocities"], dtype=float), grid["velocity_stay"],
+                                         grid["reverse_probability"]), axis=1)
+    np.testing.assert_allclose(m._cumulative[:, :-1], want[:, :-1])
+    assert m._blur == grid["blur"] and m.straight_preference == pytest.approx(1 - grid["junction_probability"])
+    # an explicit value wins
+    m2 = VelocityMotion(blur=0.2)
+    m2.move(ParticleSet.uniform(g, 4, rng), g, rng)
+    assert m2._blur == 0.2

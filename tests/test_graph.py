@@ -137,3 +137,13 @@ def test_bad_inputs_raise_typed_errors(tmp_path):
     bad.write_text("{not json")
     with pytest.raises(MapFileError):
         load_graph(bad)
+
+
+def test_hop_length_counts_places_whatever_the_metres():
+    from catgraph.traverse import Traverse
+
+    positions = np.repeat(np.stack([3.0 * np.arange(5), np.zeros(5)], 1), 4, axis=0)  # 4 samples per point
+    g = PlaceGraph.from_traverse(Traverse(np.zeros((20, 2)), positions=positions))
+    assert g.unit == "m" and np.sum(g.length < 1e-3) > 0
+    np.testing.assert_array_equal(g.hop_length, np.ones(g.n_edges))
+    assert not g.hop_length.flags.writeable
