@@ -566,7 +566,8 @@ def match_sequences(
         Candidate lengths, see :func:`window_grid`.
     radius : int
         Places either side of the best match excluded when looking for the second best
-        (``confidence="gap"``).
+        (``confidence="gap"`` and ``"support"``), and the agreement radius of
+        ``"support"``.
     recent_fraction : float
         A window of length ``L`` is tested on its recent sub-windows of length ``l`` in
         the grid with ``recent_fraction * L <= l < L`` (rules "consistent" and
