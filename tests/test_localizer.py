@@ -421,7 +421,9 @@ def test_compiled_pool_resampling_picks_what_systematic_resample_picks():
         want = pool[systematic_resample(w[pool], np.random.default_rng(7))]
         want = want[:n_out] if len(pool) == n_out else None
         src = np.arange(n)
-        e, f, v, lw, ww = src.copy(), src.astype(float), src.copy(), np.log(w), w.copy()
+        with np.errstate(divide="ignore"):
+            lw = np.log(w)
+        e, f, v, ww = src.copy(), src.astype(float), src.copy(), w.copy()
         total = _resample_pool(ww, n_out, start, stop, u, e, f, v, lw, np.empty(n, dtype=np.int64), np.empty(n),
                                np.empty(n, dtype=np.int64))
         assert total == pytest.approx(w[pool].sum())
