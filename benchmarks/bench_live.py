@@ -366,7 +366,7 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
     row("… of which models + filter", "live-u8", "model_ms", ratio=False)
     lines += ["", "Peak RSS of each process (reference, buffers, models; Python and numba ≈ 150–200 MB):", "",
               "| process | " + " | ".join(f"N = {n:,}" for n in sizes) + " |", "|---|" + "---|" * len(sizes)]
-    for label, case in (("difference rows (SAD)", "row"), ("difference rows, compact layout (codes only)", "row-u8"),
+    for label, case in (("difference rows (SAD)", "row"), ("difference rows, compact layout (the peak includes the float map while it is coded; the codes are N × 512 B)", "row-u8"),
                         ("matcher alone (adaptive, l_max 500)", "matcher"),
                         ("full live step (combined)", "live"),
                         ("full live step (combined), compact map (the float map is held too)", "live-u8")):
