@@ -532,8 +532,9 @@ class Localizer:
         differ in variance.
     proposal_top_k : int
         Number of best places the ``"best"`` proposal draws from.
-    new_place_prior : float in [0, 1)
-        Per-step probability of entering unmapped space (0 disables the new place).
+    new_place_prior : float in [0, 1), optional
+        Per-step probability of entering unmapped space (0 disables the new place);
+        default: the grid filter's (:class:`~catgraph.grid.GridLocalizer`).
     new_place_stay : float in [0, 1)
         Per-step probability of staying in unmapped space.
     confidence_radius : int
@@ -562,7 +563,7 @@ class Localizer:
                  motion: MotionModel | None = None, resampler: str = "systematic", ess_threshold: float = 0.5,
                  recovery: float = 0.05, learn_recovery: bool = True, redraw_fraction: float = 0.1,
                  recovery_frames: int = 8, proposal: str = "likelihood",
-                 proposal_top_k: int = 10, new_place_prior: float = 0.0, new_place_stay: float = 0.8,
+                 proposal_top_k: int = 10, new_place_prior: float | None = None, new_place_stay: float = 0.8,
                  confidence_radius: int = 2, confidence_radius_m: float | None = None,
                  confidence_score: str = "joint", seed: int | np.random.Generator | None = 0) -> None:
         self.graph = graph
@@ -602,7 +603,15 @@ class Localizer:
         check_scalar(self.redraw_fraction, "redraw_fraction", owner, float, 0.0, 1.0, True, False)
         check_scalar(self.proposal_top_k, "proposal_top_k", owner, int, 1)
         check_scalar(self.recovery_frames, "recovery_frames", owner, int, 1)
-        check_scalar(self.new_place_prior, "new_place_prior", owner, float, 0.0, 1.0, True, False)
+        if self.new_place_prior is None:  # the grid filter's, so that both filters share one model
+            import inspect
+
+            from .grid import GridLocalizer
+
+            self._new_place_prior = float(inspect.signature(GridLocalizer).parameters["new_place_prior"].default)
+        else:
+            check_scalar(self.new_place_prior, "new_place_prior", owner, float, 0.0, 1.0, True, False)
+            self._new_place_prior = float(self.new_place_prior)
         check_scalar(self.new_place_stay, "new_place_stay", owner, float, 0.0, 1.0, True, False)
         check_scalar(self.confidence_radius, "confidence_radius", owner, int, 0)
         if self.confidence_score not in ("joint", "posterior"):
@@ -753,7 +762,7 @@ class Localizer:
                                         self._mass)
         if obs.informative and np.isfinite(log_map):
             self._learn_recovery(math.exp(self._log_like_mean - log_map))
-            prior = self.new_place_stay * self.new_place_probability_ + self.new_place_prior * (
+            prior = self.new_place_stay * self.new_place_probability_ + self._new_place_prior * (
                 1.0 - self.new_place_probability_)
             if prior > 0.0:
                 a_new = math.log(prior) + obs.new_place_log_ratio
