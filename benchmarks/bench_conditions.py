@@ -12,7 +12,10 @@ Writes ``benchmarks/results/conditions.md`` and ``conditions.json``. Run from th
 repository root::
 
     python benchmarks/bench_conditions.py [--quick] [--methods single-frame,adaptive,...]
-        [--datasets nordland,uji,synthetic]
+        [--datasets nordland,uji,synthetic] [--merge]
+
+``--merge``: keep the committed rows of the methods and datasets not run this time, so one
+method can be re-measured after its defaults change without re-running the others.
 
 ``--quick``: in order, shuffled 2–20 % seed 0, shuffled 0.5–3 % seed 0, reversed, speed 2.
 """
@@ -77,7 +80,11 @@ def main(argv=None) -> None:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--methods", default=",".join(METHODS))
     ap.add_argument("--datasets", default="nordland,uji,synthetic")
+    ap.add_argument("--merge", action="store_true",
+                    help="keep the saved rows of every other method and dataset (full table only)")
     args = ap.parse_args(argv)
+    if args.merge and args.quick:
+        raise SystemExit("--merge keeps rows of the full table; it cannot be combined with --quick")
     labels = [m.strip() for m in args.methods.split(",")]
     unknown = [m for m in labels if m not in METHODS]
     if unknown:
@@ -103,6 +110,14 @@ def main(argv=None) -> None:
                 rows.append(row)
                 print(f"{ds:10s} {condition.label:28s} {label:22s} AUC {row['auc']:.3f} R@100P "
                       f"{row['recall_at_100p']:.3f} MTL {row['mtl']:.0f}  {time.strftime('%X')}", flush=True)
+    if args.merge and (RESULTS / "conditions.json").is_file():
+        done = {(r["dataset"], r["method"]) for r in rows}
+        kept = [r for r in json.loads((RESULTS / "conditions.json").read_text())["rows"]
+                if (r["dataset"], r["method"]) not in done]
+        rows = kept + rows
+        present = {r["method"] for r in rows}
+        labels = [m for m in METHODS if m in present]
+        rows.sort(key=lambda r: ("Nordland", "UJI 02-06", "synthetic").index(r["dataset"]))
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "conditions.json").write_text(json.dumps({"machine": platform.platform(), "rows": rows}, indent=1))
     (RESULTS / "conditions.md").write_text(_markdown(rows, labels, conditions, args.quick))
@@ -119,8 +134,9 @@ def _markdown(rows, labels, conditions, quick) -> str:
         for c in conditions:
             cells = []
             for label in labels:
-                r = next(r for r in rows if r["dataset"] == ds and r["condition"] == c.label and r["method"] == label)
-                cells.append(f"{r['auc']:.3f} / {r['recall_at_100p']:.2f} / {r['mtl']:.0f}")
+                r = next((r for r in rows if r["dataset"] == ds and r["condition"] == c.label
+                          and r["method"] == label), None)
+                cells.append("—" if r is None else f"{r['auc']:.3f} / {r['recall_at_100p']:.2f} / {r['mtl']:.0f}")
             parts.append(f"| {c.label} | " + " | ".join(cells) + " |\n")
         for rng, name in (((0.02, 0.2), "shuffled 2–20 %"), ((0.005, 0.03), "shuffled 0.5–3 %")):
             group = [r for r in rows if r["dataset"] == ds and r["condition_spec"].get("segment_range") == list(rng)]
@@ -128,7 +144,7 @@ def _markdown(rows, labels, conditions, quick) -> str:
                 cells = []
                 for label in labels:
                     aucs = [r["auc"] for r in group if r["method"] == label]
-                    cells.append(f"mean {np.mean(aucs):.3f}, worst {min(aucs):.3f}")
+                    cells.append(f"mean {np.mean(aucs):.3f}, worst {min(aucs):.3f}" if aucs else "—")
                 parts.append(f"| **{name}, all seeds** | " + " | ".join(cells) + " |\n")
     return "".join(parts)
 
