@@ -95,6 +95,22 @@ def best_matches(scores: np.ndarray, exclusion: int = 10) -> tuple[np.ndarray, n
     n, n_ref = s.shape
     if n_ref == 0:
         raise DataError("scores have no reference column; a match needs at least one reference place.")
+    match = np.empty(n, dtype=np.int64)
+    confidence = np.empty(n, dtype=np.float64)
+    # rows in blocks: the temporaries below are a few times their input's size, and a
+    # large map's whole difference matrix must not be copied several times over
+    rows = max(1, _BLOCK_VALUES // n_ref)
+    for lo in range(0, n, rows):
+        match[lo : lo + rows], confidence[lo : lo + rows] = _best_block(s[lo : lo + rows], exclusion)
+    return match, confidence
+
+
+#: values per block of rows in :func:`best_matches` (8 MiB of float64)
+_BLOCK_VALUES = 1 << 20
+
+
+def _best_block(s: np.ndarray, exclusion: int) -> tuple[np.ndarray, np.ndarray]:
+    n, n_ref = s.shape
     informative = has_information(s)
     s = np.where(np.isfinite(s), s, np.inf)
     match = np.argmin(s, axis=1)
@@ -109,6 +125,4 @@ def best_matches(scores: np.ndarray, exclusion: int = 10) -> tuple[np.ndarray, n
     # one reference place is informative on its own only if its score is finite
     has_output = informative | ((n_ref == 1) & np.isfinite(best))
     has_output &= np.isfinite(best)
-    match = np.where(has_output, match, NO_MATCH)
-    confidence = np.where(has_output, confidence, NO_OUTPUT_CONFIDENCE)
-    return match.astype(np.int64), confidence.astype(np.float64)
+    return np.where(has_output, match, NO_MATCH), np.where(has_output, confidence, NO_OUTPUT_CONFIDENCE)

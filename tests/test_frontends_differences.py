@@ -149,6 +149,24 @@ def test_best_matches_against_reference(scores, exclusion):
     assert np.all(np.isfinite(conf)) and np.all(conf >= 0)
 
 
+def test_best_matches_in_row_blocks_equals_one_block(monkeypatch):
+    """Large inputs are processed in blocks of rows: the answers must not depend on the block size."""
+    import catgraph.matching as matching
+
+    rng = np.random.default_rng(3)
+    scores = rng.random((57, 40))
+    scores[5] = 2.0
+    scores[11, ::3] = np.nan
+    whole = matching.best_matches(scores, 3)
+    monkeypatch.setattr(matching, "_BLOCK_VALUES", 40 * 4)  # blocks of 4 rows, the last one shorter
+    blocked = matching.best_matches(scores, 3)
+    np.testing.assert_array_equal(blocked[0], whole[0])
+    np.testing.assert_array_equal(blocked[1], whole[1])
+    ref_match, ref_conf = _best_matches_reference(scores, 3)
+    np.testing.assert_array_equal(blocked[0], ref_match)
+    np.testing.assert_allclose(blocked[1], ref_conf)
+
+
 def test_black_query_frames_get_no_match_with_normalised_rows():
     """A black frame's row, treated as σ = 0, is all zeros after normalisation: no output."""
     from catgraph.matching import best_matches
