@@ -100,23 +100,34 @@ def hub_offsets(map_differences: np.ndarray, threshold: float = HUB_THRESHOLD,
     check_scalar(threshold, "threshold", "hub_offsets", float, 0.0)
     m = np.array(r, dtype=np.float64, copy=True)
     m[np.arange(len(rows)), rows] = np.nan
-    typical = np.nanmedian(m, axis=0)
+    return _outlying(np.nanmedian(m, axis=0), threshold)
+
+
+def _outlying(typical: np.ndarray, threshold: float) -> np.ndarray:
+    """``h_j - median(h)`` where ``h_j`` lies more than ``threshold`` robust standard
+    deviations below the median of the typical differences ``h``, ``0`` elsewhere."""
     centre = float(np.median(typical))
     spread = 1.4826 * float(np.median(np.abs(typical - centre)))
-    hub = typical < centre - threshold * spread
-    return np.where(hub, typical - centre, 0.0)
+    return np.where(typical < centre - threshold * spread, typical - centre, 0.0)
 
 
 def map_hub_offsets(catgraph_map, threshold: float = HUB_THRESHOLD, max_rows: int = HUB_ROWS) -> np.ndarray:
     """:func:`hub_offsets` of a :class:`~catgraph.io.CatgraphMap`: the map against itself,
     or, above ``max_rows`` places, a seeded sample of ``max_rows`` of its frames against
-    the whole map (never an ``N × N`` matrix)."""
-    from .differences import difference_matrix
+    the whole map, read in blocks of places (never an ``N × N`` matrix, nor the whole
+    ``max_rows × N`` one)."""
+    from .differences import iter_difference_columns
 
     d, n = catgraph_map.descriptors, catgraph_map.n_places
     rows = np.arange(n) if n <= max_rows else np.sort(np.random.default_rng(0).choice(n, max_rows, replace=False))
-    r = difference_matrix(d[rows], d, catgraph_map.metric, normalise=bool(catgraph_map.frontend.get("normalise", True)))
-    return hub_offsets(r, threshold, rows=rows)
+    check_scalar(threshold, "threshold", "hub_offsets", float, 0.0)
+    typical = np.empty(n)
+    for lo, block in iter_difference_columns(d[rows], d, catgraph_map.metric,
+                                             normalise=bool(catgraph_map.frontend.get("normalise", True))):
+        own = np.flatnonzero((rows >= lo) & (rows < lo + block.shape[1]))
+        block[own, rows[own] - lo] = np.nan
+        typical[lo : lo + block.shape[1]] = np.nanmedian(block, axis=0)
+    return _outlying(typical, threshold)
 
 
 def apply_hub_offsets(differences: np.ndarray, offsets: np.ndarray, renormalise: bool = True) -> np.ndarray:

@@ -74,3 +74,25 @@ def test_map_hub_offsets_from_a_sample_of_rows_find_the_same_hubs():
     sampled = map_hub_offsets(m, max_rows=150)
     assert set(np.flatnonzero(full)) == {30, 31, 200}
     assert set(np.flatnonzero(sampled)) == {30, 31, 200}
+
+
+def test_map_hub_offsets_read_in_blocks_equal_the_matrix_form(monkeypatch):
+    """The map's offsets, read in blocks of places, equal :func:`hub_offsets` of the full
+    (sampled rows × map) difference matrix."""
+    import catgraph.differences as differences
+    from catgraph.hubs import map_hub_offsets
+    from catgraph.io import build_map
+    from catgraph.pipeline import FrontEnd
+    from catgraph.traverse import Traverse
+
+    rng = np.random.default_rng(5)
+    n = 5000  # more than one block of 4096 places
+    frames = rng.normal(size=(n, 16)).astype(np.float32)
+    frames[[10, 4500]] = 0.05 * rng.normal(size=(2, 16))
+    m = build_map(Traverse(frames), FrontEnd(metric="sad"), graph=False)
+    rows = np.sort(np.random.default_rng(0).choice(n, 64, replace=False))
+    r = differences.difference_matrix(m.descriptors[rows], m.descriptors, "sad", normalise=True)
+    monkeypatch.setattr(differences, "_BLOCK_VALUES", 64 * 4096)
+    offsets = map_hub_offsets(m, max_rows=64)
+    np.testing.assert_allclose(offsets, hub_offsets(r, rows=rows), atol=1e-12)
+    assert {10, 4500} <= set(np.flatnonzero(offsets))
