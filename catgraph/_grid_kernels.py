@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
+from ._jit import njit
 
-@numba.njit(cache=True)
+
+@njit
 def predictive_scores(base, log_prior, taus):  # pragma: no cover - compiled
     """For each ``τ``: ``log Σ_j e^{log_prior_j + τ b_j} − log mean_j e^{τ b_j}``."""
     n = base.shape[0]

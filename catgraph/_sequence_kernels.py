@@ -1,4 +1,4 @@
-"""Compiled kernels for :mod:`catgraph.sequence` (numba, ``cache=True``).
+"""Compiled kernels for :mod:`catgraph.sequence` (numba, cached on disk: :func:`catgraph._jit.njit`).
 
 Importing this module compiles nothing: numba compiles each kernel on its first call
 (or loads it from the on-disk cache), so ``import catgraph`` stays cheap.
@@ -22,20 +22,22 @@ reference). ``grid`` holds the candidate window lengths (ascending). The line th
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
+
+from ._jit import njit
 
 APPROX_GAUSSIAN = 0
 APPROX_ROBUST = 1
 APPROX_GMM = 2
 
 
-@njit(cache=True)
+@njit
 def position(v, i):
     """``pos_v(i) = floor(v * i + 1/2)`` (int)."""
     return np.int64(np.floor(v * i + 0.5))
 
 
-@njit(cache=True)
+@njit
 def advance_means(mring, i, d_row):
     """Write ``M_i = M_{i-1} + mean_j d_ij`` into ``mring[i % R]``."""
     r = mring.shape[0]
@@ -49,7 +51,7 @@ def advance_means(mring, i, d_row):
         mring[i % r] = mring[(i - 1) % r] + total / n
 
 
-@njit(cache=True)
+@njit
 def advance_line(ring_v, i, d_row, v):
     """Write ``C^v_i`` into ``ring_v[i % R]`` (from ``C^v_{i-1}``; zeros before the start)."""
     r = ring_v.shape[0]
@@ -75,7 +77,7 @@ def advance_line(ring_v, i, d_row, v):
         out[j] = d_row[j]
 
 
-@njit(cache=True)
+@njit
 def advance(ring, mring, i, d_row, velocities):
     """:func:`advance_means` and :func:`advance_line` for every velocity (``ring`` is
     ``(V, R, N)``)."""
@@ -84,7 +86,7 @@ def advance(ring, mring, i, d_row, velocities):
         advance_line(ring[vi], i, d_row, velocities[vi])
 
 
-@njit(cache=True)
+@njit
 def _exit_time(v, i, eff, j, n):
     """First ``t`` in ``[1, eff - 1]`` whose place ``j - (pos(i) - pos(i - t))`` lies
     outside ``[0, N)`` (the caller knows one exists); binary search, the offsets being
@@ -102,7 +104,7 @@ def _exit_time(v, i, eff, j, n):
     return hi
 
 
-@njit(cache=True)
+@njit
 def score_at(ring_v, mring, i, v, length, j):
     """One score ``s_ij(L, v)`` (same policy and arithmetic as :func:`window_scores`)."""
     r = ring_v.shape[0]
@@ -124,7 +126,7 @@ def score_at(ring_v, mring, i, v, length, j):
     return val / eff
 
 
-@njit(cache=True)
+@njit
 def window_scores(ring_v, mring, i, v, length, s):
     """Scores ``s_ij(L, v)`` of query frame ``i`` against every reference ``j`` into ``s``;
     returns their sum.
@@ -201,7 +203,7 @@ def window_scores(ring_v, mring, i, v, length, s):
     return total
 
 
-@njit(cache=True)
+@njit
 def _median_mad(s, work):
     n = s.shape[0]
     for j in range(n):
@@ -213,7 +215,7 @@ def _median_mad(s, work):
     return med, 1.4826 * mad
 
 
-@njit(cache=True)
+@njit
 def _gmm_em(s, stride, mean, std, n_iter, w, mu, sd, resp, coef, inv):
     """Fit a K-component 1-D Gaussian mixture to ``s[::stride]`` by ``n_iter`` EM steps.
 
@@ -283,7 +285,7 @@ def _gmm_em(s, stride, mean, std, n_iter, w, mu, sd, resp, coef, inv):
             w[k] /= tw
 
 
-@njit(cache=True)
+@njit
 def _velocity_stats(ring_v, mring, i, v, grid, approx, n_iter, em_stride, radius,
                     best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
     """:func:`frame_stats` for one velocity (outputs indexed by window only)."""
@@ -337,7 +339,7 @@ def _velocity_stats(ring_v, mring, i, v, grid, approx, n_iter, em_stride, radius
                 sub[g, h] = score_at(ring_v, mring, i, v, grid[h], best_j[g])
 
 
-@njit(cache=True)
+@njit
 def frame_stats(ring, mring, i, velocities, grid, approx, n_iter, em_stride, radius,
                 best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
     """Everything the selection rules need for query frame ``i``, per velocity and window.
@@ -357,7 +359,7 @@ def frame_stats(ring, mring, i, velocities, grid, approx, n_iter, em_stride, rad
                         scales[vi], sub[vi], s[vi], work[vi], resp[vi])
 
 
-@njit(cache=True, parallel=True)
+@njit(parallel=True)
 def run_batch(d, start, ring, mring, velocities, grid, approx, n_iter, em_stride, radius,
               best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
     """:func:`advance` then :func:`frame_stats` for every row of ``d``, in order; row
@@ -384,7 +386,7 @@ def run_batch(d, start, ring, mring, velocities, grid, approx, n_iter, em_stride
     mring[:] = means[0]
 
 
-@njit(cache=True)
+@njit
 def fixed_scores(d, length, v):
     """All scores ``s_ij(L, v)`` for one window and velocity, ``(n_query, N)`` (batch helper)."""
     n_q, n = d.shape

@@ -85,9 +85,9 @@ from __future__ import annotations
 import math
 import time
 
-import numba
 import numpy as np
 
+from ._jit import njit
 from ._validation import check_array, check_scalar
 from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .graph import PlaceGraph
@@ -178,7 +178,7 @@ def velocity_transition(velocities: np.ndarray, stay: float, reverse: float) -> 
     return t
 
 
-@numba.njit(cache=True)
+@njit
 def _shift_frames(p, out, whole, frac, sign, mirror, fwd, bwd, jptr, jdst, p_junction):  # pragma: no cover
     n, nb = p.shape
     cur = p.copy()
@@ -229,7 +229,7 @@ def _shift_frames(p, out, whole, frac, sign, mirror, fwd, bwd, jptr, jdst, p_jun
                     cur[j, b] = 0.0
 
 
-@numba.njit(cache=True)
+@njit
 def _shift_walk(p, out, whole, frac, sign, fwd, bwd, t_ptr, t_src, t_val):  # pragma: no cover
     """Velocity transition then ``_shift_frames`` for a graph without junctions, fused:
     each place's mass walks its hops. The transition comes as sparse columns:
@@ -261,7 +261,7 @@ def _shift_walk(p, out, whole, frac, sign, fwd, bwd, t_ptr, t_src, t_val):  # pr
                     out[u, b] += frac[b] * m
 
 
-@numba.njit(cache=True, fastmath=True)
+@njit(fastmath=True)
 def _likelihood(state, log_ratio, top, prior_mass, like, velocity):  # pragma: no cover - compiled
     """The update, kept factored: ``like[j] = e^{r_j − top} / Σ_j prior_mass_j e^{r_j − top}``,
     so that the posterior is ``state[b, j] · like[j]`` (velocity-major ``state``, the
@@ -290,7 +290,7 @@ def _likelihood(state, log_ratio, top, prior_mass, like, velocity):  # pragma: n
     return total, like_sum / n
 
 
-@numba.njit(cache=True, fastmath=True)
+@njit(fastmath=True)
 def _line_predict(p, like, prior_mass, out, t_row, mass, t_ptr, t_src, t_val, whole, frac, sign, blur,
                   recovery, velocity_prior):  # pragma: no cover - compiled
     """:func:`predict` on a line graph (place ``j``'s neighbours are ``j ± 1``, no
@@ -372,7 +372,7 @@ def _line_predict(p, like, prior_mass, out, t_row, mass, t_ptr, t_src, t_val, wh
             mass[j] += x
 
 
-@numba.njit(cache=True, inline="always")
+@njit(inline="always")
 def _neighbours_moved(t_row, j, step, sign, f0, f1, n):  # pragma: no cover - compiled
     """Moved mass at ``j − 1`` plus at ``j + 1``; a route end counts ``j`` itself instead."""
     here = _moved(t_row, j, step, sign, f0, f1, n)
@@ -381,7 +381,7 @@ def _neighbours_moved(t_row, j, step, sign, f0, f1, n):  # pragma: no cover - co
     return left + right
 
 
-@numba.njit(cache=True, inline="always")
+@njit(inline="always")
 def _moved(t_row, j, step, sign, f0, f1, n):  # pragma: no cover - compiled
     """``(1 − f) T[j − s h] + f T[j − s (h + 1)]``, zero outside the route."""
     i = j - step
@@ -394,7 +394,7 @@ def _moved(t_row, j, step, sign, f0, f1, n):  # pragma: no cover - compiled
     return m
 
 
-@numba.njit(cache=True)
+@njit
 def _shift_distance(p, out, distance, sign, fwd, bwd, fl, bl):  # pragma: no cover
     """Move every bin ``distance`` along the route (edge lengths), direction sign[b]."""
     n, nb = p.shape
@@ -421,7 +421,7 @@ def _shift_distance(p, out, distance, sign, fwd, bwd, fl, bl):  # pragma: no cov
                 cur = t
 
 
-@numba.njit(cache=True)
+@njit
 def _blur(p, out, q, fwd, bwd, recovery, velocity_prior):  # pragma: no cover
     """Blur one place either way, normalise, mix in the recovery share."""
     n, nb = p.shape
