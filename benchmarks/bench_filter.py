@@ -328,7 +328,7 @@ def main(argv: list[str]) -> None:
     elif what == "seeds":
         (RESULTS / "filter_seeds.md").write_text(seeds())
     else:
-        raise SystemExit(f"unknown benchmark {what!r}; use speed, conditions or seeds.")
+        raise SystemExit(f"unknown benchmark {what!r}; use speed, conditions, threshold or seeds.")
 
 
 if __name__ == "__main__":

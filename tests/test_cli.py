@@ -194,3 +194,14 @@ def test_compare_and_localize_with_a_saved_map(tmp_path):
     assert main(["localize", "synthetic:5", "synthetic:5", "--junction-radius-m", "10", "--particles", "100", "-q",
                  "-o", str(b)]) == 0
     assert json.loads(a.read_text())["frames"] == json.loads(b.read_text())["frames"]
+
+
+def test_warm_up_compiles_into_the_cache_folder(capsys):
+    """``catgraph warm-up`` runs every live path once and says where the kernels are cached."""
+    from catgraph._jit import cache_location
+
+    assert main(["warm-up"]) == 0
+    out = capsys.readouterr().out
+    assert "compiled and cached the kernels in" in out and str(cache_location()) in out
+    assert main(["warm-up", "--quiet"]) == 0
+    assert capsys.readouterr().out == ""
