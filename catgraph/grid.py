@@ -92,7 +92,7 @@ from ._validation import check_array, check_scalar
 from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .graph import PlaceGraph
 
-__all__ = ["GridLocalizer", "route_neighbours", "velocity_transition", "predict"]
+__all__ = ["GridLocalizer", "route_neighbours", "velocity_transition", "predict", "learn_jump_rate"]
 
 _CHAIN, _REVERSE, _JUNCTION = 0, 1, 2
 
@@ -101,6 +101,28 @@ _CHAIN, _REVERSE, _JUNCTION = 0, 1, 2
 RECOVERY_MEMORY = 100.0
 RECOVERY_PRIOR_FRAMES = 20.0
 RECOVERY_RANGE = (1e-4, 0.5)
+
+def learn_jump_rate(jumps: float, frames: float, prior: float, current: float,
+                    ratio: float) -> tuple[float, float, float]:
+    """One step of the online EM for the jump rate ``ε``, shared by both filters.
+
+    The E-step: this frame's posterior share of the recovery mass, ``current · ratio``
+    with ``ratio = mean_j e^{r_j} / Σ_j prior_j e^{r_j}`` (at most 1). It enters
+    discounted sums (half-life :data:`RECOVERY_MEMORY` frames); the M-step is their
+    ratio, shrunk towards ``prior`` (worth :data:`RECOVERY_PRIOR_FRAMES` frames) and
+    clipped to :data:`RECOVERY_RANGE`.
+
+    Returns
+    -------
+    jumps, frames, epsilon : float
+        The updated discounted sums and the new jump rate.
+    """
+    decay = 0.5 ** (1.0 / RECOVERY_MEMORY)
+    jumps = decay * jumps + min(1.0, current * ratio)
+    frames = decay * frames + 1.0
+    eps = (jumps + RECOVERY_PRIOR_FRAMES * prior) / (frames + RECOVERY_PRIOR_FRAMES)
+    return jumps, frames, float(min(max(eps, RECOVERY_RANGE[0]), RECOVERY_RANGE[1]))
+
 
 #: Default signed velocity bins (places per query frame).
 DEFAULT_VELOCITIES = (-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0)
@@ -734,17 +756,11 @@ class GridLocalizer:
             self._log_new, self._log_map, self.new_place_probability_ = -math.inf, 0.0, 0.0
 
     def _learn_recovery(self, ratio: float) -> None:
-        """Online EM for the jump rate: the posterior share of this step's recovery mass
-        (``ε · mean_j e^{r_j} / Σ prior · e^r``), averaged over the recent frames."""
+        """Online EM for the jump rate (:func:`learn_jump_rate`)."""
         if not self.learn_recovery or self.recovery == 0.0:
             return
-        responsibility = min(1.0, self.recovery_ * ratio)
-        decay = 0.5 ** (1.0 / RECOVERY_MEMORY)
-        self._jumps = decay * self._jumps + responsibility
-        self._frames = decay * self._frames + 1.0
-        strength = RECOVERY_PRIOR_FRAMES
-        eps = (self._jumps + strength * float(self.recovery)) / (self._frames + strength)
-        self.recovery_ = float(min(max(eps, RECOVERY_RANGE[0]), RECOVERY_RANGE[1]))
+        self._jumps, self._frames, self.recovery_ = learn_jump_rate(self._jumps, self._frames, float(self.recovery),
+                                                                    self.recovery_, ratio)
 
     def _summarise(self):
         from .localizer import Estimate, confidence_log_odds

@@ -102,12 +102,13 @@ import math
 import time
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
+from ._jit import njit
 from ._validation import as_generator, check_array, check_scalar
 from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .graph import PlaceGraph
+from .grid import learn_jump_rate
 from .motion import FrameMotion, MotionModel, OdometryMotion
 from .observation import Observation, ObservationModel
 from .particles import ParticleSet, _first_in_edge, get_resampler, normalise_in_place
@@ -159,7 +160,7 @@ def confidence_log_odds(w_in: float, w_out: float, log_map: float, log_new: floa
 
 
 
-@numba.njit(cache=True)
+@njit
 def _likelihood_cumulative(log_ratio, out):  # pragma: no cover - compiled
     """``out[j] = Σ_{i ≤ j} e^{r_i − max r}``; returns ``max r``."""
     r_max = -np.inf
@@ -173,7 +174,7 @@ def _likelihood_cumulative(log_ratio, out):  # pragma: no cover - compiled
     return r_max
 
 
-@numba.njit(cache=True)
+@njit
 def _birth_kernel(kind, like, proposal, top, log_keep, log_recovery, start, stop, edge, fraction, log_weight,
                   velocity, uniform, out_ptr, first_in):  # pragma: no cover - compiled
     """The prediction's mixture ``(1 − ε) · particles + ε · uniform``, in place.
@@ -258,7 +259,7 @@ def _birth_kernel(kind, like, proposal, top, log_keep, log_recovery, start, stop
             velocity[start + 2 * t] = velocity[c]
 
 
-@numba.njit(cache=True)
+@njit
 def _reweight_kernel(edge, fraction, log_weight, source, target, log_ratio, start, stop, log_recovery, like, weight,
                      mass):  # pragma: no cover - compiled
     """Reweight every particle, normalise, and sum the posterior mass per place.
@@ -328,7 +329,7 @@ def _reweight_kernel(edge, fraction, log_weight, source, target, log_ratio, star
     return log_map, 1.0 / sq
 
 
-@numba.njit(cache=True)
+@njit
 def _place_mass_kernel(edge, fraction, weight, source, target, out, skip_start, skip_stop):  # pragma: no cover
     """``out[j] = Σ_{i: place(i) = j} weight[i]`` over the particles outside
     ``skip_start .. skip_stop``; a particle's place is the nearer of its edge's two."""
@@ -340,7 +341,7 @@ def _place_mass_kernel(edge, fraction, weight, source, target, out, skip_start, 
         out[source[e] if fraction[i] < 0.5 else target[e]] += weight[i]
 
 
-@numba.njit(cache=True)
+@njit
 def _resample_pool(weight, n_out, start, stop, u, edge, fraction, velocity, log_weight, edge_tmp, fraction_tmp,
                    velocity_tmp):  # pragma: no cover - compiled
     """Systematic resampling of the pool — slots ``0 .. n_out`` and ``start .. stop`` — into
@@ -381,7 +382,7 @@ def _resample_pool(weight, n_out, start, stop, u, edge, fraction, velocity, log_
     return total
 
 
-@numba.njit(cache=True)
+@njit
 def _top_k(values, k):  # pragma: no cover - compiled
     """Indices of the ``k`` largest values (any order), one pass with a small buffer."""
     best_v = np.full(k, -np.inf)
@@ -484,12 +485,6 @@ class LocalizationResult:
         """Alias of ``place`` (the name :func:`catgraph.metrics.evaluate` uses)."""
         return self.place
 
-
-#: The learned jump rate (``learn_recovery``), as the grid filter's: half-life (frames)
-#: of its running mean, weight (frames) of the ``recovery`` prior, and its range.
-RECOVERY_MEMORY = 100.0
-RECOVERY_PRIOR_FRAMES = 20.0
-RECOVERY_RANGE = (1e-4, 0.5)
 
 #: Where recovery particles are drawn (see the module docstring); the first is the default.
 PROPOSALS = ("likelihood", "best", "uniform")
@@ -776,18 +771,12 @@ class Localizer:
         return float(ess)
 
     def _learn_recovery(self, ratio: float) -> None:
-        """Online EM for the jump rate, as the grid filter learns it: the posterior share
-        of this step's recovery mass, ``ε · mean_j e^{r_j} / Σ prior · e^r``, averaged
-        over the recent frames (half-life :data:`RECOVERY_MEMORY`) and shrunk towards
-        ``recovery`` (worth :data:`RECOVERY_PRIOR_FRAMES` frames)."""
+        """Online EM for the jump rate, as the grid filter learns it
+        (:func:`catgraph.grid.learn_jump_rate`)."""
         if not self.learn_recovery or self.recovery == 0.0:
             return
-        responsibility = min(1.0, self.recovery_ * ratio)
-        decay = 0.5 ** (1.0 / RECOVERY_MEMORY)
-        self._jumps = decay * self._jumps + responsibility
-        self._frames = decay * self._frames + 1.0
-        eps = (self._jumps + RECOVERY_PRIOR_FRAMES * float(self.recovery)) / (self._frames + RECOVERY_PRIOR_FRAMES)
-        self.recovery_ = float(min(max(eps, RECOVERY_RANGE[0]), RECOVERY_RANGE[1]))
+        self._jumps, self._frames, self.recovery_ = learn_jump_rate(self._jumps, self._frames, float(self.recovery),
+                                                                    self.recovery_, ratio)
 
     def _resample_if_degenerate(self, ess: float) -> bool:
         """With recovery: every step, resample the cloud together with the oldest young

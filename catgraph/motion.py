@@ -53,9 +53,9 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
+from ._jit import njit
 from ._validation import check_scalar
 from .exceptions import DataError, InvalidParameterError
 from .particles import ParticleSet
@@ -63,7 +63,7 @@ from .particles import ParticleSet
 __all__ = ["MotionModel", "OdometryMotion", "FrameMotion", "VelocityMotion", "advance"]
 
 
-@numba.njit(cache=True, inline="always")
+@njit(inline="always")
 def _advance_one(e, f, d, u, length, target, out_ptr, reverse, straight, p_straight, reflect,
                  max_hops):  # pragma: no cover - compiled
     """Move one particle ``d`` along the graph from ``(e, f)``; returns ``(e, f, leftover, u)``
@@ -120,7 +120,7 @@ def _advance_one(e, f, d, u, length, target, out_ptr, reverse, straight, p_strai
     return e, f, (d if f >= 1.0 else 0.0), u
 
 
-@numba.njit(cache=True)
+@njit
 def _advance_kernel(edge, fraction, distance, uniform, length, target, out_ptr, reverse, straight,
                     p_straight, reflect, max_hops, leftover):  # pragma: no cover - compiled
     for i in range(edge.shape[0]):
@@ -131,7 +131,7 @@ def _advance_kernel(edge, fraction, distance, uniform, length, target, out_ptr, 
         leftover[i] = rest
 
 
-@numba.njit(cache=True)
+@njit
 def _velocity_kernel(edge, fraction, log_weight, velocity, uniform, speeds, cumulative, forwards, hop, metric,
                      odometry, target, out_ptr, reverse, straight, p_straight, blur, max_hops,
                      tolerance):  # pragma: no cover - compiled

@@ -38,9 +38,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
-import numba
 import numpy as np
 
+from ._jit import njit
 from .exceptions import InvalidParameterError
 
 __all__ = [
@@ -146,7 +146,7 @@ def _first_in_edge(graph) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------- log-weights
-@numba.njit(cache=True)
+@njit
 def normalise_in_place(log_weight, weight):  # pragma: no cover - compiled
     """The one log-weight normalisation: ``log_weight -= logsumexp(log_weight)``,
     ``weight = exp(log_weight)``, in place. Returns ``(logsumexp, ESS)``. If every
