@@ -503,7 +503,8 @@ def _filter_params() -> tuple[Param, ...]:
         Param("ess_threshold", "float", 0.5, "resample when ESS < this fraction of the particles", low=0.0, high=1.0),
         Param("redraw_fraction", "float", 0.1, "particles born each step to carry the jump (recovery) share, as "
               "a fraction of the particles (0: no recovery)", low=0.0, high=0.99),
-        Param("proposal", "str", PROPOSALS[0], "where re-drawn particles go", choices=PROPOSALS),
+        Param("proposal", "str", PROPOSALS[0], "where the recovery particles born each step are drawn",
+              choices=PROPOSALS),
         Param("new_place_prior", "float", None, "per-step probability of entering unmapped space (default: the "
               "filter's own, 0.05 for the grid)",
               low=0.0, high=0.99, optional=True),
