@@ -32,10 +32,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from datasets import DATA, WIFI_METRES  # noqa: E402
+from datasets import benchmark_conditions, prepared_datasets  # noqa: E402
 
-from catgraph.conditions import Condition, condition_table  # noqa: E402
-from catgraph.experiment import Experiment, prepare, run_method  # noqa: E402
+from catgraph.experiment import run_method  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -54,27 +53,6 @@ METHODS = {
 }
 
 
-def _datasets(names):
-    out = {}
-    if "nordland" in names and (DATA / "nordland").is_dir():
-        d = DATA / "nordland" / "32x16"
-        out["Nordland"] = [prepare(Experiment(query=d / "winter", reference=d / "summer", tolerance=2))]
-    if "uji" in names and (DATA / "uji-lib").is_dir():
-        db = DATA / "uji-lib" / "db"
-        out["UJI 02-06"] = [prepare(Experiment(query=db / f"{m:02d}" / "tst01", reference=db / "01" / "trn01",
-                                               tolerance_m=WIFI_METRES)) for m in range(2, 7)]
-    if "synthetic" in names:
-        out["synthetic"] = [prepare(Experiment(query="synthetic:0", reference="synthetic:0"))]
-    return out
-
-
-def _conditions(quick: bool) -> list[Condition]:
-    if quick:
-        return [Condition(), Condition("shuffle", seed=0), Condition("shuffle", seed=0, segment_range=(0.005, 0.03)),
-                Condition("reverse"), Condition("speed", factor=2.0)]
-    return condition_table()
-
-
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
@@ -89,8 +67,8 @@ def main(argv=None) -> None:
     unknown = [m for m in labels if m not in METHODS]
     if unknown:
         raise SystemExit(f"unknown methods {unknown}; choose from {list(METHODS)}")
-    conditions = _conditions(args.quick)
-    datasets = _datasets(args.datasets.split(","))
+    conditions = benchmark_conditions(args.quick)
+    datasets = prepared_datasets(args.datasets.split(","))
     rows = []
     for ds, cases in datasets.items():
         for condition in conditions:

@@ -36,33 +36,11 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from datasets import DATA, WIFI_METRES  # noqa: E402
+from datasets import benchmark_conditions, prepared_datasets  # noqa: E402
 
-from catgraph.conditions import Condition, condition_table  # noqa: E402
 from catgraph.experiment import Experiment, prepare, run_method  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
-
-
-def _datasets(names):
-    out = {}
-    if "nordland" in names and (DATA / "nordland").is_dir():
-        d = DATA / "nordland" / "32x16"
-        out["Nordland"] = [prepare(Experiment(query=d / "winter", reference=d / "summer", tolerance=2))]
-    if "uji" in names and (DATA / "uji-lib").is_dir():
-        db = DATA / "uji-lib" / "db"
-        out["UJI 02-06"] = [prepare(Experiment(query=db / f"{m:02d}" / "tst01", reference=db / "01" / "trn01",
-                                               tolerance_m=WIFI_METRES)) for m in range(2, 7)]
-    if "synthetic" in names:
-        out["synthetic"] = [prepare(Experiment(query="synthetic:0", reference="synthetic:0"))]
-    return out
-
-
-def _conditions(quick: bool) -> list[Condition]:
-    if quick:
-        return [Condition(), Condition("shuffle", seed=0), Condition("shuffle", seed=0, segment_range=(0.005, 0.03)),
-                Condition("reverse"), Condition("speed", factor=2.0)]
-    return condition_table()
 
 
 def _run(params: dict, prepared: list) -> tuple[float, float, float, float]:
@@ -227,8 +205,8 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     params = json.loads(args.params)
     seeds = [int(s) for s in args.seeds.split(",")]
-    conditions = _conditions(args.quick)
-    rows = accuracy(_datasets(args.datasets.split(",")), conditions, params, seeds)
+    conditions = benchmark_conditions(args.quick)
+    rows = accuracy(prepared_datasets(args.datasets.split(",")), conditions, params, seeds)
     times = None if args.no_timing else step_times()
     conv = None if args.no_timing else convergence()
     RESULTS.mkdir(parents=True, exist_ok=True)

@@ -77,3 +77,31 @@ def conditioned(case: Case, condition: Condition) -> Case:
     order = condition.order(len(case.query))
     return replace(case, query=condition.apply(case.query), differences=case.differences[order],
                    condition=condition)
+
+
+def prepared_datasets(names) -> dict:
+    """Experiment-layer inputs (:func:`catgraph.experiment.prepare`) per dataset name:
+    ``"nordland"`` (±2 frames), ``"uji"`` (months 02–06 against 01, 3 m), ``"synthetic"``
+    (seed 0); those whose data are absent are left out."""
+    from catgraph.experiment import Experiment, prepare
+
+    out = {}
+    if "nordland" in names and (DATA / "nordland").is_dir():
+        d = DATA / "nordland" / "32x16"
+        out["Nordland"] = [prepare(Experiment(query=d / "winter", reference=d / "summer", tolerance=NORDLAND_FRAMES))]
+    if "uji" in names and (DATA / "uji-lib").is_dir():
+        db = DATA / "uji-lib" / "db"
+        out["UJI 02-06"] = [prepare(Experiment(query=db / f"{m:02d}" / "tst01", reference=db / "01" / "trn01",
+                                               tolerance_m=WIFI_METRES)) for m in range(2, 7)]
+    if "synthetic" in names:
+        out["synthetic"] = [prepare(Experiment(query="synthetic:0", reference="synthetic:0"))]
+    return out
+
+
+def benchmark_conditions(quick: bool) -> list[Condition]:
+    """The 14 conditions; ``quick``: in order, shuffled 2–20 % and 0.5–3 % (seed 0),
+    reversed, speed 2."""
+    if quick:
+        return [Condition(), Condition("shuffle", seed=0), Condition("shuffle", seed=0, segment_range=(0.005, 0.03)),
+                Condition("reverse"), Condition("speed", factor=2.0)]
+    return condition_table()
