@@ -46,10 +46,10 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 class _FixedModel:
     """Observation precomputed: returns the same log-ratio every step."""
 
-    def __init__(self, log_ratio):
+    def __init__(self, log_ratio, new_place_log_ratio=-1.0):
         from catgraph.observation import Observation
 
-        self._obs = Observation(log_ratio, -1.0, True)
+        self._obs = Observation(log_ratio, new_place_log_ratio, True)
 
     def reset(self):
         pass

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_filter import _FixedModel, _time_steps  # noqa: E402
 from datasets import benchmark_conditions, prepared_datasets  # noqa: E402
 
 from catgraph.experiment import Experiment, prepare, run_method  # noqa: E402
@@ -74,31 +75,6 @@ def accuracy(datasets: dict, conditions: list, params: dict, seeds: list[int]) -
     return rows
 
 
-class _FixedModel:
-    """The observation excluded: the same log-ratio vector every frame."""
-
-    def __init__(self, log_ratio):
-        self.log_ratio = log_ratio
-
-    def reset(self):
-        pass
-
-    def observe(self, row):
-        from catgraph.observation import Observation
-
-        return Observation(self.log_ratio, 0.0)
-
-
-def _time_steps(loc, rows, n_warm=10) -> float:
-    loc.reset()
-    for r in rows[:n_warm]:
-        loc.step(r)
-    start = time.perf_counter()
-    for r in rows[n_warm:]:
-        loc.step(r)
-    return (time.perf_counter() - start) / (len(rows) - n_warm)
-
-
 def step_times(repeats: int = 7) -> list[dict]:
     """Step time (observation excluded) on a 3,576-place chain, medians of ``repeats``
     runs, particles and grid alternating so both see the same machine load."""
@@ -115,9 +91,9 @@ def step_times(repeats: int = 7) -> list[dict]:
     grid_t = []
     pf_t = {k: [] for k in (1000, 2000, 5000, 10000)}
     for _ in range(repeats):
-        grid_t.append(_time_steps(GridLocalizer(g, _FixedModel(0.3 * rows[0])), rows))
+        grid_t.append(_time_steps(GridLocalizer(g, _FixedModel(0.3 * rows[0], 0.0)), rows))
         for k in pf_t:
-            pf_t[k].append(_time_steps(Localizer(g, _FixedModel(0.3 * rows[0]), k, motion=VelocityMotion(), seed=0),
+            pf_t[k].append(_time_steps(Localizer(g, _FixedModel(0.3 * rows[0], 0.0), k, motion=VelocityMotion(), seed=0),
                                        rows))
     grid_ms = 1e3 * statistics.median(grid_t)
     out.append({"filter": "grid filter, 8 velocity bins", "places": n, "ms": grid_ms, "ratio_to_grid": 1.0})
