@@ -1,0 +1,138 @@
+"""The window rule: from per-window statistics to one decision per query frame.
+
+The compiled kernels of :mod:`catgraph.sequence` summarise, for every query frame,
+velocity ``v`` and candidate length ``L``, the distribution of the window scores over
+the reference (best and second-best score, mean, spread, mixture components, and the
+scores of the best hypothesis over its shorter sub-windows) in a :class:`_Stats`. This
+module turns those statistics into the match, the velocity, the window length and the
+confidence (the rules and confidences are described in :mod:`catgraph.sequence`). The
+code is vectorised over frames, so the streaming and the batch forms run exactly the
+same arithmetic.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import log_ndtr, ndtr
+
+#: with rule "sustained": the longest admitted window at least this fraction as significant
+SUSTAINED_FRACTION = 0.5
+
+
+def _needs_sub(cfg: _Config) -> bool:
+    return not cfg.fixed and cfg.rule != "literal" and cfg.grid.shape[0] > 1
+
+
+
+class _Stats:
+    """Per-frame, per-velocity, per-window statistics produced by the kernels."""
+
+    def __init__(self, n: int, v: int, g: int, k: int, with_sub: bool = True):
+        self.best_j = np.zeros((n, v, g), dtype=np.int64)
+        self.best_s = np.zeros((n, v, g))
+        self.second_s = np.zeros((n, v, g))
+        self.mean = np.zeros((n, v, g))
+        self.std = np.zeros((n, v, g))
+        self.weights = np.zeros((n, v, g, k))
+        self.locs = np.zeros((n, v, g, k))
+        self.scales = np.zeros((n, v, g, k))
+        self.sub = np.zeros((n, v, g, g if with_sub else 0))
+
+
+def _common_std(st: _Stats) -> np.ndarray:
+    """``(n, 1, G)``: the widest score spread over the velocities at each window length."""
+    return st.std.max(axis=1, keepdims=True)
+
+
+def _log_p(st: _Stats) -> np.ndarray:
+    """``log p_i(L, v)``, ``(n, V, G)``: log probability of a draw at most the best score.
+
+    Each velocity's approximation is widened to the common spread (:func:`_common_std`):
+    lines at different velocities average differently many distinct places, so their
+    spreads differ, and a narrow spread alone would make a mediocre line look
+    significant. With one velocity this is the approximation itself.
+    """
+    common = _common_std(st)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        widen = np.where(st.std > 0, common / st.std, 1.0)[..., None]
+    best = st.best_s[..., None]
+    scales = st.scales * widen
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(scales > 0, (best - st.locs) / scales, np.where(best < st.locs, -np.inf, np.inf))
+        terms = np.log(st.weights) + log_ndtr(z)
+    if terms.shape[-1] == 1:
+        return terms[..., 0]
+    top = terms.max(axis=-1, keepdims=True)
+    top = np.where(np.isfinite(top), top, 0.0)
+    return (top + np.log(np.exp(terms - top).sum(axis=-1, keepdims=True)))[..., 0]
+
+
+def _admissible(st: _Stats, cfg: _Config) -> np.ndarray:
+    """``(n, V, G)``: windows whose best hypothesis is supported by its own recent frames."""
+    n, v_count, g_count = st.best_s.shape
+    if not _needs_sub(cfg):
+        return np.ones((n, v_count, g_count), dtype=bool)
+    # every tested shorter sub-window of the best hypothesis (same line) must lie closer to
+    # the window's own score than to the mean of random places at that length
+    mid = 0.5 * (st.best_s[..., None] + st.mean[:, :, None, :])  # (n, V, G, H)
+    ok = st.sub <= mid
+    lengths = cfg.grid.astype(np.float64)
+    tested = (lengths[None, :] < lengths[:, None]) & (lengths[None, :] >= cfg.recent_fraction * lengths[:, None])
+    admissible = np.all(ok | ~tested, axis=3)
+    admissible[:, :, 0] = True
+    return admissible
+
+
+def _current_z(rows: np.ndarray, match: np.ndarray) -> np.ndarray:
+    """``(n,)``: each frame's own difference at its match, standardised over its row.
+
+    One row at a time, so that the streaming and the batch forms do the same arithmetic.
+    """
+    out = np.zeros(match.shape[0])
+    for t in range(match.shape[0]):
+        row = rows[t]
+        spread = row.std()
+        if spread > 0:
+            out[t] = (row[match[t]] - row.mean()) / spread
+    return out
+
+
+def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool, rows_d: np.ndarray):
+    n, v_count, g_count = st.best_s.shape
+    rows = np.arange(n)
+    log_p = _log_p(st)
+    # the velocity: the one whose windows are the most significant summed over every length
+    v = np.argmin(log_p.sum(axis=2), axis=1)
+    lp = log_p[rows, v]  # (n, G)
+    admissible = _admissible(st, cfg)[rows, v]
+    masked = np.where(admissible, lp, np.inf)
+    if cfg.rule == "sustained" and not cfg.fixed:
+        # the longest admitted window at least SUSTAINED_FRACTION as significant (in log p)
+        # as the most significant admitted one; the argmin itself always qualifies
+        floor = SUSTAINED_FRACTION * masked.min(axis=1, keepdims=True)
+        qualified = admissible & (lp <= floor)
+        g = g_count - 1 - np.argmax(qualified[:, ::-1], axis=1)
+    else:
+        g = np.argmin(masked, axis=1)
+    best = st.best_s[rows, v, g]
+    std = _common_std(st)[rows, 0, g]
+    match = st.best_j[rows, v, g]
+    if cfg.confidence == "gap" or (cfg.confidence == "support" and cfg.fixed):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            conf = np.where(std > 0, (st.second_s[rows, v, g] - best) / std, 0.0)
+        conf = np.where(np.isfinite(conf), conf, 0.0)
+    elif cfg.confidence == "support":
+        # the gaps of every admitted window (chosen velocity) whose best place agrees
+        stds = _common_std(st)[:, 0, :]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            gaps = np.where(stds > 0, (st.second_s[rows, v] - st.best_s[rows, v]) / stds, 0.0)
+        gaps = np.where(np.isfinite(gaps), gaps, 0.0)
+        agree = admissible & (np.abs(st.best_j[rows, v] - match[:, None]) <= cfg.radius)
+        conf = np.where(agree, gaps, 0.0).sum(axis=1) * ndtr(-_current_z(rows_d, match))
+    elif cfg.confidence == "neglogp":
+        conf = -lp[rows, g]
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            conf = np.where(std > 0, (st.mean[rows, v, g] - best) / std, 0.0)
+    length = np.minimum(cfg.grid[g], frame_index + 1)
+    return match, best, conf, length, cfg.velocities[v], (lp if want_curves else None)
