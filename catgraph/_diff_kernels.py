@@ -79,31 +79,102 @@ def pair_block(query, reference, lo, hi, code, out):  # pragma: no cover - compi
                 out[i, j] = acc
 
 
+#: Bytes per vector step of :func:`pair_block_codes` (one 512-bit register; the
+#: compiler splits it into two or four narrower ones where the machine has no 512-bit
+#: vectors).
+CODE_LANES = 64
+
+
+def _code_block_intrinsic(squared: bool):
+    """A numba intrinsic ``f(a, ia, b, ib) → int64``: ``Σ_{t<64} g(a[ia+t] − b[ib+t])``
+    over 64 consecutive ``uint8`` values of two C-contiguous arrays (flat offsets),
+    ``g`` = ``|·|`` or ``(·)²``.
+
+    Written as plain vector IR — load 64 bytes, widen, subtract, absolute value (or
+    square), add the lanes — which LLVM's instruction selection turns into the
+    machine's sum-of-absolute-differences instruction (``vpsadbw`` on x86-64: 64
+    byte pairs in one instruction) or its widening multiply-add (``vpmaddwd``), and
+    into the equivalent vector code on other processors. The scalar loop this
+    replaces was vectorised by widening every byte to 64 bits (four per 256-bit
+    register), which made the row compute-bound at a sixth of the memory speed.
+    Every sum is an exact integer (at most ``64 · 255² < 2³¹``).
+    """
+    from llvmlite import ir
+    from numba import types
+    from numba.extending import intrinsic
+
+    lanes = CODE_LANES
+
+    def declare(module, name, ret, args):
+        if name in module.globals:
+            return module.globals[name]
+        return ir.Function(module, ir.FunctionType(ret, args), name=name)
+
+    @intrinsic
+    def block_sum(typingctx, a, ia, b, ib):
+        for array in (a, b):  # raw pointer arithmetic: C-contiguous uint8 only
+            if not (isinstance(array, types.Array) and array.layout == "C" and array.dtype == types.uint8):
+                return None
+        sig = types.int64(a, ia, b, ib)
+
+        def codegen(context, builder, signature, args):
+            i8v = ir.VectorType(ir.IntType(8), lanes)
+            i32v = ir.VectorType(ir.IntType(32), lanes)
+            values = []
+            for array, offset, ty in ((args[0], args[1], signature.args[0]), (args[2], args[3], signature.args[2])):
+                data = context.make_array(ty)(context, builder, array).data
+                pointer = builder.bitcast(builder.gep(data, [offset]), i8v.as_pointer())
+                values.append(builder.zext(builder.load(pointer, align=1), i32v))
+            diff = builder.sub(values[0], values[1])
+            if squared:
+                terms = builder.mul(diff, diff)
+            else:
+                absolute = declare(builder.module, f"llvm.abs.v{lanes}i32", i32v, [i32v, ir.IntType(1)])
+                terms = builder.call(absolute, [diff, ir.Constant(ir.IntType(1), 0)])
+            reduce = declare(builder.module, f"llvm.vector.reduce.add.v{lanes}i32", ir.IntType(32), [i32v])
+            return builder.zext(builder.call(reduce, [terms]), ir.IntType(64))
+
+        return sig, codegen
+
+    return block_sum
+
+
+_sad_lanes = _code_block_intrinsic(squared=False)
+_ssd_lanes = _code_block_intrinsic(squared=True)
+
+
 @njit(nogil=True)
 def pair_block_codes(query, reference, lo, hi, code, step, out):  # pragma: no cover - compiled
     """:func:`pair_block` for the compact layout: ``uint8`` codes, integer sums.
 
     ``out[i, j] = step · Σ_k f(q_ik − r_jk)`` with ``f`` = ``|·|`` (``code`` 0) or
     ``(·)²`` (``code`` 1) on the integer code differences, summed exactly in 64-bit
-    integers (vectorised in the lanes; integer addition is associative, so the result
-    is exact and the same on any machine, for any SIMD width or thread count), then
-    one float64 multiplication by ``step``. A quarter of the bytes of
-    :func:`pair_block` per place.
+    integers, then one float64 multiplication by ``step``. The values run in steps of
+    :data:`CODE_LANES` bytes (:func:`_code_block_intrinsic`: one ``vpsadbw`` per 64
+    byte pairs on x86-64), the last ``d mod 64`` in a scalar loop. Integer addition is
+    associative, so the result is exact and the same on any machine, for any vector
+    width or thread count. A quarter of the bytes of :func:`pair_block` per place,
+    read at close to memory speed.
     """
     m, d = query.shape
+    full = d - d % CODE_LANES
     for b in range(lo, hi, PLACE_BLOCK):
         stop = min(hi, b + PLACE_BLOCK)
         for i in range(m):
-            q = query[i]
+            qi = i * d
             for j in range(b, stop):
-                r = reference[j]
+                rj = j * d
                 acc = np.int64(0)
                 if code == SAD:
-                    for k in range(d):
-                        acc += abs(np.int32(q[k]) - np.int32(r[k]))
+                    for k in range(0, full, CODE_LANES):
+                        acc += _sad_lanes(query, qi + k, reference, rj + k)
+                    for k in range(full, d):
+                        acc += abs(np.int64(query[i, k]) - np.int64(reference[j, k]))
                 else:
-                    for k in range(d):
-                        t = np.int32(q[k]) - np.int32(r[k])
+                    for k in range(0, full, CODE_LANES):
+                        acc += _ssd_lanes(query, qi + k, reference, rj + k)
+                    for k in range(full, d):
+                        t = np.int64(query[i, k]) - np.int64(reference[j, k])
                         acc += t * t
                 out[i, j] = step * acc
 

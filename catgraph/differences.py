@@ -140,7 +140,6 @@ def _pair_block(q: np.ndarray, r: np.ndarray, code: int, out: np.ndarray, step: 
     """The pair kernel over disjoint place ranges, on as many threads as the work is
     worth (the result is the same on any number). ``step`` given: the compact
     (``uint8`` codes) kernel, whose sums are multiplied by ``step``."""
-    global _POOL
     k = _kernels()
     n = r.shape[0]
     threads = int(max(1, min(_threads_available(), (q.shape[0] * n * r.shape[1]) // WORK_PER_THREAD,
@@ -152,15 +151,45 @@ def _pair_block(q: np.ndarray, r: np.ndarray, code: int, out: np.ndarray, step: 
     if threads == 1:
         kernel(q, r, 0, n, *extra, out)
         return
-    if _POOL is None or _POOL._max_workers < threads:
-        from concurrent.futures import ThreadPoolExecutor
-
-        _POOL = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="catgraph-differences")
     blocks = -(-n // k.PLACE_BLOCK)
     edges = [min(n, (blocks * t // threads) * k.PLACE_BLOCK) for t in range(threads + 1)]
-    jobs = [_POOL.submit(kernel, q, r, lo, hi, *extra, out) for lo, hi in zip(edges[:-1], edges[1:])]
+    _run_parallel([(kernel, (q, r, lo, hi, *extra, out)) for lo, hi in zip(edges[:-1], edges[1:])])
+
+
+def _run_parallel(calls: list) -> None:
+    """Run ``(kernel, args)`` calls (GIL-releasing, disjoint outputs) on the shared pool."""
+    global _POOL
+    if len(calls) == 1:
+        calls[0][0](*calls[0][1])
+        return
+    if _POOL is None or _POOL._max_workers < len(calls):
+        from concurrent.futures import ThreadPoolExecutor
+
+        _POOL = ThreadPoolExecutor(max_workers=len(calls), thread_name_prefix="catgraph-differences")
+    jobs = [_POOL.submit(kernel, *args) for kernel, args in calls]
     for job in jobs:
         job.result()
+
+
+#: float64 values per thread below which the normalisation passes run on one thread.
+NORMALISE_PER_THREAD = 1 << 19
+
+
+def _split(m: int, n: int, chunk: int) -> list[tuple[int, int, int, int]]:
+    """Disjoint pieces ``(row_lo, row_hi, col_lo, col_hi)`` of an ``(m, n)`` array for
+    the normalisation passes: whole rows when there are several, else runs of whole
+    ``chunk``-value chunks of the one row (every piece stays C-contiguous, and each
+    chunk's partial sum is the same whichever piece computes it)."""
+    threads = int(max(1, min(_threads_available(), (m * n) // NORMALISE_PER_THREAD)))
+    if threads == 1:
+        return [(0, m, 0, n)]
+    if m > 1:
+        threads = min(threads, m)
+        return [(m * t // threads, m * (t + 1) // threads, 0, n) for t in range(threads)]
+    chunks = -(-n // chunk)
+    threads = min(threads, chunks)
+    edges = [min(n, (chunks * t // threads) * chunk) for t in range(threads + 1)]
+    return [(0, 1, lo, hi) for lo, hi in zip(edges[:-1], edges[1:])]
 
 
 def _check_finite(x: np.ndarray, name: str, rows: int = 65536) -> None:
@@ -637,10 +666,16 @@ def row_statistics(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     m, n = d.shape
     n_chunks = -(-n // k.SUM_CHUNK)
     parts = np.empty((m, n_chunks))
-    k.chunk_sums(d, np.zeros(m), 1, parts)
-    mean = _combine(parts) / n
-    k.chunk_sums(d, mean, 2, parts)
-    std = np.sqrt(_combine(parts) / n)
+    pieces = _split(m, n, k.SUM_CHUNK)
+
+    def sums(centre: np.ndarray, power: int) -> np.ndarray:
+        _run_parallel([(k.chunk_sums, (d[a:b, lo:hi], centre[a:b], power,
+                                       parts[a:b, lo // k.SUM_CHUNK : -(-hi // k.SUM_CHUNK)]))
+                       for a, b, lo, hi in pieces])
+        return _combine(parts)
+
+    mean = sums(np.zeros(m), 1) / n
+    std = np.sqrt(sums(mean, 2) / n)
     std[_zero_spread(std, mean)] = 0.0
     return mean, std
 
@@ -649,7 +684,9 @@ def _normalise_into(d: np.ndarray, out: np.ndarray) -> np.ndarray:
     if d.shape[0] == 0:
         return out
     mean, std = row_statistics(d)
-    _kernels().scale_rows(d, mean, std, out)
+    k = _kernels()
+    _run_parallel([(k.scale_rows, (d[a:b, lo:hi], mean[a:b], std[a:b], out[a:b, lo:hi]))
+                   for a, b, lo, hi in _split(*d.shape, k.SUM_CHUNK)])
     return out
 
 

@@ -308,3 +308,39 @@ def test_column_blocks_equal_the_matrix_columns_bit_for_bit(metric, layout, rng)
             assert block.shape[0] == len(q) and block.shape[1] <= 8192
             assert np.array_equal(block, full[:, start : start + block.shape[1]])
         assert starts == [0, 8192]  # 5000 rounded up to whole chunks of 4096
+
+
+@pytest.mark.parametrize("metric", ["sad", "ssd"])
+@pytest.mark.parametrize("dim", [1, 63, 64, 65, 128, 200, 512])
+def test_uint8_vector_kernel_exact_across_lane_boundaries(metric, dim, rng):
+    # the compact kernel sums 64-byte vector steps plus a scalar tail: every split of the
+    # dimension, extreme codes (0 and 255 both ways) included, equals the integer reference
+    r = rng.normal(size=(300, dim)).astype(np.float32)
+    r[0], r[1] = r.min(), r.max()
+    ref = PreparedReference(r, metric, layout="uint8")
+    q = np.stack([np.full(dim, r.min()), np.full(dim, r.max()), r[5] * 3.0]).astype(np.float32)
+    slow = _slow_codes(ref, q, metric)
+    assert np.array_equal(ref.block(q), slow)
+    assert np.array_equal(ref.row(q[1]), slow[1])
+    assert np.isclose(slow[0, 1], dim * 255 * (ref.step if metric == "sad" else 255 * ref.step**2), rtol=1e-12)
+
+
+def test_normalisation_split_over_threads_equals_one_thread_bit_for_bit(rng, monkeypatch):
+    # the passes run on pieces (chunk runs of one row, or row ranges of a matrix) on
+    # several threads; every chunk's partial sum is the same whichever thread adds it
+    import catgraph.differences as differences
+
+    row = rng.normal(size=(1, 3 * 4096 + 77)) * 5 + 2
+    matrix = rng.normal(size=(5, 9001))
+    monkeypatch.setattr(differences, "NORMALISE_PER_THREAD", 1 << 60)
+    one = [normalise_rows(row), normalise_rows(matrix)]
+    monkeypatch.setattr(differences, "NORMALISE_PER_THREAD", 1)
+    monkeypatch.setattr(differences, "_threads_available", lambda: 3)
+    assert len(differences._split(1, row.shape[1], 4096)) == 3
+    assert len(differences._split(5, 9001, 4096)) == 3
+    many = [normalise_rows(row), normalise_rows(matrix)]
+    for a, b in zip(one, many):
+        assert np.array_equal(a, b)
+    for x, got in zip((row, matrix), many):
+        want = (x - x.mean(1, keepdims=True)) / x.std(1, keepdims=True)
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
