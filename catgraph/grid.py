@@ -284,49 +284,70 @@ def _shift_walk(p, out, whole, frac, sign, fwd, bwd, t_ptr, t_src, t_val):  # pr
 
 
 @njit(fastmath=True)
-def _likelihood(state, log_ratio, top, prior_mass, like, velocity):  # pragma: no cover - compiled
-    """The update, kept factored: ``like[j] = e^{r_j − top} / Σ_j prior_mass_j e^{r_j − top}``,
-    so that the posterior is ``state[b, j] · like[j]`` (velocity-major ``state``, the
-    prediction, left untouched); ``velocity`` gets the posterior velocity marginal.
-    Returns ``(total, mean likelihood)``: the normaliser before division (0: every
-    place impossible, ``like`` left as it was) and ``mean_j e^{r_j − top}``."""
+def _likelihood(state, e, prior_mass, like, velocity, mass):  # pragma: no cover - compiled
+    """The update, kept factored, in one pass over the state. ``e`` holds
+    ``e^{r_j − top}`` (computed by numpy, whose vectorised ``exp`` is several times
+    numba's); ``like[j] = e_j / Σ_j prior_mass_j e_j``, so that the posterior is
+    ``state[b, j] · like[j]`` (velocity-major ``state``, the prediction, left untouched);
+    ``mass`` gets the posterior place masses ``prior_mass · like`` and ``velocity`` the
+    posterior velocity marginal (summed with the unnormalised ``e`` in the same pass,
+    divided at the end). Returns ``(total, mean e)``: the normaliser before division (0:
+    every place impossible, ``like`` and ``mass`` left as they were)."""
     nb, n = state.shape
-    e = np.empty(n)
     like_sum = 0.0
     total = 0.0
-    for j in range(n):
-        e[j] = np.exp(log_ratio[j] - top)
-        like_sum += e[j]
-        total += prior_mass[j] * e[j]
+    for b in range(nb):
+        velocity[b] = 0.0
+    for j0 in range(0, n, 4096):
+        j1 = min(n, j0 + 4096)
+        ee = e[j0:j1]
+        pm = prior_mass[j0:j1]
+        for j in range(j1 - j0):
+            like_sum += ee[j]
+            total += pm[j] * ee[j]
+        for b in range(nb):
+            row = state[b, j0:j1]
+            acc = 0.0
+            for j in range(j1 - j0):
+                acc += row[j] * ee[j]
+            velocity[b] += acc
     if not (total > 0.0) or not np.isfinite(total):
         return 0.0, like_sum / n
     inv = 1.0 / total
     for j in range(n):
-        like[j] = e[j] * inv
+        x = e[j] * inv
+        like[j] = x
+        mass[j] = prior_mass[j] * x
     for b in range(nb):
-        row = state[b]
-        acc = 0.0
-        for j in range(n):
-            acc += row[j] * like[j]
-        velocity[b] = acc
+        velocity[b] *= inv
     return total, like_sum / n
 
 
+#: Places per block of the line kernel (its working set, 8 velocity rows of a block
+#: plus their halo, stays in the second-level cache).
+_LINE_BLOCK = 1024
+
+
 @njit(fastmath=True)
-def _line_predict(p, like, prior_mass, out, t_row, mass, t_ptr, t_src, t_val, whole, frac, sign, blur,
-                  recovery, velocity_prior):  # pragma: no cover - compiled
+def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, frac, sign, blur,
+                  recovery, velocity_prior, block):  # pragma: no cover - compiled
     """:func:`predict` on a line graph (place ``j``'s neighbours are ``j ± 1``, no
     junctions, no odometry) from the factored posterior ``p[b, j] · like[j]``
-    (velocity-major), one velocity row at a time: transition (into ``t_row``), then
-    shift by index arithmetic, blur and recovery in one pass (into ``out[b]``); ``mass``
-    gets the predicted place masses. The mass that runs past a route end, needed before the
-    first row is written, is summed first from the few places within reach of the ends."""
+    (velocity-major), in one pass over the state, ``block`` places at a time: for a block
+    (plus a halo of the largest hop and the blur), the transition of every velocity row
+    times the likelihood, then per row the shift by index arithmetic, the blur and the
+    recovery (into ``out[b]``); ``mass`` gets the predicted place masses. The mass that
+    runs past a route end, needed before the first place is written, is summed first
+    from the few places within reach of the ends."""
     nb, n = p.shape
     total_in = 0.0
     for j in range(n):
         total_in += prior_mass[j] * like[j]
     lost = 0.0
+    reach = 0
     for b in range(nb):
+        if whole[b] > reach:
+            reach = whole[b]
         for part in range(2):
             hops = whole[b] + part
             share = 1.0 - frac[b] if part == 0 else frac[b]
@@ -345,75 +366,69 @@ def _line_predict(p, like, prior_mass, out, t_row, mass, t_ptr, t_src, t_val, wh
     total = total_in - lost
     keep = (1.0 - recovery) / total if total > 0 else 0.0
     share0 = recovery / n if total > 0 else 1.0 / n
-    for j in range(n):
-        mass[j] = 0.0
     centre = keep * (1.0 - 2.0 * blur)
     side = keep * blur
-    for b in range(nb):
-        # the transition, in blocks that stay in the first-level cache
-        for j0 in range(0, n, 2048):
-            j1 = min(n, j0 + 2048)
-            blk = t_row[j0:j1]
-            blk[:] = 0.0
-            for c in range(t_ptr[b], t_ptr[b + 1]):
-                src, w = p[t_src[c], j0:j1], t_val[c]
-                for j in range(j1 - j0):
-                    blk[j] += w * src[j]
-            lk = like[j0:j1]
-            for j in range(j1 - j0):
-                blk[j] *= lk[j]
-        # moved[j] = (1 − f) T[j − s h] + f T[j − s (h + 1)]; blurred one place either way
-        # (a route end keeps what would leave it), then recovery: one pass
-        o = out[b]
-        base = share0 * velocity_prior[b]
-        step = sign[b] * whole[b]
-        f0, f1 = 1.0 - frac[b], frac[b]
-        lo = max(1, 1 + max(step, step + sign[b]))
-        hi = min(n - 1, n - 1 + min(step, step + sign[b]))
-        if hi < lo:
-            hi = lo
-        for j in range(min(lo, n)):
-            x = centre * _moved(t_row, j, step, sign[b], f0, f1, n) + side * _neighbours_moved(t_row, j, step, sign[b], f0, f1, n) + base
-            o[j] = x
-            mass[j] += x
-        # every term inside the route: no bounds to check, and views indexed from 0 (so the
-        # loop compiles without negative-index handling and vectorises)
-        w = hi - lo
-        ti = t_row[lo - step - 1:hi - step + 1]  # ti[q] = T[lo + q − s h − 1]
-        tk = t_row[lo - step - sign[b] - 1:hi - step - sign[b] + 1]
-        oo = o[lo:hi]
-        mm = mass[lo:hi]
-        for q in range(w):
-            x = (centre * (f0 * ti[q + 1] + f1 * tk[q + 1])
-                 + side * (f0 * (ti[q] + ti[q + 2]) + f1 * (tk[q] + tk[q + 2])) + base)
-            oo[q] = x
-            mm[q] += x
-        for j in range(max(hi, lo), n):
-            x = centre * _moved(t_row, j, step, sign[b], f0, f1, n) + side * _neighbours_moved(t_row, j, step, sign[b], f0, f1, n) + base
-            o[j] = x
-            mass[j] += x
-
-
-@njit(inline="always")
-def _neighbours_moved(t_row, j, step, sign, f0, f1, n):  # pragma: no cover - compiled
-    """Moved mass at ``j − 1`` plus at ``j + 1``; a route end counts ``j`` itself instead."""
-    here = _moved(t_row, j, step, sign, f0, f1, n)
-    left = _moved(t_row, j - 1, step, sign, f0, f1, n) if j > 0 else here
-    right = _moved(t_row, j + 1, step, sign, f0, f1, n) if j + 1 < n else here
-    return left + right
-
-
-@njit(inline="always")
-def _moved(t_row, j, step, sign, f0, f1, n):  # pragma: no cover - compiled
-    """``(1 − f) T[j − s h] + f T[j − s (h + 1)]``, zero outside the route."""
-    i = j - step
-    k = i - sign
-    m = 0.0
-    if 0 <= i < n:
-        m += f0 * t_row[i]
-    if f1 > 0.0 and 0 <= k < n:
-        m += f1 * t_row[k]
-    return m
+    halo = reach + 2  # a hop of whole + 1 places, then the blur's one
+    width = block + 2 * halo
+    tb = np.empty((nb, width))  # T·like over [j0 − halo, j1 + halo), zero outside the route
+    mv = np.empty(block + 2)  # moved mass over [j0 − 1, j1 + 1)
+    for j0 in range(0, n, block):
+        j1 = min(n, j0 + block)
+        a = max(0, j0 - halo)
+        z = min(n, j1 + halo)
+        off = a - (j0 - halo)
+        lk = like[a:z]
+        for b in range(nb):
+            t = tb[b]
+            for i in range(off):  # before the route's start
+                t[i] = 0.0
+            for i in range(off + z - a, width):  # past its end
+                t[i] = 0.0
+            tt = t[off:off + z - a]
+            c0, k = t_ptr[b], t_ptr[b + 1] - t_ptr[b]
+            if k <= 4:  # velocity_transition's columns: the bin itself, two neighbours, the mirror
+                r0 = p[t_src[c0], a:z]
+                r1 = p[t_src[c0 + 1], a:z] if k > 1 else r0
+                r2 = p[t_src[c0 + 2], a:z] if k > 2 else r0
+                r3 = p[t_src[c0 + 3], a:z] if k > 3 else r0
+                w0 = t_val[c0]
+                w1 = t_val[c0 + 1] if k > 1 else 0.0
+                w2 = t_val[c0 + 2] if k > 2 else 0.0
+                w3 = t_val[c0 + 3] if k > 3 else 0.0
+                for i in range(z - a):
+                    tt[i] = (w0 * r0[i] + w1 * r1[i] + w2 * r2[i] + w3 * r3[i]) * lk[i]
+            else:
+                for i in range(z - a):
+                    tt[i] = 0.0
+                for c in range(c0, c0 + k):
+                    src, w = p[t_src[c], a:z], t_val[c]
+                    for i in range(z - a):
+                        tt[i] += w * src[i]
+                for i in range(z - a):
+                    tt[i] *= lk[i]
+        m = mass[j0:j1]
+        for j in range(j1 - j0):
+            m[j] = 0.0
+        w = j1 - j0
+        for b in range(nb):
+            # moved[j] = (1 − f) T[j − s h] + f T[j − s (h + 1)], j from j0 − 1 to j1
+            step = sign[b] * whole[b]
+            f0, f1 = 1.0 - frac[b], frac[b]
+            t = tb[b]
+            ti = t[halo - 1 - step:halo - 1 - step + w + 2]
+            tk = t[halo - 1 - step - sign[b]:halo - 1 - step - sign[b] + w + 2]
+            for k in range(w + 2):
+                mv[k] = f0 * ti[k] + f1 * tk[k]
+            if j0 == 0:  # a route end keeps the blur that would leave it
+                mv[0] = mv[1]
+            if j1 == n:
+                mv[w + 1] = mv[w]
+            o = out[b, j0:j1]
+            base = share0 * velocity_prior[b]
+            for k in range(w):
+                x = centre * mv[k + 1] + side * (mv[k] + mv[k + 2]) + base
+                o[k] = x
+                m[k] += x
 
 
 @njit
@@ -652,7 +667,8 @@ class GridLocalizer:
         self._velocity = self._velocity_prior.copy()
         self.recovery_ = float(self.recovery)
         self._jumps, self._frames = 0.0, 0.0
-        self._row = np.empty(g.n_places)
+        self._e = np.empty(g.n_places)
+        self._like_buffer = np.empty(g.n_places)
         self._spare = np.empty((nb, g.n_places))
         # the posterior, factored: the prediction (velocity-major, so that shifts are
         # contiguous) times the latest frame's normalised likelihood per place
@@ -710,8 +726,8 @@ class GridLocalizer:
                 out = self._spare
                 whole, frac, sign, _ = self._moves
                 mass = np.empty(self.graph.n_places)
-                _line_predict(self._state, self._like, self.prior_, out, self._row, mass, *self._t_sparse, whole,
-                              frac, sign, float(self.blur), self.recovery_, jump_velocity)
+                _line_predict(self._state, self._like, self.prior_, out, mass, *self._t_sparse, whole,
+                              frac, sign, float(self.blur), self.recovery_, jump_velocity, _LINE_BLOCK)
                 self._spare, self._state = self._state, out
                 self._like = self._ones
                 self.prior_ = mass
@@ -732,15 +748,19 @@ class GridLocalizer:
     def _update(self, obs) -> None:
         if not obs.informative:
             return
-        r = np.ascontiguousarray(obs.log_ratio, dtype=np.float64)
+        r = np.asarray(obs.log_ratio, dtype=np.float64)
         top = float(r.max())
+        e = self._e
+        np.exp(np.subtract(r, top, out=e), out=e)
         velocity = np.empty(len(self._v))
-        like = np.empty(len(r))
-        total, like_mean = _likelihood(self._state, r, top, self.prior_, like, velocity)
+        # the previous frame's likelihood was consumed by the prediction: its buffer is free
+        like = self._like_buffer
+        mass = np.empty(len(r))
+        total, like_mean = _likelihood(self._state, e, self.prior_, like, velocity, mass)
         if total <= 0.0:
             return  # every place impossible: keep the prediction
         self._like, self._velocity = like, velocity
-        self._mass = self.prior_ * like
+        self._mass = mass
         if self.n_steps_ > 0:
             self._learn_recovery(like_mean / total)
         log_map = math.log(total) + top  # log Σ prior · e^r

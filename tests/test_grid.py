@@ -316,3 +316,24 @@ def test_line_fast_path_on_maps_shorter_than_a_hop(n):
     for row in rows:
         fast.step(row), slow.step(row)
         np.testing.assert_allclose(fast.place_posterior_, slow.place_posterior_, rtol=1e-9, atol=1e-15)
+
+
+@pytest.mark.parametrize("block", [1, 4, 7, 64])
+def test_line_fast_path_in_blocks_equals_the_general_path(block, monkeypatch):
+    """The line kernel works through the route in blocks (with a halo of the largest hop
+    and the blur): blocks smaller than a hop, and a last block shorter than the others,
+    give the general walk's answer."""
+    import catgraph.grid as grid
+
+    monkeypatch.setattr(grid, "_LINE_BLOCK", block)
+    rng = np.random.default_rng(11)
+    n = 47
+    rows = _track_rows(n, 2 + np.arange(30), rng, depth=1.5)
+    rows[18:] = _track_rows(n, 44 - 2 * np.arange(12), rng, depth=1.5)  # a jump, then backwards at speed 2
+    fast = GridLocalizer(PlaceGraph.chain(n), _fixed(0.8)).reset()
+    slow = GridLocalizer(PlaceGraph.chain(n), _fixed(0.8)).reset()
+    slow._line = False
+    for row in rows:
+        fast.step(row), slow.step(row)
+        np.testing.assert_allclose(fast.prior_, slow.prior_, rtol=1e-9, atol=1e-15)
+        np.testing.assert_allclose(fast.state_, slow.state_, rtol=1e-9, atol=1e-15)
