@@ -669,13 +669,16 @@ class GridLocalizer:
         self._jumps, self._frames = 0.0, 0.0
         self._e = np.empty(g.n_places)
         self._like_buffer = np.empty(g.n_places)
-        self._spare = np.empty((nb, g.n_places))
+        # the line path keeps the prediction in float32 (half the memory traffic of a step;
+        # every sum and the likelihood stay float64); the general path, the reference, float64
+        dtype = np.float32 if self._line else np.float64
+        self._spare = np.empty((nb, g.n_places), dtype=dtype)
         # the posterior, factored: the prediction (velocity-major, so that shifts are
         # contiguous) times the latest frame's normalised likelihood per place
-        self._state = np.full((nb, g.n_places), 1.0 / (g.n_places * nb))
+        self._state = np.full((nb, g.n_places), 1.0 / (g.n_places * nb), dtype=dtype)
         self._ones = np.ones(g.n_places)  # the likelihood of a prediction not yet updated (never written)
         self._like = self._ones
-        self.prior_ = self._state.sum(0)
+        self.prior_ = self._state.sum(0, dtype=np.float64)
         self.place_posterior_ = self.prior_.copy()
         self._mass = self.prior_.copy()
         self.new_place_probability_ = 0.0
@@ -735,9 +738,9 @@ class GridLocalizer:
                 return
             state = predict(np.ascontiguousarray(self.state_), self._transition, self._v, self._neighbours,
                             self.blur, self.recovery_, jump_velocity, self.junction_probability, odometry, self._moves)
-            self._state = np.ascontiguousarray(state.T)
+            self._state = np.ascontiguousarray(state.T, dtype=self._spare.dtype if self._line else np.float64)
             self._like = self._ones
-        self.prior_ = self._state.sum(0)
+        self.prior_ = self._state.sum(0, dtype=np.float64)
         self._mass = self.prior_
 
     def _jump_velocity(self) -> np.ndarray:
