@@ -18,6 +18,10 @@ from scipy.special import log_ndtr, ndtr
 #: with rule "sustained": the longest admitted window at least this fraction as significant
 SUSTAINED_FRACTION = 0.5
 
+#: with rule "evident": how many common score spreads a recent sub-window of the window's
+#: best hypothesis must lie below the mean score of random places at its length
+EVIDENT_SPREADS = 1.0
+
 
 def _needs_sub(cfg: _Config) -> bool:
     return not cfg.fixed and cfg.rule != "literal" and cfg.grid.shape[0] > 1
@@ -68,7 +72,14 @@ def _log_p(st: _Stats) -> np.ndarray:
 
 
 def _admissible(st: _Stats, cfg: _Config) -> np.ndarray:
-    """``(n, V, G)``: windows whose best hypothesis is supported by its own recent frames."""
+    """``(n, V, G)``: windows whose best hypothesis is supported by its own recent frames.
+
+    Rules "consistent" and "sustained": every tested shorter sub-window of the window's
+    best hypothesis lies closer to the window's own score than to the mean score of random
+    places at that length. Rule "evident" also asks each of those sub-windows to lie at
+    least :data:`EVIDENT_SPREADS` common spreads below that mean: a recent stretch that is
+    not clearly better than a random place is no evidence that the line still holds.
+    """
     n, v_count, g_count = st.best_s.shape
     if not _needs_sub(cfg):
         return np.ones((n, v_count, g_count), dtype=bool)
@@ -76,6 +87,11 @@ def _admissible(st: _Stats, cfg: _Config) -> np.ndarray:
     # the window's own score than to the mean of random places at that length
     mid = 0.5 * (st.best_s[..., None] + st.mean[:, :, None, :])  # (n, V, G, H)
     ok = st.sub <= mid
+    if cfg.rule == "evident":
+        # and every such sub-window must itself stand out from random places at its length:
+        # at least EVIDENT_SPREADS common spreads (the widest over the velocities) below their mean
+        common = _common_std(st)[:, :, None, :]  # (n, 1, 1, H)
+        ok &= st.sub <= st.mean[:, :, None, :] - EVIDENT_SPREADS * common
     lengths = cfg.grid.astype(np.float64)
     tested = (lengths[None, :] < lengths[:, None]) & (lengths[None, :] >= cfg.recent_fraction * lengths[:, None])
     admissible = np.all(ok | ~tested, axis=3)
