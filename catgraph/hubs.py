@@ -130,6 +130,10 @@ def map_hub_offsets(catgraph_map, threshold: float = HUB_THRESHOLD, max_rows: in
     return _outlying(typical, threshold)
 
 
+#: Values per block of rows renormalised at once by :func:`apply_hub_offsets`.
+RENORMALISE_VALUES = 1 << 22
+
+
 def apply_hub_offsets(differences: np.ndarray, offsets: np.ndarray, renormalise: bool = True) -> np.ndarray:
     """Subtract the hub offsets from every query row (and normalise each row again).
 
@@ -154,8 +158,13 @@ def apply_hub_offsets(differences: np.ndarray, offsets: np.ndarray, renormalise:
             f"the difference matrix has {d.shape[-1] if d.ndim else 0} reference places but there are "
             f"{o.shape[0]} hub offsets; compute the offsets from the same reference map.")
     out = np.asarray(d, dtype=np.float64) - o
-    if renormalise:
-        mean = out.mean(axis=-1, keepdims=True)
-        std = out.std(axis=-1, keepdims=True)
-        out = (out - mean) / np.where(std > 0, std, 1.0)
+    if renormalise:  # in place, in blocks of rows: one copy of a large matrix, not four
+        rows = out.reshape(-1, out.shape[-1])
+        step = max(1, RENORMALISE_VALUES // rows.shape[1])
+        for start in range(0, rows.shape[0], step):
+            block = rows[start : start + step]
+            mean = block.mean(axis=-1, keepdims=True)
+            std = block.std(axis=-1, keepdims=True)
+            np.subtract(block, mean, out=block)
+            np.divide(block, np.where(std > 0, std, 1.0), out=block)
     return out

@@ -96,3 +96,21 @@ def test_map_hub_offsets_read_in_blocks_equal_the_matrix_form(monkeypatch):
     offsets = map_hub_offsets(m, max_rows=64)
     np.testing.assert_allclose(offsets, hub_offsets(r, rows=rows), atol=1e-12)
     assert {10, 4500} <= set(np.flatnonzero(offsets))
+
+
+def test_apply_in_blocks_equals_the_whole_matrix_formula_bit_for_bit(monkeypatch):
+    import catgraph.hubs as hubs
+
+    rng = np.random.default_rng(5)
+    d = rng.normal(size=(23, 300)) * 3 + 1
+    d[4] = 2.0  # a constant row stays constant, shifted to 0
+    before = d.copy()
+    offsets = np.where(rng.random(300) < 0.05, -2.0, 0.0)
+    whole = d - offsets
+    mean, std = whole.mean(axis=-1, keepdims=True), whole.std(axis=-1, keepdims=True)
+    want = (whole - mean) / np.where(std > 0, std, 1.0)
+    for values in (1, 700, 1 << 22):  # one row per block, a few rows, everything at once
+        monkeypatch.setattr(hubs, "RENORMALISE_VALUES", values)
+        assert np.array_equal(apply_hub_offsets(d, offsets), want)
+        assert np.array_equal(apply_hub_offsets(d[7], offsets), want[7])
+    assert np.array_equal(d, before)  # the input is not modified
