@@ -8,18 +8,44 @@ The kernels trust their inputs (shapes, dtypes, ranges); the public functions in
 :mod:`catgraph.sequence` validate first. The streaming matcher and the batch function
 call the *same* kernels in the same order, so their results agree bit for bit.
 
-Notation (see :mod:`catgraph.sequence`). Velocity ``v`` places query frame ``i`` at
-reference offset ``pos_v(i) = floor(v * i + 1/2)``; one step moves the line by
-``delta_v(i) = pos_v(i) - pos_v(i - 1)`` places. ``ring`` is ``(V, R, N)`` float64: for
-each velocity the last ``R`` prefix-sum rows along its lines,
-``C^v_i[j] = d_ij + C^v_{i-1}[j - delta_v(i)]`` (a term whose place falls outside
-``[0, N)`` ends the chain), row ``C^v_i`` at ``ring[v, i % R]``. ``mring[i % R]`` holds
-``M_i``, the running sum of the rows' mean differences (the fill for terms outside the
-reference). ``grid`` holds the candidate window lengths (ascending). The line through
-``(i, j)`` visits place ``j - (pos_v(i) - pos_v(i - t))`` at frame ``i - t``.
+Layout (see :mod:`catgraph.sequence`). Velocity ``v`` places query frame ``i`` at
+reference offset ``pos_v(i) = floor(v * i + 1/2)``; the *line* ``c = j - pos_v(i)``
+visits place ``c + pos_v(t)`` at frame ``t``. Lines are global, so one history serves
+every velocity:
+
+``ring`` ``(R, N) float32``
+    the last ``R >= l_max + 1`` difference rows, row ``t`` at ``ring[t % R]``, stored
+    once on arrival (:func:`advance`): rounded to float32, then to a multiple of the
+    quantum ``u = state[0]`` that the first row fixes (:func:`unit_of`); every later
+    use reads these values.
+``mring`` ``(R,) float64``
+    the mean of each stored row, rounded to a multiple of ``u`` (the fill for a term
+    whose place lies outside ``[0, N)``).
+``sums`` ``(V, G, N) float64``
+    for each velocity and candidate length ``L``, the window sum along every line that
+    currently meets the reference, ``S_{v,L}(i, c) = sum_{t=i-L_eff+1}^{i} val(t, c)``
+    with ``L_eff = min(L, i + 1)`` and ``val(t, c) = d[t, c + pos_v(t)]`` (the row's
+    mean outside the reference). Line ``c`` lives in slot ``c mod N``: the ``N`` lines
+    meeting the reference at any frame are ``N`` consecutive integers, so a line that
+    leaves hands its slot to the one that enters.
+
+One frame updates each sum in ``O(1)``:
+``S(i, c) = S(i - 1, c) + val(i, c) - val(i - L, c)`` (no subtraction while
+``i < L``); a line entering the reference at frame ``i`` was outside for all earlier
+frames, so it starts from the sum of the row means of the window's earlier frames.
+Every term is a multiple of ``u``, so every addition is exact while ``|S| < 2^53 u``
+(differences below about ``2^13`` times the first row's largest at ``l_max = 500``): the running sums never drift, and a window summed term by term
+(:func:`direct_scores`) gives the same bits.
+
+The batch form (:func:`run_batch`) lays the ring's rows and a block of new rows out in
+time order in one history and addresses row ``t`` as ``hist[(t - base) % M]``; the
+streaming form passes the ring itself with ``base = 0``. Both run
+:func:`_velocity_stats` on the same values, so their results agree bit for bit.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numba import prange
@@ -38,169 +64,188 @@ def position(v, i):
 
 
 @njit
-def advance_means(mring, i, d_row):
-    """Write ``M_i = M_{i-1} + mean_j d_ij`` into ``mring[i % R]``."""
-    r = mring.shape[0]
+def unit_of(d_row):
+    """The quantum ``u = 2**(e - 31)`` fixed by the first row, ``max|d_0j| < 2**e``."""
+    top = 0.0
+    for j in range(d_row.shape[0]):
+        a = abs(d_row[j])
+        if a > top:
+            top = a
+    _, e = math.frexp(top)  # top = m 2**e, 0.5 <= m < 1 (e = 0 for a zero row)
+    return math.ldexp(1.0, e - 31)
+
+
+@njit
+def quantise(x, unit):
+    """``x`` rounded to float32, then to a multiple of ``unit`` (float64, float32-exact)."""
+    return np.rint(np.float64(np.float32(x)) / unit) * unit
+
+
+@njit
+def advance(ring, mring, state, i, base, d_row):
+    """Store query frame ``i``'s row, quantised, in ``ring[(i - base) % R]`` and its
+    quantised mean in ``mring``; frame 0 fixes the quantum ``state[0]``."""
+    if i == 0:
+        state[0] = unit_of(d_row)
+    unit = state[0]
+    r = ring.shape[0]
+    out = ring[(i - base) % r]
     n = d_row.shape[0]
     total = 0.0
     for j in range(n):
-        total += d_row[j]
-    if i == 0:
-        mring[0] = total / n
-    else:
-        mring[i % r] = mring[(i - 1) % r] + total / n
+        x = quantise(d_row[j], unit)
+        out[j] = np.float32(x)
+        total += x
+    mring[(i - base) % r] = np.rint(total / n / unit) * unit
 
 
 @njit
-def advance_line(ring_v, i, d_row, v):
-    """Write ``C^v_i`` into ``ring_v[i % R]`` (from ``C^v_{i-1}``; zeros before the start)."""
-    r = ring_v.shape[0]
-    n = d_row.shape[0]
-    out = ring_v[i % r]
-    if i == 0:
-        for j in range(n):
-            out[j] = d_row[j]
-        return
-    prev = ring_v[(i - 1) % r]  # a different row because R >= 2
-    delta = position(v, i) - position(v, i - 1)
-    lo = delta if delta > 0 else 0
-    hi = n + delta if delta < 0 else n
-    if lo > n:
-        lo = n
-    if hi < 0:
-        hi = 0
-    for j in range(0, lo):
-        out[j] = d_row[j]
-    for j in range(lo, hi):
-        out[j] = d_row[j] + prev[j - delta]
-    for j in range(max(hi, lo), n):
-        out[j] = d_row[j]
+def _fill_sum(mhist, base, i, eff):
+    """Sum of the row means of frames ``i - eff + 1 .. i - 1`` (a new line's earlier terms)."""
+    m = mhist.shape[0]
+    total = 0.0
+    for t in range(i - eff + 1, i):
+        total += mhist[(t - base) % m]
+    return total
 
 
 @njit
-def advance(ring, mring, i, d_row, velocities):
-    """:func:`advance_means` and :func:`advance_line` for every velocity (``ring`` is
-    ``(V, R, N)``)."""
-    advance_means(mring, i, d_row)
-    for vi in range(velocities.shape[0]):
-        advance_line(ring[vi], i, d_row, velocities[vi])
+def _update_lines(sums_g, hist, mhist, base, i, v, length, s):
+    """Advance one velocity's window sums of length ``length`` to frame ``i`` and write the
+    scores ``s_ij = S / L_eff`` in place order into ``s``.
 
-
-@njit
-def _exit_time(v, i, eff, j, n):
-    """First ``t`` in ``[1, eff - 1]`` whose place ``j - (pos(i) - pos(i - t))`` lies
-    outside ``[0, N)`` (the caller knows one exists); binary search, the offsets being
-    monotone in ``t``."""
-    p = position(v, i)
-    lo = 0
-    hi = eff - 1
-    while hi - lo > 1:
-        mid = (lo + hi) // 2
-        k = j - (p - position(v, i - mid))
-        if k < 0 or k >= n:
-            hi = mid
-        else:
-            lo = mid
-    return hi
-
-
-@njit
-def score_at(ring_v, mring, i, v, length, j):
-    """One score ``s_ij(L, v)`` (same policy and arithmetic as :func:`window_scores`)."""
-    r = ring_v.shape[0]
-    n = ring_v.shape[1]
-    eff = length if length <= i + 1 else i + 1
-    p = position(v, i)
-    k_last = j - (p - position(v, i - eff + 1))
-    val = ring_v[i % r][j]
-    if 0 <= k_last < n:
-        if i >= eff:
-            kb = j - (p - position(v, i - eff))
-            if 0 <= kb < n:
-                val -= ring_v[(i - eff) % r][kb]
-    else:
-        t_exit = _exit_time(v, i, eff, j, n)
-        val += mring[(i - t_exit) % r]
-        if i >= eff:
-            val -= mring[(i - eff) % r]
-    return val / eff
-
-
-@njit
-def window_scores(ring_v, mring, i, v, length, s):
-    """Scores ``s_ij(L, v)`` of query frame ``i`` against every reference ``j`` into ``s``;
-    returns their sum.
-
-    Policy: the window has ``L_eff = min(L, i + 1)`` terms; a term whose place falls
-    outside the reference is filled with its query row's mean difference; the sum is
-    divided by ``L_eff``. Same arithmetic as :func:`score_at`.
+    Row ``t`` of the history is ``hist[(t - base) % M]`` (``M = len(hist)``): the ring
+    itself with ``base = 0``, or a block of consecutive rows in the batch form.
     """
-    r = ring_v.shape[0]
+    m = hist.shape[0]
+    n = sums_g.shape[0]
+    cur = hist[(i - base) % m]
+    p = position(v, i)
+    sbase = p % n  # slot of place j is (j - sbase) mod N
+    eff = length if length <= i + 1 else i + 1
+    # places whose line enters the reference at this frame: [e_lo, e_hi)
+    if i == 0:
+        e_lo = 0
+        e_hi = n
+    else:
+        delta = p - position(v, i - 1)
+        if delta >= n or delta <= -n:
+            e_lo = 0
+            e_hi = n
+        elif delta > 0:
+            e_lo = 0
+            e_hi = delta
+        elif delta < 0:
+            e_lo = n + delta
+            e_hi = n
+        else:
+            e_lo = 0
+            e_hi = 0
+    if e_hi > e_lo:
+        fill = _fill_sum(mhist, base, i, eff)
+        for j in range(e_lo, e_hi):
+            slot = j - sbase
+            if slot < 0:
+                slot += n
+            val = fill + np.float64(cur[j])
+            sums_g[slot] = val
+            s[j] = val / eff
+    # the other places continue their line: [0, e_lo) and [e_hi, n)
+    if i >= length:
+        old = hist[(i - length - base) % m]
+        m_old = mhist[(i - length - base) % m]
+        off = p - position(v, i - length)  # the line through j met place j - off then
+    else:
+        old = cur
+        m_old = 0.0
+        off = 0
+    for part in range(2):
+        a = 0 if part == 0 else e_hi
+        b = e_lo if part == 0 else n
+        if b <= a:
+            continue
+        # slots wrap at j = sbase
+        for seg in range(2):
+            lo = a if seg == 0 else (sbase if sbase > a else a)
+            hi = (sbase if sbase < b else b) if seg == 0 else b
+            if hi <= lo:
+                continue
+            shift = n - sbase if seg == 0 else -sbase
+            if i < length:
+                for j in range(lo, hi):
+                    val = sums_g[j + shift] + np.float64(cur[j])
+                    sums_g[j + shift] = val
+                    s[j] = val / eff
+                continue
+            # the old term lies inside the reference for j - off in [0, n)
+            k_lo = off if off > lo else lo
+            k_hi = n + off if n + off < hi else hi
+            if k_hi < k_lo:
+                k_lo = hi
+                k_hi = hi
+            for j in range(lo, k_lo):
+                val = sums_g[j + shift] + (np.float64(cur[j]) - m_old)
+                sums_g[j + shift] = val
+                s[j] = val / eff
+            for j in range(k_lo, k_hi):
+                val = sums_g[j + shift] + (np.float64(cur[j]) - np.float64(old[j - off]))
+                sums_g[j + shift] = val
+                s[j] = val / eff
+            for j in range(k_hi, hi):
+                val = sums_g[j + shift] + (np.float64(cur[j]) - m_old)
+                sums_g[j + shift] = val
+                s[j] = val / eff
+
+
+@njit
+def scores_from_sums(sums_g, i, v, length, s):
+    """Scores ``s_ij(L, v) = S / L_eff`` in place order into ``s`` (the values
+    :func:`_update_lines` wrote)."""
+    n = s.shape[0]
+    eff = length if length <= i + 1 else i + 1
+    sbase = position(v, i) % n
+    for j in range(0, sbase):
+        s[j] = sums_g[j + n - sbase] / eff
+    for j in range(sbase, n):
+        s[j] = sums_g[j - sbase] / eff
+
+
+@njit
+def score_at(sums_g, i, v, length, j):
+    """One score ``s_ij(L, v)`` from the window sums (same arithmetic as :func:`scores_from_sums`)."""
+    n = sums_g.shape[0]
+    eff = length if length <= i + 1 else i + 1
+    slot = j - position(v, i) % n
+    if slot < 0:
+        slot += n
+    return sums_g[slot] / eff
+
+
+@njit
+def direct_scores(ring, mring, i, v, length, s):
+    """Scores of any length ``L <= R - 1`` summed term by term from the ring (``O(N L)``).
+
+    For lengths outside the candidate grid; the same terms as the running sums, added
+    in time order.
+    """
+    r = ring.shape[0]
     n = s.shape[0]
     eff = length if length <= i + 1 else i + 1
     p = position(v, i)
-    last = p - position(v, i - eff + 1)  # offset of the oldest term
-    back_off = p - position(v, i - eff)
-    has_back = i >= eff
-    cur = ring_v[i % r]
-    back = ring_v[(i - eff) % r]
-    mback = mring[(i - eff) % r]
-    # regular places: the whole window lies inside the reference
-    jlo = last if last > 0 else 0
-    jhi = n + last if last < 0 else n
-    if jlo > n:
-        jlo = n
-    if jhi < jlo:
-        jhi = jlo
-    total = 0.0
-    if has_back:
-        blo = back_off if back_off > jlo else jlo
-        if blo > jhi:
-            blo = jhi
-        bhi = n + back_off if n + back_off < jhi else jhi
-        if bhi < blo:
-            bhi = blo
-        for j in range(jlo, blo):
-            val = cur[j] / eff
-            s[j] = val
-            total += val
-        for j in range(blo, bhi):
-            val = (cur[j] - back[j - back_off]) / eff
-            s[j] = val
-            total += val
-        for j in range(bhi, jhi):
-            val = cur[j] / eff
-            s[j] = val
-            total += val
-    else:
-        for j in range(jlo, jhi):
-            val = cur[j] / eff
-            s[j] = val
-            total += val
-    # places whose window runs off the reference: the chain ends at the exit time
-    if last > 0:
-        t = 1
-        for j in range(0, jlo):
-            while p - position(v, i - t) <= j:
-                t += 1
-            val = cur[j] + mring[(i - t) % r]
-            if has_back:
-                val -= mback
-            val = val / eff
-            s[j] = val
-            total += val
-    elif last < 0:
-        t = 1
-        for j in range(n - 1, jhi - 1, -1):
-            while j - (p - position(v, i - t)) <= n - 1:
-                t += 1
-            val = cur[j] + mring[(i - t) % r]
-            if has_back:
-                val -= mback
-            val = val / eff
-            s[j] = val
-            total += val
-    return total
+    for j in range(n):
+        s[j] = 0.0
+    for t in range(i - eff + 1, i + 1):
+        row = ring[t % r]
+        m = mring[t % r]
+        off = p - position(v, t)
+        for j in range(n):
+            k = j - off
+            if 0 <= k < n:
+                s[j] += np.float64(row[k])
+            else:
+                s[j] += m
+    for j in range(n):
+        s[j] = s[j] / eff
 
 
 @njit
@@ -286,28 +331,37 @@ def _gmm_em(s, stride, mean, std, n_iter, w, mu, sd, resp, coef, inv):
 
 
 @njit
-def _velocity_stats(ring_v, mring, i, v, grid, approx, n_iter, em_stride, radius,
+def _velocity_stats(sums_v, hist, mhist, base, i, v, grid, approx, n_iter, em_stride, radius,
                     best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
-    """:func:`frame_stats` for one velocity (outputs indexed by window only)."""
+    """Advance one velocity's window sums to frame ``i`` and summarise every window.
+
+    Mean and spread in one pass, shifted by the first score (``var = E[y^2] - E[y]^2``
+    with ``y = s - s_0``: no cancellation unless ``s_0`` lies many spreads from the mean).
+    """
     g_count = grid.shape[0]
     n = s.shape[0]
     n_components = weights.shape[1]
     coef = np.empty(n_components)
     inv = np.empty(n_components)
     for g in range(g_count):
-        total = window_scores(ring_v, mring, i, v, grid[g], s)
-        m = total / n
+        _update_lines(sums_v[g], hist, mhist, base, i, v, grid[g], s)
+        shift = s[0]
         jb = 0
         vb = s[0]
-        acc = 0.0
+        sy = 0.0
+        syy = 0.0
         for j in range(n):
             val = s[j]
             if val < vb:
                 vb = val
                 jb = j
-            dev = val - m
-            acc += dev * dev
-        sdv = np.sqrt(acc / n)
+            y = val - shift
+            sy += y
+            syy += y * y
+        my = sy / n
+        var = syy / n - my * my
+        sdv = np.sqrt(var) if var > 0.0 else 0.0
+        m = shift + my
         best_j[g] = jb
         best_s[g] = vb
         v2 = np.inf
@@ -333,16 +387,17 @@ def _velocity_stats(ring_v, mring, i, v, grid, approx, n_iter, em_stride, radius
             scales[g, 0] = mad
         else:
             _gmm_em(s, em_stride, m, sdv, n_iter, weights[g], locs[g], scales[g], resp, coef, inv)
-    if sub.shape[1] == g_count:  # only the consistency tests need them
+    if sub.shape[1] == g_count:  # only the consistency rules need them
         for g in range(g_count):
             for h in range(g_count):
-                sub[g, h] = score_at(ring_v, mring, i, v, grid[h], best_j[g])
+                sub[g, h] = score_at(sums_v[h], i, v, grid[h], best_j[g])
 
 
-@njit
-def frame_stats(ring, mring, i, velocities, grid, approx, n_iter, em_stride, radius,
+@njit(parallel=True)
+def frame_stats(sums, ring, mring, i, velocities, grid, approx, n_iter, em_stride, radius,
                 best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
-    """Everything the selection rules need for query frame ``i``, per velocity and window.
+    """Advance the window sums to query frame ``i`` (already in the ring, :func:`advance`)
+    and compute everything the selection rules need, per velocity and window.
 
     Outputs (``V`` velocities, ``G = len(grid)``, ``K`` components): ``best_j, best_s,
     second_s, mean, std`` ``(V, G)``; ``weights, locs, scales`` ``(V, G, K)`` — the
@@ -350,51 +405,66 @@ def frame_stats(ring, mring, i, velocities, grid, approx, n_iter, em_stride, rad
     with ``sub[v, g, h] = s_{i, best_j[v, g]}(grid[h], v)``, window ``g``'s best hypothesis
     scored over window ``h`` along the same line. Mixtures are fitted to every
     ``em_stride``-th score. ``second_s`` is the best score more than ``radius`` places
-    from ``best_j`` at the same velocity (``+inf`` where none exists). Scratch ``s, work``
-    ``(V, N)``, ``resp`` ``(V, K, N)``.
+    from ``best_j`` at the same velocity (``+inf`` where none exists). Scratch ``s``
+    ``(V, N)``; ``work`` ``(V, N)`` (robust) and ``resp`` ``(V, K, N)`` (mixtures), else
+    empty.
+
+    The velocities run in parallel threads; each reads the shared ring and writes only
+    its own sums and outputs, so the numbers do not depend on the thread count.
     """
-    for vi in range(velocities.shape[0]):
-        _velocity_stats(ring[vi], mring, i, velocities[vi], grid, approx, n_iter, em_stride, radius,
+    for vi in prange(velocities.shape[0]):
+        _velocity_stats(sums[vi], ring, mring, 0, i, velocities[vi], grid, approx, n_iter, em_stride, radius,
                         best_j[vi], best_s[vi], second_s[vi], mean[vi], std[vi], weights[vi], locs[vi],
                         scales[vi], sub[vi], s[vi], work[vi], resp[vi])
 
 
 @njit(parallel=True)
-def run_batch(d, start, ring, mring, velocities, grid, approx, n_iter, em_stride, radius,
+def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_iter, em_stride, radius,
               best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
     """:func:`advance` then :func:`frame_stats` for every row of ``d``, in order; row
-    ``t`` of ``d`` is query frame ``start + t``.
+    ``t`` of ``d`` is query frame ``start + t``. The state (``sums``, ``ring``, ``mring``)
+    starts as zeros and carries over between blocks.
 
-    ``ring``/``mring`` must have at least ``max(grid) + 1`` rows, start as zeros and
-    carry over from the previous block. The velocities are independent, so they run in
-    parallel threads over the whole block (one parallel region, not one per frame); each
-    keeps its own copy of the row-mean ring, computed by the same arithmetic, so the
-    numbers equal the streaming form's and do not depend on the thread count.
+    One parallel region for the whole block (no synchronisation per frame): the ring's
+    rows and the block's rows, rounded and averaged by :func:`advance` itself, are laid
+    out in time order in one history, and each velocity's thread runs
+    :func:`_velocity_stats` over every frame of the block, so every number equals the
+    streaming form's.
     """
-    v_count = velocities.shape[0]
-    means = np.empty((v_count, mring.shape[0]))
-    for vi in range(v_count):
-        means[vi] = mring
-    for vi in prange(v_count):
-        for t in range(d.shape[0]):
-            i = start + t
-            advance_means(means[vi], i, d[t])
-            advance_line(ring[vi], i, d[t], velocities[vi])
-            _velocity_stats(ring[vi], means[vi], i, velocities[vi], grid, approx, n_iter, em_stride, radius,
-                            best_j[t, vi], best_s[t, vi], second_s[t, vi], mean[t, vi], std[t, vi],
-                            weights[t, vi], locs[t, vi], scales[t, vi], sub[t, vi], s[vi], work[vi], resp[vi])
-    mring[:] = means[0]
+    r = ring.shape[0]
+    n_rows = d.shape[0]
+    hist = np.zeros((r + n_rows, ring.shape[1]), dtype=np.float32)
+    mhist = np.zeros(r + n_rows)
+    base = start - r  # row t of the history is hist[t - base]
+    for t in range(start - r, start):
+        if t >= 0:
+            hist[t - base] = ring[t % r]
+            mhist[t - base] = mring[t % r]
+    for t in range(n_rows):
+        advance(hist, mhist, state, start + t, base, d[t])  # start + t - base < len(hist): no wrap
+    for vi in prange(velocities.shape[0]):
+        for t in range(n_rows):
+            _velocity_stats(sums[vi], hist, mhist, base, start + t, velocities[vi], grid, approx, n_iter,
+                            em_stride, radius, best_j[t, vi], best_s[t, vi], second_s[t, vi], mean[t, vi],
+                            std[t, vi], weights[t, vi], locs[t, vi], scales[t, vi], sub[t, vi], s[vi], work[vi],
+                            resp[vi])
+    for t in range(start + n_rows - r, start + n_rows):
+        if t >= 0:
+            ring[t % r] = hist[t - base]
+            mring[t % r] = mhist[t - base]
 
 
 @njit
 def fixed_scores(d, length, v):
-    """All scores ``s_ij(L, v)`` for one window and velocity, ``(n_query, N)`` (batch helper)."""
+    """All scores ``s_ij(L, v)`` for one window and velocity, ``(n_query, N)`` (batch
+    helper; the matcher's arithmetic)."""
     n_q, n = d.shape
     out = np.empty((n_q, n))
-    ring = np.zeros((1, length + 1, n))
+    ring = np.zeros((length + 1, n), dtype=np.float32)
     mring = np.zeros(length + 1)
-    vel = np.array([v])
+    state = np.zeros(1)
+    sums = np.zeros(n)
     for i in range(n_q):
-        advance(ring, mring, i, d[i], vel)
-        window_scores(ring[0], mring, i, v, length, out[i])
+        advance(ring, mring, state, i, 0, d[i])
+        _update_lines(sums, ring, mring, 0, i, v, length, out[i])
     return out

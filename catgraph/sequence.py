@@ -18,13 +18,29 @@ the route driven backwards. Query frame ``i`` sits at reference offset
 
 For an integer ``v`` this is exactly ``d_{i-t, j - v t}``; for ``v = ±0.5`` the line
 advances by 0 and 1 places on alternate frames (a line through the origin of time,
-rounded half up), so it is within half a place of ``j - v t``. With prefix sums along
-the lines, ``C^v_i[j] = d_ij + C^v_{i-1}[j - delta_v(i)]`` where
-``delta_v(i) = pos_v(i) - pos_v(i-1)``, every window sum is one subtraction,
-``C^v_i[j] - C^v_{i-L}[j - (pos_v(i) - pos_v(i-L))]``: ``O(N)`` per query frame,
-velocity and window length. Only the last ``l_max + 1`` prefix rows per velocity are
-ever needed (a ring buffer of ``8 * N * (l_max + 1)`` bytes per velocity: 13.7 MiB for
-Nordland's 3,576 places at ``l_max = 500``; never an ``N x N`` matrix).
+rounded half up), so it is within half a place of ``j - v t``.
+
+Lines are global: the line ``c = j - pos_v(i)`` visits place ``c + pos_v(t)`` at frame
+``t``, so its window sum follows one frame to the next,
+``S_{v,L}(i, c) = S_{v,L}(i-1, c) + val(i, c) - val(i-L, c)`` (``val``: the term, or the
+edge fill below; no subtraction while ``i < L``; a line that enters the reference starts
+from the fills of the window's earlier frames). The matcher keeps *one* ring of the last
+``l_max + 1`` difference rows, shared by every velocity, and one running sum per
+velocity, candidate length and line; every window score, and every sub-window score the
+window rule tests, is then ``O(1)``: ``O(N V G)`` per query frame for ``V`` velocities
+and ``G`` lengths. Memory: the ring, ``4 N (l_max + 1)`` bytes (float32: 200 MB at
+``N = 10^5``, 2.0 GB at ``N = 10^6`` with ``l_max = 500``; 7.2 MB for Nordland's 3,576
+places), plus ``8 N (G + 1)`` bytes per velocity (sums and scratch: 11.2 MB per velocity
+at ``N = 10^5`` with 13 lengths); never an ``N x N`` matrix.
+
+Precision (a documented policy). Each difference is stored once, rounded to float32 and
+then to a multiple of a quantum ``u = 2^(e - 31)`` fixed by the query's first row
+(``max_j |d_0j| < 2^e``); the row means are rounded to multiples of ``u`` as well. Sums of
+multiples of one quantum are exact in float64 (while ``|S| < 2^53 u``: differences up to
+about ``2^13`` times the first row's largest), so the running sums never drift, a window
+summed in any order gives the same bits, and places whose windows tie exactly keep tying
+(the first place wins). Against the float64 scores of the same policy each score is off
+by at most ``2^-24 max|d| + u``.
 
 Edges (a documented policy). Early query frames (``i < L - 1``) use the
 ``L_eff = min(L, i + 1)`` frames seen so far; the reported ``window_length`` is that
@@ -37,9 +53,8 @@ ends of the reference a larger spread, so they win by chance (and, on data with
 featureless frames at the start of the reference, by a lot); excluding them would make
 the first ``L - 1`` places unmatchable. Every frame gets an output (no abstention),
 which is what a localiser embedded in a navigation stack needs, and what the MTL
-metric rewards. With the running sum of row means ``M_i`` the fill is
-``M_{i-t_exit} - M_{i-L_eff}`` (``t_exit``: the first term outside the reference), still
-``O(1)`` per score away from the ends.
+metric rewards. The fill is one more term of the running sums, so it
+costs nothing extra.
 
 Significance, velocity and window
 ---------------------------------
@@ -145,9 +160,12 @@ Two forms
 ---------
 :class:`SequenceMatcher` is the streaming form (one :meth:`~SequenceMatcher.step` per
 query frame; time per step ``O(N V G)`` and independent of how many frames came before)
-and :func:`match_sequences` the batch form. Both call the same compiled kernels in the
-same order, so they return identical numbers; the velocities run in parallel threads,
-each writing only its own outputs, so the result does not depend on the thread count.
+and :func:`match_sequences` the batch form. Both run the same compiled kernel for each
+velocity and frame on the same stored values, so they return identical numbers. The
+velocities run in parallel threads (per frame when streaming, once per block of frames
+in the batch form), each reading the shared ring and writing only its own sums and
+outputs, so the result does not depend on the thread count either. Measured figures:
+``benchmarks/results/matcher.md``.
 """
 
 from __future__ import annotations
@@ -383,6 +401,21 @@ def _prepare_rows(d: np.ndarray, cfg: _Config) -> np.ndarray:
 
 
 _BLOCK_VALUES = 4_000_000
+_BLOCK_ROW_VALUES = 32_000_000
+
+
+def _state(cfg: _Config, n: int):
+    """The matcher's state for ``N = n`` places: the window sums, the float32 ring of the
+    last ``l_max + 1`` rows with their means, and the scratch the kernels need (the
+    robust and mixture scratch only for those approximations)."""
+    v_count, g_count, rows = cfg.velocities.shape[0], cfg.grid.shape[0], int(cfg.grid[-1]) + 1
+    sums = np.zeros((v_count, g_count, n))
+    ring = np.zeros((rows, n), dtype=np.float32)
+    mring = np.zeros(rows)
+    state = np.zeros(1)  # the quantum, fixed by the first row
+    work = np.empty((v_count, n if cfg.approx_code == 1 else 0))
+    resp = np.empty((v_count, cfg.n_components, n if cfg.approx_code == 2 else 0))
+    return sums, ring, mring, state, (np.empty((v_count, n)), work, resp)
 
 
 def _em_stride(n: int) -> int:
@@ -471,19 +504,17 @@ def match_sequences(
     k = _kernels()
     g = cfg.grid.shape[0]
     v_count = cfg.velocities.shape[0]
-    rows = int(cfg.grid[-1]) + 1
-    ring = np.zeros((v_count, rows, n))
-    mring = np.zeros(rows)
-    scratch = (np.empty((v_count, n)), np.empty((v_count, n)), np.empty((v_count, cfg.n_components, n)))
-    # rows are processed in blocks so that the (block, V, G, G) sub-window scores stay small
-    block = max(1, min(n_q, _BLOCK_VALUES // (v_count * g * g)))
+    sums, ring, mring, state, scratch = _state(cfg, n)
+    # rows are processed in blocks so that the (block, V, G, G) sub-window scores and the
+    # block's float32 copy of its rows stay small
+    block = max(1, min(n_q, _BLOCK_VALUES // (v_count * g * g), _BLOCK_ROW_VALUES // n))
     parts = []
     for start in range(0, n_q, block):
         stop = min(n_q, start + block)
         st = _Stats(stop - start, v_count, g, cfg.n_components, _needs_sub(cfg))
-        k.run_batch(d[start:stop], start, ring, mring, cfg.velocities, cfg.grid, cfg.approx_code, EM_ITERATIONS,
-                    _em_stride(n), cfg.radius, st.best_j, st.best_s, st.second_s, st.mean, st.std, st.weights,
-                    st.locs, st.scales, st.sub, *scratch)
+        k.run_batch(d[start:stop], start, sums, ring, mring, state, cfg.velocities, cfg.grid, cfg.approx_code,
+                    EM_ITERATIONS, _em_stride(n), cfg.radius, st.best_j, st.best_s, st.second_s, st.mean, st.std,
+                    st.weights, st.locs, st.scales, st.sub, *scratch)
         parts.append(_decide(st, cfg, np.arange(start, stop), return_curves, d[start:stop]))
     match, score, conf, length, velocity = (np.concatenate([p[c] for p in parts]) for c in range(5))
     log_p = np.concatenate([p[5] for p in parts]) if return_curves else None
@@ -500,11 +531,13 @@ class SequenceMatcher:
     """Streaming sequence matcher: one :meth:`step` per query frame.
 
     Parameters are those of :func:`match_sequences`. The constructor only stores them;
-    the first :meth:`step` fixes the number of reference places ``N`` and allocates, per
-    velocity, the ring buffer of the last ``max(grid) + 1`` prefix-sum rows along its
-    lines (``8 * N * (l_max + 1)`` bytes per velocity). Time per step is
-    ``O(N * V * G)`` (``V`` velocities, ``G`` candidate lengths), however many frames came
-    before.
+    the first :meth:`step` fixes the number of reference places ``N`` and the quantum of
+    the stored values (module docstring), and allocates one float32 ring of the last
+    ``max(grid) + 1`` difference rows shared by every velocity
+    (``4 * N * (l_max + 1)`` bytes) and, per velocity, a float64 running sum per
+    candidate length and line plus one scratch row (``8 * N * (G + 1)`` bytes). Time per
+    step is ``O(N * V * G)`` (``V`` velocities, ``G`` candidate lengths), however many
+    frames came before; the velocities run in parallel threads.
 
     Attributes
     ----------
@@ -557,8 +590,8 @@ class SequenceMatcher:
 
     def reset(self) -> "SequenceMatcher":
         """Forget all frames (the next step starts a new query)."""
-        for name in ("n_reference_", "n_steps_", "window_grid_", "velocities_", "_cfg", "_ring", "_mring",
-                     "_buffers", "_stats"):
+        for name in ("n_reference_", "n_steps_", "window_grid_", "velocities_", "_cfg", "_sums", "_ring", "_mring",
+                     "_state", "_buffers", "_stats"):
             self.__dict__.pop(name, None)
         return self
 
@@ -571,23 +604,22 @@ class SequenceMatcher:
         self.velocities_ = cfg.velocities.copy()
         self.n_reference_ = n
         self.n_steps_ = 0
-        v_count = cfg.velocities.shape[0]
-        self._ring = np.zeros((v_count, int(cfg.grid[-1]) + 1, n))
-        self._mring = np.zeros(int(cfg.grid[-1]) + 1)
-        self._buffers = (np.empty((v_count, n)), np.empty((v_count, n)), np.empty((v_count, cfg.n_components, n)))
-        self._stats = _Stats(1, v_count, cfg.grid.shape[0], cfg.n_components, _needs_sub(cfg))
+        self._sums, self._ring, self._mring, self._state, self._buffers = _state(cfg, n)
+        self._stats = _Stats(1, cfg.velocities.shape[0], cfg.grid.shape[0], cfg.n_components, _needs_sub(cfg))
 
     def window_scores(self, length: int, velocity: float | None = None) -> np.ndarray:
         """``(N,)`` window scores ``s_ij(L, v)`` of the latest frame ``i`` at length ``L``.
 
-        Same policy and arithmetic as the matcher itself (query start: ``min(L, i+1)``
-        terms; outside the reference: neutral fill). ``L`` may not exceed ``l_max`` (the
-        ring buffer holds no more); ``velocity`` must be one of the matcher's velocities
+        Same policy and stored values as the matcher itself (query start:
+        ``min(L, i+1)`` terms; outside the reference: neutral fill): a candidate length
+        reads the matcher's own running sums, any other length is summed from the ring in
+        ``O(N L)``, with the same result. ``L`` may not exceed ``l_max`` (the ring holds
+        no more); ``velocity`` must be one of the matcher's velocities
         (default: ``1.0`` if searched, else the first).
         """
         if not hasattr(self, "n_steps_") or self.n_steps_ == 0:
             raise NotFittedError("window_scores needs at least one step(); call step(difference_row) first.")
-        check_scalar(length, "length", "SequenceMatcher.window_scores", int, 1, self._ring.shape[1] - 1)
+        check_scalar(length, "length", "SequenceMatcher.window_scores", int, 1, self._ring.shape[0] - 1)
         vel = self.velocities_
         if velocity is None:
             vi = int(np.flatnonzero(vel == 1.0)[0]) if np.any(vel == 1.0) else 0
@@ -598,7 +630,12 @@ class SequenceMatcher:
                     f"velocity {velocity!r} is not searched by this matcher; choose one of {vel.tolist()}.")
             vi = int(hits[0])
         s = np.empty(self.n_reference_)
-        _kernels().window_scores(self._ring[vi], self._mring, self.n_steps_ - 1, float(vel[vi]), int(length), s)
+        i, v = self.n_steps_ - 1, float(vel[vi])
+        hits = np.flatnonzero(self.window_grid_ == int(length))
+        if hits.size:  # the matcher's own running sums
+            _kernels().scores_from_sums(self._sums[vi, int(hits[0])], i, v, int(length), s)
+        else:  # any other length, summed term by term from the ring
+            _kernels().direct_scores(self._ring, self._mring, i, v, int(length), s)
         return s
 
     def step(self, difference_row: np.ndarray, return_curve: bool = False) -> SequenceMatch:
@@ -627,8 +664,8 @@ class SequenceMatcher:
         k = _kernels()
         cfg, st, i = self._cfg, self._stats, self.n_steps_
         s, work, resp = self._buffers
-        k.advance(self._ring, self._mring, i, row, cfg.velocities)
-        k.frame_stats(self._ring, self._mring, i, cfg.velocities, cfg.grid, cfg.approx_code, EM_ITERATIONS,
+        k.advance(self._ring, self._mring, self._state, i, 0, row)
+        k.frame_stats(self._sums, self._ring, self._mring, i, cfg.velocities, cfg.grid, cfg.approx_code, EM_ITERATIONS,
                       _em_stride(self.n_reference_), cfg.radius,
                       st.best_j[0], st.best_s[0], st.second_s[0], st.mean[0], st.std[0], st.weights[0],
                       st.locs[0], st.scales[0], st.sub[0], s, work, resp)

@@ -20,6 +20,16 @@ from catgraph.sequence import (
 V1 = (1.0,)  # the classic diagonal only: the slow references below score it
 
 
+def on_grid(d: np.ndarray) -> np.ndarray:
+    """``d`` rounded to multiples of 2**-10, each row's last value nudged so that the row's
+    mean is one too: values the matcher stores exactly (float32 multiples of its quantum),
+    so its scores equal the float64 loops below to rounding. The rounding of other input
+    is tested against its bound in test_sequence_velocity.py."""
+    q = np.rint(np.asarray(d, dtype=np.float64) * 1024.0)
+    q[:, -1] -= np.mod(q.sum(axis=1), q.shape[1])
+    return q / 1024.0
+
+
 def slow_scores(d: np.ndarray, length: int) -> np.ndarray:
     """s_ij(L) by a double loop. Edge policy: ``min(L, i + 1)`` terms; a term before
     the reference's start is its query row's mean difference."""
@@ -86,7 +96,7 @@ def planted(n_q=120, n_ref=150, seed=0):
     for i in range(n_q):
         if i + 20 < n_ref:
             d[i, i + 20] -= 2.5
-    return d
+    return on_grid(d)
 
 
 # ------------------------------------------------------------------ fixed windows
@@ -94,13 +104,13 @@ def planted(n_q=120, n_ref=150, seed=0):
 
 @pytest.mark.parametrize("length", [1, 3, 7, 40])
 def test_fixed_window_scores_match_double_loop(length):
-    d = np.random.default_rng(length).normal(size=(25, 31))
+    d = on_grid(np.random.default_rng(length).normal(size=(25, 31)))
     np.testing.assert_allclose(fixed_window_scores(d, length), slow_scores(d, length), rtol=1e-12, atol=1e-12)
 
 
 @pytest.mark.parametrize("length", [1, 5, 12])
 def test_fixed_window_batch_matches_reference(length):
-    d = np.random.default_rng(1).normal(size=(40, 60))
+    d = on_grid(np.random.default_rng(1).normal(size=(40, 60)))
     result = match_sequences(d, window=length, velocities=V1)
     expected = slow_scores(d, length)
     np.testing.assert_array_equal(result.match, expected.argmin(axis=1))
@@ -115,7 +125,7 @@ def test_fixed_window_recovers_planted_diagonal():
 
 
 def test_fixed_window_gap_confidence_matches_definition():
-    d = np.random.default_rng(2).normal(size=(30, 80))
+    d = on_grid(np.random.default_rng(2).normal(size=(30, 80)))
     result = match_sequences(d, window=4, radius=3, confidence="gap", velocities=V1)
     s = slow_scores(d, 4)
     for i in range(30):
@@ -186,11 +196,14 @@ def test_streaming_equals_batch_exactly(window, approximation, rule):
     assert matcher.n_steps_ == 60
 
 
-def test_streaming_memory_is_a_ring_of_l_max_plus_one_rows():
+def test_streaming_memory_is_one_float32_ring_and_running_sums():
     matcher = SequenceMatcher(window="adaptive", l_min=2, l_max=9, grid="all")
     for row in np.random.default_rng(0).normal(size=(40, 13)):
         matcher.step(row)
-    assert matcher._ring.shape == (len(matcher.velocities_), 10, 13)
+    # one ring of l_max + 1 rows shared by every velocity, one float64 sum per line,
+    # velocity and candidate length
+    assert matcher._ring.shape == (10, 13) and matcher._ring.dtype == np.float32
+    assert matcher._sums.shape == (len(matcher.velocities_), 8, 13) and matcher._sums.dtype == np.float64
 
 
 def test_streaming_reset_and_shape_check():
@@ -325,7 +338,7 @@ def test_blocked_batch_equals_single_block(monkeypatch):
 
 def test_mixture_fit_uses_a_strided_subsample_for_large_references():
     """Above EM_MAX_POINTS scores the mixture is fitted to every stride-th score."""
-    d = np.random.default_rng(8).normal(size=(4, 2500))
+    d = on_grid(np.random.default_rng(8).normal(size=(4, 2500)))
     result = match_sequences(d, window=3, approximation="gmm2", return_curves=True, velocities=V1)
     s = slow_scores(d[:, :], 3)[3 - 1]
     stride = 3  # ceil(2500 / 1024)

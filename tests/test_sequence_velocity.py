@@ -9,6 +9,22 @@ from catgraph.exceptions import InvalidParameterError
 from catgraph.sequence import DEFAULT_VELOCITIES, SequenceMatcher, fixed_window_scores, match_sequences
 
 
+def on_grid(d: np.ndarray) -> np.ndarray:
+    """Values the matcher stores exactly (see test_sequence.on_grid)."""
+    q = np.rint(np.asarray(d, dtype=np.float64) * 1024.0)
+    q[:, -1] -= np.mod(q.sum(axis=1), q.shape[1])
+    return q / 1024.0
+
+
+def stored_values(d: np.ndarray):
+    """The documented storage: float32, then the nearest multiple of the quantum
+    ``u = 2**(e - 31)`` (``max|d_0j| < 2**e``); row means rounded to multiples of ``u``."""
+    _, e = np.frexp(np.abs(d[0]).max())
+    u = 2.0 ** (int(e) - 31)
+    q = np.rint(d.astype(np.float32).astype(np.float64) / u) * u
+    return q, np.rint(q.mean(axis=1) / u) * u, u
+
+
 def slow_line_scores(d: np.ndarray, length: int, v: float) -> np.ndarray:
     """s_ij(L, v) by a triple loop: the line through (i, j) visits place
     j - (pos(i) - pos(i - t)) at frame i - t, pos(i) = floor(v i + 1/2); min(L, i + 1)
@@ -33,7 +49,7 @@ def slow_line_scores(d: np.ndarray, length: int, v: float) -> np.ndarray:
 @pytest.mark.parametrize("v", [1.0, -1.0, 0.5, -0.5, 2.0, -3.0, 1.5, 0.0, 9.0])
 @pytest.mark.parametrize("length", [1, 4, 11])
 def test_line_scores_match_triple_loop(v, length):
-    d = np.random.default_rng(int(10 * abs(v)) + length).normal(size=(26, 17))
+    d = on_grid(np.random.default_rng(int(10 * abs(v)) + length).normal(size=(26, 17)))
     np.testing.assert_allclose(fixed_window_scores(d, length, v), slow_line_scores(d, length, v), rtol=1e-12,
                                atol=1e-12)
 
@@ -45,7 +61,7 @@ def planted_line(v: float, n_q: int = 90, n_ref: int = 200, start: int = 60, see
     truth = np.array([start + int(np.floor(v * i + 0.5)) for i in range(n_q)])
     ok = (truth >= 0) & (truth < n_ref)
     d[np.flatnonzero(ok), truth[ok]] -= strength
-    return d, truth
+    return on_grid(d), truth
 
 
 @pytest.mark.parametrize("v", [-1.0, 2.0, 0.5, -2.0, 3.0])
@@ -114,7 +130,7 @@ def test_streaming_equals_batch_with_velocities(rule):
     np.testing.assert_array_equal(batch.velocity, [s.velocity for s in steps])
     np.testing.assert_array_equal(batch.window_length, [s.window_length for s in steps])
     np.testing.assert_array_equal(batch.log_p, np.array([s.log_p for s in steps]))
-    assert matcher._ring.shape == (4, 21, 60)  # one ring of l_max + 1 rows per velocity
+    assert matcher._ring.shape == (21, 60)  # one ring of l_max + 1 rows for every velocity
 
 
 def test_window_scores_per_velocity_and_hub_offsets():
@@ -145,3 +161,88 @@ def test_default_velocities_and_validation():
         match_sequences(np.zeros((3, 4)), velocities=(1.0, 1.0))
     with pytest.raises(InvalidParameterError, match="velocities"):
         match_sequences(np.zeros((3, 4)), velocities=(np.nan,))
+
+
+# ------------------------------------------------------------------ precision and threads
+
+
+def vectorised_line_scores(d: np.ndarray, length: int, v: float, means=None) -> np.ndarray:
+    """The triple loop of :func:`slow_line_scores`, vectorised over frames and places
+    (each window summed afresh: no running sums); ``means`` the fill per row."""
+    n_q, n = d.shape
+    pos = np.floor(v * np.arange(n_q) + 0.5).astype(np.int64)
+    means = d.mean(axis=1) if means is None else means
+    total = np.zeros((n_q, n))
+    count = np.minimum(length, np.arange(n_q) + 1)
+    j = np.arange(n)
+    for t in range(length):
+        rows = np.arange(t, n_q)  # frames i with a term t frames back
+        k = j[None, :] - (pos[rows] - pos[rows - t])[:, None]
+        inside = (k >= 0) & (k < n)
+        term = np.where(inside, d[rows - t][np.arange(rows.size)[:, None], np.clip(k, 0, n - 1)], means[rows - t, None])
+        total[rows] += term
+    return total / count[:, None]
+
+
+@pytest.mark.parametrize("v", [1.0, -0.5, 2.0])
+def test_stored_value_error_is_within_its_bound(v):
+    """Every term is the difference rounded once to float32 and to the quantum ``u``, so a
+    window mean differs from the float64 score by at most ``2**-24 max|d| + u``."""
+    rng = np.random.default_rng(11)
+    d = rng.normal(size=(60, 45)) * 7.0 + 3.0
+    d[5:9] *= 1e-7  # values far below the quantum's scale
+    length = 9
+    exact = slow_line_scores(d, length, v)
+    err = np.abs(fixed_window_scores(d, length, v) - exact)
+    _, _, u = stored_values(d)
+    bound = 2.0 ** -24 * np.abs(d).max() + u
+    assert err.max() <= bound
+    assert err.max() > 1e-3 * bound  # the rounding is there: a wrong bound would show
+
+
+@pytest.mark.parametrize("v", [1.0, -0.5, 3.0])
+def test_long_stream_is_exact(v):
+    """5,000 frames of running sums (an addition and a subtraction per frame) equal, bit for
+    bit, every window summed afresh from the stored values: multiples of one quantum add
+    exactly in float64, so nothing drifts (and exact ties stay ties)."""
+    rng = np.random.default_rng(12)
+    d = rng.normal(size=(5000, 23)) * 4.0 + 1.0
+    length = 40
+    got = fixed_window_scores(d, length, v)
+    values, means, _ = stored_values(d)
+    np.testing.assert_array_equal(got, vectorised_line_scores(values, length, v, means))
+    # the vectorised reference itself is the triple loop
+    small = on_grid(d[:30])
+    np.testing.assert_allclose(vectorised_line_scores(small, length, v), slow_line_scores(small, length, v), rtol=0,
+                               atol=1e-12)
+    matcher = SequenceMatcher(window=length, velocities=(v,))
+    for row in d:
+        matcher.step(row)
+    np.testing.assert_array_equal(matcher.window_scores(length, velocity=v), got[-1])
+
+
+def test_results_do_not_depend_on_the_thread_count():
+    import numba
+
+    d, _ = planted_line(2.0, n_q=70, n_ref=90, start=3)
+    kwargs = dict(l_min=2, l_max=30, grid=7, return_curves=True)
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = match_sequences(d, **kwargs)
+    finally:
+        numba.set_num_threads(before)
+    many = match_sequences(d, **kwargs)
+    np.testing.assert_array_equal(one.match, many.match)
+    np.testing.assert_array_equal(one.log_p, many.log_p)
+    np.testing.assert_array_equal(one.confidence, many.confidence)
+
+
+def test_window_scores_of_lengths_outside_the_grid_sum_the_ring():
+    d, _ = planted_line(-0.5, n_q=40, n_ref=35, start=30)
+    m = SequenceMatcher(l_min=2, l_max=12, grid=3, velocities=(-0.5, 1.0))
+    for row in d:
+        m.step(row)
+    assert 7 not in m.window_grid_
+    np.testing.assert_allclose(m.window_scores(7, velocity=-0.5), slow_line_scores(d, 7, -0.5)[-1], rtol=0,
+                               atol=1e-12)
