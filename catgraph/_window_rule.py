@@ -74,27 +74,29 @@ def _log_p(st: _Stats) -> np.ndarray:
 def _admissible(st: _Stats, cfg: _Config) -> np.ndarray:
     """``(n, V, G)``: windows whose best hypothesis is supported by its own recent frames.
 
-    Rules "consistent" and "sustained": every tested shorter sub-window of the window's
-    best hypothesis lies closer to the window's own score than to the mean score of random
-    places at that length. Rule "evident" also asks each of those sub-windows to lie at
-    least :data:`EVIDENT_SPREADS` common spreads below that mean: a recent stretch that is
-    not clearly better than a random place is no evidence that the line still holds.
+    Rules "consistent", "sustained" and "evident": every shorter sub-window of the window's
+    best hypothesis from ``recent_fraction * L`` on lies closer to the window's own score
+    than to the mean score of random places at that length. Rule "evident" also asks
+    *every* shorter sub-window to lie at least :data:`EVIDENT_SPREADS` common spreads below
+    that mean: a recent stretch that is not clearly better than a random place is no
+    evidence that the line still holds, however weak the window's own average is.
     """
     n, v_count, g_count = st.best_s.shape
     if not _needs_sub(cfg):
         return np.ones((n, v_count, g_count), dtype=bool)
-    # every tested shorter sub-window of the best hypothesis (same line) must lie closer to
+    lengths = cfg.grid.astype(np.float64)
+    shorter = lengths[None, :] < lengths[:, None]  # (G, H)
+    recent = shorter & (lengths[None, :] >= cfg.recent_fraction * lengths[:, None])
+    # every recent shorter sub-window of the best hypothesis (same line) must lie closer to
     # the window's own score than to the mean of random places at that length
     mid = 0.5 * (st.best_s[..., None] + st.mean[:, :, None, :])  # (n, V, G, H)
-    ok = st.sub <= mid
+    ok = (st.sub <= mid) | ~recent
     if cfg.rule == "evident":
-        # and every such sub-window must itself stand out from random places at its length:
-        # at least EVIDENT_SPREADS common spreads (the widest over the velocities) below their mean
+        # and every shorter sub-window must stand out from random places at its length: at
+        # least EVIDENT_SPREADS common spreads (the widest over the velocities) below their mean
         common = _common_std(st)[:, :, None, :]  # (n, 1, 1, H)
-        ok &= st.sub <= st.mean[:, :, None, :] - EVIDENT_SPREADS * common
-    lengths = cfg.grid.astype(np.float64)
-    tested = (lengths[None, :] < lengths[:, None]) & (lengths[None, :] >= cfg.recent_fraction * lengths[:, None])
-    admissible = np.all(ok | ~tested, axis=3)
+        ok &= (st.sub <= st.mean[:, :, None, :] - EVIDENT_SPREADS * common) | ~shorter
+    admissible = np.all(ok, axis=3)
     admissible[:, :, 0] = True
     return admissible
 
