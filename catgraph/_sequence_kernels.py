@@ -34,13 +34,13 @@ One frame updates each sum in ``O(1)``:
 ``i < L``); a line entering the reference at frame ``i`` was outside for all earlier
 frames, so it starts from the sum of the row means of the window's earlier frames.
 Every term is a multiple of ``u``, so every addition is exact while ``|S| < 2^53 u``
-(differences below about ``2^13`` times the first row's largest at ``l_max = 500``): the running sums never drift, and a window summed term by term
-(:func:`direct_scores`) gives the same bits.
+(differences below about ``2^13`` times the first row's largest at ``l_max = 500``):
+the running sums never drift, and a window summed term by term (:func:`direct_scores`)
+gives the same bits.
 
-The batch form (:func:`run_batch`) lays the ring's rows and a block of new rows out in
-time order in one history and addresses row ``t`` as ``hist[(t - base) % M]``; the
-streaming form passes the ring itself with ``base = 0``. Both run
-:func:`_velocity_stats` on the same values, so their results agree bit for bit.
+The streaming and the batch form both call :func:`run_batch` (one row, or blocks of
+rows with a ring a few rows longer), which runs :func:`_velocity_stats` on the same
+stored values in the same order, so their results agree bit for bit.
 """
 
 from __future__ import annotations
@@ -82,44 +82,41 @@ def quantise(x, unit):
 
 
 @njit
-def advance(ring, mring, state, i, base, d_row):
-    """Store query frame ``i``'s row, quantised, in ``ring[(i - base) % R]`` and its
+def advance(ring, mring, state, i, d_row):
+    """Store query frame ``i``'s row, quantised, in ``ring[i % R]`` and its
     quantised mean in ``mring``; frame 0 fixes the quantum ``state[0]``."""
     if i == 0:
         state[0] = unit_of(d_row)
     unit = state[0]
     r = ring.shape[0]
-    out = ring[(i - base) % r]
+    out = ring[i % r]
     n = d_row.shape[0]
     total = 0.0
     for j in range(n):
         x = quantise(d_row[j], unit)
         out[j] = np.float32(x)
         total += x
-    mring[(i - base) % r] = np.rint(total / n / unit) * unit
+    mring[i % r] = np.rint(total / n / unit) * unit
 
 
 @njit
-def _fill_sum(mhist, base, i, eff):
+def _fill_sum(mring, i, eff):
     """Sum of the row means of frames ``i - eff + 1 .. i - 1`` (a new line's earlier terms)."""
-    m = mhist.shape[0]
+    r = mring.shape[0]
     total = 0.0
     for t in range(i - eff + 1, i):
-        total += mhist[(t - base) % m]
+        total += mring[t % r]
     return total
 
 
 @njit
-def _update_lines(sums_g, hist, mhist, base, i, v, length, s):
+def _update_lines(sums_g, ring, mring, i, v, length, s):
     """Advance one velocity's window sums of length ``length`` to frame ``i`` and write the
     scores ``s_ij = S / L_eff`` in place order into ``s``.
-
-    Row ``t`` of the history is ``hist[(t - base) % M]`` (``M = len(hist)``): the ring
-    itself with ``base = 0``, or a block of consecutive rows in the batch form.
     """
-    m = hist.shape[0]
+    r = ring.shape[0]
     n = sums_g.shape[0]
-    cur = hist[(i - base) % m]
+    cur = ring[i % r]
     p = position(v, i)
     sbase = p % n  # slot of place j is (j - sbase) mod N
     eff = length if length <= i + 1 else i + 1
@@ -142,7 +139,7 @@ def _update_lines(sums_g, hist, mhist, base, i, v, length, s):
             e_lo = 0
             e_hi = 0
     if e_hi > e_lo:
-        fill = _fill_sum(mhist, base, i, eff)
+        fill = _fill_sum(mring, i, eff)
         for j in range(e_lo, e_hi):
             slot = j - sbase
             if slot < 0:
@@ -152,8 +149,8 @@ def _update_lines(sums_g, hist, mhist, base, i, v, length, s):
             s[j] = val / eff
     # the other places continue their line: [0, e_lo) and [e_hi, n)
     if i >= length:
-        old = hist[(i - length - base) % m]
-        m_old = mhist[(i - length - base) % m]
+        old = ring[(i - length) % r]
+        m_old = mring[(i - length) % r]
         off = p - position(v, i - length)  # the line through j met place j - off then
     else:
         old = cur
@@ -331,7 +328,7 @@ def _gmm_em(s, stride, mean, std, n_iter, w, mu, sd, resp, coef, inv):
 
 
 @njit
-def _velocity_stats(sums_v, hist, mhist, base, i, v, grid, approx, n_iter, em_stride, radius,
+def _velocity_stats(sums_v, ring, mring, i, v, grid, approx, n_iter, em_stride, radius,
                     best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
     """Advance one velocity's window sums to frame ``i`` and summarise every window.
 
@@ -344,7 +341,7 @@ def _velocity_stats(sums_v, hist, mhist, base, i, v, grid, approx, n_iter, em_st
     coef = np.empty(n_components)
     inv = np.empty(n_components)
     for g in range(g_count):
-        _update_lines(sums_v[g], hist, mhist, base, i, v, grid[g], s)
+        _update_lines(sums_v[g], ring, mring, i, v, grid[g], s)
         shift = s[0]
         jb = 0
         vb = s[0]
@@ -394,64 +391,42 @@ def _velocity_stats(sums_v, hist, mhist, base, i, v, grid, approx, n_iter, em_st
 
 
 @njit(parallel=True)
-def frame_stats(sums, ring, mring, i, velocities, grid, approx, n_iter, em_stride, radius,
-                best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
-    """Advance the window sums to query frame ``i`` (already in the ring, :func:`advance`)
-    and compute everything the selection rules need, per velocity and window.
-
-    Outputs (``V`` velocities, ``G = len(grid)``, ``K`` components): ``best_j, best_s,
-    second_s, mean, std`` ``(V, G)``; ``weights, locs, scales`` ``(V, G, K)`` — the
-    approximation's components; ``sub`` ``(V, G, G)`` (or ``(V, G, 0)`` when not needed)
-    with ``sub[v, g, h] = s_{i, best_j[v, g]}(grid[h], v)``, window ``g``'s best hypothesis
-    scored over window ``h`` along the same line. Mixtures are fitted to every
-    ``em_stride``-th score. ``second_s`` is the best score more than ``radius`` places
-    from ``best_j`` at the same velocity (``+inf`` where none exists). Scratch ``s``
-    ``(V, N)``; ``work`` ``(V, N)`` (robust) and ``resp`` ``(V, K, N)`` (mixtures), else
-    empty.
-
-    The velocities run in parallel threads; each reads the shared ring and writes only
-    its own sums and outputs, so the numbers do not depend on the thread count.
-    """
-    for vi in prange(velocities.shape[0]):
-        _velocity_stats(sums[vi], ring, mring, 0, i, velocities[vi], grid, approx, n_iter, em_stride, radius,
-                        best_j[vi], best_s[vi], second_s[vi], mean[vi], std[vi], weights[vi], locs[vi],
-                        scales[vi], sub[vi], s[vi], work[vi], resp[vi])
-
-
-@njit(parallel=True)
 def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_iter, em_stride, radius,
               best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
-    """:func:`advance` then :func:`frame_stats` for every row of ``d``, in order; row
-    ``t`` of ``d`` is query frame ``start + t``. The state (``sums``, ``ring``, ``mring``)
-    starts as zeros and carries over between blocks.
+    """Match the rows of ``d`` in order (row ``t`` is query frame ``start + t``): store
+    each (:func:`advance`) and compute everything the selection rules need, per frame,
+    velocity and window. The streaming form calls it with one row, the batch form with
+    blocks of rows; the state (``sums``, ``ring``, ``mring``, ``state``) starts as zeros
+    and carries over from call to call.
 
-    One parallel region for the whole block (no synchronisation per frame): the ring's
-    rows and the block's rows, rounded and averaged by :func:`advance` itself, are laid
-    out in time order in one history, and each velocity's thread runs
-    :func:`_velocity_stats` over every frame of the block, so every number equals the
-    streaming form's.
+    Outputs (``n`` rows, ``V`` velocities, ``G = len(grid)``, ``K`` components):
+    ``best_j, best_s, second_s, mean, std`` ``(n, V, G)``; ``weights, locs, scales``
+    ``(n, V, G, K)`` — the approximation's components; ``sub`` ``(n, V, G, G)`` (or
+    ``(n, V, G, 0)`` when not needed) with ``sub[t, v, g, h] = s_{i, best_j[t, v, g]}(grid[h], v)``,
+    window ``g``'s best hypothesis scored over window ``h`` along the same line. Mixtures
+    are fitted to every ``em_stride``-th score. ``second_s`` is the best score more than
+    ``radius`` places from ``best_j`` at the same velocity (``+inf`` where none exists).
+    Scratch ``s`` ``(V, N)``; ``work`` ``(V, N)`` (robust) and ``resp`` ``(V, K, N)``
+    (mixtures), else empty.
+
+    The ring holds ``R >= max(grid) + 1`` rows, so ``C = R - max(grid)`` new rows fit
+    beside the longest window's history: the rows are stored ``C`` at a time, then the
+    velocities run in parallel threads over those ``C`` frames (one parallel region per
+    ``C`` frames), each reading the shared ring and writing only its own sums and
+    outputs, so the numbers depend neither on ``C`` nor on the thread count.
     """
-    r = ring.shape[0]
+    chunk = ring.shape[0] - grid[grid.shape[0] - 1]
     n_rows = d.shape[0]
-    hist = np.zeros((r + n_rows, ring.shape[1]), dtype=np.float32)
-    mhist = np.zeros(r + n_rows)
-    base = start - r  # row t of the history is hist[t - base]
-    for t in range(start - r, start):
-        if t >= 0:
-            hist[t - base] = ring[t % r]
-            mhist[t - base] = mring[t % r]
-    for t in range(n_rows):
-        advance(hist, mhist, state, start + t, base, d[t])  # start + t - base < len(hist): no wrap
-    for vi in prange(velocities.shape[0]):
-        for t in range(n_rows):
-            _velocity_stats(sums[vi], hist, mhist, base, start + t, velocities[vi], grid, approx, n_iter,
-                            em_stride, radius, best_j[t, vi], best_s[t, vi], second_s[t, vi], mean[t, vi],
-                            std[t, vi], weights[t, vi], locs[t, vi], scales[t, vi], sub[t, vi], s[vi], work[vi],
-                            resp[vi])
-    for t in range(start + n_rows - r, start + n_rows):
-        if t >= 0:
-            ring[t % r] = hist[t - base]
-            mring[t % r] = mhist[t - base]
+    for c0 in range(0, n_rows, chunk):
+        c1 = c0 + chunk if c0 + chunk < n_rows else n_rows
+        for t in range(c0, c1):
+            advance(ring, mring, state, start + t, d[t])
+        for vi in prange(velocities.shape[0]):
+            for t in range(c0, c1):
+                _velocity_stats(sums[vi], ring, mring, start + t, velocities[vi], grid, approx, n_iter,
+                                em_stride, radius, best_j[t, vi], best_s[t, vi], second_s[t, vi], mean[t, vi],
+                                std[t, vi], weights[t, vi], locs[t, vi], scales[t, vi], sub[t, vi], s[vi],
+                                work[vi], resp[vi])
 
 
 @njit
@@ -465,6 +440,6 @@ def fixed_scores(d, length, v):
     state = np.zeros(1)
     sums = np.zeros(n)
     for i in range(n_q):
-        advance(ring, mring, state, i, 0, d[i])
-        _update_lines(sums, ring, mring, 0, i, v, length, out[i])
+        advance(ring, mring, state, i, d[i])
+        _update_lines(sums, ring, mring, i, v, length, out[i])
     return out

@@ -401,14 +401,15 @@ def _prepare_rows(d: np.ndarray, cfg: _Config) -> np.ndarray:
 
 
 _BLOCK_VALUES = 4_000_000
-_BLOCK_ROW_VALUES = 32_000_000
+_CHUNK_VALUES = 1 << 24
 
 
-def _state(cfg: _Config, n: int):
+def _state(cfg: _Config, n: int, chunk: int = 1):
     """The matcher's state for ``N = n`` places: the window sums, the float32 ring of the
-    last ``l_max + 1`` rows with their means, and the scratch the kernels need (the
-    robust and mixture scratch only for those approximations)."""
-    v_count, g_count, rows = cfg.velocities.shape[0], cfg.grid.shape[0], int(cfg.grid[-1]) + 1
+    last ``l_max + chunk`` rows (``chunk`` new rows are stored at a time) with their
+    means, and the scratch the kernels need (the robust and mixture scratch only for those
+    approximations)."""
+    v_count, g_count, rows = cfg.velocities.shape[0], cfg.grid.shape[0], int(cfg.grid[-1]) + chunk
     sums = np.zeros((v_count, g_count, n))
     ring = np.zeros((rows, n), dtype=np.float32)
     mring = np.zeros(rows)
@@ -504,10 +505,11 @@ def match_sequences(
     k = _kernels()
     g = cfg.grid.shape[0]
     v_count = cfg.velocities.shape[0]
-    sums, ring, mring, state, scratch = _state(cfg, n)
-    # rows are processed in blocks so that the (block, V, G, G) sub-window scores and the
-    # block's float32 copy of its rows stay small
-    block = max(1, min(n_q, _BLOCK_VALUES // (v_count * g * g), _BLOCK_ROW_VALUES // n))
+    # the ring holds up to 64 rows more than the longest window: the kernel stores that
+    # many rows at a time, then runs the velocities in parallel over those frames
+    sums, ring, mring, state, scratch = _state(cfg, n, max(1, min(64, _CHUNK_VALUES // n)))
+    # rows are processed in blocks so that the (block, V, G, G) sub-window scores stay small
+    block = max(1, min(n_q, _BLOCK_VALUES // (v_count * g * g)))
     parts = []
     for start in range(0, n_q, block):
         stop = min(n_q, start + block)
@@ -664,11 +666,9 @@ class SequenceMatcher:
         k = _kernels()
         cfg, st, i = self._cfg, self._stats, self.n_steps_
         s, work, resp = self._buffers
-        k.advance(self._ring, self._mring, self._state, i, 0, row)
-        k.frame_stats(self._sums, self._ring, self._mring, i, cfg.velocities, cfg.grid, cfg.approx_code, EM_ITERATIONS,
-                      _em_stride(self.n_reference_), cfg.radius,
-                      st.best_j[0], st.best_s[0], st.second_s[0], st.mean[0], st.std[0], st.weights[0],
-                      st.locs[0], st.scales[0], st.sub[0], s, work, resp)
+        k.run_batch(row[None, :], i, self._sums, self._ring, self._mring, self._state, cfg.velocities, cfg.grid,
+                    cfg.approx_code, EM_ITERATIONS, _em_stride(self.n_reference_), cfg.radius, st.best_j, st.best_s,
+                    st.second_s, st.mean, st.std, st.weights, st.locs, st.scales, st.sub, s, work, resp)
         self.n_steps_ = i + 1
         match, score, conf, length, velocity, log_p = _decide(st, cfg, np.array([i]), return_curve, row[None, :])
         return SequenceMatch(
