@@ -429,6 +429,11 @@ def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_it
                                 work[vi], resp[vi])
 
 
+def matcher_kernel(approx):
+    """The compiled matcher for an approximation code (the signature of :func:`run_batch`)."""
+    return run_batch
+
+
 @njit
 def fixed_scores(d, length, v):
     """All scores ``s_ij(L, v)`` for one window and velocity, ``(n_query, N)`` (batch
@@ -443,3 +448,4 @@ def fixed_scores(d, length, v):
         advance(ring, mring, state, i, d[i])
         _update_lines(sums, ring, mring, i, v, length, out[i])
     return out
+

@@ -502,7 +502,7 @@ def match_sequences(
     d = np.ascontiguousarray(check_array(differences, "difference matrix", ndim=2))
     d = _prepare_rows(d, cfg)
     n_q, n = d.shape
-    k = _kernels()
+    run = _kernels().matcher_kernel(cfg.approx_code)
     g = cfg.grid.shape[0]
     v_count = cfg.velocities.shape[0]
     # the ring holds up to 64 rows more than the longest window: the kernel stores that
@@ -514,9 +514,9 @@ def match_sequences(
     for start in range(0, n_q, block):
         stop = min(n_q, start + block)
         st = _Stats(stop - start, v_count, g, cfg.n_components, _needs_sub(cfg))
-        k.run_batch(d[start:stop], start, sums, ring, mring, state, cfg.velocities, cfg.grid, cfg.approx_code,
-                    EM_ITERATIONS, _em_stride(n), cfg.radius, st.best_j, st.best_s, st.second_s, st.mean, st.std,
-                    st.weights, st.locs, st.scales, st.sub, *scratch)
+        run(d[start:stop], start, sums, ring, mring, state, cfg.velocities, cfg.grid, cfg.approx_code,
+            EM_ITERATIONS, _em_stride(n), cfg.radius, st.best_j, st.best_s, st.second_s, st.mean, st.std,
+            st.weights, st.locs, st.scales, st.sub, *scratch)
         parts.append(_decide(st, cfg, np.arange(start, stop), return_curves, d[start:stop]))
     match, score, conf, length, velocity = (np.concatenate([p[c] for p in parts]) for c in range(5))
     log_p = np.concatenate([p[5] for p in parts]) if return_curves else None
@@ -663,12 +663,12 @@ class SequenceMatcher:
                 f"{self.n_reference_}; call reset() before matching against another reference."
             )
         row = _prepare_rows(row, self._cfg)
-        k = _kernels()
         cfg, st, i = self._cfg, self._stats, self.n_steps_
         s, work, resp = self._buffers
-        k.run_batch(row[None, :], i, self._sums, self._ring, self._mring, self._state, cfg.velocities, cfg.grid,
-                    cfg.approx_code, EM_ITERATIONS, _em_stride(self.n_reference_), cfg.radius, st.best_j, st.best_s,
-                    st.second_s, st.mean, st.std, st.weights, st.locs, st.scales, st.sub, s, work, resp)
+        run = _kernels().matcher_kernel(cfg.approx_code)
+        run(row[None, :], i, self._sums, self._ring, self._mring, self._state, cfg.velocities, cfg.grid,
+            cfg.approx_code, EM_ITERATIONS, _em_stride(self.n_reference_), cfg.radius, st.best_j, st.best_s,
+            st.second_s, st.mean, st.std, st.weights, st.locs, st.scales, st.sub, s, work, resp)
         self.n_steps_ = i + 1
         match, score, conf, length, velocity, log_p = _decide(st, cfg, np.array([i]), return_curve, row[None, :])
         return SequenceMatch(
