@@ -80,6 +80,7 @@ __all__ = [
     "map_bootstrap",
     "map_bootstrap_samples",
     "warm_up",
+    "warm_up_batch",
 ]
 
 #: Models a :class:`LiveLocalizer` runs: the filter's observation models
@@ -568,4 +569,55 @@ def warm_up(models: tuple[str, ...] = ("combined", "tempered", "histogram-bootst
             for k in range(steps):
                 live.step(descriptors[100 + k])
             seconds[f"{model}/{layout}"] = time.perf_counter() - start
+    return seconds
+
+
+#: What :func:`warm_up_batch` runs: every registry method, the filter with every model
+#: in both modes (the batch commands ``match``, ``localize``, ``compare`` and the demo).
+BATCH_PLAN = (
+    ("single-frame", {}),
+    ("sequence", {"window": 10}),
+    ("sequence", {"window": "adaptive"}),
+    ("histogram", {"learning": "online", "n_init": 20}),
+    ("histogram", {"learning": "bootstrap"}),
+    *(("filter", {"model": model}) for model in FILTER_MODELS),  # mode auto: the grid on these maps
+    *(("filter", {"model": model, "mode": "particles", "n_particles": 100}) for model in FILTER_MODELS),
+)
+
+
+def warm_up_batch(plan: tuple = BATCH_PLAN) -> dict[str, float]:
+    """Compile (and cache on disk) the kernels of the batch methods once, on tiny inputs.
+
+    Runs each ``(method, params)`` of ``plan`` through :func:`catgraph.experiment.run_method`
+    twice: on a small synthetic image world (a place graph with junctions) and on a
+    chain of random descriptors (the straight-route paths a map without positions
+    takes), so a first ``catgraph demo``, ``match`` or ``localize`` after it loads its
+    kernels instead of compiling them.
+
+    Returns
+    -------
+    dict
+        Seconds spent per ``"method/params/input"``.
+    """
+    from .datasets.synthetic import make_world
+    from .experiment import prepared_from, run_method
+    from .traverse import Traverse
+
+    world = make_world(seed=0, blocks=(2, 2), as_images=True)
+    rng = np.random.default_rng(0)
+    chain = np.cumsum(rng.standard_normal((400, 16)), axis=0).astype(np.float32)
+    inputs = {
+        "graph": prepared_from(world.reference, world.query.take(np.arange(min(80, len(world.query)))),
+                               junction_radius_m=world.junction_radius_m),
+        "chain": prepared_from(Traverse(chain, meta={"kind": "descriptors"}, name="warm-up map"),
+                               Traverse(chain[50:130] + 0.1 * rng.standard_normal((80, 16)).astype(np.float32),
+                                        meta={"kind": "descriptors"}, name="warm-up query"),
+                               frontend={"metric": "sad"}),
+    }
+    seconds = {}
+    for name, prepared in inputs.items():
+        for method, params in plan:
+            start = time.perf_counter()
+            run_method(method, params, prepared)
+            seconds[f"{method}/{','.join(f'{k}={v}' for k, v in params.items())}/{name}"] = time.perf_counter() - start
     return seconds

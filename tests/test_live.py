@@ -210,3 +210,19 @@ def test_warm_up_steps_every_requested_path():
     assert all(v >= 0 for v in seconds.values())
     with pytest.raises(InvalidParameterError, match="unknown live models"):
         warm_up(models=("kalman",))
+
+
+def test_batch_warm_up_plan_is_valid_for_the_registry_and_runs_both_inputs():
+    from catgraph.live import BATCH_PLAN, warm_up_batch
+    from catgraph.methods import FILTER_MODELS, METHODS, resolve_params
+
+    assert {m for m, _ in BATCH_PLAN} == set(METHODS)
+    filters = [p for m, p in BATCH_PLAN if m == "filter"]
+    assert {p["model"] for p in filters} == set(FILTER_MODELS)
+    assert {p.get("mode", "auto") for p in filters} == {"auto", "particles"}
+    for method, params in BATCH_PLAN:
+        resolve_params(method, params)  # a renamed or refused parameter fails here, not at install time
+    seconds = warm_up_batch(plan=(("single-frame", {}), ("sequence", {"window": 10})))
+    assert sorted(seconds) == ["sequence/window=10/chain", "sequence/window=10/graph",
+                               "single-frame//chain", "single-frame//graph"]
+    assert all(v >= 0 for v in seconds.values())

@@ -6,7 +6,8 @@
 
 Calls :func:`catgraph.live.warm_up`: steps a tiny built-in map through every live path
 (both map layouts; the combined, tempered and bootstrap filters; the sequence matcher),
-so the kernels are compiled once and cached on disk (:mod:`catgraph._jit`). Every later
+then :func:`catgraph.live.warm_up_batch`: every batch method (single frame, sequence,
+histogram, the filter with every model, grid and particles) on tiny inputs, so the kernels are compiled once and cached on disk (:mod:`catgraph._jit`). Every later
 process loads them instead of compiling: without it the first run after an install
 pays the compilation (measured in ``benchmarks/results/live.md``). Optional: nothing
 depends on it but start-up time.
@@ -33,10 +34,11 @@ def register_warm_up(sub) -> None:
 
 def cmd_warm_up(args) -> int:
     from .._jit import cache_location
-    from ..live import warm_up
+    from ..live import warm_up, warm_up_batch
 
     start = time.perf_counter()
     warm_up()
+    warm_up_batch()
     if not args.quiet:
         print(f"compiled and cached the kernels in {cache_location()} ({time.perf_counter() - start:.1f} s)")
     return 0
