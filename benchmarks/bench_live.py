@@ -81,6 +81,14 @@ def _floor_codes_ms(n: int, repeats: int = 7) -> float:
     return _floor_ms(codes, repeats)
 
 
+def _floor_numpy_codes_ms(n: int, repeats: int = 15) -> float:
+    """A plain memory read of ``N × d`` bytes: numpy's sum of the codes viewed as uint64
+    (one thread, streaming; no arithmetic on the bytes)."""
+    codes = np.random.default_rng(0).integers(0, 256, size=(n, DIM), dtype=np.uint8).reshape(-1).view(np.uint64)
+    codes.sum()
+    return _median_ms(codes.sum, repeats)[0]
+
+
 def _median_ms(fn, repeats: int) -> tuple[float, float]:
     times = []
     for _ in range(repeats):
@@ -127,6 +135,7 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
     query = rng.standard_normal((frames, DIM), dtype=np.float32)
     if case.endswith("-u8"):
         out["floor_u8_ms"] = _floor_codes_ms(n)
+        out["floor_np_u8_ms"] = _floor_numpy_codes_ms(n)
     if case in ("row", "row-1t", "cosine", "row-u8"):
         if case == "row-1t":
             import catgraph.differences
@@ -340,7 +349,8 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
             if key == "median_ms":
                 text += f" (p99 {_fmt(r['p99_ms'])})"
             if ratio and np.isfinite(r.get(floor, float("nan"))):
-                text += f", ×{r[key] / r[floor]:.1f} floor" + (" (uint8)" if floor == "floor_u8_ms" else "")
+                text += f", ×{r[key] / r[floor]:.1f} floor" + {"floor_u8_ms": " (uint8)",
+                                                                "floor_np_u8_ms": " (numpy read)"}.get(floor, "")
             cells.append(text)
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
 
@@ -350,8 +360,11 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
 
     floor_row()
     floor_row("row-u8", "floor_u8_ms", "floor (uint8): read the compact reference (N × 512 bytes) once, all cores")
+    floor_row("row-u8", "floor_np_u8_ms", "floor (uint8, plain memory read): numpy sum of the codes as uint64, "
+              "one thread")
     row("difference row + normalisation (SAD, prepared map, all cores)", "row")
     row("**compact layout** (uint8 codes): row + normalisation, all cores", "row-u8", floor="floor_u8_ms")
+    row("the same, against the plain memory read", "row-u8", floor="floor_np_u8_ms")
     row("the same, one thread", "row-1t")
     row("`difference_row`, cosine, raw reference (validates every call)", "cosine-raw")
     row("prepared cosine row + normalisation", "cosine")
@@ -364,6 +377,7 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
     row("… of which front-end", "live-u8", "frontend_ms", ratio=False)
     row("… of which difference row", "live-u8", "difference_ms", ratio=False)
     row("… of which models + filter", "live-u8", "model_ms", ratio=False)
+    row("full live step on the compact map, against the plain memory read", "live-u8", floor="floor_np_u8_ms")
     lines += ["", "Peak RSS of each process (reference, buffers, models; Python and numba ≈ 150–200 MB):", "",
               "| process | " + " | ".join(f"N = {n:,}" for n in sizes) + " |", "|---|" + "---|" * len(sizes)]
     for label, case in (("difference rows (SAD)", "row"), ("difference rows, compact layout (the peak includes the float map while it is coded; the codes are N × 512 B)", "row-u8"),
