@@ -240,7 +240,20 @@ print(json.dumps({"import_and_map_s": t1 - t0, "first_row_s": t2 - t1, "twenty_c
 """
 
 
-def cold_start(layout: str = "uint8", tree: str | None = None, warm_up: bool = False) -> dict:
+_COLD_CLI_SCRIPT = _COLD_SCRIPT.split("t0 = time.perf_counter()")[0] + """
+t0 = time.perf_counter()
+from catgraph.cli.main import main
+code = main(ARGV)
+t1 = time.perf_counter()
+assert code == 0, code
+print(json.dumps({"command_s": t1 - t0, "compiled_s": dict(sorted(compiled.items(), key=lambda kv: -kv[1]))}))
+"""
+
+#: The command line the CLI cold start runs (the demo's three methods on a small world).
+COLD_CLI_ARGV = ["demo", "--particles", "500", "--quiet", "--out", "OUT"]
+
+
+def cold_start(layout: str = "uint8", tree: str | None = None, warm_up: bool = False, cli: bool = False) -> dict:
     """The same short live run three times in fresh processes with an empty numba cache
     directory (cold, then warm twice). ``tree``: import catgraph from that checkout
     (a frozen copy, so no file changes between the runs and invalidates the cache).
@@ -253,10 +266,13 @@ def cold_start(layout: str = "uint8", tree: str | None = None, warm_up: bool = F
     script = _COLD_SCRIPT.replace("LAYOUT", repr(layout))
     warm_up_s = None
     with tempfile.TemporaryDirectory() as cache:
-        if warm_up:
+        if cli:
+            argv = [cache + "/demo" if a == "OUT" else a for a in COLD_CLI_ARGV]
+            script = _COLD_CLI_SCRIPT.replace("ARGV", repr(argv))
+        if warm_up:  # the install step: `catgraph warm-up` (live paths and batch methods)
             start = time.perf_counter()
-            subprocess.run([sys.executable, "-c", "import catgraph.live as l; l.warm_up()"], check=True,
-                           env={**env, "NUMBA_CACHE_DIR": cache})
+            subprocess.run([sys.executable, "-c", "from catgraph.cli.main import main; main(['warm-up', '-q'])"],
+                           check=True, env={**env, "NUMBA_CACHE_DIR": cache})
             warm_up_s = time.perf_counter() - start
         for label in ("first after warm-up" if warm_up else "cold", "warm", "warm"):
             start = time.perf_counter()
@@ -268,7 +284,44 @@ def cold_start(layout: str = "uint8", tree: str | None = None, warm_up: bool = F
             row = json.loads(proc.stdout.strip().splitlines()[-1])
             row.update(label=label, process_s=wall)
             runs.append(row)
-    return {"runs": runs, "layout": layout, "tree": tree, "warm_up_s": warm_up_s}
+    return {"runs": runs, "layout": layout, "tree": tree, "warm_up_s": warm_up_s,
+            "argv": COLD_CLI_ARGV if cli else None}
+
+
+# ---------------------------------------------------------------------------------------
+# batch commands on a large saved map
+
+#: ``(label, arguments after the map and query)`` of :func:`batch_commands`.
+BATCH_COMMANDS = (
+    ("match --window 50", ["match", "--window", "50"]),
+    ("match --window adaptive", ["match", "--window", "adaptive"]),
+    ("localize --model combined", ["localize", "--model", "combined"]),
+    ("localize --model adaptive", ["localize", "--model", "adaptive"]),
+)
+
+
+def batch_commands(map_file: str, query_file: str, tree: str | None = None) -> dict:
+    """Peak RSS (``getrusage`` of the child) and wall time of each batch command on a
+    saved map, one fresh process each, one after the other."""
+    env = dict(os.environ)
+    if tree:
+        env["PYTHONPATH"] = tree + os.pathsep + env.get("PYTHONPATH", "")
+    rows = []
+    with tempfile.TemporaryDirectory() as folder:
+        for label, args in BATCH_COMMANDS:
+            script = ("import resource, sys, time; from catgraph.cli.main import main; t = time.perf_counter(); "
+                      f"code = main({[args[0], '--map', map_file, query_file, *args[1:], '-q', '-o', folder + '/out.json']!r}); "
+                      "print(code, time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)")
+            proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env)
+            if proc.returncode != 0:
+                rows.append({"label": label, "error": proc.stderr.strip().splitlines()[-1]})
+                continue
+            code, seconds, peak = proc.stdout.strip().splitlines()[-1].split()
+            n_query = len(json.loads(Path(folder, "out.json").read_text())["frames"]["match"])
+            rows.append({"label": label, "exit": int(code), "seconds": float(seconds), "peak_rss_mb": float(peak),
+                         "ms_per_frame": 1000.0 * float(seconds) / n_query})
+            print(f"  {rows[-1]}", file=sys.stderr, flush=True)
+    return {"map": map_file, "query": query_file, "rows": rows}
 
 
 # ---------------------------------------------------------------------------------------
@@ -325,7 +378,8 @@ def _fmt(v, digits=1):
 
 
 def write_report(results: list[dict], cold: dict | None, path: Path, shards: dict | None = None,
-                 after_warm_up: dict | None = None, shards_uint8: dict | None = None) -> None:
+                 after_warm_up: dict | None = None, shards_uint8: dict | None = None,
+                 cli_cold: dict | None = None, batch: dict | None = None) -> None:
     by = {(r.get("case"), r.get("n")): r for r in results if "error" not in r}
     sizes = sorted({r["n"] for r in results if "n" in r})
     lines = ["# Live localisation: time per frame, memory, cold start", "",
@@ -432,6 +486,26 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
                          f"{r['first_row_s']:.2f} | {r['twenty_combined_steps_s']:.2f} | "
                          f"{sum(r.get('compiled_s', {}).values()):.2f} |")
         lines += ["", f"First run / warm: ×{runs[0]['process_s'] / warm:.2f}."]
+    for key, c in (cli_cold or {}).items():
+        runs = c["runs"]
+        warm = np.median([r["process_s"] for r in runs[1:]])
+        lines += ["", "### `catgraph " + " ".join(c["argv"]) + "`" +
+                  (f", after `catgraph warm-up` ({c['warm_up_s']:.1f} s, an install step)" if c.get("warm_up_s")
+                   else ", empty cache"), "",
+                  "| run | process wall s | command s | compiled s | largest compilations |", "|---|---|---|---|---|"]
+        for r in runs:
+            top = ", ".join(f"`{k.split('.')[-1]}` {v:.1f}" for k, v in list(r["compiled_s"].items())[:4]) or "—"
+            lines.append(f"| {r['label']} | {r['process_s']:.2f} | {r['command_s']:.2f} | "
+                         f"{sum(r['compiled_s'].values()):.2f} | {top} |")
+        lines += ["", f"First run / warm: ×{runs[0]['process_s'] / warm:.2f}."]
+    if batch:
+        lines += ["", "## The batch commands on a saved map", "",
+                  f"`catgraph <command> --map {Path(batch['map']).name} {Path(batch['query']).name}`, one fresh process "
+                  "each, peak RSS of the process (`getrusage`):", "",
+                  "| command | peak RSS | ms / frame |", "|---|---|---|"]
+        for r in batch["rows"]:
+            lines.append(f"| `{r['label']}` | " + (f"failed: {r['error']} | |" if "error" in r else
+                                                   f"{r['peak_rss_mb']:.0f} MB | {r['ms_per_frame']:.1f} |"))
     for s in (shards, shards_uint8):
         if not s:
             continue
@@ -463,6 +537,9 @@ def main() -> None:
     parser.add_argument("--cold-start", action="store_true", help="measure only the cold start")
     parser.add_argument("--tree", help="with --cold-start: import catgraph from this checkout (a frozen copy)")
     parser.add_argument("--warm-up", action="store_true", help="with --cold-start: run catgraph.live.warm_up first")
+    parser.add_argument("--cli", action="store_true", help="with --cold-start: time `catgraph demo` instead")
+    parser.add_argument("--batch", nargs=2, metavar=("MAP", "QUERY"),
+                        help="measure only the batch commands on this saved map and query (.npy)")
     parser.add_argument("--dask", action="store_true", help="measure only the Dask shards")
     parser.add_argument("--layout", default="float32", help="with --dask: the shards' layout (float32 or uint8)")
     parser.add_argument("--case", help=argparse.SUPPRESS)
@@ -476,8 +553,10 @@ def main() -> None:
     store = RESULTS / "live.json"
     previous = json.loads(store.read_text()) if store.exists() else {"results": [], "cold": None}
     if args.cold_start:
-        key = "cold_after_warm_up" if args.warm_up else "cold"
-        previous[key] = cold_start(tree=args.tree, warm_up=args.warm_up)
+        key = ("cold_cli" if args.cli else "cold") + ("_after_warm_up" if args.warm_up else "")
+        previous[key] = cold_start(tree=args.tree, warm_up=args.warm_up, cli=args.cli)
+    elif args.batch:
+        previous["batch"] = batch_commands(*args.batch, tree=args.tree)
     elif args.dask:
         previous["shards" if args.layout == "float32" else f"shards_{args.layout}"] = dask_shards(layout=args.layout)
     else:
@@ -493,7 +572,9 @@ def main() -> None:
         previous["results"] = keep
     store.write_text(json.dumps(previous, indent=1))
     write_report(previous["results"], previous.get("cold"), RESULTS / "live.md", previous.get("shards"),
-                 previous.get("cold_after_warm_up"), previous.get("shards_uint8"))
+                 previous.get("cold_after_warm_up"), previous.get("shards_uint8"),
+                 {k: previous[k] for k in ("cold_cli", "cold_cli_after_warm_up") if previous.get(k)},
+                 previous.get("batch"))
     print((RESULTS / "live.md").read_text())
 
 
