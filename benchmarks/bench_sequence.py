@@ -2,7 +2,8 @@
 
 Datasets (``benchmarks/datasets.py``): Nordland 32×16 summer → winter (±2 frames) and the
 UJI library Wi-Fi, month 01 ``trn01`` against months 02–06 ``tst01`` (3 m, same floor;
-figures are means over the five months, MTL also as the worst month). Conditions
+figures are means over the five months, MTL also as the worst month); the synthetic
+world (seed 0, its own tolerance; not in ``--quick``). Conditions
 (``catgraph.conditions.condition_table``): in order; shuffled in segments of 2–20 % and of
 0.5–3 % (seeds 0–4 each: mean and worst seed); reversed; speed 2; speed 0.5.
 
@@ -14,7 +15,9 @@ applied. Methods:
 * every fixed window L ∈ {5, 10, 20, 50, 100, 200, 500}, with the default velocity search;
 * the classic SeqSLAM fixed windows (the same lengths, forward diagonal v = 1 only, the
   same hub-corrected rows), so that "the best fixed window" is the better of the two;
-* the default adaptive matcher (``match_sequences`` defaults);
+* the default adaptive matcher (``match_sequences`` defaults: rule "evident");
+* the adaptive matcher with rule "consistent" and every shorter sub-window tested (the
+  0.2 draft default, for comparison);
 * for reference, the previous default (rule "sustained", forward diagonal only, L in
   [10, 500] on 32 lengths, sub-windows from L/8, no hub offsets).
 
@@ -26,10 +29,15 @@ per seed).
 Writes ``benchmarks/results/sequence.md`` and ``sequence.json`` and the figure
 ``docs/figures/sequence_conditions.png`` (``--quick`` prints its table and writes nothing). Run from the repository root::
 
-    python benchmarks/bench_sequence.py [--quick] [--no-timing]
+    python benchmarks/bench_sequence.py [--quick] [--no-timing] [--only METHOD ...]
+
+``--only`` re-measures the named methods and keeps every other row from the committed
+``sequence.json`` (rows it lacks are measured): after a change to the default, only the
+adaptive rows need measuring again.
 
 ``--quick`` (a smoke run, under two minutes): seed 0 only, fixed windows {10, 50, 200},
-Nordland's first 600 query frames, no previous-default reference, no timing.
+Nordland's first 600 query frames, no synthetic world, no rule-"consistent" or
+previous-default reference, no timing.
 """
 
 from __future__ import annotations
@@ -48,7 +56,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.datasets import DATA, conditioned, nordland, uji_months  # noqa: E402
+from benchmarks.datasets import DATA, conditioned, nordland, synthetic, uji_months  # noqa: E402
 from catgraph.conditions import condition_table  # noqa: E402
 from catgraph.hubs import hub_offsets  # noqa: E402
 from catgraph.metrics import evaluate  # noqa: E402
@@ -60,10 +68,12 @@ FIGURES = ROOT / "docs" / "figures"
 FIXED = (5, 10, 20, 50, 100, 200, 500)
 QUICK_FIXED = (10, 50, 200)
 ADAPTIVE = "adaptive (default)"
+CONSISTENT = "adaptive, rule consistent"
 PREVIOUS = "previous default"
 SINGLE = "single frame"
 PREVIOUS_KWARGS = dict(rule="sustained", velocities=(1.0,), l_min=10, l_max=500, grid=32, recent_fraction=0.125,
                        confidence="gap")
+CONSISTENT_KWARGS = dict(rule="consistent", recent_fraction=0.0)
 GROUPS = ("in order", "shuffled 2–20 %", "shuffled 0.5–3 %", "reversed", "speed 2", "speed 0.5")
 
 
@@ -81,6 +91,7 @@ def _methods(quick: bool):
         yield f"SeqSLAM L={length}", dict(window=length, velocities=(1.0,)), True
     yield ADAPTIVE, {}, True
     if not quick:
+        yield CONSISTENT, CONSISTENT_KWARGS, True
         yield PREVIOUS, PREVIOUS_KWARGS, False  # no hub offsets
 
 
@@ -93,6 +104,9 @@ def _cases(quick: bool):
     out = [("Nordland", [nord], hub_offsets(differences(nord.reference, nord.reference)))]
     months = uji_months()
     out.append(("UJI Wi-Fi (months 02–06)", months, hub_offsets(differences(months[0].reference, months[0].reference))))
+    if not quick:
+        world = synthetic(0)
+        out.append(("synthetic (seed 0)", [world], hub_offsets(differences(world.reference, world.reference))))
     return out
 
 
@@ -116,15 +130,22 @@ def _run(cases, condition, kwargs, offsets):
     return out
 
 
-def measure(quick: bool) -> dict:
+def measure(quick: bool, only=None, kept: dict | None = None) -> dict:
+    """The table; with ``only``, the other methods' rows are taken from ``kept`` (the
+    committed results) where it has them, and measured where it does not."""
     conditions = condition_table(seeds=[0] if quick else range(5))
     table = {}
     for name, cases, offsets in _cases(quick):
         table[name] = {"hub_frames": int(np.count_nonzero(offsets)), "conditions": []}
+        old_rows = {r["label"]: r["methods"] for r in (kept or {}).get(name, {}).get("conditions", [])}
         for condition in conditions:
             row = {"condition": condition.as_dict(), "label": condition.label, "group": _group(condition),
                    "methods": {}}
+            old = old_rows.get(condition.label, {})
             for method, kwargs, with_hubs in _methods(quick):
+                if only is not None and method not in only and method in old:
+                    row["methods"][method] = old[method]
+                    continue
                 row["methods"][method] = _run(cases, condition, kwargs, offsets if with_hubs else None)
             table[name]["conditions"].append(row)
             r = row["methods"][ADAPTIVE]
@@ -259,6 +280,7 @@ def figure(table: dict, path: Path) -> None:
         for method in methods:
             ys = [np.mean([r["methods"][method]["auc"] for r in rows if r["group"] == g]) for g in GROUPS]
             style = dict(lw=2.5, color="tab:green", marker="o") if method == ADAPTIVE else \
+                dict(lw=1.5, color="tab:purple", ls="-.", marker="^") if method == CONSISTENT else \
                 dict(lw=1.5, color="tab:orange", ls="--", marker="s") if method == PREVIOUS else \
                 dict(lw=1.0, color="0.3", ls=":", marker="x") if method == SINGLE else \
                 dict(lw=0.7, ls="--", marker=".", alpha=0.6) if method.startswith("SeqSLAM") else dict(lw=0.9, marker=".")
@@ -279,12 +301,20 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="seed 0, three fixed windows, 600 Nordland frames")
     parser.add_argument("--no-timing", action="store_true")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--only", nargs="+", metavar="METHOD",
+                        help="re-measure only these methods (e.g. 'adaptive (default)'); the other rows are kept "
+                             "from the committed sequence.json where it has them")
     args = parser.parse_args()
     if not DATA.exists():
         raise SystemExit(f"no data at {DATA}; this benchmark needs ../shared/data (see its README)")
     start = time.perf_counter()
-    table = measure(args.quick)
+    kept, kept_timing = {}, None
+    if args.only and (RESULTS / "sequence.json").exists():
+        committed = json.loads((RESULTS / "sequence.json").read_text())
+        kept, kept_timing = committed["table"], committed.get("timing")
+    table = measure(args.quick, args.only, kept)
     timing_ = None if (args.quick or args.no_timing) else timing(args.repeats)
+    timing_ = timing_ or (None if args.quick else kept_timing)
     if args.quick:  # a smoke run: print, keep the committed results
         print(markdown(table, timing_, args.quick))
     else:
