@@ -409,7 +409,7 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
 
     def floor_row(case="row", key="floor_ms", label="floor: read the float32 reference once, all cores"):
-        cells = [f"{_fmt(by[(case, n)][key])} ms" if (case, n) in by else "—" for n in sizes]
+        cells = [f"{_fmt(by[(case, n)][key])} ms" if key in by.get((case, n), {}) else "—" for n in sizes]
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
 
     floor_row()
