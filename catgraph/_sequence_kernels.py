@@ -48,7 +48,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import prange
 
 from ._jit import njit
 
@@ -327,49 +326,122 @@ def _gmm_em(s, stride, mean, std, n_iter, w, mu, sd, resp, coef, inv):
             w[k] /= tw
 
 
+BLOCK = 64  # places per block of the block minima
+
+
+@njit
+def _moments(s, shift, bmin):
+    """One pass over the scores ``s``: the sums of ``y = s - shift`` and ``y^2`` and the
+    minimum of every block of :data:`BLOCK` places into ``bmin``. Four lanes each (a fixed
+    order: the same bits on every call), so that the additions overlap."""
+    n = s.shape[0]
+    a0 = 0.0
+    a1 = 0.0
+    a2 = 0.0
+    a3 = 0.0
+    q0 = 0.0
+    q1 = 0.0
+    q2 = 0.0
+    q3 = 0.0
+    for blk in range(bmin.shape[0]):
+        lo = blk * BLOCK
+        hi = lo + BLOCK if lo + BLOCK < n else n
+        m0 = np.inf
+        m1 = np.inf
+        m2 = np.inf
+        m3 = np.inf
+        j = lo
+        while j + 4 <= hi:
+            x0 = s[j]
+            x1 = s[j + 1]
+            x2 = s[j + 2]
+            x3 = s[j + 3]
+            m0 = x0 if x0 < m0 else m0
+            m1 = x1 if x1 < m1 else m1
+            m2 = x2 if x2 < m2 else m2
+            m3 = x3 if x3 < m3 else m3
+            y0 = x0 - shift
+            y1 = x1 - shift
+            y2 = x2 - shift
+            y3 = x3 - shift
+            a0 += y0
+            a1 += y1
+            a2 += y2
+            a3 += y3
+            q0 += y0 * y0
+            q1 += y1 * y1
+            q2 += y2 * y2
+            q3 += y3 * y3
+            j += 4
+        while j < hi:
+            x0 = s[j]
+            m0 = x0 if x0 < m0 else m0
+            y0 = x0 - shift
+            a0 += y0
+            q0 += y0 * y0
+            j += 1
+        m0 = m1 if m1 < m0 else m0
+        m2 = m3 if m3 < m2 else m2
+        bmin[blk] = m2 if m2 < m0 else m0
+    return (a0 + a1) + (a2 + a3), (q0 + q1) + (q2 + q3)
+
+
+@njit
+def _best_and_second(s, bmin, radius):
+    """The first place of the smallest score, that score, and the smallest score more
+    than ``radius`` places away (``+inf`` if none), from the block minima."""
+    n = s.shape[0]
+    nb = bmin.shape[0]
+    kb = 0
+    for blk in range(1, nb):
+        if bmin[blk] < bmin[kb]:
+            kb = blk
+    vb = bmin[kb]
+    jb = kb * BLOCK
+    while s[jb] != vb:
+        jb += 1
+    lo = jb - radius  # places in [lo, hi] are excluded
+    hi = jb + radius
+    v2 = np.inf
+    for blk in range(nb):
+        b_lo = blk * BLOCK
+        b_hi = b_lo + BLOCK if b_lo + BLOCK < n else n  # exclusive
+        if b_hi <= lo or b_lo > hi:
+            if bmin[blk] < v2:
+                v2 = bmin[blk]
+        else:
+            for j in range(b_lo, b_hi):
+                if (j < lo or j > hi) and s[j] < v2:
+                    v2 = s[j]
+    return jb, vb, v2
+
+
 @njit
 def _velocity_stats(sums_v, ring, mring, i, v, grid, approx, n_iter, em_stride, radius,
                     best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
     """Advance one velocity's window sums to frame ``i`` and summarise every window.
 
     Mean and spread in one pass, shifted by the first score (``var = E[y^2] - E[y]^2``
-    with ``y = s - s_0``: no cancellation unless ``s_0`` lies many spreads from the mean).
+    with ``y = s - s_0``: no cancellation unless ``s_0`` lies many spreads from the mean);
+    the best and second-best scores from the minima of blocks of places.
     """
     g_count = grid.shape[0]
     n = s.shape[0]
     n_components = weights.shape[1]
     coef = np.empty(n_components)
     inv = np.empty(n_components)
+    bmin = np.empty((n + BLOCK - 1) // BLOCK)
     for g in range(g_count):
         _update_lines(sums_v[g], ring, mring, i, v, grid[g], s)
         shift = s[0]
-        jb = 0
-        vb = s[0]
-        sy = 0.0
-        syy = 0.0
-        for j in range(n):
-            val = s[j]
-            if val < vb:
-                vb = val
-                jb = j
-            y = val - shift
-            sy += y
-            syy += y * y
+        sy, syy = _moments(s, shift, bmin)
         my = sy / n
         var = syy / n - my * my
         sdv = np.sqrt(var) if var > 0.0 else 0.0
         m = shift + my
+        jb, vb, v2 = _best_and_second(s, bmin, radius)
         best_j[g] = jb
         best_s[g] = vb
-        v2 = np.inf
-        lo = jb - radius
-        hi = jb + radius
-        for j in range(0, lo if lo < n else n):
-            if s[j] < v2:
-                v2 = s[j]
-        for j in range(hi + 1 if hi + 1 > 0 else 0, n):
-            if s[j] < v2:
-                v2 = s[j]
         second_s[g] = v2
         mean[g] = m
         std[g] = sdv
@@ -390,7 +462,39 @@ def _velocity_stats(sums_v, ring, mring, i, v, grid, approx, n_iter, em_stride, 
                 sub[g, h] = score_at(sums_v[h], i, v, grid[h], best_j[g])
 
 
-@njit(parallel=True)
+@njit(nogil=True)
+def store_rows(d, c0, c1, start, ring, mring, state):
+    """:func:`advance` for rows ``c0 .. c1 - 1`` of ``d`` (query frames ``start + t``)."""
+    for t in range(c0, c1):
+        advance(ring, mring, state, start + t, d[t])
+
+
+@njit(nogil=True)
+def run_velocities(chosen, c0, c1, start, sums, ring, mring, velocities, grid, approx, n_iter, em_stride, radius,
+                   best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
+    """:func:`_velocity_stats` for the velocities ``chosen`` over frames ``start + c0 ..
+    start + c1 - 1`` (rows already stored); releases the GIL, so threads share the work."""
+    for q in range(chosen.shape[0]):
+        vi = chosen[q]
+        for t in range(c0, c1):
+            _velocity_stats(sums[vi], ring, mring, start + t, velocities[vi], grid, approx, n_iter,
+                            em_stride, radius, best_j[t, vi], best_s[t, vi], second_s[t, vi], mean[t, vi],
+                            std[t, vi], weights[t, vi], locs[t, vi], scales[t, vi], sub[t, vi], s[vi],
+                            work[vi], resp[vi])
+
+
+_POOL = {}
+
+
+def _pool(threads):
+    """A pool of ``threads - 1`` worker threads (the caller's thread is the last one)."""
+    if threads not in _POOL:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _POOL[threads] = ThreadPoolExecutor(max_workers=threads - 1, thread_name_prefix="catgraph-matcher")
+    return _POOL[threads]
+
+
 def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_iter, em_stride, radius,
               best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
     """Match the rows of ``d`` in order (row ``t`` is query frame ``start + t``): store
@@ -402,31 +506,41 @@ def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_it
     Outputs (``n`` rows, ``V`` velocities, ``G = len(grid)``, ``K`` components):
     ``best_j, best_s, second_s, mean, std`` ``(n, V, G)``; ``weights, locs, scales``
     ``(n, V, G, K)`` — the approximation's components; ``sub`` ``(n, V, G, G)`` (or
-    ``(n, V, G, 0)`` when not needed) with ``sub[t, v, g, h] = s_{i, best_j[t, v, g]}(grid[h], v)``,
-    window ``g``'s best hypothesis scored over window ``h`` along the same line. Mixtures
-    are fitted to every ``em_stride``-th score. ``second_s`` is the best score more than
-    ``radius`` places from ``best_j`` at the same velocity (``+inf`` where none exists).
-    Scratch ``s`` ``(V, N)``; ``work`` ``(V, N)`` (robust) and ``resp`` ``(V, K, N)``
-    (mixtures), else empty.
+    ``(n, V, G, 0)`` when not needed) with
+    ``sub[t, v, g, h] = s_{i, best_j[t, v, g]}(grid[h], v)``, window ``g``'s best
+    hypothesis scored over window ``h`` along the same line. Mixtures are fitted to every
+    ``em_stride``-th score. ``second_s`` is the best score more than ``radius`` places
+    from ``best_j`` at the same velocity (``+inf`` where none exists). Scratch ``s``
+    ``(V, N)``; ``work`` ``(V, N)`` (robust) and ``resp`` ``(V, K, N)`` (mixtures), else
+    empty.
 
     The ring holds ``R >= max(grid) + 1`` rows, so ``C = R - max(grid)`` new rows fit
     beside the longest window's history: the rows are stored ``C`` at a time, then the
-    velocities run in parallel threads over those ``C`` frames (one parallel region per
-    ``C`` frames), each reading the shared ring and writing only its own sums and
-    outputs, so the numbers depend neither on ``C`` nor on the thread count.
+    velocities are shared round-robin among ``numba.get_num_threads()`` threads (the
+    caller's and a pool's; compiled code without the GIL, and a waiting thread sleeps
+    instead of spinning, which matters on a busy machine) over those ``C`` frames. Each
+    velocity reads the shared ring and writes only its own sums and outputs, so the
+    numbers depend neither on ``C`` nor on the thread count.
     """
-    chunk = ring.shape[0] - grid[grid.shape[0] - 1]
-    n_rows = d.shape[0]
-    for c0 in range(0, n_rows, chunk):
-        c1 = c0 + chunk if c0 + chunk < n_rows else n_rows
-        for t in range(c0, c1):
-            advance(ring, mring, state, start + t, d[t])
-        for vi in prange(velocities.shape[0]):
-            for t in range(c0, c1):
-                _velocity_stats(sums[vi], ring, mring, start + t, velocities[vi], grid, approx, n_iter,
-                                em_stride, radius, best_j[t, vi], best_s[t, vi], second_s[t, vi], mean[t, vi],
-                                std[t, vi], weights[t, vi], locs[t, vi], scales[t, vi], sub[t, vi], s[vi],
-                                work[vi], resp[vi])
+    import numba
+
+    chunk = ring.shape[0] - int(grid[-1])
+    v_count = velocities.shape[0]
+    threads = max(1, min(v_count, numba.get_num_threads()))
+    groups = [np.arange(k, v_count, threads) for k in range(threads)]
+    rest = (velocities, grid, approx, n_iter, em_stride, radius, best_j, best_s, second_s, mean, std, weights,
+            locs, scales, sub, s, work, resp)
+    for c0 in range(0, d.shape[0], chunk):
+        c1 = min(d.shape[0], c0 + chunk)
+        store_rows(d, c0, c1, start, ring, mring, state)
+        if threads == 1:
+            run_velocities(groups[0], c0, c1, start, sums, ring, mring, *rest)
+            continue
+        pool = _pool(threads)
+        jobs = [pool.submit(run_velocities, g, c0, c1, start, sums, ring, mring, *rest) for g in groups[1:]]
+        run_velocities(groups[0], c0, c1, start, sums, ring, mring, *rest)
+        for job in jobs:
+            job.result()
 
 
 def matcher_kernel(approx):
