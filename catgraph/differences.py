@@ -38,7 +38,10 @@ and then the codes are the values themselves: no error at all). Query values use
 same ``lo, s``, clipped to ``[lo, hi]``. The kernel sums integer code differences
 exactly (64-bit integers; the result is ``s · Σ|c_q − c_r|`` for SAD and
 ``s² · Σ (c_q − c_r)²`` for SSD), so every path — row, block, matrix, bootstrap —
-agrees bit for bit with the slow reference computed on the codes, on any machine.
+agrees bit for bit with the slow reference computed on the codes, on any machine. It
+sums 64 bytes per vector step (the processor's sum-of-absolute-differences
+instruction where it has one; :mod:`catgraph._diff_kernels`), which keeps the row
+close to the speed of reading the codes from memory.
 Against the float differences of the original values (``e_k = s/2 + s/2`` from the
 two roundings, plus ``δ_k``, the distance of a query value outside ``[lo, hi]`` to
 that range):
@@ -55,7 +58,8 @@ Per-query normalisation
 :func:`normalise_rows` is paper 1's ``d_ij = (|Q_i − R_j| − μ_i) / σ_i`` with ``μ_i, σ_i``
 (population standard deviation) over all reference ``j``, computed in two passes
 (mean, then squared deviations) over fixed chunks of values whose partial sums are
-added in order — thread-count independent, and reproducible from a sharded
+added in order — thread-count independent (a long row's passes run on both cores in
+runs of whole chunks, a block's in ranges of rows), and reproducible from a sharded
 reference. Defined behaviour at the edges, never a warning:
 
 * a row with **zero spread** (every reference equally far, ``σ_i ≤ 1e-12 ·
