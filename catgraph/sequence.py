@@ -163,7 +163,7 @@ query frame; time per step ``O(N V G)`` and independent of how many frames came 
 and :func:`match_sequences` the batch form. Both run the same compiled kernel for each
 velocity and frame on the same stored values, so they return identical numbers. The
 velocities are shared among ``numba.get_num_threads()`` threads (per frame when
-streaming, per 64 frames in the batch form), each reading the shared ring and writing
+streaming, per up to 64 frames in the batch form), each reading the shared ring and writing
 only its own sums and outputs, so the result does not depend on the thread count either. Measured figures:
 ``benchmarks/results/matcher.md``.
 """
