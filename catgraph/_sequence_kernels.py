@@ -109,6 +109,34 @@ def _fill_sum(mring, i, eff):
 
 
 @njit
+def _add_row(sums, cur, s, eff):
+    """``S += cur``; scores ``S / eff`` (equal-length views: plain loops the compiler can
+    vectorise)."""
+    for q in range(sums.shape[0]):
+        val = sums[q] + np.float64(cur[q])
+        sums[q] = val
+        s[q] = val / eff
+
+
+@njit
+def _add_row_fill(sums, cur, fill, s, eff):
+    """``S += cur - fill`` (the old term outside the reference); scores ``S / eff``."""
+    for q in range(sums.shape[0]):
+        val = sums[q] + (np.float64(cur[q]) - fill)
+        sums[q] = val
+        s[q] = val / eff
+
+
+@njit
+def _add_row_old(sums, cur, old, s, eff):
+    """``S += cur - old``; scores ``S / eff``."""
+    for q in range(sums.shape[0]):
+        val = sums[q] + (np.float64(cur[q]) - np.float64(old[q]))
+        sums[q] = val
+        s[q] = val / eff
+
+
+@njit
 def _update_lines(sums_g, ring, mring, i, v, length, s):
     """Advance one velocity's window sums of length ``length`` to frame ``i`` and write the
     scores ``s_ij = S / L_eff`` in place order into ``s``.
@@ -168,10 +196,7 @@ def _update_lines(sums_g, ring, mring, i, v, length, s):
                 continue
             shift = n - sbase if seg == 0 else -sbase
             if i < length:
-                for j in range(lo, hi):
-                    val = sums_g[j + shift] + np.float64(cur[j])
-                    sums_g[j + shift] = val
-                    s[j] = val / eff
+                _add_row(sums_g[lo + shift:hi + shift], cur[lo:hi], s[lo:hi], eff)
                 continue
             # the old term lies inside the reference for j - off in [0, n)
             k_lo = off if off > lo else lo
@@ -179,18 +204,10 @@ def _update_lines(sums_g, ring, mring, i, v, length, s):
             if k_hi < k_lo:
                 k_lo = hi
                 k_hi = hi
-            for j in range(lo, k_lo):
-                val = sums_g[j + shift] + (np.float64(cur[j]) - m_old)
-                sums_g[j + shift] = val
-                s[j] = val / eff
-            for j in range(k_lo, k_hi):
-                val = sums_g[j + shift] + (np.float64(cur[j]) - np.float64(old[j - off]))
-                sums_g[j + shift] = val
-                s[j] = val / eff
-            for j in range(k_hi, hi):
-                val = sums_g[j + shift] + (np.float64(cur[j]) - m_old)
-                sums_g[j + shift] = val
-                s[j] = val / eff
+            _add_row_fill(sums_g[lo + shift:k_lo + shift], cur[lo:k_lo], m_old, s[lo:k_lo], eff)
+            _add_row_old(sums_g[k_lo + shift:k_hi + shift], cur[k_lo:k_hi], old[k_lo - off:k_hi - off],
+                         s[k_lo:k_hi], eff)
+            _add_row_fill(sums_g[k_hi + shift:hi + shift], cur[k_hi:hi], m_old, s[k_hi:hi], eff)
 
 
 @njit
