@@ -434,49 +434,75 @@ def _best_and_second(s, bmin, radius):
 
 
 @njit
-def _velocity_stats(sums_v, ring, mring, i, v, grid, approx, n_iter, em_stride, radius,
-                    best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
-    """Advance one velocity's window sums to frame ``i`` and summarise every window.
+def _window(sums_g, ring, mring, i, v, length, radius, s, bmin, g, best_j, best_s, second_s, mean, std):
+    """Advance one window's sums to frame ``i``, write its scores into ``s`` and its best
+    place, best and second-best score, mean and spread into the outputs at ``g``.
 
     Mean and spread in one pass, shifted by the first score (``var = E[y^2] - E[y]^2``
     with ``y = s - s_0``: no cancellation unless ``s_0`` lies many spreads from the mean);
     the best and second-best scores from the minima of blocks of places.
     """
-    g_count = grid.shape[0]
     n = s.shape[0]
+    _update_lines(sums_g, ring, mring, i, v, length, s)
+    shift = s[0]
+    sy, syy = _moments(s, shift, bmin)
+    my = sy / n
+    var = syy / n - my * my
+    jb, vb, v2 = _best_and_second(s, bmin, radius)
+    best_j[g] = jb
+    best_s[g] = vb
+    second_s[g] = v2
+    mean[g] = shift + my
+    std[g] = np.sqrt(var) if var > 0.0 else 0.0
+
+
+@njit
+def _sub_scores(sums_v, i, v, grid, best_j, sub):
+    """``sub[g, h]``: window ``g``'s best place scored over window ``h`` (when asked for)."""
+    g_count = grid.shape[0]
+    if sub.shape[1] == g_count:  # only the consistency rules need them
+        for g in range(g_count):
+            for h in range(g_count):
+                sub[g, h] = score_at(sums_v[h], i, v, grid[h], best_j[g])
+
+
+@njit
+def _velocity_stats_gaussian(sums_v, ring, mring, i, v, grid, radius,
+                             best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s):
+    """:func:`_velocity_stats` for the Gaussian approximation alone (compiles without the
+    median and the mixture fit)."""
+    bmin = np.empty((s.shape[0] + BLOCK - 1) // BLOCK)
+    for g in range(grid.shape[0]):
+        _window(sums_v[g], ring, mring, i, v, grid[g], radius, s, bmin, g, best_j, best_s, second_s, mean, std)
+        weights[g, 0] = 1.0
+        locs[g, 0] = mean[g]
+        scales[g, 0] = std[g]
+    _sub_scores(sums_v, i, v, grid, best_j, sub)
+
+
+@njit
+def _velocity_stats(sums_v, ring, mring, i, v, grid, approx, n_iter, em_stride, radius,
+                    best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
+    """Advance one velocity's window sums to frame ``i`` and summarise every window
+    (:func:`_window`), then fit the approximation to each window's scores."""
     n_components = weights.shape[1]
     coef = np.empty(n_components)
     inv = np.empty(n_components)
-    bmin = np.empty((n + BLOCK - 1) // BLOCK)
-    for g in range(g_count):
-        _update_lines(sums_v[g], ring, mring, i, v, grid[g], s)
-        shift = s[0]
-        sy, syy = _moments(s, shift, bmin)
-        my = sy / n
-        var = syy / n - my * my
-        sdv = np.sqrt(var) if var > 0.0 else 0.0
-        m = shift + my
-        jb, vb, v2 = _best_and_second(s, bmin, radius)
-        best_j[g] = jb
-        best_s[g] = vb
-        second_s[g] = v2
-        mean[g] = m
-        std[g] = sdv
+    bmin = np.empty((s.shape[0] + BLOCK - 1) // BLOCK)
+    for g in range(grid.shape[0]):
+        _window(sums_v[g], ring, mring, i, v, grid[g], radius, s, bmin, g, best_j, best_s, second_s, mean, std)
         if approx == APPROX_GAUSSIAN:
             weights[g, 0] = 1.0
-            locs[g, 0] = m
-            scales[g, 0] = sdv
+            locs[g, 0] = mean[g]
+            scales[g, 0] = std[g]
         elif approx == APPROX_ROBUST:
             med, mad = _median_mad(s, work)
             weights[g, 0] = 1.0
             locs[g, 0] = med
             scales[g, 0] = mad
         else:
-            _gmm_em(s, em_stride, m, sdv, n_iter, weights[g], locs[g], scales[g], resp, coef, inv)
-    if sub.shape[1] == g_count:  # only the consistency rules need them
-        for g in range(g_count):
-            for h in range(g_count):
-                sub[g, h] = score_at(sums_v[h], i, v, grid[h], best_j[g])
+            _gmm_em(s, em_stride, mean[g], std[g], n_iter, weights[g], locs[g], scales[g], resp, coef, inv)
+    _sub_scores(sums_v, i, v, grid, best_j, sub)
 
 
 @njit(nogil=True)
@@ -498,6 +524,19 @@ def run_velocities(chosen, c0, c1, start, sums, ring, mring, velocities, grid, a
                             em_stride, radius, best_j[t, vi], best_s[t, vi], second_s[t, vi], mean[t, vi],
                             std[t, vi], weights[t, vi], locs[t, vi], scales[t, vi], sub[t, vi], s[vi],
                             work[vi], resp[vi])
+
+
+@njit(nogil=True)
+def run_velocities_gaussian(chosen, c0, c1, start, sums, ring, mring, velocities, grid, approx, n_iter, em_stride,
+                            radius, best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
+    """:func:`run_velocities` for the Gaussian approximation (the default): compiled
+    without the median and the mixture fit, which are compiled only when asked for."""
+    for q in range(chosen.shape[0]):
+        vi = chosen[q]
+        for t in range(c0, c1):
+            _velocity_stats_gaussian(sums[vi], ring, mring, start + t, velocities[vi], grid, radius, best_j[t, vi],
+                                     best_s[t, vi], second_s[t, vi], mean[t, vi], std[t, vi], weights[t, vi],
+                                     locs[t, vi], scales[t, vi], sub[t, vi], s[vi])
 
 
 _POOL = {}
@@ -547,15 +586,16 @@ def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_it
     groups = [np.arange(k, v_count, threads) for k in range(threads)]
     rest = (velocities, grid, approx, n_iter, em_stride, radius, best_j, best_s, second_s, mean, std, weights,
             locs, scales, sub, s, work, resp)
+    run = run_velocities_gaussian if approx == APPROX_GAUSSIAN else run_velocities
     for c0 in range(0, d.shape[0], chunk):
         c1 = min(d.shape[0], c0 + chunk)
         store_rows(d, c0, c1, start, ring, mring, state)
         if threads == 1:
-            run_velocities(groups[0], c0, c1, start, sums, ring, mring, *rest)
+            run(groups[0], c0, c1, start, sums, ring, mring, *rest)
             continue
         pool = _pool(threads)
-        jobs = [pool.submit(run_velocities, g, c0, c1, start, sums, ring, mring, *rest) for g in groups[1:]]
-        run_velocities(groups[0], c0, c1, start, sums, ring, mring, *rest)
+        jobs = [pool.submit(run, g, c0, c1, start, sums, ring, mring, *rest) for g in groups[1:]]
+        run(groups[0], c0, c1, start, sums, ring, mring, *rest)
         for job in jobs:
             job.result()
 

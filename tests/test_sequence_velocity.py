@@ -246,3 +246,18 @@ def test_window_scores_of_lengths_outside_the_grid_sum_the_ring():
     assert 7 not in m.window_grid_
     np.testing.assert_allclose(m.window_scores(7, velocity=-0.5), slow_line_scores(d, 7, -0.5)[-1], rtol=0,
                                atol=1e-12)
+
+
+def test_exact_ties_keep_the_first_place():
+    """A repeated stretch of the reference (a stop: places 10-19 identical) makes windows
+    tie exactly; the exact sums keep the tie, and the first place wins, at any velocity."""
+    rng = np.random.default_rng(13)
+    d = rng.normal(size=(40, 60)) * 0.3 + 1.0
+    d[:, 10:20] = (rng.normal(size=(40, 1)) * 0.1 - 2.0) / 3.0  # the same arbitrary value in every column
+    scores = fixed_window_scores(d, 3, 1.0)
+    for i in range(2, 40):
+        assert np.all(scores[i, 12:20] == scores[i, 12])  # lines wholly inside the stop
+    result = match_sequences(d, window=3, velocities=(1.0, -1.0))
+    # the first place whose whole window lies in the stop: 12 along v = 1, 10 along v = -1
+    expected = np.where(result.velocity == 1.0, 12, 10)
+    np.testing.assert_array_equal(result.match[2:], expected[2:])
