@@ -477,7 +477,7 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
     if after_warm_up:
         runs = after_warm_up["runs"]
         warm = np.median([r["process_s"] for r in runs[1:]])
-        lines += ["", f"After `catgraph.live.warm_up()` in its own process ({after_warm_up['warm_up_s']:.1f} s, "
+        lines += ["", f"After `catgraph warm-up` (live paths and batch methods) in its own process ({after_warm_up['warm_up_s']:.1f} s, "
                   "an install step), the same empty cache otherwise:", "",
                   "| run | process wall s | import + map s | first row s | 20 combined steps s | compiled s |",
                   "|---|---|---|---|---|---|"]
