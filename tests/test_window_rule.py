@@ -1,0 +1,127 @@
+"""Tests for catgraph._window_rule: the decision layer against slow, obviously correct loops.
+
+The kernels' statistics are tested in test_sequence.py; here the window rules are
+recomputed per frame from double-loop window scores and compared with the matcher's
+choices, in the batch and the streaming form.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.special import log_ndtr
+
+from catgraph._window_rule import EVIDENT_SPREADS
+from catgraph.sequence import SequenceMatcher, match_sequences, window_grid
+
+V1 = (1.0,)
+
+
+def on_grid(d: np.ndarray) -> np.ndarray:
+    """Values the matcher sums exactly (multiples of 2**-10, each row's mean an exact
+    multiple too), so that its scores equal the float64 loops below to rounding."""
+    q = np.rint(np.asarray(d, dtype=np.float64) * 1024.0)
+    q[:, -1] -= np.mod(q.sum(axis=1), q.shape[1])
+    return q / 1024.0
+
+
+def slow_scores(d: np.ndarray, length: int) -> np.ndarray:
+    """s_ij(L) along the forward diagonal by a double loop (``min(L, i + 1)`` terms; a
+    term before the reference's start is its query row's mean)."""
+    n_q, n = d.shape
+    out = np.empty((n_q, n))
+    for i in range(n_q):
+        eff = min(length, i + 1)
+        for j in range(n):
+            out[i, j] = sum(d[i - k, j - k] if j - k >= 0 else d[i - k].mean() for k in range(eff)) / eff
+    return out
+
+
+def slow_choice(d: np.ndarray, grid: np.ndarray, rule: str, fraction: float = 0.0):
+    """Per frame: the admitted windows of ``rule`` and the most significant of them."""
+    scores = {int(L): slow_scores(d, int(L)) for L in grid}
+    match = np.empty(d.shape[0], dtype=int)
+    length = np.empty(d.shape[0], dtype=int)
+    for i in range(d.shape[0]):
+        rows = [scores[int(L)][i] for L in grid]
+        best_j = [int(np.argmin(r)) for r in rows]
+        log_p = [float(log_ndtr((r.min() - r.mean()) / r.std())) for r in rows]
+        admitted = []
+        for g in range(len(grid)):
+            ok = True
+            for h in range(g):  # every shorter length
+                sub, own = rows[h][best_j[g]], rows[g][best_j[g]]
+                if grid[h] >= fraction * grid[g] and sub > 0.5 * (own + rows[h].mean()):
+                    ok = False
+                if rule == "evident" and sub > rows[h].mean() - EVIDENT_SPREADS * rows[h].std():
+                    ok = False
+            if ok or g == 0:
+                admitted.append(g)
+        g = min(admitted, key=lambda k: (log_p[k], k))
+        match[i] = best_j[g]
+        length[i] = min(int(grid[g]), i + 1)
+    return match, length
+
+
+def planted(n_q: int, n_ref: int, seed: int, jump_at: int | None = None) -> np.ndarray:
+    """Noise with a diagonal of lower differences (a jump to another place at ``jump_at``)."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(n_q, n_ref))
+    truth = np.arange(n_q) + 5
+    if jump_at is not None:
+        truth[jump_at:] = np.arange(n_q - jump_at) + n_ref // 2
+    d[np.arange(n_q), truth % n_ref] -= 1.2
+    return on_grid(d)
+
+
+@pytest.mark.parametrize("rule, fraction, seed", [("evident", 0.0, 0), ("evident", 0.3, 1), ("evident", 0.05, 2),
+                                                  ("consistent", 0.0, 0), ("consistent", 0.3, 1)])
+def test_rule_matches_slow_reference(rule, fraction, seed):
+    d = planted(36, 40, seed, jump_at=20)
+    grid = window_grid(3, 24, 7)
+    result = match_sequences(d, "adaptive", rule=rule, grid=7, l_min=3, l_max=24, velocities=V1,
+                             recent_fraction=fraction)
+    match, length = slow_choice(d, grid, rule, fraction)
+    np.testing.assert_array_equal(result.match, match)
+    np.testing.assert_array_equal(result.window_length, length)
+
+
+def test_evident_rule_differs_from_consistent_somewhere():
+    """The extra test must bite on noisy data (else the comparison above proves nothing)."""
+    d = planted(36, 40, 3, jump_at=20)
+    grid = window_grid(3, 24, 7)
+    evident, _ = slow_choice(d, grid, "evident")
+    consistent, _ = slow_choice(d, grid, "consistent")
+    assert np.any(evident != consistent)
+
+
+def test_evident_streaming_equals_batch():
+    d = planted(60, 50, 4, jump_at=30)
+    kwargs = dict(rule="evident", l_min=3, l_max=30, grid=6)
+    batch = match_sequences(d, **kwargs)
+    matcher = SequenceMatcher(**kwargs)
+    steps = [matcher.step(row) for row in d]
+    np.testing.assert_array_equal(batch.match, [s.match for s in steps])
+    np.testing.assert_array_equal(batch.window_length, [s.window_length for s in steps])
+    np.testing.assert_allclose(batch.confidence, [s.confidence for s in steps], rtol=1e-12, atol=0)
+
+
+def test_evident_rule_drops_the_old_alignment_after_a_jump():
+    """After a jump to another part of the route the rule finds the new alignment within
+    a few frames, where the literal rule holds on to the old one for dozens."""
+    rng = np.random.default_rng(5)
+    n_ref = 400
+    d = rng.normal(size=(200, n_ref))
+    truth = np.r_[np.arange(50, 150), np.arange(300, 400)]  # a jump at frame 100
+    d[np.arange(200), truth] -= 1.5
+    common = dict(window="adaptive", l_min=5, l_max=100, grid=16, velocities=V1)
+    evident = match_sequences(d, rule="evident", **common)
+    literal = match_sequences(d, rule="literal", **common)
+    after = slice(100, 200)
+
+    def first_correct(res):
+        return int(np.flatnonzero(res.match[after] == truth[after])[0])
+
+    assert first_correct(evident) <= 10 < first_correct(literal)
+    assert np.mean(evident.match[after] == truth[after]) >= 0.85
+    assert np.mean(evident.match[:100] == truth[:100]) >= 0.85
