@@ -43,7 +43,10 @@ per frame of a jump anywhere (shuffled queries, kidnapping), learned online as t
 filter learns it (``learn_recovery``). Each step a new *generation* of
 ``M = redraw_fraction · n_particles`` particles carries that share: places drawn
 systematically from a proposal ``q`` (``"likelihood"``: ``q ∝ e^{r}``, the frame's
-own evidence; ``"best"``; ``"uniform"``), importance weights ``ε / (n · M · q_j)``,
+own evidence; ``"sharpened"``: ``q = ½ e^{β r} / Σ e^{β r} + ½ / n``, most of the
+births on the few places the frame favours most, with a uniform half so that every
+place keeps ``q ≥ 1 / (2n)``; ``"best"``; ``"uniform"``), importance weights
+``ε / (n · M · q_j)``,
 velocities half from the current velocity marginal, half from the prior (the grid's
 jump). After reweighting the generation is scaled to carry exactly the share's
 posterior mass ``ε · mean_j e^{r_j} / E_map``, so the confidence and ``P(new)`` see
@@ -161,6 +164,20 @@ def confidence_log_odds(w_in: float, w_out: float, log_map: float, log_new: floa
 
 
 @njit
+def _sharpened_cumulative(log_ratio, r_max, power, uniform_share, out):  # pragma: no cover - compiled
+    """The ``"sharpened"`` proposal's cumulative distribution:
+    ``q = (1 − u) · e^{β r} / Σ e^{β r} + u / n`` (``β = power``, ``u = uniform_share``)."""
+    n = log_ratio.shape[0]
+    acc = 0.0
+    for j in range(n):
+        acc += np.exp(power * (log_ratio[j] - r_max))
+        out[j] = acc
+    scale = (1.0 - uniform_share) / acc
+    for j in range(n):
+        out[j] = out[j] * scale + uniform_share * (j + 1.0) / n
+
+
+@njit
 def _likelihood_cumulative(log_ratio, out):  # pragma: no cover - compiled
     """``out[j] = Σ_{i ≤ j} e^{r_i − max r}``; returns ``max r``."""
     r_max = -np.inf
@@ -225,7 +242,7 @@ def _birth_kernel(kind, like, proposal, top, log_keep, log_recovery, start, stop
     elif kind == 2:
         for j in range(n):
             proposal[j] = (j + 1.0) / n
-    cumulative = like if kind == 0 else proposal
+    cumulative = like if kind == 0 else proposal  # kind 3: filled by _sharpened_cumulative
     total = cumulative[n - 1]
     j = 0
     for m in range(m_slots):
@@ -487,7 +504,7 @@ class LocalizationResult:
 
 
 #: Where recovery particles are drawn (see the module docstring); the first is the default.
-PROPOSALS = ("likelihood", "best", "uniform")
+PROPOSALS = ("likelihood", "best", "uniform", "sharpened")
 _PROPOSAL_CODE = {name: k for k, name in enumerate(PROPOSALS)}
 
 
@@ -520,13 +537,20 @@ class Localizer:
         Frames a generation of recovery particles is weighed before it is first
         resampled (capped so that the young generations hold at most half the
         particles).
-    proposal : {"likelihood", "best", "uniform"}
+    proposal : {"likelihood", "best", "uniform", "sharpened"}
         Where recovery particles are born: ``∝ e^{r}`` (the frame's likelihood), half
-        uniform and half the ``proposal_top_k`` best places, or uniform. Importance
-        weights make every choice target the same posterior (the grid filter's); they
-        differ in variance.
+        uniform and half the ``proposal_top_k`` best places, uniform, or
+        ``(1 − u) · e^{β r} / Σ e^{β r} + u / n`` (``β = proposal_power``,
+        ``u = proposal_uniform``). Importance weights make every choice target the same
+        posterior (the grid filter's); they differ in variance.
     proposal_top_k : int
         Number of best places the ``"best"`` proposal draws from.
+    proposal_power : float ≥ 0
+        ``β`` of the ``"sharpened"`` proposal (1: the likelihood; larger: the births
+        gather on the frame's best places).
+    proposal_uniform : float in (0, 1]
+        Uniform share ``u`` of the ``"sharpened"`` proposal; positive, so that every
+        place can be proposed and the importance weights stay bounded.
     new_place_prior : float in [0, 1), optional
         Per-step probability of entering unmapped space (0 disables the new place);
         default: the grid filter's (:class:`~catgraph.grid.GridLocalizer`).
@@ -558,7 +582,8 @@ class Localizer:
                  motion: MotionModel | None = None, resampler: str = "systematic", ess_threshold: float = 0.5,
                  recovery: float = 0.05, learn_recovery: bool = True, redraw_fraction: float = 0.1,
                  recovery_frames: int = 8, proposal: str = "likelihood",
-                 proposal_top_k: int = 10, new_place_prior: float | None = None, new_place_stay: float = 0.8,
+                 proposal_top_k: int = 10, proposal_power: float = 8.0, proposal_uniform: float = 0.5,
+                 new_place_prior: float | None = None, new_place_stay: float = 0.8,
                  confidence_radius: int = 2, confidence_radius_m: float | None = None,
                  confidence_score: str = "joint", seed: int | np.random.Generator | None = 0) -> None:
         self.graph = graph
@@ -573,6 +598,8 @@ class Localizer:
         self.recovery_frames = recovery_frames
         self.proposal = proposal
         self.proposal_top_k = proposal_top_k
+        self.proposal_power = proposal_power
+        self.proposal_uniform = proposal_uniform
         self.new_place_prior = new_place_prior
         self.new_place_stay = new_place_stay
         self.confidence_radius = confidence_radius
@@ -597,6 +624,8 @@ class Localizer:
                                         f"Got {self.learn_recovery!r} instead.")
         check_scalar(self.redraw_fraction, "redraw_fraction", owner, float, 0.0, 1.0, True, False)
         check_scalar(self.proposal_top_k, "proposal_top_k", owner, int, 1)
+        check_scalar(self.proposal_power, "proposal_power", owner, float, 0.0)
+        check_scalar(self.proposal_uniform, "proposal_uniform", owner, float, 0.0, 1.0, False, True)
         check_scalar(self.recovery_frames, "recovery_frames", owner, int, 1)
         if self.new_place_prior is None:  # the grid filter's, so that both filters share one model
             import inspect
@@ -742,6 +771,9 @@ class Localizer:
         born = self._births > 0 and self.n_steps_ > 0
         self._newborn = self._generation(self.n_steps_ - 1) if born else (0, 0)
         self._log_recovery = math.log(self.recovery_) + self._log_like_mean if born else -math.inf
+        if self.proposal == "sharpened" and born:
+            _sharpened_cumulative(log_ratio, r_max, float(self.proposal_power), float(self.proposal_uniform),
+                                  self._proposal)
         if self.proposal == "best" and born:
             self._top[:] = _top_k(log_ratio, len(self._top))
         self._rng.random(out=self._uniform)

@@ -278,6 +278,10 @@ def test_errors_name_the_problem():
         Localizer(g, object()).reset()
     with pytest.raises(InvalidParameterError, match="confidence_score"):
         Localizer(g, PeakModel(), confidence_score="max").reset()
+    with pytest.raises(InvalidParameterError, match="proposal_uniform"):
+        Localizer(g, PeakModel(), proposal_uniform=0.0).reset()  # q must stay positive everywhere
+    with pytest.raises(InvalidParameterError, match="proposal_power"):
+        Localizer(g, PeakModel(), proposal_power=-1.0).reset()
     with pytest.raises(InvalidParameterError, match="reliability"):
         CombinedObservation([PeakModel()], reliability="always").observe(np.zeros(3))
 
@@ -353,7 +357,7 @@ def _grid_learns_recovery() -> bool:
     return p is not None and bool(p.default)
 
 
-@pytest.mark.parametrize("proposal", ["likelihood", "best", "uniform"])
+@pytest.mark.parametrize("proposal", ["likelihood", "best", "uniform", "sharpened"])
 def test_particle_posterior_converges_to_the_grid_filter(proposal):
     """Same motion (velocity bins, blur, recovery ε), same observation: the particle
     posterior's distance to the exact one falls like 1/√N, towards 0 — on a metric graph
@@ -401,6 +405,23 @@ def test_recovery_share_is_exact_in_the_prediction_and_the_jump_is_found():
     Localizer(g, fixed, n_particles=500, motion=VelocityMotion(), learn_recovery=False, seed=0).run(rows)
     assert min(p.min() for p in fixed.priors[1:]) >= 0.05 / g.n_places - 1e-12
     assert np.mean(np.abs(pf.place - grid.place) <= 3) > 0.9
+
+
+def test_sharpened_proposal_cumulative_matches_its_definition():
+    """``q = (1 − u) e^{β r} / Σ e^{β r} + u / n``, cumulated: against a plain numpy
+    reading of the definition, ending at 1 and positive at every place."""
+    from catgraph.localizer import _sharpened_cumulative
+
+    rng = np.random.default_rng(2)
+    for n, power, share in ((1, 8.0, 0.5), (50, 1.0, 1.0), (300, 8.0, 0.5), (300, 40.0, 0.01)):
+        r = 30.0 * rng.standard_normal(n)
+        out = np.empty(n)
+        _sharpened_cumulative(r, r.max(), power, share, out)
+        q = np.exp(power * (r - r.max()))
+        expected = np.cumsum((1 - share) * q / q.sum() + share / n)
+        np.testing.assert_allclose(out, expected, rtol=1e-12, atol=1e-15)
+        assert out[-1] == pytest.approx(1.0)
+        assert np.all(np.diff(np.r_[0.0, out]) >= share / n * (1 - 1e-9))
 
 
 def test_compiled_pool_resampling_picks_what_systematic_resample_picks():
