@@ -39,8 +39,11 @@ the running sums never drift, and a window summed term by term (:func:`direct_sc
 gives the same bits.
 
 The streaming and the batch form both call :func:`run_batch` (one row, or blocks of
-rows with a ring a few rows longer), which runs :func:`_velocity_stats` on the same
-stored values in the same order, so their results agree bit for bit.
+rows with a ring a few rows longer), which stores the rows and runs the same compiled
+per-velocity code (:func:`run_velocities`, or :func:`run_velocities_gaussian` for the
+default approximation, compiled without the median and the mixture fit) on the same
+stored values in the same order, so their results agree bit for bit; the velocities
+are shared among threads, each writing only its own sums and outputs.
 """
 
 from __future__ import annotations

@@ -1,0 +1,362 @@
+"""The sequence matcher's kernels: time per streaming step, peak memory, whole-Nordland
+time and compile time, each beside a floor or a reference measured in the same run.
+
+Cases, each in its own process, one after another (peak RSS from ``getrusage``):
+
+``stream N``    :meth:`SequenceMatcher.step` at ``N`` places, adaptive, ``l_max`` 500,
+                the 8 default velocities and 13 lengths, on random normalised-looking
+                rows. The matcher takes one real step, then its ring is filled with
+                ``l_max`` more rows by the matcher's own store kernel (no statistics),
+                so every timed step runs the steady-state path (every window full,
+                every page of the ring written) without 500 untimed steps. Floor: one
+                parallel pass adding a row to every running sum (the ``V G N`` float64
+                values a step must read and write), same threads, same process.
+``nordland``    the whole Nordland 32×16 summer → winter run, adaptive with velocity
+                search (8 velocities) and with ``v = 1`` alone as the in-run reference;
+                the difference matrix timed separately; medians of ``--runs`` runs.
+``compile``     the kernels' first calls with an empty ``NUMBA_CACHE_DIR`` (cold), then
+                again in a second process on the filled cache (warm).
+
+``--before REV`` runs ``nordland`` and ``compile`` also on the package as committed at
+``REV`` (extracted with ``git archive`` into a temporary folder as
+``catgraph_before``), so the before/after comparison shares the machine's load.
+Writes ``benchmarks/results/matcher.md`` and ``matcher.json``::
+
+    python benchmarks/bench_matcher.py [--sizes 10000 100000 1000000] [--before REV] [--runs 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "benchmarks" / "results"
+L_MAX = 500
+
+
+def _rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
+
+
+def _pkg(name: str):
+    import importlib
+
+    return importlib.import_module(name)
+
+
+# ---------------------------------------------------------------------------------------
+# cases (run in child processes)
+
+
+def case_stream(n: int, frames: int) -> dict:
+    import numba
+
+    from catgraph import _sequence_kernels as k
+    from catgraph.sequence import SequenceMatcher
+
+    @numba.njit(parallel=True)
+    def floor_pass(sums, row):
+        v_count, g_count, m = sums.shape
+        for q in numba.prange(v_count * g_count):
+            out = sums[q // g_count, q % g_count]
+            for j in range(m):
+                out[j] += row[j]
+
+    rng = np.random.default_rng(0)
+    rows = rng.normal(size=(3, n))  # a few rows, used in turn (the values do not change the work)
+    warm = SequenceMatcher(l_max=L_MAX)
+    for r in rows[:3, :64]:
+        warm.step(r)  # compile (or load) the kernels on a tiny reference
+    floor_pass(np.zeros((1, 1, 4)), np.zeros(4))
+    rss_start = _rss_mb()
+    m = SequenceMatcher(l_max=L_MAX)
+    m.step(rows[0])
+    for i in range(1, L_MAX + 1):
+        k.advance(m._ring, m._mring, m._state, i, rows[i % 3])
+    m.n_steps_ = L_MAX + 1
+    times = []
+    for t in range(frames):
+        row = rows[t % 3]
+        t0 = time.perf_counter()
+        m.step(row)
+        times.append(time.perf_counter() - t0)
+    floors = []
+    for t in range(max(5, min(frames, 20))):
+        t0 = time.perf_counter()
+        floor_pass(m._sums, rows[t % 3])
+        floors.append(time.perf_counter() - t0)
+    v_count, g_count = m._sums.shape[:2]
+    return {
+        "n": n, "frames": frames, "velocities": int(v_count), "lengths": int(g_count),
+        "step_ms_median": 1e3 * float(np.median(times)), "step_ms_p99": 1e3 * float(np.percentile(times, 99)),
+        "floor_ms_median": 1e3 * float(np.median(floors)),
+        "rss_start_mb": rss_start, "rss_peak_mb": _rss_mb(),
+        "ring_mb": m._ring.nbytes / 1e6, "sums_mb": m._sums.nbytes / 1e6,
+        "scratch_mb": sum(b.nbytes for b in m._buffers) / 1e6,
+        "bytes_per_velocity": int((m._sums.nbytes + m._buffers[0].nbytes) // v_count),
+        "threads": numba.get_num_threads(),
+    }
+
+
+def _nordland_differences():
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from datasets import DATA
+
+    from catgraph.datasets import load_traverse
+    from catgraph.pipeline import differences
+
+    ref = load_traverse(DATA / "nordland" / "32x16" / "summer")
+    query = load_traverse(DATA / "nordland" / "32x16" / "winter")
+    return ref, query, differences
+
+
+def case_nordland(package: str, runs: int) -> dict:
+    ref, query, differences = _nordland_differences()
+    diff_times = []
+    for _ in range(runs if package == "catgraph" else 1):
+        t0 = time.perf_counter()
+        d = differences(ref, query)
+        diff_times.append(time.perf_counter() - t0)
+    d = np.ascontiguousarray(d)
+    match_sequences = _pkg(package + ".sequence").match_sequences
+    match_sequences(d[:60])  # compile or load
+    out = {"package": package, "shape": list(d.shape), "differences_s": diff_times}
+    for name, kwargs in (("v1", {"velocities": (1.0,)}), ("all", {})):
+        times = []
+        for _ in range(runs):
+            t0 = time.perf_counter()
+            res = match_sequences(d, **kwargs)
+            times.append(time.perf_counter() - t0)
+        out[name + "_s"] = times
+        out[name + "_match"] = res.match.tolist()
+    return out
+
+
+def case_compile(package: str) -> dict:
+    out = {}
+
+    def timed(label, fn):
+        w, c = time.perf_counter(), time.process_time()
+        fn()
+        out[label] = {"wall_s": time.perf_counter() - w, "cpu_s": time.process_time() - c}
+
+    seq = {}
+    timed("import", lambda: seq.setdefault("m", _pkg(package + ".sequence")))
+    s = seq["m"]
+    d = np.random.default_rng(0).normal(size=(30, 50))
+    timed("batch, gaussian (the default)", lambda: s.match_sequences(d))
+
+    def stream():
+        m = s.SequenceMatcher()
+        m.step(d[0])
+
+    timed("streaming step, gaussian (after the batch)", stream)
+    timed("batch, gmm2", lambda: s.match_sequences(d, approximation="gmm2"))
+    timed("batch, robust", lambda: s.match_sequences(d, approximation="robust"))
+    return out
+
+
+# ---------------------------------------------------------------------------------------
+# driver
+
+
+def _child(args: list[str], env: dict | None = None, timeout: int = 3600) -> dict:
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--child", *args]
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout, cwd=ROOT)
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(args)} failed:\n{proc.stderr[-3000:]}")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def _extract_before(rev: str, folder: Path, repo: Path) -> None:
+    archive = subprocess.run(["git", "archive", rev, "catgraph"], cwd=repo, capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(folder)], input=archive, check=True)
+    (folder / "catgraph").rename(folder / "catgraph_before")
+
+
+def _env(extra_path: Path | None = None, cache: str | None = None) -> dict:
+    env = dict(os.environ)
+    paths = [str(ROOT)] + ([str(extra_path)] if extra_path else [])
+    env["PYTHONPATH"] = os.pathsep.join(paths + [env.get("PYTHONPATH", "")])
+    if cache is not None:
+        env["NUMBA_CACHE_DIR"] = cache
+    return env
+
+
+def _med(values) -> float:
+    return float(np.median(values))
+
+
+def _markdown(res: dict) -> str:
+    lines = ["# Sequence matcher kernels: step time, memory, whole Nordland, compile time", "",
+             f"Generated by `benchmarks/bench_matcher.py` on {res['machine']} ({os.cpu_count()} cores, shared with "
+             "other engineers' jobs while it ran: compare each figure with the floor or reference measured in the "
+             "same process or run). Adaptive matcher, `l_max` 500, 13 candidate lengths, 8 velocities "
+             "(±0.5, ±1, ±2, ±3) unless stated.", ""] + [f"Note: {note}" for note in res.get("notes", [])] \
+        + ([""] if res.get("notes") else [])
+    st = res.get("stream", [])
+    if st:
+        lines += ["## Streaming step and memory", "",
+                  "One process per N. Floor: one parallel pass adding a row to every running sum (the V·G·N float64 "
+                  "values each step must read and write), same process, same threads. RSS at start: after imports "
+                  "and compiling (or loading) the kernels, before the matcher allocates.", "",
+                  "| N | step median | step p99 | floor (same process) | step / floor | peak RSS | RSS at start "
+                  "| ring (float32, shared) | running sums (float64) | bytes per velocity |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]
+        for r in st:
+            lines.append(
+                f"| {r['n']:,} | {r['step_ms_median']:.1f} ms | {r['step_ms_p99']:.1f} ms "
+                f"({r['frames']} steps) | {r['floor_ms_median']:.1f} ms | ×{r['step_ms_median'] / r['floor_ms_median']:.1f} "
+                f"| {r['rss_peak_mb']:.0f} MiB | {r['rss_start_mb']:.0f} MiB | {r['ring_mb']:.0f} MB | {r['sums_mb']:.0f} MB "
+                f"| {r['bytes_per_velocity'] / 1e6:.2f} MB ({r['bytes_per_velocity'] / r['n']:.0f} B per place) |")
+        lines += ["", "Memory layout: one float32 ring of `l_max + 1` rows shared by all velocities "
+                  "(4·N·501 B), plus per velocity 13 float64 running sums and one float64 scratch row "
+                  "(8·N·14 B = 112 B per place). Before this layout: one float64 prefix ring per velocity, "
+                  "8·N·501 B = 4008 B per place per velocity (3237 MB peak at N = 10⁵ in "
+                  "`benchmarks/results/live.md`; 10⁶ not runnable).", ""]
+    nl = res.get("nordland", {})
+    if nl:
+        lines += ["## Whole Nordland (3576 × 3576), adaptive", "",
+                  f"Medians of {res['runs']} runs in one process per package; the compile is excluded "
+                  "(a warm-up call first). `v = 1 alone` is the in-run reference.", "",
+                  "| package | difference matrix | matcher, v = 1 alone | matcher, 8 velocities | 8 velocities / v = 1 "
+                  "| total (difference + 8 velocities) |", "|---|---|---|---|---|---|"]
+        for key, r in nl.items():
+            dif = _med(r["differences_s"])
+            lines.append(f"| {key} | {dif:.2f} s | {_med(r['v1_s']):.2f} s | {_med(r['all_s']):.2f} s "
+                         f"| ×{_med(r['all_s']) / _med(r['v1_s']):.1f} | {dif + _med(r['all_s']):.2f} s |")
+        if "match_identical" in res:
+            same = res["match_identical"]
+            lines += ["", f"Matches, 8 velocities, current vs before: {100 * same:.1f} % of frames identical (the rest: "
+                      "places whose windows tie exactly — repeated frames in the reference — where the exact sums "
+                      "now return the first place, and the float64 prefix sums returned another)."]
+        lines.append("")
+    cp = res.get("compile", {})
+    if cp:
+        lines += ["## Compile time (numba)", "",
+                  "Each cell: wall / CPU seconds of the first call in a fresh process; cold = empty `NUMBA_CACHE_DIR`, "
+                  "warm = a second process on the cache the cold one filled.", ""]
+        keys = list(next(iter(cp.values()))["cold"].keys())
+        cols = [f"{pkg} {kind}" for pkg in cp for kind in ("cold", "warm")]
+        lines += ["| first call | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
+        for key in keys:
+            cells = []
+            for pkg in cp:
+                for kind in ("cold", "warm"):
+                    v = cp[pkg][kind].get(key)
+                    cells.append(f"{v['wall_s']:.2f} / {v['cpu_s']:.2f}" if v else "–")
+            lines.append(f"| {key} | " + " | ".join(cells) + " |")
+        lines.append("")
+    lines += _goals(res)
+    return "\n".join(lines)
+
+
+def _goals(res: dict) -> list[str]:
+    """The goals beside the measured figures."""
+    out = ["## Goals", "", "| goal | measured | met |", "|---|---|---|"]
+    by_n = {r["n"]: r for r in res.get("stream", [])}
+    for n, limit in ((100_000, 400), (1_000_000, 3000)):
+        if n in by_n:
+            r = by_n[n]
+            peak = r["rss_peak_mb"] * 1.048576  # MiB to MB
+            out.append(f"| streaming peak RSS ≤ {limit} MB at N = {n:,} | {peak:.0f} MB = {r['rss_peak_mb']:.0f} MiB "
+                       f"(the process before the matcher: {r['rss_start_mb']:.0f} MiB; ring {r['ring_mb']:.0f} MB + "
+                       f"sums {r['sums_mb']:.0f} MB + scratch {r['scratch_mb']:.0f} MB) "
+                       f"| {'yes' if peak <= limit else 'no'} |")
+    nl = res.get("nordland", {}).get("current")
+    if nl:
+        total = _med(nl["differences_s"]) + _med(nl["all_s"])
+        out.append(f"| whole Nordland adaptive with velocity search ≤ 5 s on 2 cores, difference matrix included "
+                   f"| {total:.2f} s (on 2 cores shared with other jobs) | {'yes' if total <= 5 else 'no'} |")
+    cp = res.get("compile", {})
+    if "current" in cp and "before" in cp:
+        key = "batch, gaussian (the default)"
+        step = "streaming step, gaussian (after the batch)"
+        now = cp["current"]["cold"][key]["cpu_s"] + cp["current"]["cold"][step]["cpu_s"]
+        then = cp["before"]["cold"][key]["cpu_s"] + cp["before"]["cold"][step]["cpu_s"]
+        out.append(f"| cut the cold compile (batch + streaming, CPU seconds) | {then:.1f} s → {now:.1f} s | "
+                   f"{'yes' if now < then else 'no'} |")
+    out.append("")
+    return out
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", type=int, nargs="*", default=[10_000, 100_000, 1_000_000])
+    ap.add_argument("--frames", type=int, nargs="*", default=None, help="timed steps per size")
+    ap.add_argument("--before", default=None, help="also measure the package at this git revision")
+    ap.add_argument("--repo", default=str(ROOT), help="the git checkout --before is taken from")
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--skip", default="", help="comma-separated: stream,nordland,compile")
+    ap.add_argument("--render", action="store_true", help="only rewrite matcher.md from matcher.json")
+    ap.add_argument("--child", nargs="*", default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.render:
+        (RESULTS / "matcher.md").write_text(_markdown(json.loads((RESULTS / "matcher.json").read_text())))
+        return
+    if args.child is not None:
+        kind = args.child[0]
+        if kind == "stream":
+            out = case_stream(int(args.child[1]), int(args.child[2]))
+        elif kind == "nordland":
+            out = case_nordland(args.child[1], int(args.child[2]))
+        else:
+            out = case_compile(args.child[1])
+        print(json.dumps(out))
+        return
+    skip = set(filter(None, args.skip.split(",")))
+    res = {"machine": platform.platform(), "runs": args.runs}
+    frames = args.frames or [{10_000: 60, 100_000: 30}.get(n, 8) for n in args.sizes]
+    with tempfile.TemporaryDirectory() as tmp:
+        before_path = None
+        if args.before:
+            before_path = Path(tmp) / "before"
+            before_path.mkdir()
+            _extract_before(args.before, before_path, Path(args.repo))
+        packages = [("current", "catgraph")] + ([("before", "catgraph_before")] if before_path else [])
+        if "compile" not in skip:
+            res["compile"] = {}
+            for key, pkg in packages:
+                cache = tempfile.mkdtemp(dir=tmp)
+                res["compile"][f"{key}"] = {
+                    "cold": _child(["compile", pkg], _env(before_path, cache)),
+                    "warm": _child(["compile", pkg], _env(before_path, cache)),
+                }
+                print("compile", key, res["compile"][key], flush=True)
+        if "stream" not in skip:
+            res["stream"] = []
+            for n, f in zip(args.sizes, frames):
+                res["stream"].append(_child(["stream", str(n), str(f)], _env()))
+                print("stream", res["stream"][-1], flush=True)
+        if "nordland" not in skip:
+            res["nordland"] = {}
+            for key, pkg in packages:
+                res["nordland"][key] = _child(["nordland", pkg, str(args.runs)], _env(before_path))
+                r = res["nordland"][key]
+                print("nordland", key, {k: v for k, v in r.items() if not k.endswith("match")}, flush=True)
+    if args.before:
+        res["before"] = args.before
+    nl = res.get("nordland", {})
+    if "before" in nl and "current" in nl:
+        same = np.array(nl["before"]["all_match"]) == np.array(nl["current"]["all_match"])
+        res["match_identical"] = float(np.mean(same))
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / "matcher.json").write_text(json.dumps(
+        {k: v if k != "nordland" else {p: {a: b for a, b in r.items() if not a.endswith("match")}
+                                       for p, r in v.items()} for k, v in res.items()}, indent=1))
+    (RESULTS / "matcher.md").write_text(_markdown(res))
+
+
+if __name__ == "__main__":
+    main()
