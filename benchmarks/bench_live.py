@@ -502,7 +502,7 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
         lines += ["", "## The batch commands on a saved map", "",
                   f"`catgraph <command> --map {Path(batch['map']).name} {Path(batch['query']).name}`, one fresh process "
                   "each, peak RSS of the process (`getrusage`):", "",
-                  "| command | peak RSS | ms / frame |", "|---|---|---|"]
+                  "| command | peak RSS | ms / frame (the whole command over the frames) |", "|---|---|---|"]
         for r in batch["rows"]:
             lines.append(f"| `{r['label']}` | " + (f"failed: {r['error']} | |" if "error" in r else
                                                    f"{r['peak_rss_mb']:.0f} MB | {r['ms_per_frame']:.1f} |"))
