@@ -21,6 +21,10 @@ Writes ``benchmarks/results/particles.md`` and ``particles.json``. From the repo
         [--params '{"n_particles": 2000}'] [--seeds 0,1,2,3,4] [--out particles]
 
 ``--quick``: in order, shuffled 2–20 % seed 0, shuffled 0.5–3 % seed 0, reversed, speed 2.
+
+``--diagnose``: where the seeds differ on Nordland, shuffled 0.5–3 % (seed 4): the share of
+frames answered correctly by frames since the last jump, per filter seed, and the frames
+each seed takes to the first correct answer of a segment (printed, nothing written).
 """
 
 from __future__ import annotations
@@ -73,6 +77,31 @@ def accuracy(datasets: dict, conditions: list, params: dict, seeds: list[int]) -
             print(f"{ds:10s} {condition.label:28s} grid {grid[0]:.3f}  particles {row['auc_mean']:.3f} "
                   f"(spread {row['auc_spread']:.3f})  {time.strftime('%X')}", flush=True)
     return rows
+
+
+def diagnose(params: dict, seeds: list[int]) -> None:
+    """Print, per filter seed, the share of correct answers by frames since the last jump
+    and the mean re-acquisition delay (frames to a segment's first correct answer)."""
+    from catgraph.conditions import Condition
+
+    p = prepared_datasets(["nordland"])["Nordland"][0].under(Condition("shuffle", seed=4,
+                                                                      segment_range=(0.005, 0.03)))
+    correct = []
+    for s in seeds:
+        r = run_method("filter", {"mode": "particles", "seed": s, **params}, p)
+        correct.append(p.ground_truth.correct(r.query_index, r.match))
+        print(f"seed {s}: AUC {r.evaluate(p.ground_truth).metrics.auc:.3f}", flush=True)
+    correct = np.array(correct)
+    qi = r.query_index
+    starts = np.flatnonzero(np.r_[True, np.diff(qi) != 1])
+    since = np.arange(len(qi)) - starts[np.searchsorted(starts, np.arange(len(qi)), side="right") - 1]
+    for lo, hi in ((0, 1), (1, 3), (3, 6), (6, 10), (10, 20), (20, 40), (40, len(qi))):
+        m = (since >= lo) & (since < hi)
+        print(f"{lo}–{hi - 1} frames after a jump ({m.sum()} frames):", np.round(correct[:, m].mean(1), 3))
+    ends = np.r_[starts[1:], len(qi)]
+    delay = np.array([[np.argmax(c[a:b]) if c[a:b].any() else b - a for c in correct] for a, b in zip(starts, ends)])
+    print(f"{len(starts)} segments; mean re-acquisition delay per seed:", np.round(delay.mean(0), 1),
+          "; segments whose delays differ by more than 5 frames:", int(np.sum(np.ptp(delay, 1) > 5)))
 
 
 def step_times(repeats: int = 7) -> list[dict]:
@@ -178,9 +207,13 @@ def main(argv=None) -> None:
     ap.add_argument("--seeds", default="0,1,2,3,4")
     ap.add_argument("--out", default="particles", help="results file stem under benchmarks/results")
     ap.add_argument("--no-timing", action="store_true")
+    ap.add_argument("--diagnose", action="store_true", help="print where the seeds differ (see above) and stop")
     args = ap.parse_args(argv)
     params = json.loads(args.params)
     seeds = [int(s) for s in args.seeds.split(",")]
+    if args.diagnose:
+        diagnose(params, seeds)
+        return
     conditions = benchmark_conditions(args.quick)
     rows = accuracy(prepared_datasets(args.datasets.split(",")), conditions, params, seeds)
     times = None if args.no_timing else step_times()
