@@ -450,7 +450,8 @@ def _filter_not_applicable(params: dict) -> dict[str, str]:
     sequence_models = ("sequence", "adaptive", "combined")
     histogram_models = ("histogram", "histogram-bootstrap", "combined")
     if params["mode"] == "grid":  # "auto" keeps them: they apply where it chooses particles
-        for k in (*_PARTICLE_KEYS, "motion", "seed"):
+        # the seed also draws the histogram models' samples, so it stays for those
+        for k in (*_PARTICLE_KEYS, "motion", *(("seed",) if model not in histogram_models else ())):
             out[k] = "the grid filter has no particles (it is exact); use mode 'particles'"
     if model not in sequence_models:
         for k in ("window", *_WINDOW_ADAPTIVE):
@@ -493,7 +494,7 @@ def _filter_params() -> tuple[Param, ...]:
               "forwards or backwards at 0.5-3 places per frame) or 'frame' (one frame per step, odometry where "
               "given)", choices=("velocity", "frame")),
         Param("n_particles", "int", 2000, "number of particles", low=1, high=10_000_000, flag="--particles"),
-        Param("seed", "int", 0, "seed of the filter", low=0),
+        Param("seed", "int", 0, "seed of the particle filter and of the histogram models' samples", low=0),
         Param("confidence_radius", "int", 2, "places either side of the answer counted in its confidence "
               "(a parameter of the method, not of the evaluation)", low=0, high=1_000_000),
         Param("confidence_radius_m", "float", None, "count posterior mass within METRES instead (needs positions)",

@@ -219,3 +219,24 @@ def test_prepared_inputs_serve_every_condition():
         a, _ = payload(run_method("single-frame", {}, direct), direct)
         b, _ = payload(run_method("single-frame", {}, under), under)
         assert a["frames"] == b["frames"] and a["metrics"] == b["metrics"]
+
+
+def test_every_filter_model_runs_on_the_grid_with_its_seed(image_pair):
+    """Mode 'grid' drops the particle options but keeps the seed of the histogram
+    models' samples: every model runs, and a histogram model's seed is honoured."""
+    from catgraph.methods import FILTER_MODELS
+
+    ref, qry = image_pair
+    prepared = prepare(Experiment(query=qry, reference=ref, tolerance=1))
+    for model in FILTER_MODELS:
+        params = {"model": model, "mode": "grid"}
+        if model in ("adaptive", "combined"):
+            params["l_max"] = 20
+        if model in ("histogram-bootstrap", "combined"):
+            params["max_different"] = 2000
+        result = run_method("filter", params, prepared)
+        assert result.method == f"grid-filter/{model}"
+        assert result.match.shape == (len(prepared.query),)
+    seeded = run_method("filter", {"model": "histogram-bootstrap", "mode": "grid", "max_different": 2000,
+                                   "seed": 3}, prepared)
+    assert seeded.params["seed"] == 3
