@@ -112,37 +112,39 @@ def _fill_sum(mring, i, eff):
 
 
 @njit
-def _add_row(sums, cur, s, eff):
-    """``S += cur``; scores ``S / eff`` (equal-length views: plain loops the compiler can
-    vectorise)."""
+def _add_row(sums, cur, s):
+    """``S += cur``, copied into ``s`` (equal-length views: a plain loop the compiler
+    vectorises)."""
     for q in range(sums.shape[0]):
         val = sums[q] + np.float64(cur[q])
         sums[q] = val
-        s[q] = val / eff
+        s[q] = val
 
 
 @njit
-def _add_row_fill(sums, cur, fill, s, eff):
-    """``S += cur - fill`` (the old term outside the reference); scores ``S / eff``."""
+def _add_row_fill(sums, cur, fill, s):
+    """``S += cur - fill`` (the old term outside the reference), copied into ``s``."""
     for q in range(sums.shape[0]):
         val = sums[q] + (np.float64(cur[q]) - fill)
         sums[q] = val
-        s[q] = val / eff
+        s[q] = val
 
 
 @njit
-def _add_row_old(sums, cur, old, s, eff):
-    """``S += cur - old``; scores ``S / eff``."""
+def _add_row_old(sums, cur, old, s):
+    """``S += cur - old``, copied into ``s``."""
     for q in range(sums.shape[0]):
         val = sums[q] + (np.float64(cur[q]) - np.float64(old[q]))
         sums[q] = val
-        s[q] = val / eff
+        s[q] = val
 
 
 @njit
 def _update_lines(sums_g, ring, mring, i, v, length, s):
-    """Advance one velocity's window sums of length ``length`` to frame ``i`` and write the
-    scores ``s_ij = S / L_eff`` in place order into ``s``.
+    """Advance one velocity's window sums of length ``length`` to frame ``i`` and copy the
+    sums ``S`` in place order into ``s`` (the scores are ``S / L_eff``; the callers divide
+    only where they need the scores themselves: a division per place costs more than the
+    update).
     """
     r = ring.shape[0]
     n = sums_g.shape[0]
@@ -176,7 +178,7 @@ def _update_lines(sums_g, ring, mring, i, v, length, s):
                 slot += n
             val = fill + np.float64(cur[j])
             sums_g[slot] = val
-            s[j] = val / eff
+            s[j] = val
     # the other places continue their line: [0, e_lo) and [e_hi, n)
     if i >= length:
         old = ring[(i - length) % r]
@@ -199,7 +201,7 @@ def _update_lines(sums_g, ring, mring, i, v, length, s):
                 continue
             shift = n - sbase if seg == 0 else -sbase
             if i < length:
-                _add_row(sums_g[lo + shift:hi + shift], cur[lo:hi], s[lo:hi], eff)
+                _add_row(sums_g[lo + shift:hi + shift], cur[lo:hi], s[lo:hi])
                 continue
             # the old term lies inside the reference for j - off in [0, n)
             k_lo = off if off > lo else lo
@@ -207,16 +209,16 @@ def _update_lines(sums_g, ring, mring, i, v, length, s):
             if k_hi < k_lo:
                 k_lo = hi
                 k_hi = hi
-            _add_row_fill(sums_g[lo + shift:k_lo + shift], cur[lo:k_lo], m_old, s[lo:k_lo], eff)
+            _add_row_fill(sums_g[lo + shift:k_lo + shift], cur[lo:k_lo], m_old, s[lo:k_lo])
             _add_row_old(sums_g[k_lo + shift:k_hi + shift], cur[k_lo:k_hi], old[k_lo - off:k_hi - off],
-                         s[k_lo:k_hi], eff)
-            _add_row_fill(sums_g[k_hi + shift:hi + shift], cur[k_hi:hi], m_old, s[k_hi:hi], eff)
+                         s[k_lo:k_hi])
+            _add_row_fill(sums_g[k_hi + shift:hi + shift], cur[k_hi:hi], m_old, s[k_hi:hi])
 
 
 @njit
 def scores_from_sums(sums_g, i, v, length, s):
-    """Scores ``s_ij(L, v) = S / L_eff`` in place order into ``s`` (the values
-    :func:`_update_lines` wrote)."""
+    """Scores ``s_ij(L, v) = S / L_eff`` in place order into ``s`` (the sums
+    :func:`_update_lines` copied, divided)."""
     n = s.shape[0]
     eff = length if length <= i + 1 else i + 1
     sbase = position(v, i) % n
@@ -349,61 +351,67 @@ def _gmm_em(s, stride, mean, std, n_iter, w, mu, sd, resp, coef, inv):
 BLOCK = 64  # places per block of the block minima
 
 
+# Fast-math flags for the sums of :func:`_moments`: reassociation lets the compiler
+# keep them in vector lanes. The order of the additions is then the compiler's, but
+# fixed for one compiled kernel and one row length, and the streaming and the batch
+# forms run the same kernel on the same values: their results still agree bit for bit.
+_REDUCE = {"reassoc", "nsz", "contract"}
+
+
+@njit(fastmath=_REDUCE)
+def _shifted_sums(s, shift):
+    """The sums of ``y = s - shift`` and ``y^2`` (one flat loop, vectorised)."""
+    a = 0.0
+    q = 0.0
+    for j in range(s.shape[0]):
+        y = s[j] - shift
+        a += y
+        q += y * y
+    return a, q
+
+
+@njit
+def _block_min(x):
+    """The minimum of ``x`` (``+inf`` if empty): eight independent lanes, so that the
+    comparisons overlap (a single running minimum waits on the previous one every step).
+    Exact: a minimum does not depend on the order."""
+    m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = np.inf
+    n = x.shape[0]
+    j = 0
+    while j + 8 <= n:
+        m0 = min(m0, x[j])
+        m1 = min(m1, x[j + 1])
+        m2 = min(m2, x[j + 2])
+        m3 = min(m3, x[j + 3])
+        m4 = min(m4, x[j + 4])
+        m5 = min(m5, x[j + 5])
+        m6 = min(m6, x[j + 6])
+        m7 = min(m7, x[j + 7])
+        j += 8
+    while j < n:
+        m0 = min(m0, x[j])
+        j += 1
+    return min(min(min(m0, m1), min(m2, m3)), min(min(m4, m5), min(m6, m7)))
+
+
 @njit
 def _moments(s, shift, bmin):
-    """One pass over the scores ``s``: the sums of ``y = s - shift`` and ``y^2`` and the
-    minimum of every block of :data:`BLOCK` places into ``bmin``. Four lanes each (a fixed
-    order: the same bits on every call), so that the additions overlap."""
+    """The sums of ``y = s - shift`` and ``y^2`` over ``s``, and the minimum of every
+    block of :data:`BLOCK` places into ``bmin``.
+
+    Two passes (``s`` is in cache after the update), each a plain loop the compiler
+    vectorises or pipelines: one loop doing both kept the compiler from vectorising
+    either (the block bounds inside the loop over blocks block it), at several times
+    the cost. The block minima go through a helper on a view of each block for the same
+    reason.
+    """
     n = s.shape[0]
-    a0 = 0.0
-    a1 = 0.0
-    a2 = 0.0
-    a3 = 0.0
-    q0 = 0.0
-    q1 = 0.0
-    q2 = 0.0
-    q3 = 0.0
+    a, q = _shifted_sums(s, shift)
     for blk in range(bmin.shape[0]):
         lo = blk * BLOCK
         hi = lo + BLOCK if lo + BLOCK < n else n
-        m0 = np.inf
-        m1 = np.inf
-        m2 = np.inf
-        m3 = np.inf
-        j = lo
-        while j + 4 <= hi:
-            x0 = s[j]
-            x1 = s[j + 1]
-            x2 = s[j + 2]
-            x3 = s[j + 3]
-            m0 = x0 if x0 < m0 else m0
-            m1 = x1 if x1 < m1 else m1
-            m2 = x2 if x2 < m2 else m2
-            m3 = x3 if x3 < m3 else m3
-            y0 = x0 - shift
-            y1 = x1 - shift
-            y2 = x2 - shift
-            y3 = x3 - shift
-            a0 += y0
-            a1 += y1
-            a2 += y2
-            a3 += y3
-            q0 += y0 * y0
-            q1 += y1 * y1
-            q2 += y2 * y2
-            q3 += y3 * y3
-            j += 4
-        while j < hi:
-            x0 = s[j]
-            m0 = x0 if x0 < m0 else m0
-            y0 = x0 - shift
-            a0 += y0
-            q0 += y0 * y0
-            j += 1
-        m0 = m1 if m1 < m0 else m0
-        m2 = m3 if m3 < m2 else m2
-        bmin[blk] = m2 if m2 < m0 else m0
-    return (a0 + a1) + (a2 + a3), (q0 + q1) + (q2 + q3)
+        bmin[blk] = _block_min(s[lo:hi])
+    return a, q
 
 
 @njit
@@ -438,14 +446,21 @@ def _best_and_second(s, bmin, radius):
 
 @njit
 def _window(sums_g, ring, mring, i, v, length, radius, s, bmin, g, best_j, best_s, second_s, mean, std):
-    """Advance one window's sums to frame ``i``, write its scores into ``s`` and its best
-    place, best and second-best score, mean and spread into the outputs at ``g``.
+    """Advance one window's sums to frame ``i``, copy its sums ``S`` into ``s`` and write
+    its best place, best and second-best score, mean and spread into the outputs at
+    ``g``; returns ``L_eff`` (the scores are ``s / L_eff``).
 
-    Mean and spread in one pass, shifted by the first score (``var = E[y^2] - E[y]^2``
-    with ``y = s - s_0``: no cancellation unless ``s_0`` lies many spreads from the mean);
-    the best and second-best scores from the minima of blocks of places.
+    Everything is computed on the sums and divided by ``L_eff`` once at the end, not
+    per place. The best and second-best scores keep their bits: a positive divisor
+    keeps the order, and two distinct sums (multiples of ``u`` below ``2^52 u``) give
+    distinct quotients, so ``min(S) / L_eff == min(S / L_eff)`` and the first place of
+    the minimum is the same. Mean and spread in one pass, shifted by the first sum
+    (``var = E[y^2] - E[y]^2`` with ``y = S - S_0``: no cancellation unless ``S_0``
+    lies many spreads from the mean); the best and second-best from the minima of
+    blocks of places.
     """
     n = s.shape[0]
+    eff = length if length <= i + 1 else i + 1
     _update_lines(sums_g, ring, mring, i, v, length, s)
     shift = s[0]
     sy, syy = _moments(s, shift, bmin)
@@ -453,10 +468,11 @@ def _window(sums_g, ring, mring, i, v, length, radius, s, bmin, g, best_j, best_
     var = syy / n - my * my
     jb, vb, v2 = _best_and_second(s, bmin, radius)
     best_j[g] = jb
-    best_s[g] = vb
-    second_s[g] = v2
-    mean[g] = shift + my
-    std[g] = np.sqrt(var) if var > 0.0 else 0.0
+    best_s[g] = vb / eff
+    second_s[g] = v2 / eff
+    mean[g] = (shift + my) / eff
+    std[g] = np.sqrt(var) / eff if var > 0.0 else 0.0
+    return eff
 
 
 @njit
@@ -493,7 +509,11 @@ def _velocity_stats(sums_v, ring, mring, i, v, grid, approx, n_iter, em_stride, 
     inv = np.empty(n_components)
     bmin = np.empty((s.shape[0] + BLOCK - 1) // BLOCK)
     for g in range(grid.shape[0]):
-        _window(sums_v[g], ring, mring, i, v, grid[g], radius, s, bmin, g, best_j, best_s, second_s, mean, std)
+        eff = _window(sums_v[g], ring, mring, i, v, grid[g], radius, s, bmin, g, best_j, best_s, second_s, mean,
+                      std)
+        if approx != APPROX_GAUSSIAN:
+            for j in range(s.shape[0]):
+                s[j] = s[j] / eff  # the scores themselves, for the median or the mixture
         if approx == APPROX_GAUSSIAN:
             weights[g, 0] = 1.0
             locs[g, 0] = mean[g]
@@ -621,5 +641,8 @@ def fixed_scores(d, length, v):
     for i in range(n_q):
         advance(ring, mring, state, i, d[i])
         _update_lines(sums, ring, mring, i, v, length, out[i])
+        eff = length if length <= i + 1 else i + 1
+        for j in range(n):
+            out[i, j] = out[i, j] / eff
     return out
 
