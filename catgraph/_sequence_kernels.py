@@ -111,47 +111,123 @@ def _fill_sum(mring, i, eff):
     return total
 
 
-@njit
-def _add_row(sums, cur, s):
-    """``S += cur``, copied into ``s`` (equal-length views: a plain loop the compiler
-    vectorises)."""
-    for q in range(sums.shape[0]):
-        val = sums[q] + np.float64(cur[q])
-        sums[q] = val
-        s[q] = val
+# Fast-math flags for the update loops below: reassociation lets the compiler keep the
+# sums of the statistics in vector lanes. The window sums themselves stay exact (every
+# term a multiple of ``u``, every partial sum below ``2^53 u``: any order gives the same
+# bits); the statistics' order is the compiler's, but fixed for one compiled kernel and
+# one row length, and the streaming and the batch forms run the same kernel on the same
+# values, so their results still agree bit for bit.
+_REDUCE = {"reassoc", "nsz", "contract"}
+
+
+@njit(fastmath=_REDUCE)
+def _add_row(sums, cur, shift):
+    """``S += cur``; returns the sums of ``y = S - shift`` and ``y^2`` (equal-length
+    views: one plain loop the compiler vectorises)."""
+    a = 0.0
+    q = 0.0
+    for k in range(sums.shape[0]):
+        val = sums[k] + np.float64(cur[k])
+        sums[k] = val
+        y = val - shift
+        a += y
+        q += y * y
+    return a, q
+
+
+@njit(fastmath=_REDUCE)
+def _add_row_fill(sums, cur, fill, shift):
+    """``S += cur - fill`` (the old term outside the reference); the sums of ``y`` and
+    ``y^2`` as :func:`_add_row`."""
+    a = 0.0
+    q = 0.0
+    for k in range(sums.shape[0]):
+        val = sums[k] + (np.float64(cur[k]) - fill)
+        sums[k] = val
+        y = val - shift
+        a += y
+        q += y * y
+    return a, q
+
+
+@njit(fastmath=_REDUCE)
+def _add_row_old(sums, cur, old, shift):
+    """``S += cur - old``; the sums of ``y`` and ``y^2`` as :func:`_add_row`."""
+    a = 0.0
+    q = 0.0
+    for k in range(sums.shape[0]):
+        val = sums[k] + (np.float64(cur[k]) - np.float64(old[k]))
+        sums[k] = val
+        y = val - shift
+        a += y
+        q += y * y
+    return a, q
 
 
 @njit
-def _add_row_fill(sums, cur, fill, s):
-    """``S += cur - fill`` (the old term outside the reference), copied into ``s``."""
-    for q in range(sums.shape[0]):
-        val = sums[q] + (np.float64(cur[q]) - fill)
-        sums[q] = val
-        s[q] = val
+def _block_min(x):
+    """The minimum of ``x`` (``+inf`` if empty): eight independent lanes, so that the
+    comparisons overlap (a single running minimum waits on the previous one every step;
+    the compiler does not vectorise a floating-point minimum). Exact: a minimum does not
+    depend on the order."""
+    m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = np.inf
+    n = x.shape[0]
+    j = 0
+    while j + 8 <= n:
+        m0 = min(m0, x[j])
+        m1 = min(m1, x[j + 1])
+        m2 = min(m2, x[j + 2])
+        m3 = min(m3, x[j + 3])
+        m4 = min(m4, x[j + 4])
+        m5 = min(m5, x[j + 5])
+        m6 = min(m6, x[j + 6])
+        m7 = min(m7, x[j + 7])
+        j += 8
+    while j < n:
+        m0 = min(m0, x[j])
+        j += 1
+    return min(min(min(m0, m1), min(m2, m3)), min(min(m4, m5), min(m6, m7)))
 
 
 @njit
-def _add_row_old(sums, cur, old, s):
-    """``S += cur - old``, copied into ``s``."""
-    for q in range(sums.shape[0]):
-        val = sums[q] + (np.float64(cur[q]) - np.float64(old[q]))
-        sums[q] = val
-        s[q] = val
+def _segment_min(seg, j_lo, bmin):
+    """Fold the values ``seg`` of places ``j_lo ..`` into the minima ``bmin`` of their
+    blocks of :data:`BLOCK` places."""
+    j_hi = j_lo + seg.shape[0]
+    if j_hi <= j_lo:
+        return
+    for blk in range(j_lo // BLOCK, (j_hi - 1) // BLOCK + 1):
+        a = blk * BLOCK if blk * BLOCK > j_lo else j_lo
+        b = (blk + 1) * BLOCK if (blk + 1) * BLOCK < j_hi else j_hi
+        m = _block_min(seg[a - j_lo:b - j_lo])
+        if m < bmin[blk]:
+            bmin[blk] = m
 
 
 @njit
-def _update_lines(sums_g, ring, mring, i, v, length, s):
-    """Advance one velocity's window sums of length ``length`` to frame ``i`` and copy the
-    sums ``S`` in place order into ``s`` (the scores are ``S / L_eff``; the callers divide
-    only where they need the scores themselves: a division per place costs more than the
-    update).
+def _update_stats(sums_g, ring, mring, i, v, length, shift, bmin):
+    """Advance one velocity's window sums of length ``length`` to frame ``i``; returns
+    the sums of ``y = S - shift`` and ``y^2`` over the places and writes the minimum sum
+    of every block of :data:`BLOCK` places into ``bmin``.
+
+    One pass: each stretch of places whose slots are contiguous and whose old term is of
+    one kind (none yet, inside the reference, outside it) is a plain vectorised loop
+    over equal-length views (:func:`_add_row`, ...) that updates the sums and
+    accumulates the moments; its block minima follow from the freshly written (cached)
+    sums. No per-place division and no copy: the scores are ``S / L_eff`` and the
+    callers divide once per statistic (or per place, :func:`scores_from_sums`, where
+    they need the scores themselves).
     """
     r = ring.shape[0]
     n = sums_g.shape[0]
+    for blk in range(bmin.shape[0]):
+        bmin[blk] = np.inf
     cur = ring[i % r]
     p = position(v, i)
     sbase = p % n  # slot of place j is (j - sbase) mod N
     eff = length if length <= i + 1 else i + 1
+    sa = 0.0
+    sq = 0.0
     # places whose line enters the reference at this frame: [e_lo, e_hi)
     if i == 0:
         e_lo = 0
@@ -178,7 +254,12 @@ def _update_lines(sums_g, ring, mring, i, v, length, s):
                 slot += n
             val = fill + np.float64(cur[j])
             sums_g[slot] = val
-            s[j] = val
+            y = val - shift
+            sa += y
+            sq += y * y
+            blk = j // BLOCK
+            if val < bmin[blk]:
+                bmin[blk] = val
     # the other places continue their line: [0, e_lo) and [e_hi, n)
     if i >= length:
         old = ring[(i - length) % r]
@@ -199,26 +280,35 @@ def _update_lines(sums_g, ring, mring, i, v, length, s):
             hi = (sbase if sbase < b else b) if seg == 0 else b
             if hi <= lo:
                 continue
-            shift = n - sbase if seg == 0 else -sbase
+            sh = n - sbase if seg == 0 else -sbase
             if i < length:
-                _add_row(sums_g[lo + shift:hi + shift], cur[lo:hi], s[lo:hi])
-                continue
-            # the old term lies inside the reference for j - off in [0, n)
-            k_lo = off if off > lo else lo
-            k_hi = n + off if n + off < hi else hi
-            if k_hi < k_lo:
-                k_lo = hi
-                k_hi = hi
-            _add_row_fill(sums_g[lo + shift:k_lo + shift], cur[lo:k_lo], m_old, s[lo:k_lo])
-            _add_row_old(sums_g[k_lo + shift:k_hi + shift], cur[k_lo:k_hi], old[k_lo - off:k_hi - off],
-                         s[k_lo:k_hi])
-            _add_row_fill(sums_g[k_hi + shift:hi + shift], cur[k_hi:hi], m_old, s[k_hi:hi])
+                da, dq = _add_row(sums_g[lo + sh:hi + sh], cur[lo:hi], shift)
+                sa += da
+                sq += dq
+            else:
+                # the old term lies inside the reference for j - off in [0, n)
+                k_lo = off if off > lo else lo
+                k_hi = n + off if n + off < hi else hi
+                if k_hi < k_lo:
+                    k_lo = hi
+                    k_hi = hi
+                da, dq = _add_row_fill(sums_g[lo + sh:k_lo + sh], cur[lo:k_lo], m_old, shift)
+                sa += da
+                sq += dq
+                da, dq = _add_row_old(sums_g[k_lo + sh:k_hi + sh], cur[k_lo:k_hi], old[k_lo - off:k_hi - off],
+                                      shift)
+                sa += da
+                sq += dq
+                da, dq = _add_row_fill(sums_g[k_hi + sh:hi + sh], cur[k_hi:hi], m_old, shift)
+                sa += da
+                sq += dq
+            _segment_min(sums_g[lo + sh:hi + sh], lo, bmin)
+    return sa, sq
 
 
 @njit
 def scores_from_sums(sums_g, i, v, length, s):
-    """Scores ``s_ij(L, v) = S / L_eff`` in place order into ``s`` (the sums
-    :func:`_update_lines` copied, divided)."""
+    """Scores ``s_ij(L, v) = S / L_eff`` in place order into ``s``."""
     n = s.shape[0]
     eff = length if length <= i + 1 else i + 1
     sbase = position(v, i) % n
@@ -351,74 +441,12 @@ def _gmm_em(s, stride, mean, std, n_iter, w, mu, sd, resp, coef, inv):
 BLOCK = 64  # places per block of the block minima
 
 
-# Fast-math flags for the sums of :func:`_moments`: reassociation lets the compiler
-# keep them in vector lanes. The order of the additions is then the compiler's, but
-# fixed for one compiled kernel and one row length, and the streaming and the batch
-# forms run the same kernel on the same values: their results still agree bit for bit.
-_REDUCE = {"reassoc", "nsz", "contract"}
-
-
-@njit(fastmath=_REDUCE)
-def _shifted_sums(s, shift):
-    """The sums of ``y = s - shift`` and ``y^2`` (one flat loop, vectorised)."""
-    a = 0.0
-    q = 0.0
-    for j in range(s.shape[0]):
-        y = s[j] - shift
-        a += y
-        q += y * y
-    return a, q
-
-
 @njit
-def _block_min(x):
-    """The minimum of ``x`` (``+inf`` if empty): eight independent lanes, so that the
-    comparisons overlap (a single running minimum waits on the previous one every step).
-    Exact: a minimum does not depend on the order."""
-    m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = np.inf
-    n = x.shape[0]
-    j = 0
-    while j + 8 <= n:
-        m0 = min(m0, x[j])
-        m1 = min(m1, x[j + 1])
-        m2 = min(m2, x[j + 2])
-        m3 = min(m3, x[j + 3])
-        m4 = min(m4, x[j + 4])
-        m5 = min(m5, x[j + 5])
-        m6 = min(m6, x[j + 6])
-        m7 = min(m7, x[j + 7])
-        j += 8
-    while j < n:
-        m0 = min(m0, x[j])
-        j += 1
-    return min(min(min(m0, m1), min(m2, m3)), min(min(m4, m5), min(m6, m7)))
-
-
-@njit
-def _moments(s, shift, bmin):
-    """The sums of ``y = s - shift`` and ``y^2`` over ``s``, and the minimum of every
-    block of :data:`BLOCK` places into ``bmin``.
-
-    Two passes (``s`` is in cache after the update), each a plain loop the compiler
-    vectorises or pipelines: one loop doing both kept the compiler from vectorising
-    either (the block bounds inside the loop over blocks block it), at several times
-    the cost. The block minima go through a helper on a view of each block for the same
-    reason.
-    """
-    n = s.shape[0]
-    a, q = _shifted_sums(s, shift)
-    for blk in range(bmin.shape[0]):
-        lo = blk * BLOCK
-        hi = lo + BLOCK if lo + BLOCK < n else n
-        bmin[blk] = _block_min(s[lo:hi])
-    return a, q
-
-
-@njit
-def _best_and_second(s, bmin, radius):
-    """The first place of the smallest score, that score, and the smallest score more
-    than ``radius`` places away (``+inf`` if none), from the block minima."""
-    n = s.shape[0]
+def _best_and_second(sums_g, sbase, bmin, radius):
+    """The first place of the smallest sum, that sum, and the smallest sum more than
+    ``radius`` places away (``+inf`` if none), from the block minima (place ``j`` in slot
+    ``(j - sbase) mod N``)."""
+    n = sums_g.shape[0]
     nb = bmin.shape[0]
     kb = 0
     for blk in range(1, nb):
@@ -426,7 +454,7 @@ def _best_and_second(s, bmin, radius):
             kb = blk
     vb = bmin[kb]
     jb = kb * BLOCK
-    while s[jb] != vb:
+    while sums_g[jb - sbase + n if jb < sbase else jb - sbase] != vb:
         jb += 1
     lo = jb - radius  # places in [lo, hi] are excluded
     hi = jb + radius
@@ -439,40 +467,40 @@ def _best_and_second(s, bmin, radius):
                 v2 = bmin[blk]
         else:
             for j in range(b_lo, b_hi):
-                if (j < lo or j > hi) and s[j] < v2:
-                    v2 = s[j]
+                x = sums_g[j - sbase + n if j < sbase else j - sbase]
+                if (j < lo or j > hi) and x < v2:
+                    v2 = x
     return jb, vb, v2
 
 
 @njit
-def _window(sums_g, ring, mring, i, v, length, radius, s, bmin, g, best_j, best_s, second_s, mean, std):
-    """Advance one window's sums to frame ``i``, copy its sums ``S`` into ``s`` and write
-    its best place, best and second-best score, mean and spread into the outputs at
-    ``g``; returns ``L_eff`` (the scores are ``s / L_eff``).
+def _window(sums_g, ring, mring, i, v, length, radius, bmin, g, best_j, best_s, second_s, mean, std):
+    """Advance one window's sums to frame ``i`` and write its best place, best and
+    second-best score, mean and spread into the outputs at ``g``.
 
     Everything is computed on the sums and divided by ``L_eff`` once at the end, not
     per place. The best and second-best scores keep their bits: a positive divisor
     keeps the order, and two distinct sums (multiples of ``u`` below ``2^52 u``) give
     distinct quotients, so ``min(S) / L_eff == min(S / L_eff)`` and the first place of
-    the minimum is the same. Mean and spread in one pass, shifted by the first sum
-    (``var = E[y^2] - E[y]^2`` with ``y = S - S_0``: no cancellation unless ``S_0``
+    the minimum is the same. Mean and spread from the update's one pass, shifted by the
+    sum in place 0's slot before the update (``var = E[y^2] - E[y]^2`` with
+    ``y = S - shift``: a recent sum of the same window, so no cancellation unless it
     lies many spreads from the mean); the best and second-best from the minima of
     blocks of places.
     """
-    n = s.shape[0]
+    n = sums_g.shape[0]
+    sbase = position(v, i) % n
+    shift = sums_g[n - sbase if sbase > 0 else 0]
     eff = length if length <= i + 1 else i + 1
-    _update_lines(sums_g, ring, mring, i, v, length, s)
-    shift = s[0]
-    sy, syy = _moments(s, shift, bmin)
+    sy, syy = _update_stats(sums_g, ring, mring, i, v, length, shift, bmin)
     my = sy / n
     var = syy / n - my * my
-    jb, vb, v2 = _best_and_second(s, bmin, radius)
+    jb, vb, v2 = _best_and_second(sums_g, sbase, bmin, radius)
     best_j[g] = jb
     best_s[g] = vb / eff
     second_s[g] = v2 / eff
     mean[g] = (shift + my) / eff
     std[g] = np.sqrt(var) / eff if var > 0.0 else 0.0
-    return eff
 
 
 @njit
@@ -492,7 +520,7 @@ def _velocity_stats_gaussian(sums_v, ring, mring, i, v, grid, radius,
     median and the mixture fit)."""
     bmin = np.empty((s.shape[0] + BLOCK - 1) // BLOCK)
     for g in range(grid.shape[0]):
-        _window(sums_v[g], ring, mring, i, v, grid[g], radius, s, bmin, g, best_j, best_s, second_s, mean, std)
+        _window(sums_v[g], ring, mring, i, v, grid[g], radius, bmin, g, best_j, best_s, second_s, mean, std)
         weights[g, 0] = 1.0
         locs[g, 0] = mean[g]
         scales[g, 0] = std[g]
@@ -509,11 +537,9 @@ def _velocity_stats(sums_v, ring, mring, i, v, grid, approx, n_iter, em_stride, 
     inv = np.empty(n_components)
     bmin = np.empty((s.shape[0] + BLOCK - 1) // BLOCK)
     for g in range(grid.shape[0]):
-        eff = _window(sums_v[g], ring, mring, i, v, grid[g], radius, s, bmin, g, best_j, best_s, second_s, mean,
-                      std)
+        _window(sums_v[g], ring, mring, i, v, grid[g], radius, bmin, g, best_j, best_s, second_s, mean, std)
         if approx != APPROX_GAUSSIAN:
-            for j in range(s.shape[0]):
-                s[j] = s[j] / eff  # the scores themselves, for the median or the mixture
+            scores_from_sums(sums_v[g], i, v, grid[g], s)  # the scores themselves, for the median or the mixture
         if approx == APPROX_GAUSSIAN:
             weights[g, 0] = 1.0
             locs[g, 0] = mean[g]
@@ -638,11 +664,10 @@ def fixed_scores(d, length, v):
     mring = np.zeros(length + 1)
     state = np.zeros(1)
     sums = np.zeros(n)
+    bmin = np.empty((n + BLOCK - 1) // BLOCK)
     for i in range(n_q):
         advance(ring, mring, state, i, d[i])
-        _update_lines(sums, ring, mring, i, v, length, out[i])
-        eff = length if length <= i + 1 else i + 1
-        for j in range(n):
-            out[i, j] = out[i, j] / eff
+        _update_stats(sums, ring, mring, i, v, length, 0.0, bmin)
+        scores_from_sums(sums, i, v, length, out[i])
     return out
 
