@@ -69,11 +69,13 @@ FIXED = (5, 10, 20, 50, 100, 200, 500)
 QUICK_FIXED = (10, 50, 200)
 ADAPTIVE = "adaptive (default)"
 CONSISTENT = "adaptive, rule consistent"
+EVIDENT = "adaptive, rule evident"
 PREVIOUS = "previous default"
 SINGLE = "single frame"
 PREVIOUS_KWARGS = dict(rule="sustained", velocities=(1.0,), l_min=10, l_max=500, grid=32, recent_fraction=0.125,
                        confidence="gap")
 CONSISTENT_KWARGS = dict(rule="consistent", recent_fraction=0.0)
+EVIDENT_KWARGS = dict(rule="evident")
 GROUPS = ("in order", "shuffled 2–20 %", "shuffled 0.5–3 %", "reversed", "speed 2", "speed 0.5")
 
 
@@ -91,6 +93,7 @@ def _methods(quick: bool):
         yield f"SeqSLAM L={length}", dict(window=length, velocities=(1.0,)), True
     yield ADAPTIVE, {}, True
     if not quick:
+        yield EVIDENT, EVIDENT_KWARGS, True
         yield CONSISTENT, CONSISTENT_KWARGS, True
         yield PREVIOUS, PREVIOUS_KWARGS, False  # no hub offsets
 

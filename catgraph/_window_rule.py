@@ -22,6 +22,18 @@ SUSTAINED_FRACTION = 0.5
 #: best hypothesis must lie below the mean score of random places at its length
 EVIDENT_SPREADS = 1.0
 
+#: with rule "unrivalled": a recent sub-window of the window's best line may trail the best line
+#: of its own length by at most this many common score spreads ...
+RIVAL_SPREADS = 0.5
+
+#: ... where the sub-windows tested are those from this fraction of the window's length on ...
+RIVAL_FRACTION = 0.2
+
+#: ... and the best line of that length only counts as a rival when it is significant beyond
+#: chance: ``log p < -ln N - RIVAL_MARGIN`` (``N`` reference places; ``-ln N`` is about the
+#: log probability of the best of ``N`` random places)
+RIVAL_MARGIN = 10.0
+
 
 def _needs_sub(cfg: _Config) -> bool:
     return not cfg.fixed and cfg.rule != "literal" and cfg.grid.shape[0] > 1
@@ -71,7 +83,7 @@ def _log_p(st: _Stats) -> np.ndarray:
     return (top + np.log(np.exp(terms - top).sum(axis=-1, keepdims=True)))[..., 0]
 
 
-def _admissible(st: _Stats, cfg: _Config) -> np.ndarray:
+def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_places: int = 1) -> np.ndarray:
     """``(n, V, G)``: windows whose best hypothesis is supported by its own recent frames.
 
     Rules "consistent", "sustained" and "evident": every shorter sub-window of the window's
@@ -79,7 +91,15 @@ def _admissible(st: _Stats, cfg: _Config) -> np.ndarray:
     than to the mean score of random places at that length. Rule "evident" also asks
     *every* shorter sub-window to lie at least :data:`EVIDENT_SPREADS` common spreads below
     that mean: a recent stretch that is not clearly better than a random place is no
-    evidence that the line still holds, however weak the window's own average is.
+    evidence that the line still holds, however weak the window's own average is. Rule
+    "unrivalled" (the default) adds a third test: over every recent sub-window from
+    :data:`RIVAL_FRACTION` of the window on, the window's best line may trail the best line
+    of that length (same velocity) by at most :data:`RIVAL_SPREADS` common spreads, unless
+    that best line is no more significant than chance (``log_p`` at that length not below
+    ``-ln n_places - RIVAL_MARGIN``). A long line that drifts off a route driven at a varying
+    speed, or that runs along repeated scenery, is then rejected as soon as a clearly
+    significant shorter line explains its recent frames better; a weak stretch where no
+    short line is significant (most of Nordland's) leaves it alone.
     """
     n, v_count, g_count = st.best_s.shape
     if not _needs_sub(cfg):
@@ -91,11 +111,19 @@ def _admissible(st: _Stats, cfg: _Config) -> np.ndarray:
     # the window's own score than to the mean of random places at that length
     mid = 0.5 * (st.best_s[..., None] + st.mean[:, :, None, :])  # (n, V, G, H)
     ok = (st.sub <= mid) | ~recent
-    if cfg.rule == "evident":
+    if cfg.rule in ("evident", "unrivalled"):
         # and every shorter sub-window must stand out from random places at its length: at
         # least EVIDENT_SPREADS common spreads (the widest over the velocities) below their mean
         common = _common_std(st)[:, :, None, :]  # (n, 1, 1, H)
         ok &= (st.sub <= st.mean[:, :, None, :] - EVIDENT_SPREADS * common) | ~shorter
+    if cfg.rule == "unrivalled":
+        # and no significant line of a recent sub-window's length may beat the window's
+        # line over those frames by more than RIVAL_SPREADS common spreads
+        common = _common_std(st)[:, :, None, :]  # (n, 1, 1, H)
+        tested = shorter & (lengths[None, :] >= RIVAL_FRACTION * lengths[:, None])
+        rival = log_p < -np.log(n_places) - RIVAL_MARGIN  # (n, V, H)
+        beaten = st.sub > st.best_s[:, :, None, :] + RIVAL_SPREADS * common  # (n, V, G, H)
+        ok &= ~(beaten & rival[:, :, None, :]) | ~tested
     admissible = np.all(ok, axis=3)
     admissible[:, :, 0] = True
     return admissible
@@ -122,7 +150,7 @@ def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool
     # the velocity: the one whose windows are the most significant summed over every length
     v = np.argmin(log_p.sum(axis=2), axis=1)
     lp = log_p[rows, v]  # (n, G)
-    admissible = _admissible(st, cfg)[rows, v]
+    admissible = _admissible(st, cfg, log_p, rows_d.shape[1])[rows, v]
     masked = np.where(admissible, lp, np.inf)
     if cfg.rule == "sustained" and not cfg.fixed:
         # the longest admitted window at least SUSTAINED_FRACTION as significant (in log p)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.special import log_ndtr
 
-from catgraph._window_rule import EVIDENT_SPREADS
+from catgraph._window_rule import EVIDENT_SPREADS, RIVAL_FRACTION, RIVAL_MARGIN, RIVAL_SPREADS
 from catgraph.sequence import SequenceMatcher, match_sequences, window_grid
 
 V1 = (1.0,)
@@ -53,7 +53,11 @@ def slow_choice(d: np.ndarray, grid: np.ndarray, rule: str, fraction: float = 0.
                 sub, own = rows[h][best_j[g]], rows[g][best_j[g]]
                 if grid[h] >= fraction * grid[g] and sub > 0.5 * (own + rows[h].mean()):
                     ok = False
-                if rule == "evident" and sub > rows[h].mean() - EVIDENT_SPREADS * rows[h].std():
+                if rule in ("evident", "unrivalled") and sub > rows[h].mean() - EVIDENT_SPREADS * rows[h].std():
+                    ok = False
+                rival = log_p[h] < -np.log(d.shape[1]) - RIVAL_MARGIN
+                if (rule == "unrivalled" and grid[h] >= RIVAL_FRACTION * grid[g] and rival
+                        and sub > rows[h].min() + RIVAL_SPREADS * rows[h].std()):
                     ok = False
             if ok or g == 0:
                 admitted.append(g)
@@ -63,21 +67,27 @@ def slow_choice(d: np.ndarray, grid: np.ndarray, rule: str, fraction: float = 0.
     return match, length
 
 
-def planted(n_q: int, n_ref: int, seed: int, jump_at: int | None = None) -> np.ndarray:
-    """Noise with a diagonal of lower differences (a jump to another place at ``jump_at``)."""
+def planted(n_q: int, n_ref: int, seed: int, jump_at: int | None = None, strength: float = 1.2,
+            echo: float = 0.0) -> np.ndarray:
+    """Noise with a diagonal of lower differences (a jump to another place at ``jump_at``;
+    after it the old diagonal keeps ``echo`` of the similarity, like repeated scenery)."""
     rng = np.random.default_rng(seed)
     d = rng.normal(size=(n_q, n_ref))
     truth = np.arange(n_q) + 5
     if jump_at is not None:
         truth[jump_at:] = np.arange(n_q - jump_at) + n_ref // 2
-    d[np.arange(n_q), truth % n_ref] -= 1.2
+        old = np.arange(jump_at, n_q) + 5
+        d[np.arange(jump_at, n_q), old % n_ref] -= echo
+    d[np.arange(n_q), truth % n_ref] -= strength
     return on_grid(d)
 
 
-@pytest.mark.parametrize("rule, fraction, seed", [("evident", 0.0, 0), ("evident", 0.3, 1), ("evident", 0.05, 2),
-                                                  ("consistent", 0.0, 0), ("consistent", 0.3, 1)])
-def test_rule_matches_slow_reference(rule, fraction, seed):
-    d = planted(36, 40, seed, jump_at=20)
+@pytest.mark.parametrize("rule, fraction, seed, strength", [
+    ("evident", 0.0, 0, 1.2), ("evident", 0.3, 1, 1.2), ("evident", 0.05, 2, 1.2), ("consistent", 0.0, 0, 1.2),
+    ("consistent", 0.3, 1, 1.2), ("unrivalled", 0.05, 0, 1.2), ("unrivalled", 0.05, 3, 3.0),
+    ("unrivalled", 0.0, 4, 3.0), ("unrivalled", 0.3, 5, 2.5)])
+def test_rule_matches_slow_reference(rule, fraction, seed, strength):
+    d = planted(36, 40, seed, jump_at=20, strength=strength, echo=0.6 * strength)
     grid = window_grid(3, 24, 7)
     result = match_sequences(d, "adaptive", rule=rule, grid=7, l_min=3, l_max=24, velocities=V1,
                              recent_fraction=fraction)
@@ -95,9 +105,20 @@ def test_evident_rule_differs_from_consistent_somewhere():
     assert np.any(evident != consistent)
 
 
-def test_evident_streaming_equals_batch():
-    d = planted(60, 50, 4, jump_at=30)
-    kwargs = dict(rule="evident", l_min=3, l_max=30, grid=6)
+def test_unrivalled_rule_differs_from_evident_somewhere():
+    """The rival test must bite where the old line keeps an echo of the similarity."""
+    grid = window_grid(3, 24, 7)
+    differs = 0
+    for seed in (3, 4, 5):
+        d = planted(36, 40, seed, jump_at=20, strength=3.0, echo=1.8)
+        differs += int(np.sum(slow_choice(d, grid, "unrivalled")[0] != slow_choice(d, grid, "evident")[0]))
+    assert differs > 0
+
+
+@pytest.mark.parametrize("rule", ["evident", "unrivalled"])
+def test_evident_streaming_equals_batch(rule):
+    d = planted(60, 50, 4, jump_at=30, strength=2.5, echo=1.5)
+    kwargs = dict(rule=rule, l_min=3, l_max=30, grid=6)
     batch = match_sequences(d, **kwargs)
     matcher = SequenceMatcher(**kwargs)
     steps = [matcher.step(row) for row in d]
