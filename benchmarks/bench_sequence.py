@@ -15,7 +15,8 @@ applied. Methods:
 * every fixed window L ∈ {5, 10, 20, 50, 100, 200, 500}, with the default velocity search;
 * the classic SeqSLAM fixed windows (the same lengths, forward diagonal v = 1 only, the
   same hub-corrected rows), so that "the best fixed window" is the better of the two;
-* the default adaptive matcher (``match_sequences`` defaults: rule "evident");
+* the default adaptive matcher (``match_sequences`` defaults: rule "unrivalled");
+* the adaptive matcher with rule "evident" (the default before the rival test);
 * the adaptive matcher with rule "consistent" and every shorter sub-window tested (the
   0.2 draft default, for comparison);
 * for reference, the previous default (rule "sustained", forward diagonal only, L in
