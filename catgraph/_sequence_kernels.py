@@ -44,6 +44,20 @@ per-velocity code (:func:`run_velocities`, or :func:`run_velocities_gaussian` fo
 default approximation, compiled without the median and the mixture fit) on the same
 stored values in the same order, so their results agree bit for bit; the velocities
 are shared among threads, each writing only its own sums and outputs.
+
+The hot loop (:func:`_update_stats`, per frame, velocity and window) is one pass over
+the places, cut into stretches whose slots are contiguous and whose old term is of one
+kind, each a plain loop over equal-length views that the compiler vectorises: it updates
+the sums and accumulates the window's moments in the same loop. Nothing is divided or
+copied per place: the statistics are taken on the sums ``S`` and divided by ``L_eff``
+once (the order, and so the best place and the best and second-best scores, are the
+same). The block minima for the best and second-best search come from the freshly
+written sums through an integer minimum over order-preserving keys of their bits,
+which the compiler vectorises where it does not vectorise a floating-point minimum.
+What kept the earlier loops scalar: the block bounds computed inside a loop over blocks
+(the compiler then vectorises neither the minimum nor the sums), a floating-point
+minimum (needs ``nnan`` on the whole function), and sums without reassociation; a
+per-place division cost as much again as the update.
 """
 
 from __future__ import annotations

@@ -362,3 +362,49 @@ def test_public_window_scores_equal_fixed_window_scores():
         np.testing.assert_allclose(m.window_scores(length), fixed_window_scores(d, length)[-1], atol=1e-12)
     with pytest.raises(ValueError, match="length"):
         m.window_scores(17)
+
+
+def test_block_minima_and_moments_of_the_fused_update_equal_numpy():
+    """The fused update's moments and block minima (integer keys of the bits) against
+    numpy on the sums it leaves, for every velocity kind, with negative values, zeros
+    of both signs and blocks cut by the slot wrap and the entering lines."""
+    from catgraph import _sequence_kernels as k
+
+    rng = np.random.default_rng(3)
+    n, length = 150, 4
+    d = rng.normal(size=(12, n))
+    d[5, :40] = 0.0
+    d[6, 40:80] = -0.0
+    for v in (1.0, 0.5, -2.0, 3.0):
+        ring = np.zeros((length + 1, n), dtype=np.float32)
+        mring = np.zeros(length + 1)
+        state = np.zeros(1)
+        sums = np.zeros(n)
+        bmin = np.empty((n + k.BLOCK - 1) // k.BLOCK)
+        for i in range(d.shape[0]):
+            k.advance(ring, mring, state, i, d[i])
+            shift = float(rng.normal())
+            a, q = k._update_stats(sums, ring, mring, i, v, length, shift, bmin)
+            sbase = k.position(v, i) % n
+            in_place = np.roll(sums, sbase)  # place j sits in slot (j - sbase) mod n
+            eff = min(length, i + 1)
+            np.testing.assert_array_equal(in_place / eff, k.fixed_scores(d[: i + 1], length, v)[i])
+            expected = [in_place[b:b + k.BLOCK].min() for b in range(0, n, k.BLOCK)]
+            np.testing.assert_array_equal(bmin, expected)
+            y = in_place - shift
+            assert a == pytest.approx(y.sum(), rel=1e-12, abs=1e-9)
+            assert q == pytest.approx((y * y).sum(), rel=1e-12)
+
+
+def test_key_minimum_orders_as_the_values():
+    from catgraph import _sequence_kernels as k
+
+    x = np.array([3.5, -0.0, 0.0, -1e-300, 1e300, -np.inf, np.inf, -2.0, 5e-324])
+    for lo in range(len(x)):
+        for hi in range(lo + 1, len(x) + 1):
+            bmin = np.full(1, np.inf)
+            k._segment_min(x[lo:hi].copy(), 0, bmin)
+            assert bmin[0] == x[lo:hi].min()
+    bmin = np.full(1, np.inf)
+    k._segment_min(np.empty(0), 0, bmin)
+    assert bmin[0] == np.inf
