@@ -533,8 +533,8 @@ def _sub_scores(sums_v, i, v, grid, best_j, sub):
 def _velocity_stats_gaussian(sums_v, ring, mring, i, v, grid, radius,
                              best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s):
     """:func:`_velocity_stats` for the Gaussian approximation alone (compiles without the
-    median and the mixture fit)."""
-    bmin = np.empty((s.shape[0] + BLOCK - 1) // BLOCK)
+    median and the mixture fit; ``s`` is not read: the statistics come from the sums)."""
+    bmin = np.empty((sums_v.shape[1] + BLOCK - 1) // BLOCK)
     for g in range(grid.shape[0]):
         _window(sums_v[g], ring, mring, i, v, grid[g], radius, bmin, g, best_j, best_s, second_s, mean, std)
         weights[g, 0] = 1.0

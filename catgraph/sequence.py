@@ -30,8 +30,9 @@ velocity, candidate length and line; every window score, and every sub-window sc
 window rule tests, is then ``O(1)``: ``O(N V G)`` per query frame for ``V`` velocities
 and ``G`` lengths. Memory: the ring, ``4 N (l_max + 1)`` bytes (float32: 200 MB at
 ``N = 10^5``, 2.0 GB at ``N = 10^6`` with ``l_max = 500``; 7.2 MB for Nordland's 3,576
-places), plus ``8 N (G + 1)`` bytes per velocity (sums and scratch: 11.2 MB per velocity
-at ``N = 10^5`` with 13 lengths); never an ``N x N`` matrix.
+places), plus ``8 N G`` bytes per velocity (the running sums: 10.4 MB per velocity at
+``N = 10^5`` with 13 lengths; the robust and mixture approximations add one scratch row of
+``8 N`` bytes); never an ``N x N`` matrix.
 
 Precision (a documented policy). Each difference is stored once, rounded to float32 and
 then to a multiple of a quantum ``u = 2^(e - 31)`` fixed by the query's first row
@@ -441,9 +442,10 @@ def _state(cfg: _Config, n: int, chunk: int = 1):
     ring = np.zeros((rows, n), dtype=np.float32)
     mring = np.zeros(rows)
     state = np.zeros(1)  # the quantum, fixed by the first row
+    scores = np.empty((v_count, n if cfg.approx_code != 0 else 0))  # the Gaussian path reads the sums only
     work = np.empty((v_count, n if cfg.approx_code == 1 else 0))
     resp = np.empty((v_count, cfg.n_components, n if cfg.approx_code == 2 else 0))
-    return sums, ring, mring, state, (np.empty((v_count, n)), work, resp)
+    return sums, ring, mring, state, (scores, work, resp)
 
 
 def _em_stride(n: int) -> int:
@@ -565,7 +567,8 @@ class SequenceMatcher:
     the stored values (module docstring), and allocates one float32 ring of the last
     ``max(grid) + 1`` difference rows shared by every velocity
     (``4 * N * (l_max + 1)`` bytes) and, per velocity, a float64 running sum per
-    candidate length and line plus one scratch row (``8 * N * (G + 1)`` bytes). Time per
+    candidate length and line (``8 * N * G`` bytes; one more row for the robust and mixture
+    approximations). Time per
     step is ``O(N * V * G)`` (``V`` velocities, ``G`` candidate lengths), however many
     frames came before; the velocities run in parallel threads.
 
