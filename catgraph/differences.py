@@ -106,6 +106,7 @@ __all__ = [
     "difference_row",
     "iter_difference_blocks",
     "iter_difference_columns",
+    "iter_reference_columns",
     "normalise_rows",
 ]
 
@@ -574,12 +575,49 @@ def iter_difference_columns(
     normalise : bool
     """
     ref = _prepared(reference, metric)
+    return _iter_columns(ref, ref.prepare_query(query), block_places, normalise, "iter_difference_columns")
+
+
+def iter_reference_columns(
+    reference: "PreparedReference", places, block_places: int | None = None, normalise: bool = False
+) -> Iterator[tuple[int, np.ndarray]]:
+    """:func:`iter_difference_columns` of the map against itself: the prepared
+    reference's own rows ``places`` are the queries (as held: float32 values or
+    ``uint8`` codes, never coded twice).
+
+    The statistics a live map keeps of itself (hub levels, bootstrap samples) come from
+    here, so they describe the differences its rows are matched with; with the float32
+    layout the blocks equal those of :func:`iter_difference_columns` on the original
+    descriptors bit for bit.
+
+    Parameters
+    ----------
+    reference : PreparedReference
+    places : array_like of int
+        Indices of the places whose rows are wanted.
+    block_places : int, optional
+        As in :func:`iter_difference_columns`.
+    normalise : bool
+    """
+    if not isinstance(reference, PreparedReference):
+        raise InvalidParameterError(f"iter_reference_columns needs a PreparedReference; got {type(reference).__name__}.")
+    idx = np.asarray(places)
+    if idx.ndim != 1 or idx.size == 0 or idx.dtype.kind not in "iu":
+        raise InvalidParameterError("places must be a non-empty 1-D array of place indices.")
+    if idx.min() < 0 or idx.max() >= reference.n_places:
+        raise InvalidParameterError(f"places must lie in 0 … {reference.n_places - 1}; got {idx.min()} … {idx.max()}.")
+    return _iter_columns(reference, reference.descriptors[idx], block_places, normalise, "iter_reference_columns")
+
+
+def _iter_columns(ref: "PreparedReference", q: np.ndarray, block_places: int | None, normalise: bool,
+                  caller: str) -> Iterator[tuple[int, np.ndarray]]:
+    """Column blocks of prepared query rows ``q`` against ``ref`` (see
+    :func:`iter_difference_columns`)."""
     k = _kernels()
-    q = ref.prepare_query(query)
     m, n = q.shape[0], ref.n_places
     if block_places is None:
         block_places = max(1, _BLOCK_VALUES // max(m, 1))
-    check_scalar(block_places, "block_places", "iter_difference_columns", int, 1)
+    check_scalar(block_places, "block_places", caller, int, 1)
     block_places = -(-int(block_places) // k.SUM_CHUNK) * k.SUM_CHUNK
     edges = list(range(0, n, block_places))
 

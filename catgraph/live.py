@@ -51,10 +51,14 @@ starts as fast as any later one.
 
 Memory of one step
 ------------------
-The map (``N × d`` float32, or ``N × d`` bytes with ``layout="uint8"``), one float64 difference row, and what the models hold: the
-filter ``O(n_particles + N)``, the sequence matcher its ring buffer of
-``l_max + 1`` prefix-sum rows (``8 · N · (l_max + 1)`` bytes while it is float64),
-the histogram models ``O(N)``.
+The map (``N × d`` float32, or ``N × d`` bytes with ``layout="uint8"``: the compact
+map keeps no float copy, its bootstrap samples and hub levels are computed from the
+codes — :func:`reference_bootstrap_samples`, :func:`reference_hub_offsets` — the
+differences its live rows are matched with), one float64 difference row written in
+place every frame, and what the models hold: the filter ``O(N)`` (grid) or
+``O(n_particles)``, the sequence matcher its ring of the last ``l_max + 1`` rows and
+its running sums per velocity and window length (:mod:`catgraph.sequence`), the
+histogram models ``O(N)``. Measured figures: ``benchmarks/results/live.md``.
 """
 
 from __future__ import annotations
@@ -79,6 +83,8 @@ __all__ = [
     "describe_frame",
     "map_bootstrap",
     "map_bootstrap_samples",
+    "reference_bootstrap_samples",
+    "reference_hub_offsets",
     "warm_up",
     "warm_up_batch",
 ]
@@ -172,7 +178,7 @@ def bootstrap_pairs(n_places: int, gap: int, max_different: int = 100_000, seed=
     return rows.astype(np.int64), cols
 
 
-def _reference_rows(reference: PreparedReference, rows: np.ndarray, normalise: bool, block_values: int = 1 << 22):
+def _reference_rows(reference: PreparedReference, rows: np.ndarray, normalise: bool, block_values: int = 1 << 21):
     """Yield ``(places, block)``: the map against itself for the given places,
     ``(len(places), N)`` float64, at most ``block_values`` values per block."""
     step = max(1, block_values // reference.n_places)
@@ -224,7 +230,28 @@ def map_bootstrap_samples(catgraph_map, gap: int | None = None, max_different: i
         ``gap`` from it (low: close to everything, a hub).
     """
     reference = PreparedReference(catgraph_map.descriptors, catgraph_map.metric) if reference is None else reference
-    normalise = bool(catgraph_map.frontend.get("normalise", True))
+    return reference_bootstrap_samples(reference, bool(catgraph_map.frontend.get("normalise", True)), gap,
+                                       max_different, seed, anchor_rows)
+
+
+def reference_bootstrap_samples(reference: PreparedReference, normalise: bool = True, gap: int | None = None,
+                                max_different: int = 100_000, seed=0, anchor_rows: int | None = 4096):
+    """:func:`map_bootstrap_samples` from a prepared reference alone: its rows as held
+    (float32 values or ``uint8`` codes), so a compact live map needs no float copy.
+
+    Parameters
+    ----------
+    reference : PreparedReference
+    normalise : bool
+        Whether the map's rows are normalised per query (its front-end's ``normalise``).
+    gap, max_different, seed, anchor_rows
+        As in :func:`map_bootstrap_samples`.
+
+    Returns
+    -------
+    values, hub : ndarray of float64
+        As in :func:`map_bootstrap_samples`.
+    """
     n = reference.n_places
     if n < 3:
         raise DataError(f"a bootstrap needs at least 3 map places; the map has {n}.")
@@ -248,6 +275,47 @@ def map_bootstrap_samples(catgraph_map, gap: int | None = None, max_different: i
             hub_count[near] -= 1
     hub = np.divide(hub_sum, hub_count, out=np.zeros(n), where=hub_count > 0)
     return values, hub
+
+
+def reference_hub_offsets(reference: PreparedReference, normalise: bool = True, threshold: float | None = None,
+                          max_rows: int | None = None) -> np.ndarray:
+    """:func:`catgraph.hubs.map_hub_offsets` from a prepared reference alone.
+
+    The same sampled rows (all places up to ``max_rows``, else a sample drawn with
+    seed 0), the median of each place's normalised difference to them, and the same
+    outlier rule; the differences are the reference's own (its ``uint8`` codes on a
+    compact map, the differences its live rows are matched with). With the float32
+    layout the result equals :func:`~catgraph.hubs.map_hub_offsets` of the map bit for bit.
+
+    Parameters
+    ----------
+    reference : PreparedReference
+    normalise : bool
+        The map's per-query normalisation.
+    threshold : float, optional
+        Default :data:`catgraph.hubs.HUB_THRESHOLD`.
+    max_rows : int, optional
+        Default :data:`catgraph.hubs.HUB_ROWS`.
+
+    Returns
+    -------
+    ndarray of float64, shape (N,)
+    """
+    from .differences import iter_reference_columns
+    from .hubs import HUB_ROWS, HUB_THRESHOLD, _outlying
+
+    threshold = HUB_THRESHOLD if threshold is None else threshold
+    max_rows = HUB_ROWS if max_rows is None else max_rows
+    check_scalar(threshold, "threshold", "reference_hub_offsets", float, 0.0)
+    check_scalar(max_rows, "max_rows", "reference_hub_offsets", int, 1)
+    n = reference.n_places
+    rows = np.arange(n) if n <= max_rows else np.sort(np.random.default_rng(0).choice(n, max_rows, replace=False))
+    typical = np.empty(n)
+    for lo, block in iter_reference_columns(reference, rows, normalise=normalise):
+        own = np.flatnonzero((rows >= lo) & (rows < lo + block.shape[1]))
+        block[own, rows[own] - lo] = np.nan
+        typical[lo : lo + block.shape[1]] = np.nanmedian(block, axis=0)
+    return _outlying(typical, threshold)
 
 
 class LiveMap:
@@ -276,6 +344,12 @@ class LiveMap:
 
     Attributes
     ----------
+    map : CatgraphMap or None
+        The source map, held with the float32 layout (whose kernel array is the map's
+        own float32 descriptors, no copy). ``None`` with ``layout="uint8"``: once the
+        codes are made, nothing on the live path reads the float descriptors (the
+        bootstrap and the hub levels come from the codes), so they are not kept — the
+        map in memory is ``N × d`` bytes.
     reference : PreparedReference
     kind : str
         ``"images"``, ``"wifi"`` or ``"descriptors"``: what a live frame must be.
@@ -309,7 +383,6 @@ class LiveMap:
         if source.graph is None:
             raise DataError("this map was saved without a place graph (build-map --no-graph); live localisation "
                             "needs one: build the map again without --no-graph.")
-        self.map = source
         self.frontend = source.frontend_settings()
         self.kind = str(source.meta.get("kind", "descriptors"))
         self.metric = source.metric
@@ -318,6 +391,8 @@ class LiveMap:
         self.name = source.name
         self.not_detected = float(not_detected)
         self.reference = PreparedReference(source.descriptors, self.metric, layout=layout)
+        # the compact map keeps no float copy: every statistic reads the codes
+        self.map = source if self.reference.layout == "float32" else None
 
     @property
     def n_places(self) -> int:
@@ -336,8 +411,18 @@ class LiveMap:
                   anchor_rows: int | None = 4096):
         """A fitted ``HistogramLikelihood`` whose ``¬L`` histogram comes from the map
         (:func:`map_bootstrap`); also sets :attr:`hub_`."""
-        likelihood, self.hub_ = map_bootstrap(self.map, gap, max_different, seed, anchor_rows, self.reference)
-        return likelihood
+        from .likelihood import HistogramLikelihood
+
+        values, self.hub_ = reference_bootstrap_samples(self.reference, self.frontend.normalise, gap, max_different,
+                                                        seed, anchor_rows)
+        return HistogramLikelihood().fit(np.empty(0), values)
+
+    def hub_offsets(self) -> np.ndarray:
+        """The map's hub offsets for the sequence matcher (:func:`reference_hub_offsets`;
+        computed once)."""
+        if getattr(self, "_hub_offsets", None) is None:
+            self._hub_offsets = reference_hub_offsets(self.reference, self.frontend.normalise)
+        return self._hub_offsets
 
     def __repr__(self) -> str:
         return (f"LiveMap(name={self.name!r}, n_places={self.n_places}, kind={self.kind!r}, metric={self.metric!r}, "
@@ -454,11 +539,7 @@ class LiveLocalizer:
             from .sequence import SequenceMatcher
 
             self.params_ = resolve_params("sequence", {"window": "adaptive", **params})
-            hubs = None
-            if self.params_["hub_correction"]:
-                from .hubs import map_hub_offsets
-
-                hubs = map_hub_offsets(live_map.map)
+            hubs = live_map.hub_offsets() if self.params_["hub_correction"] else None
             self.matcher_ = SequenceMatcher(radius=self.params_["exclusion"], hub_offsets=hubs,
                                             **_sequence_kwargs(self.params_))
             return
@@ -467,8 +548,8 @@ class LiveLocalizer:
         self.params_ = p = resolve_params("filter", {"model": model, **params})
 
         def bootstrap_samples(gap: int, max_different: int, seed: int) -> np.ndarray:
-            values, self.live_map.hub_ = map_bootstrap_samples(live_map.map, gap, max_different, seed, anchor_rows,
-                                                               live_map.reference)
+            values, self.live_map.hub_ = reference_bootstrap_samples(live_map.reference, live_map.frontend.normalise,
+                                                                     gap, max_different, seed, anchor_rows)
             return values
 
         obs = observation_model(p, live_map.n_places, bootstrap_samples)

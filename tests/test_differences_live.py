@@ -344,3 +344,34 @@ def test_normalisation_split_over_threads_equals_one_thread_bit_for_bit(rng, mon
     for x, got in zip((row, matrix), many):
         want = (x - x.mean(1, keepdims=True)) / x.std(1, keepdims=True)
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("metric, layout", [("sad", "float32"), ("sad", "uint8"), ("ssd", "uint8"),
+                                            ("cosine", "float32"), ("hamming", "uint8")])
+def test_reference_columns_are_the_map_against_its_own_rows(metric, layout, rng):
+    from catgraph.differences import iter_difference_columns, iter_reference_columns
+
+    if metric == "hamming":
+        r = rng.random((5000, 24)) > 0.5
+    else:
+        r = rng.normal(size=(5000, 24)).astype(np.float32)
+    ref = PreparedReference(r, metric, layout)
+    places = np.array([0, 17, 311, 4999])
+    for normalise in (False, True):
+        got = np.concatenate([b for _, b in iter_reference_columns(ref, places, block_places=4096,
+                                                                   normalise=normalise)], axis=1)
+        if layout == "float32":  # the original descriptors as queries: the same bits
+            want = np.concatenate([b for _, b in iter_difference_columns(r[places], ref, metric, block_places=4096,
+                                                                         normalise=normalise)], axis=1)
+        else:  # slow integer reference on the codes themselves (never coded twice)
+            c = ref.descriptors.astype(np.int64)
+            diff = c[places][:, None, :] - c[None]
+            want = (diff**2).sum(-1) * ref.step**2 if metric == "ssd" else np.abs(diff).sum(-1) * ref.step
+            if normalise:
+                want = normalise_rows(want)
+        assert np.array_equal(got, want)
+        assert np.all(got[np.arange(len(places)), places] == got.min(axis=1))  # each row is nearest itself
+    with pytest.raises(InvalidParameterError, match="places must lie"):
+        next(iter_reference_columns(ref, np.array([5000])))
+    with pytest.raises(InvalidParameterError, match="PreparedReference"):
+        iter_reference_columns(r, places)

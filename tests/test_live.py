@@ -133,7 +133,8 @@ def test_uint8_live_map_equals_the_batch_matcher_on_its_own_differences(world):
     d = difference_matrix(q[:60], live_map.reference, live_map.metric, normalise=True)
     # the codes' differences are those of the float map to within the stated bound
     raw = difference_matrix(q[:5], live_map.reference, live_map.metric)
-    exact = np.abs(q[:5, None, :].astype(float) - live_map.map.descriptors[None].astype(float)).sum(-1)
+    float_map, _ = describe(world.reference)
+    exact = np.abs(q[:5, None, :].astype(float) - float_map[None].astype(float)).sum(-1)
     for i in range(5):
         assert np.abs(raw[i] - exact[i]).max() <= live_map.reference.quantisation_bound(q[i]) + 1e-9
     p = live.params_
@@ -142,6 +143,49 @@ def test_uint8_live_map_equals_the_batch_matcher_on_its_own_differences(world):
     # the combined filter runs on the compact map and its bootstrap
     live = LiveLocalizer(live_map, model="combined", n_particles=100, seed=0)
     assert 0 <= live.step(world.query.frames[0]).place < live_map.n_places
+
+
+def test_compact_live_map_holds_no_float_copy_and_its_statistics_read_the_codes(world):
+    import gc
+    import weakref
+
+    from catgraph.hubs import map_hub_offsets
+    from catgraph.io import build_map
+    from catgraph.live import reference_bootstrap_samples, reference_hub_offsets
+
+    source = build_map(world.reference)
+    floats = weakref.ref(source.descriptors)
+    compact = LiveMap(source, layout="uint8")
+    assert compact.map is None
+    held = [v for v in vars(compact).values() if isinstance(v, np.ndarray) and v is not compact.positions]
+    held += [v for v in vars(compact.reference).values() if isinstance(v, np.ndarray)]
+    assert [a.dtype for a in held if a.ndim == 2] == [np.uint8]
+    assert sum(a.nbytes for a in held) <= compact.n_places * compact.reference.dim
+    del source
+    gc.collect()
+    assert floats() is None  # the caller dropped the map: nothing of the float descriptors is left
+    # bootstrap and hub statistics come from the codes: equal to the slow reference on the codes
+    from catgraph.differences import normalise_rows
+
+    codes = compact.reference.descriptors.astype(np.int64)
+    full = normalise_rows(np.abs(codes[:, None, :] - codes[None]).sum(-1) * compact.reference.step)
+    from catgraph.observation import HistogramObservation
+
+    z = np.linspace(-4, 4, 41)
+    want = HistogramObservation.bootstrap(full, gap=12, max_different=4000, seed=5).likelihood
+    assert np.array_equal(compact.bootstrap(gap=12, max_different=4000, seed=5).log_likelihood_ratio(z),
+                          want.log_likelihood_ratio(z))
+    from catgraph.hubs import hub_offsets
+
+    assert np.array_equal(compact.hub_offsets(), hub_offsets(full))
+    # the float32 layout: the map's own descriptors (no copy) and the batch hub offsets, bit for bit
+    source = build_map(world.reference)
+    plain = LiveMap(source)
+    assert plain.map is source and np.shares_memory(plain.reference.descriptors, source.descriptors)
+    assert np.array_equal(plain.hub_offsets(), map_hub_offsets(source))
+    assert np.array_equal(reference_hub_offsets(plain.reference, max_rows=40), map_hub_offsets(source, max_rows=40))
+    values, hub = reference_bootstrap_samples(plain.reference, True, 12, 500, 5)
+    assert values.shape == (500,) and hub.shape == (plain.n_places,)
 
 
 def test_live_map_from_saved_map_and_bad_inputs(world, tmp_path):
