@@ -162,18 +162,21 @@ def _pair_block(q: np.ndarray, r: np.ndarray, code: int, out: np.ndarray, step: 
 
 
 def _run_parallel(calls: list) -> None:
-    """Run ``(kernel, args)`` calls (GIL-releasing, disjoint outputs) on the shared pool."""
+    """Run ``(kernel, args)`` calls (GIL-releasing, disjoint outputs): the first on the
+    calling thread, the others on the shared pool (the caller would only wait for them:
+    one thread hand-off fewer per call)."""
     global _POOL
-    if len(calls) == 1:
-        calls[0][0](*calls[0][1])
-        return
-    if _POOL is None or _POOL._max_workers < len(calls):
-        from concurrent.futures import ThreadPoolExecutor
+    if len(calls) > 1:
+        if _POOL is None or _POOL._max_workers < len(calls) - 1:
+            from concurrent.futures import ThreadPoolExecutor
 
-        _POOL = ThreadPoolExecutor(max_workers=len(calls), thread_name_prefix="catgraph-differences")
-    jobs = [_POOL.submit(kernel, *args) for kernel, args in calls]
-    for job in jobs:
-        job.result()
+            _POOL = ThreadPoolExecutor(max_workers=len(calls) - 1, thread_name_prefix="catgraph-differences")
+        jobs = [_POOL.submit(kernel, *args) for kernel, args in calls[1:]]
+    try:
+        calls[0][0](*calls[0][1])
+    finally:
+        for job in jobs if len(calls) > 1 else ():
+            job.result()
 
 
 #: float64 values per thread below which the normalisation passes run on one thread.
@@ -197,7 +200,7 @@ def _split(m: int, n: int, chunk: int) -> list[tuple[int, int, int, int]]:
     return [(0, 1, lo, hi) for lo, hi in zip(edges[:-1], edges[1:])]
 
 
-def _check_finite(x: np.ndarray, name: str, rows: int = 65536) -> None:
+def _check_finite(x: np.ndarray, name: str, rows: int = 8192) -> None:
     """Finiteness of a float array, checked in row chunks (bounded scratch memory)."""
     if x.dtype.kind != "f":
         return
@@ -473,8 +476,9 @@ class PreparedReference:
                 f"layout={self.layout!r})")
 
 
-#: Rows encoded at once by the compact layout (bounds the float scratch memory).
-_CODE_ROWS = 8192
+#: Rows encoded at once by the compact layout (bounds the float scratch memory: about
+#: 8 MiB of float64 per 512-value chunk, beside the map being coded).
+_CODE_ROWS = 2048
 
 
 def code_scale(descriptors, metric: str = "sad") -> tuple[float, float]:
