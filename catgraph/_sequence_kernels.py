@@ -11,53 +11,61 @@ call the *same* kernels in the same order, so their results agree bit for bit.
 Layout (see :mod:`catgraph.sequence`). Velocity ``v`` places query frame ``i`` at
 reference offset ``pos_v(i) = floor(v * i + 1/2)``; the *line* ``c = j - pos_v(i)``
 visits place ``c + pos_v(t)`` at frame ``t``. Lines are global, so one history serves
-every velocity:
+every velocity. Every stored value is an integer *code*, a multiple of the quantum
+``u = state[0]`` that the first row fixes (:func:`unit_of`: ``u = 2^(e - 12)`` with
+``max_j |d_0j| < 2^e``, so the first row's codes lie below ``2^12`` in magnitude):
 
-``ring`` ``(R, N) float32``
+``ring`` ``(R, N) int16``
     the last ``R >= l_max + 1`` difference rows, row ``t`` at ``ring[t % R]``, stored
-    once on arrival (:func:`advance`): rounded to float32, then to a multiple of the
-    quantum ``u = state[0]`` that the first row fixes (:func:`unit_of`); every later
-    use reads these values.
-``mring`` ``(R,) float64``
-    the mean of each stored row, rounded to a multiple of ``u`` (the fill for a term
-    whose place lies outside ``[0, N)``).
-``sums`` ``(V, G, N) float64``
-    for each velocity and candidate length ``L``, the window sum along every line that
-    currently meets the reference, ``S_{v,L}(i, c) = sum_{t=i-L_eff+1}^{i} val(t, c)``
-    with ``L_eff = min(L, i + 1)`` and ``val(t, c) = d[t, c + pos_v(t)]`` (the row's
-    mean outside the reference). Line ``c`` lives in slot ``c mod N``: the ``N`` lines
-    meeting the reference at any frame are ``N`` consecutive integers, so a line that
-    leaves hands its slot to the one that enters.
+    once on arrival (:func:`advance`) as ``code = rint(d / u)``, saturated at
+    ``±CODE_MAX = ±32767``: a difference up to ``2^15 / 2^12 = 8`` times the first
+    row's largest keeps its value to ``u / 2``; a larger one is stored as ``±32767 u``
+    (it never wraps around). Every later use reads these codes: ``2 R`` bytes per place.
+``mring`` ``(R,) int16``
+    the mean code of each stored row, rounded to an integer (the fill for a term whose
+    place lies outside ``[0, N)``).
+``sums`` ``(V, G, N) int32``
+    for each velocity and candidate length ``L``, the window sum of codes along every
+    line that currently meets the reference, ``S_{v,L}(i, c) = sum_{t=i-L_eff+1}^{i}
+    code(t, c)`` with ``L_eff = min(L, i + 1)`` and ``code(t, c)`` the code of
+    ``d[t, c + pos_v(t)]`` (the row's mean code outside the reference): ``4 V G`` bytes
+    per place. ``|S| <= l_max * 32767 < 2^31`` for ``l_max <= 65,538``, so integer
+    arithmetic is exact (the matcher keeps ``int64`` sums for longer windows). Line
+    ``c`` lives in slot ``c mod N``: the ``N`` lines meeting the reference at any frame
+    are ``N`` consecutive integers, so a line that leaves hands its slot to the one that
+    enters.
 
 One frame updates each sum in ``O(1)``:
-``S(i, c) = S(i - 1, c) + val(i, c) - val(i - L, c)`` (no subtraction while
+``S(i, c) = S(i - 1, c) + code(i, c) - code(i - L, c)`` (no subtraction while
 ``i < L``); a line entering the reference at frame ``i`` was outside for all earlier
 frames, so it starts from the sum of the row means of the window's earlier frames.
-Every term is a multiple of ``u``, so every addition is exact while ``|S| < 2^53 u``
-(differences below about ``2^13`` times the first row's largest at ``l_max = 500``):
-the running sums never drift, and a window summed term by term (:func:`direct_scores`)
-gives the same bits.
+Integer sums never drift: the running sums equal a window summed term by term
+(:func:`direct_scores`) exactly, after any number of frames, and places whose windows
+tie exactly keep tying. A score is ``S u / L_eff``, converted to float64 once where it
+is divided; against the float64 score of the same differences it is off by at most
+``u / 2`` (each term by at most ``u / 2``), plus the saturation of terms beyond
+``32767 u``.
 
 The streaming and the batch form both call :func:`run_batch` (one row, or blocks of
 rows with a ring a few rows longer), which stores the rows and runs the same compiled
 per-velocity code (:func:`run_velocities`, or :func:`run_velocities_gaussian` for the
 default approximation, compiled without the median and the mixture fit) on the same
-stored values in the same order, so their results agree bit for bit; the velocities
+stored codes in the same order, so their results agree bit for bit; the velocities
 are shared among threads, each writing only its own sums and outputs.
 
 The hot loop (:func:`_update_stats`, per frame, velocity and window) is one pass over
 the places, cut into stretches whose slots are contiguous and whose old term is of one
-kind, each a plain loop over equal-length views that the compiler vectorises: it updates
-the sums and accumulates the window's moments in the same loop. Nothing is divided or
-copied per place: the statistics are taken on the sums ``S`` and divided by ``L_eff``
+kind, each a plain loop over equal-length views that the compiler vectorises (int32
+additions, an int64 sum and a float64 sum of squares): it updates the sums and
+accumulates the window's moments in the same loop. Nothing is divided or copied per
+place: the statistics are taken on the integer sums ``S`` and scaled by ``u / L_eff``
 once (the order, and so the best place and the best and second-best scores, are the
-same). The block minima for the best and second-best search come from the freshly
-written sums through an integer minimum over order-preserving keys of their bits,
-which the compiler vectorises where it does not vectorise a floating-point minimum.
-What kept the earlier loops scalar: the block bounds computed inside a loop over blocks
-(the compiler then vectorises neither the minimum nor the sums), a floating-point
-minimum (needs ``nnan`` on the whole function), and sums without reassociation; a
-per-place division cost as much again as the update.
+same). The block minima for the best and second-best search are integer minima over
+the freshly written sums, which the compiler vectorises. What kept earlier loops
+scalar: the block bounds computed inside a loop over blocks (the compiler then
+vectorises neither the minimum nor the sums), a floating-point minimum (needs ``nnan``
+on the whole function), and floating-point sums without reassociation; a per-place
+division cost as much again as the update.
 """
 
 from __future__ import annotations
@@ -72,6 +80,19 @@ APPROX_GAUSSIAN = 0
 APPROX_ROBUST = 1
 APPROX_GMM = 2
 
+#: the largest stored code in magnitude (int16, symmetric: larger values saturate)
+CODE_MAX = 32767
+#: the first row's largest difference lies below ``2**FIRST_ROW_BITS`` quanta
+FIRST_ROW_BITS = 12
+#: block minimum of a block with no place (larger than any sum)
+_NONE = np.int64(1) << 62
+
+
+def sums_dtype(l_max):
+    """``int32`` running sums where ``l_max * CODE_MAX < 2**31`` (any ``l_max <= 65,538``),
+    else ``int64``: integer window sums never overflow."""
+    return np.int32 if int(l_max) * CODE_MAX < 2**31 else np.int64
+
 
 @njit
 def position(v, i):
@@ -81,71 +102,76 @@ def position(v, i):
 
 @njit
 def unit_of(d_row):
-    """The quantum ``u = 2**(e - 31)`` fixed by the first row, ``max|d_0j| < 2**e``."""
+    """The quantum ``u = 2**(e - FIRST_ROW_BITS)`` fixed by the first row, ``max|d_0j| < 2**e``."""
     top = 0.0
     for j in range(d_row.shape[0]):
         a = abs(d_row[j])
         if a > top:
             top = a
     _, e = math.frexp(top)  # top = m 2**e, 0.5 <= m < 1 (e = 0 for a zero row)
-    return math.ldexp(1.0, e - 31)
+    return math.ldexp(1.0, e - FIRST_ROW_BITS)
 
 
 @njit
-def quantise(x, unit):
-    """``x`` rounded to float32, then to a multiple of ``unit`` (float64, float32-exact)."""
-    return np.rint(np.float64(np.float32(x)) / unit) * unit
+def encode(x, unit):
+    """``x`` as a code: ``rint(x / unit)`` saturated at ``±CODE_MAX`` (int64)."""
+    c = np.rint(x / unit)
+    if c > CODE_MAX:
+        c = CODE_MAX
+    elif c < -CODE_MAX:
+        c = -CODE_MAX
+    return np.int64(c)
 
 
 @njit
 def advance(ring, mring, state, i, d_row):
-    """Store query frame ``i``'s row, quantised, in ``ring[i % R]`` and its
-    quantised mean in ``mring``; frame 0 fixes the quantum ``state[0]``."""
+    """Store query frame ``i``'s row as codes in ``ring[i % R]`` and its mean code in
+    ``mring``; frame 0 fixes the quantum ``state[0]``."""
     if i == 0:
         state[0] = unit_of(d_row)
     unit = state[0]
     r = ring.shape[0]
     out = ring[i % r]
     n = d_row.shape[0]
-    total = 0.0
+    total = 0
     for j in range(n):
-        x = quantise(d_row[j], unit)
-        out[j] = np.float32(x)
-        total += x
-    mring[i % r] = np.rint(total / n / unit) * unit
+        c = encode(d_row[j], unit)
+        out[j] = c
+        total += c
+    mring[i % r] = np.int64(np.rint(total / n))
 
 
 @njit
 def _fill_sum(mring, i, eff):
-    """Sum of the row means of frames ``i - eff + 1 .. i - 1`` (a new line's earlier terms)."""
+    """Sum of the mean codes of frames ``i - eff + 1 .. i - 1`` (a new line's earlier terms)."""
     r = mring.shape[0]
-    total = 0.0
+    total = 0
     for t in range(i - eff + 1, i):
-        total += mring[t % r]
+        total += np.int64(mring[t % r])
     return total
 
 
 # Fast-math flags for the update loops below: reassociation lets the compiler keep the
-# sums of the statistics in vector lanes. The window sums themselves stay exact (every
-# term a multiple of ``u``, every partial sum below ``2^53 u``: any order gives the same
-# bits); the statistics' order is the compiler's, but fixed for one compiled kernel and
-# one row length, and the streaming and the batch forms run the same kernel on the same
-# values, so their results still agree bit for bit.
+# float64 sum of squares in vector lanes. The window sums and their plain sum are
+# integers (exact in any order); the sum of squares' order is the compiler's, but fixed
+# for one compiled kernel and one row length, and the streaming and the batch forms run
+# the same kernel on the same codes, so their results still agree bit for bit.
 _REDUCE = {"reassoc", "nsz", "contract"}
 
 
 @njit(fastmath=_REDUCE)
 def _add_row(sums, cur, shift):
-    """``S += cur``; returns the sums of ``y = S - shift`` and ``y^2`` (equal-length
-    views: one plain loop the compiler vectorises)."""
-    a = 0.0
+    """``S += cur``; returns the sums of ``y = S - shift`` (int64, exact) and ``y^2``
+    (float64) (equal-length views: one plain loop the compiler vectorises)."""
+    a = 0
     q = 0.0
     for k in range(sums.shape[0]):
-        val = sums[k] + np.float64(cur[k])
+        val = sums[k] + cur[k]
         sums[k] = val
         y = val - shift
         a += y
-        q += y * y
+        f = np.float64(y)
+        q += f * f
     return a, q
 
 
@@ -153,96 +179,81 @@ def _add_row(sums, cur, shift):
 def _add_row_fill(sums, cur, fill, shift):
     """``S += cur - fill`` (the old term outside the reference); the sums of ``y`` and
     ``y^2`` as :func:`_add_row`."""
-    a = 0.0
+    a = 0
     q = 0.0
     for k in range(sums.shape[0]):
-        val = sums[k] + (np.float64(cur[k]) - fill)
+        val = sums[k] + (cur[k] - fill)
         sums[k] = val
         y = val - shift
         a += y
-        q += y * y
+        f = np.float64(y)
+        q += f * f
     return a, q
 
 
 @njit(fastmath=_REDUCE)
 def _add_row_old(sums, cur, old, shift):
     """``S += cur - old``; the sums of ``y`` and ``y^2`` as :func:`_add_row`."""
-    a = 0.0
+    a = 0
     q = 0.0
     for k in range(sums.shape[0]):
-        val = sums[k] + (np.float64(cur[k]) - np.float64(old[k]))
+        val = sums[k] + (np.int32(cur[k]) - np.int32(old[k]))
         sums[k] = val
         y = val - shift
         a += y
-        q += y * y
+        f = np.float64(y)
+        q += f * f
     return a, q
 
 
-_FLIP = np.int64(0x7FFFFFFFFFFFFFFF)
-_KEY_INF = np.int64(0x7FF0000000000000)  # the key of +inf
-
-
 @njit
-def _key_min(bits):
-    """The smallest key ``k = b ^ ((b >> 63) & 0x7FF..F)`` over the bits ``b`` of some
-    float64 values (the key of ``+inf`` if none).
-
-    The keys order exactly as the (non-NaN) values do, and the compiler vectorises an
-    integer minimum but not a floating-point one (its pattern needs ``nnan`` on the
-    whole function): several times faster. Equal values give one key except ``-0.0``,
-    which sorts below ``+0.0`` but compares equal to it, so the first place holding the
-    minimum (found by comparing values) is the same. The key is its own inverse.
-    """
-    m = _KEY_INF
-    for j in range(bits.shape[0]):
-        b = bits[j]
-        k = b ^ ((b >> 63) & _FLIP)
-        m = k if k < m else m
+def _block_min(seg):
+    """The smallest of some integer sums (a plain loop the compiler vectorises)."""
+    m = seg[0]
+    for j in range(1, seg.shape[0]):
+        x = seg[j]
+        m = x if x < m else m
     return m
 
 
 @njit
 def _segment_min(seg, j_lo, bmin):
-    """Fold the values ``seg`` of places ``j_lo ..`` into the minima ``bmin`` of their
+    """Fold the sums ``seg`` of places ``j_lo ..`` into the minima ``bmin`` of their
     blocks of :data:`BLOCK` places (exact: a minimum does not depend on the order)."""
     j_hi = j_lo + seg.shape[0]
     if j_hi <= j_lo:
         return
-    bits = seg.view(np.int64)
-    bkeys = bmin.view(np.int64)
     for blk in range(j_lo // BLOCK, (j_hi - 1) // BLOCK + 1):
         a = blk * BLOCK if blk * BLOCK > j_lo else j_lo
         b = (blk + 1) * BLOCK if (blk + 1) * BLOCK < j_hi else j_hi
-        m = _key_min(bits[a - j_lo:b - j_lo])
-        kb = bkeys[blk]
-        kb = kb ^ ((kb >> 63) & _FLIP)
-        if m < kb:
-            bkeys[blk] = m ^ ((m >> 63) & _FLIP)
+        m = np.int64(_block_min(seg[a - j_lo:b - j_lo]))
+        if m < bmin[blk]:
+            bmin[blk] = m
 
 
 @njit
 def _update_stats(sums_g, ring, mring, i, v, length, shift, bmin):
     """Advance one velocity's window sums of length ``length`` to frame ``i``; returns
-    the sums of ``y = S - shift`` and ``y^2`` over the places and writes the minimum sum
-    of every block of :data:`BLOCK` places into ``bmin``.
+    the sums of ``y = S - shift`` (int64) and ``y^2`` (float64) over the places and
+    writes the minimum sum of every block of :data:`BLOCK` places into ``bmin`` (int64).
 
     One pass: each stretch of places whose slots are contiguous and whose old term is of
     one kind (none yet, inside the reference, outside it) is a plain vectorised loop
     over equal-length views (:func:`_add_row`, ...) that updates the sums and
     accumulates the moments; its block minima follow from the freshly written (cached)
-    sums. No per-place division and no copy: the scores are ``S / L_eff`` and the
-    callers divide once per statistic (or per place, :func:`scores_from_sums`, where
+    sums. No per-place division and no copy: the scores are ``S u / L_eff`` and the
+    callers scale once per statistic (or per place, :func:`scores_from_sums`, where
     they need the scores themselves).
     """
     r = ring.shape[0]
     n = sums_g.shape[0]
     for blk in range(bmin.shape[0]):
-        bmin[blk] = np.inf
+        bmin[blk] = _NONE
     cur = ring[i % r]
     p = position(v, i)
     sbase = p % n  # slot of place j is (j - sbase) mod N
     eff = length if length <= i + 1 else i + 1
-    sa = 0.0
+    sa = 0
     sq = 0.0
     # places whose line enters the reference at this frame: [e_lo, e_hi)
     if i == 0:
@@ -268,22 +279,22 @@ def _update_stats(sums_g, ring, mring, i, v, length, shift, bmin):
             slot = j - sbase
             if slot < 0:
                 slot += n
-            val = fill + np.float64(cur[j])
+            val = fill + np.int64(cur[j])
             sums_g[slot] = val
             y = val - shift
             sa += y
-            sq += y * y
+            sq += np.float64(y) * np.float64(y)
             blk = j // BLOCK
             if val < bmin[blk]:
                 bmin[blk] = val
     # the other places continue their line: [0, e_lo) and [e_hi, n)
     if i >= length:
         old = ring[(i - length) % r]
-        m_old = mring[(i - length) % r]
+        m_old = np.int32(mring[(i - length) % r])
         off = p - position(v, i - length)  # the line through j met place j - off then
     else:
         old = cur
-        m_old = 0.0
+        m_old = np.int32(0)
         off = 0
     for part in range(2):
         a = 0 if part == 0 else e_hi
@@ -323,53 +334,52 @@ def _update_stats(sums_g, ring, mring, i, v, length, shift, bmin):
 
 
 @njit
-def scores_from_sums(sums_g, i, v, length, s):
-    """Scores ``s_ij(L, v) = S / L_eff`` in place order into ``s``."""
+def scores_from_sums(sums_g, i, v, length, unit, s):
+    """Scores ``s_ij(L, v) = S u / L_eff`` in place order into ``s``."""
     n = s.shape[0]
     eff = length if length <= i + 1 else i + 1
     sbase = position(v, i) % n
     for j in range(0, sbase):
-        s[j] = sums_g[j + n - sbase] / eff
+        s[j] = np.float64(sums_g[j + n - sbase]) * unit / eff
     for j in range(sbase, n):
-        s[j] = sums_g[j - sbase] / eff
+        s[j] = np.float64(sums_g[j - sbase]) * unit / eff
 
 
 @njit
-def score_at(sums_g, i, v, length, j):
+def score_at(sums_g, i, v, length, unit, j):
     """One score ``s_ij(L, v)`` from the window sums (same arithmetic as :func:`scores_from_sums`)."""
     n = sums_g.shape[0]
     eff = length if length <= i + 1 else i + 1
     slot = j - position(v, i) % n
     if slot < 0:
         slot += n
-    return sums_g[slot] / eff
+    return np.float64(sums_g[slot]) * unit / eff
 
 
 @njit
-def direct_scores(ring, mring, i, v, length, s):
+def direct_scores(ring, mring, i, v, length, unit, s):
     """Scores of any length ``L <= R - 1`` summed term by term from the ring (``O(N L)``).
 
-    For lengths outside the candidate grid; the same terms as the running sums, added
-    in time order.
+    For lengths outside the candidate grid; the same codes as the running sums, added
+    in time order (int64, exact).
     """
     r = ring.shape[0]
     n = s.shape[0]
     eff = length if length <= i + 1 else i + 1
     p = position(v, i)
-    for j in range(n):
-        s[j] = 0.0
+    acc = np.zeros(n, dtype=np.int64)
     for t in range(i - eff + 1, i + 1):
         row = ring[t % r]
-        m = mring[t % r]
+        m = np.int64(mring[t % r])
         off = p - position(v, t)
         for j in range(n):
             k = j - off
             if 0 <= k < n:
-                s[j] += np.float64(row[k])
+                acc[j] += row[k]
             else:
-                s[j] += m
+                acc[j] += m
     for j in range(n):
-        s[j] = s[j] / eff
+        s[j] = np.float64(acc[j]) * unit / eff
 
 
 @njit
@@ -460,8 +470,8 @@ BLOCK = 64  # places per block of the block minima
 @njit
 def _best_and_second(sums_g, sbase, bmin, radius):
     """The first place of the smallest sum, that sum, and the smallest sum more than
-    ``radius`` places away (``+inf`` if none), from the block minima (place ``j`` in slot
-    ``(j - sbase) mod N``)."""
+    ``radius`` places away (``_NONE`` if none), from the block minima (place ``j`` in
+    slot ``(j - sbase) mod N``)."""
     n = sums_g.shape[0]
     nb = bmin.shape[0]
     kb = 0
@@ -474,7 +484,7 @@ def _best_and_second(sums_g, sbase, bmin, radius):
         jb += 1
     lo = jb - radius  # places in [lo, hi] are excluded
     hi = jb + radius
-    v2 = np.inf
+    v2 = _NONE
     for blk in range(nb):
         b_lo = blk * BLOCK
         b_hi = b_lo + BLOCK if b_lo + BLOCK < n else n  # exclusive
@@ -483,79 +493,78 @@ def _best_and_second(sums_g, sbase, bmin, radius):
                 v2 = bmin[blk]
         else:
             for j in range(b_lo, b_hi):
-                x = sums_g[j - sbase + n if j < sbase else j - sbase]
+                x = np.int64(sums_g[j - sbase + n if j < sbase else j - sbase])
                 if (j < lo or j > hi) and x < v2:
                     v2 = x
     return jb, vb, v2
 
 
 @njit
-def _window(sums_g, ring, mring, i, v, length, radius, bmin, g, best_j, best_s, second_s, mean, std):
+def _window(sums_g, ring, mring, i, v, length, unit, radius, bmin, g, best_j, best_s, second_s, mean, std):
     """Advance one window's sums to frame ``i`` and write its best place, best and
     second-best score, mean and spread into the outputs at ``g``.
 
-    Everything is computed on the sums and divided by ``L_eff`` once at the end, not
-    per place. The best and second-best scores keep their bits: a positive divisor
-    keeps the order, and two distinct sums (multiples of ``u`` below ``2^52 u``) give
-    distinct quotients, so ``min(S) / L_eff == min(S / L_eff)`` and the first place of
-    the minimum is the same. Mean and spread from the update's one pass, shifted by the
-    sum in place 0's slot before the update (``var = E[y^2] - E[y]^2`` with
-    ``y = S - shift``: a recent sum of the same window, so no cancellation unless it
-    lies many spreads from the mean); the best and second-best from the minima of
-    blocks of places.
+    Everything is computed on the integer sums and scaled by ``u / L_eff`` once at the
+    end, not per place. The best and second-best scores are those of the places with
+    the smallest sums (a positive factor keeps the order; ``S u`` is exact in float64,
+    so ``min(S) u / L_eff`` has the bits of that place's own score). Mean and spread
+    from the update's one pass, shifted by the sum in place 0's slot before the update
+    (``var = E[y^2] - E[y]^2`` with ``y = S - shift``: a recent sum of the same window,
+    so no cancellation unless it lies many spreads from the mean; ``E[y]`` from an exact
+    integer sum); the best and second-best from the minima of blocks of places.
     """
     n = sums_g.shape[0]
     sbase = position(v, i) % n
-    shift = sums_g[n - sbase if sbase > 0 else 0]
+    shift = np.int64(sums_g[n - sbase if sbase > 0 else 0])
     eff = length if length <= i + 1 else i + 1
     sy, syy = _update_stats(sums_g, ring, mring, i, v, length, shift, bmin)
     my = sy / n
     var = syy / n - my * my
     jb, vb, v2 = _best_and_second(sums_g, sbase, bmin, radius)
     best_j[g] = jb
-    best_s[g] = vb / eff
-    second_s[g] = v2 / eff
-    mean[g] = (shift + my) / eff
-    std[g] = np.sqrt(var) / eff if var > 0.0 else 0.0
+    best_s[g] = np.float64(vb) * unit / eff
+    second_s[g] = np.inf if v2 == _NONE else np.float64(v2) * unit / eff
+    mean[g] = (shift + my) * unit / eff
+    std[g] = np.sqrt(var) * unit / eff if var > 0.0 else 0.0
 
 
 @njit
-def _sub_scores(sums_v, i, v, grid, best_j, sub):
+def _sub_scores(sums_v, i, v, grid, unit, best_j, sub):
     """``sub[g, h]``: window ``g``'s best place scored over window ``h`` (when asked for)."""
     g_count = grid.shape[0]
     if sub.shape[1] == g_count:  # only the consistency rules need them
         for g in range(g_count):
             for h in range(g_count):
-                sub[g, h] = score_at(sums_v[h], i, v, grid[h], best_j[g])
+                sub[g, h] = score_at(sums_v[h], i, v, grid[h], unit, best_j[g])
 
 
 @njit
-def _velocity_stats_gaussian(sums_v, ring, mring, i, v, grid, radius,
+def _velocity_stats_gaussian(sums_v, ring, mring, i, v, grid, unit, radius,
                              best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s):
     """:func:`_velocity_stats` for the Gaussian approximation alone (compiles without the
     median and the mixture fit; ``s`` is not read: the statistics come from the sums)."""
-    bmin = np.empty((sums_v.shape[1] + BLOCK - 1) // BLOCK)
+    bmin = np.empty((sums_v.shape[1] + BLOCK - 1) // BLOCK, dtype=np.int64)
     for g in range(grid.shape[0]):
-        _window(sums_v[g], ring, mring, i, v, grid[g], radius, bmin, g, best_j, best_s, second_s, mean, std)
+        _window(sums_v[g], ring, mring, i, v, grid[g], unit, radius, bmin, g, best_j, best_s, second_s, mean, std)
         weights[g, 0] = 1.0
         locs[g, 0] = mean[g]
         scales[g, 0] = std[g]
-    _sub_scores(sums_v, i, v, grid, best_j, sub)
+    _sub_scores(sums_v, i, v, grid, unit, best_j, sub)
 
 
 @njit
-def _velocity_stats(sums_v, ring, mring, i, v, grid, approx, n_iter, em_stride, radius,
+def _velocity_stats(sums_v, ring, mring, i, v, grid, unit, approx, n_iter, em_stride, radius,
                     best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
     """Advance one velocity's window sums to frame ``i`` and summarise every window
     (:func:`_window`), then fit the approximation to each window's scores."""
     n_components = weights.shape[1]
     coef = np.empty(n_components)
     inv = np.empty(n_components)
-    bmin = np.empty((s.shape[0] + BLOCK - 1) // BLOCK)
+    bmin = np.empty((s.shape[0] + BLOCK - 1) // BLOCK, dtype=np.int64)
     for g in range(grid.shape[0]):
-        _window(sums_v[g], ring, mring, i, v, grid[g], radius, bmin, g, best_j, best_s, second_s, mean, std)
+        _window(sums_v[g], ring, mring, i, v, grid[g], unit, radius, bmin, g, best_j, best_s, second_s, mean, std)
         if approx != APPROX_GAUSSIAN:
-            scores_from_sums(sums_v[g], i, v, grid[g], s)  # the scores themselves, for the median or the mixture
+            scores_from_sums(sums_v[g], i, v, grid[g], unit, s)  # the scores themselves, for the median or mixture
         if approx == APPROX_GAUSSIAN:
             weights[g, 0] = 1.0
             locs[g, 0] = mean[g]
@@ -567,7 +576,7 @@ def _velocity_stats(sums_v, ring, mring, i, v, grid, approx, n_iter, em_stride, 
             scales[g, 0] = mad
         else:
             _gmm_em(s, em_stride, mean[g], std[g], n_iter, weights[g], locs[g], scales[g], resp, coef, inv)
-    _sub_scores(sums_v, i, v, grid, best_j, sub)
+    _sub_scores(sums_v, i, v, grid, unit, best_j, sub)
 
 
 @njit(nogil=True)
@@ -578,30 +587,31 @@ def store_rows(d, c0, c1, start, ring, mring, state):
 
 
 @njit(nogil=True)
-def run_velocities(chosen, c0, c1, start, sums, ring, mring, velocities, grid, approx, n_iter, em_stride, radius,
+def run_velocities(chosen, c0, c1, start, sums, ring, mring, state, velocities, grid, approx, n_iter, em_stride, radius,
                    best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
     """:func:`_velocity_stats` for the velocities ``chosen`` over frames ``start + c0 ..
     start + c1 - 1`` (rows already stored); releases the GIL, so threads share the work."""
     for q in range(chosen.shape[0]):
         vi = chosen[q]
         for t in range(c0, c1):
-            _velocity_stats(sums[vi], ring, mring, start + t, velocities[vi], grid, approx, n_iter,
+            _velocity_stats(sums[vi], ring, mring, start + t, velocities[vi], grid, state[0], approx, n_iter,
                             em_stride, radius, best_j[t, vi], best_s[t, vi], second_s[t, vi], mean[t, vi],
                             std[t, vi], weights[t, vi], locs[t, vi], scales[t, vi], sub[t, vi], s[vi],
                             work[vi], resp[vi])
 
 
 @njit(nogil=True)
-def run_velocities_gaussian(chosen, c0, c1, start, sums, ring, mring, velocities, grid, approx, n_iter, em_stride,
-                            radius, best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
+def run_velocities_gaussian(chosen, c0, c1, start, sums, ring, mring, state, velocities, grid, approx, n_iter,
+                            em_stride, radius, best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s,
+                            work, resp):
     """:func:`run_velocities` for the Gaussian approximation (the default): compiled
     without the median and the mixture fit, which are compiled only when asked for."""
     for q in range(chosen.shape[0]):
         vi = chosen[q]
         for t in range(c0, c1):
-            _velocity_stats_gaussian(sums[vi], ring, mring, start + t, velocities[vi], grid, radius, best_j[t, vi],
-                                     best_s[t, vi], second_s[t, vi], mean[t, vi], std[t, vi], weights[t, vi],
-                                     locs[t, vi], scales[t, vi], sub[t, vi], s[vi])
+            _velocity_stats_gaussian(sums[vi], ring, mring, start + t, velocities[vi], grid, state[0], radius,
+                                     best_j[t, vi], best_s[t, vi], second_s[t, vi], mean[t, vi], std[t, vi],
+                                     weights[t, vi], locs[t, vi], scales[t, vi], sub[t, vi], s[vi])
 
 
 _POOL = {}
@@ -656,11 +666,11 @@ def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_it
         c1 = min(d.shape[0], c0 + chunk)
         store_rows(d, c0, c1, start, ring, mring, state)
         if threads == 1:
-            run(groups[0], c0, c1, start, sums, ring, mring, *rest)
+            run(groups[0], c0, c1, start, sums, ring, mring, state, *rest)
             continue
         pool = _pool(threads)
-        jobs = [pool.submit(run, g, c0, c1, start, sums, ring, mring, *rest) for g in groups[1:]]
-        run(groups[0], c0, c1, start, sums, ring, mring, *rest)
+        jobs = [pool.submit(run, g, c0, c1, start, sums, ring, mring, state, *rest) for g in groups[1:]]
+        run(groups[0], c0, c1, start, sums, ring, mring, state, *rest)
         for job in jobs:
             job.result()
 
@@ -673,17 +683,16 @@ def matcher_kernel(approx):
 @njit
 def fixed_scores(d, length, v):
     """All scores ``s_ij(L, v)`` for one window and velocity, ``(n_query, N)`` (batch
-    helper; the matcher's arithmetic)."""
+    helper; the matcher's arithmetic and codes, with int64 sums for any length)."""
     n_q, n = d.shape
     out = np.empty((n_q, n))
-    ring = np.zeros((length + 1, n), dtype=np.float32)
-    mring = np.zeros(length + 1)
+    ring = np.zeros((length + 1, n), dtype=np.int16)
+    mring = np.zeros(length + 1, dtype=np.int16)
     state = np.zeros(1)
-    sums = np.zeros(n)
-    bmin = np.empty((n + BLOCK - 1) // BLOCK)
+    sums = np.zeros(n, dtype=np.int64)
+    bmin = np.empty((n + BLOCK - 1) // BLOCK, dtype=np.int64)
     for i in range(n_q):
         advance(ring, mring, state, i, d[i])
-        _update_stats(sums, ring, mring, i, v, length, 0.0, bmin)
-        scores_from_sums(sums, i, v, length, out[i])
+        _update_stats(sums, ring, mring, i, v, length, np.int64(0), bmin)
+        scores_from_sums(sums, i, v, length, state[0], out[i])
     return out
-

@@ -28,20 +28,24 @@ from the fills of the window's earlier frames). The matcher keeps *one* ring of 
 ``l_max + 1`` difference rows, shared by every velocity, and one running sum per
 velocity, candidate length and line; every window score, and every sub-window score the
 window rule tests, is then ``O(1)``: ``O(N V G)`` per query frame for ``V`` velocities
-and ``G`` lengths. Memory: the ring, ``4 N (l_max + 1)`` bytes (float32: 200 MB at
-``N = 10^5``, 2.0 GB at ``N = 10^6`` with ``l_max = 500``; 7.2 MB for Nordland's 3,576
-places), plus ``8 N G`` bytes per velocity (the running sums: 10.4 MB per velocity at
-``N = 10^5`` with 13 lengths; the robust and mixture approximations add one scratch row of
-``8 N`` bytes); never an ``N x N`` matrix.
+and ``G`` lengths. Memory: the ring, ``2 N (l_max + 1)`` bytes (int16 codes: 100 MB at
+``N = 10^5``, 1.0 GB at ``N = 10^6`` with ``l_max = 500``; 3.6 MB for Nordland's 3,576
+places), plus ``4 N G`` bytes per velocity (int32 running sums: 5.2 MB per velocity at
+``N = 10^5`` with 13 lengths; the robust and mixture approximations add one float64
+scratch row of ``8 N`` bytes); never an ``N x N`` matrix.
 
-Precision (a documented policy). Each difference is stored once, rounded to float32 and
-then to a multiple of a quantum ``u = 2^(e - 31)`` fixed by the query's first row
-(``max_j |d_0j| < 2^e``); the row means are rounded to multiples of ``u`` as well. Sums of
-multiples of one quantum are exact in float64 (while ``|S| < 2^53 u``: differences up to
-about ``2^13`` times the first row's largest), so the running sums never drift, a window
-summed in any order gives the same bits, and places whose windows tie exactly keep tying
-(the first place wins). Against the float64 scores of the same policy each score is off
-by at most ``2^-24 max|d| + u``.
+Precision (a documented policy). Each difference is stored once as an int16 *code*, the
+nearest integer multiple of a quantum ``u = 2^(e - 12)`` fixed by the query's first row
+(``max_j |d_0j| < 2^e``, so the first row's codes stay below ``2^12``); the row means are
+stored as rounded mean codes. Later differences up to 8 times the first row's largest
+keep their value to ``u / 2``; larger ones saturate at ``±32767 u`` (they never wrap
+around). The running sums are integers (int32: ``|S| <= l_max 32767 < 2^31``; int64 for
+``l_max > 65,538``), so they never drift, a window summed in any order gives the same
+value, and places whose windows tie exactly keep tying (the first place wins). Scores
+and statistics are converted to float64 once, where they are divided. Against the
+float64 scores of the same policy each score is off by at most ``u`` (``u / 2`` for a
+line inside the reference; a fill, the rounded mean of rounded values, by up to ``u``),
+plus the saturation; for rows normalised to unit spread ``u`` is about ``2^-9``.
 
 Edges (a documented policy). Early query frames (``i < L - 1``) use the
 ``L_eff = min(L, i + 1)`` frames seen so far; the reported ``window_length`` is that
@@ -433,14 +437,14 @@ _CHUNK_VALUES = 1 << 24
 
 
 def _state(cfg: _Config, n: int, chunk: int = 1):
-    """The matcher's state for ``N = n`` places: the window sums, the float32 ring of the
-    last ``l_max + chunk`` rows (``chunk`` new rows are stored at a time) with their
-    means, and the scratch the kernels need (the robust and mixture scratch only for those
-    approximations)."""
+    """The matcher's state for ``N = n`` places: the integer window sums (int32; int64
+    beyond ``l_max = 65,538``), the int16 ring of the codes of the last ``l_max + chunk``
+    rows (``chunk`` new rows are stored at a time) with their mean codes, and the scratch
+    the kernels need (the robust and mixture scratch only for those approximations)."""
     v_count, g_count, rows = cfg.velocities.shape[0], cfg.grid.shape[0], int(cfg.grid[-1]) + chunk
-    sums = np.zeros((v_count, g_count, n))
-    ring = np.zeros((rows, n), dtype=np.float32)
-    mring = np.zeros(rows)
+    sums = np.zeros((v_count, g_count, n), dtype=_kernels().sums_dtype(cfg.grid[-1]))
+    ring = np.zeros((rows, n), dtype=np.int16)
+    mring = np.zeros(rows, dtype=np.int16)
     state = np.zeros(1)  # the quantum, fixed by the first row
     scores = np.empty((v_count, n if cfg.approx_code != 0 else 0))  # the Gaussian path reads the sums only
     work = np.empty((v_count, n if cfg.approx_code == 1 else 0))
@@ -564,11 +568,11 @@ class SequenceMatcher:
 
     Parameters are those of :func:`match_sequences`. The constructor only stores them;
     the first :meth:`step` fixes the number of reference places ``N`` and the quantum of
-    the stored values (module docstring), and allocates one float32 ring of the last
-    ``max(grid) + 1`` difference rows shared by every velocity
-    (``4 * N * (l_max + 1)`` bytes) and, per velocity, a float64 running sum per
-    candidate length and line (``8 * N * G`` bytes; one more row for the robust and mixture
-    approximations). Time per
+    the stored values (module docstring), and allocates one int16 ring of the codes of the
+    last ``max(grid) + 1`` difference rows shared by every velocity
+    (``2 * N * (l_max + 1)`` bytes) and, per velocity, an int32 running sum per
+    candidate length and line (``4 * N * G`` bytes; one float64 row more for the robust
+    and mixture approximations). Time per
     step is ``O(N * V * G)`` (``V`` velocities, ``G`` candidate lengths), however many
     frames came before; the velocities run in parallel threads.
 
@@ -666,9 +670,9 @@ class SequenceMatcher:
         i, v = self.n_steps_ - 1, float(vel[vi])
         hits = np.flatnonzero(self.window_grid_ == int(length))
         if hits.size:  # the matcher's own running sums
-            _kernels().scores_from_sums(self._sums[vi, int(hits[0])], i, v, int(length), s)
+            _kernels().scores_from_sums(self._sums[vi, int(hits[0])], i, v, int(length), self._state[0], s)
         else:  # any other length, summed term by term from the ring
-            _kernels().direct_scores(self._ring, self._mring, i, v, int(length), s)
+            _kernels().direct_scores(self._ring, self._mring, i, v, int(length), self._state[0], s)
         return s
 
     def step(self, difference_row: np.ndarray, return_curve: bool = False) -> SequenceMatch:

@@ -21,13 +21,15 @@ V1 = (1.0,)  # the classic diagonal only: the slow references below score it
 
 
 def on_grid(d: np.ndarray) -> np.ndarray:
-    """``d`` rounded to multiples of 2**-10, each row's last value nudged so that the row's
-    mean is one too: values the matcher stores exactly (float32 multiples of its quantum),
-    so its scores equal the float64 loops below to rounding. The rounding of other input
-    is tested against its bound in test_sequence_velocity.py."""
-    q = np.rint(np.asarray(d, dtype=np.float64) * 1024.0)
+    """``d`` rounded to multiples of 2**-8, each row's last value nudged so that the row's
+    mean is one too: values the matcher stores exactly (integer multiples of its quantum
+    ``u = 2**(e - 12) <= 2**-8`` while the first row lies below ``2**4`` in magnitude), so
+    its scores equal the float64 loops below to rounding. The rounding of other input is
+    tested against its bound in test_sequence_velocity.py."""
+    q = np.rint(np.asarray(d, dtype=np.float64) * 256.0)
     q[:, -1] -= np.mod(q.sum(axis=1), q.shape[1])
-    return q / 1024.0
+    assert np.abs(q[0]).max() < 16 * 256
+    return q / 256.0
 
 
 def slow_scores(d: np.ndarray, length: int) -> np.ndarray:
@@ -196,14 +198,19 @@ def test_streaming_equals_batch_exactly(window, approximation, rule):
     assert matcher.n_steps_ == 60
 
 
-def test_streaming_memory_is_one_float32_ring_and_running_sums():
+def test_streaming_memory_is_one_int16_ring_and_int32_running_sums():
     matcher = SequenceMatcher(window="adaptive", l_min=2, l_max=9, grid="all")
     for row in np.random.default_rng(0).normal(size=(40, 13)):
         matcher.step(row)
-    # one ring of l_max + 1 rows shared by every velocity, one float64 sum per line,
-    # velocity and candidate length
-    assert matcher._ring.shape == (10, 13) and matcher._ring.dtype == np.float32
-    assert matcher._sums.shape == (len(matcher.velocities_), 8, 13) and matcher._sums.dtype == np.float64
+    # one ring of l_max + 1 rows of int16 codes shared by every velocity, one int32 sum
+    # per line, velocity and candidate length: 2 (l_max + 1) + 4 V G bytes per place
+    assert matcher._ring.shape == (10, 13) and matcher._ring.dtype == np.int16
+    assert matcher._mring.dtype == np.int16
+    assert matcher._sums.shape == (len(matcher.velocities_), 8, 13) and matcher._sums.dtype == np.int32
+    # windows so long that int32 could overflow keep int64 sums
+    from catgraph import _sequence_kernels as k
+
+    assert k.sums_dtype(65_538) == np.int32 and k.sums_dtype(65_539) == np.int64
 
 
 def test_streaming_reset_and_shape_check():
@@ -365,9 +372,9 @@ def test_public_window_scores_equal_fixed_window_scores():
 
 
 def test_block_minima_and_moments_of_the_fused_update_equal_numpy():
-    """The fused update's moments and block minima (integer keys of the bits) against
+    """The fused update's moments and block minima (integer minima of the sums) against
     numpy on the sums it leaves, for every velocity kind, with negative values, zeros
-    of both signs and blocks cut by the slot wrap and the entering lines."""
+    and blocks cut by the slot wrap and the entering lines, on int32 and int64 sums."""
     from catgraph import _sequence_kernels as k
 
     rng = np.random.default_rng(3)
@@ -375,36 +382,45 @@ def test_block_minima_and_moments_of_the_fused_update_equal_numpy():
     d = rng.normal(size=(12, n))
     d[5, :40] = 0.0
     d[6, 40:80] = -0.0
-    for v in (1.0, 0.5, -2.0, 3.0):
-        ring = np.zeros((length + 1, n), dtype=np.float32)
-        mring = np.zeros(length + 1)
+    for v, dtype in ((1.0, np.int32), (0.5, np.int64), (-2.0, np.int32), (3.0, np.int32)):
+        ring = np.zeros((length + 1, n), dtype=np.int16)
+        mring = np.zeros(length + 1, dtype=np.int16)
         state = np.zeros(1)
-        sums = np.zeros(n)
-        bmin = np.empty((n + k.BLOCK - 1) // k.BLOCK)
+        sums = np.zeros(n, dtype=dtype)
+        bmin = np.empty((n + k.BLOCK - 1) // k.BLOCK, dtype=np.int64)
         for i in range(d.shape[0]):
             k.advance(ring, mring, state, i, d[i])
-            shift = float(rng.normal())
+            shift = int(rng.integers(-5000, 5000))
             a, q = k._update_stats(sums, ring, mring, i, v, length, shift, bmin)
             sbase = k.position(v, i) % n
-            in_place = np.roll(sums, sbase)  # place j sits in slot (j - sbase) mod n
+            in_place = np.roll(sums, sbase).astype(np.int64)  # place j sits in slot (j - sbase) mod n
             eff = min(length, i + 1)
-            np.testing.assert_array_equal(in_place / eff, k.fixed_scores(d[: i + 1], length, v)[i])
+            np.testing.assert_array_equal(in_place * state[0] / eff, k.fixed_scores(d[: i + 1], length, v)[i])
             expected = [in_place[b:b + k.BLOCK].min() for b in range(0, n, k.BLOCK)]
             np.testing.assert_array_equal(bmin, expected)
             y = in_place - shift
-            assert a == pytest.approx(y.sum(), rel=1e-12, abs=1e-9)
-            assert q == pytest.approx((y * y).sum(), rel=1e-12)
+            assert a == y.sum()  # an exact integer sum
+            assert q == pytest.approx((y.astype(np.float64) ** 2).sum(), rel=1e-12)
 
 
-def test_key_minimum_orders_as_the_values():
+def test_segment_minimum_of_integer_sums():
     from catgraph import _sequence_kernels as k
 
-    x = np.array([3.5, -0.0, 0.0, -1e-300, 1e300, -np.inf, np.inf, -2.0, 5e-324])
-    for lo in range(len(x)):
-        for hi in range(lo + 1, len(x) + 1):
-            bmin = np.full(1, np.inf)
-            k._segment_min(x[lo:hi].copy(), 0, bmin)
-            assert bmin[0] == x[lo:hi].min()
-    bmin = np.full(1, np.inf)
-    k._segment_min(np.empty(0), 0, bmin)
-    assert bmin[0] == np.inf
+    for dtype in (np.int32, np.int64):
+        info = np.iinfo(np.int32)
+        x = np.array([35, 0, -1, info.min + 1, info.max - 1, -7, 7, -7, 2], dtype=dtype)
+        for lo in range(len(x)):
+            for hi in range(lo + 1, len(x) + 1):
+                bmin = np.full(1, 1 << 62, dtype=np.int64)
+                k._segment_min(x[lo:hi].copy(), 0, bmin)
+                assert bmin[0] == x[lo:hi].min()
+        # blocks: a segment starting inside a block folds into the existing minima
+        seg = np.arange(200, dtype=dtype)[::-1].copy()
+        bmin = np.array([-5, 1 << 62, 1 << 62, 1 << 62, 1 << 62], dtype=np.int64)
+        k._segment_min(seg, 10, bmin)
+        full = np.concatenate([np.full(10, 1 << 40), seg.astype(np.int64)])
+        expected = [min(-5, full[:64].min())] + [full[b:b + 64].min() for b in range(64, 210, 64)] + [1 << 62]
+        np.testing.assert_array_equal(bmin, expected)
+    bmin = np.full(1, 1 << 62, dtype=np.int64)
+    k._segment_min(np.empty(0, dtype=np.int32), 0, bmin)
+    assert bmin[0] == 1 << 62

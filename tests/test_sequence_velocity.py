@@ -11,18 +11,21 @@ from catgraph.sequence import DEFAULT_VELOCITIES, SequenceMatcher, fixed_window_
 
 def on_grid(d: np.ndarray) -> np.ndarray:
     """Values the matcher stores exactly (see test_sequence.on_grid)."""
-    q = np.rint(np.asarray(d, dtype=np.float64) * 1024.0)
+    q = np.rint(np.asarray(d, dtype=np.float64) * 256.0)
     q[:, -1] -= np.mod(q.sum(axis=1), q.shape[1])
-    return q / 1024.0
+    assert np.abs(q[0]).max() < 16 * 256
+    return q / 256.0
 
 
 def stored_values(d: np.ndarray):
-    """The documented storage: float32, then the nearest multiple of the quantum
-    ``u = 2**(e - 31)`` (``max|d_0j| < 2**e``); row means rounded to multiples of ``u``."""
+    """The documented storage: integer codes ``rint(d / u)`` of the quantum
+    ``u = 2**(e - 12)`` (``max|d_0j| < 2**e``), saturated at ±32767; each row's mean
+    code rounded to an integer. Returns the stored values ``code * u``, the fills
+    ``mean code * u`` and ``u``."""
     _, e = np.frexp(np.abs(d[0]).max())
-    u = 2.0 ** (int(e) - 31)
-    q = np.rint(d.astype(np.float32).astype(np.float64) / u) * u
-    return q, np.rint(q.mean(axis=1) / u) * u, u
+    u = 2.0 ** (int(e) - 12)
+    codes = np.clip(np.rint(d / u), -32767, 32767)
+    return codes * u, np.rint(codes.mean(axis=1)) * u, u
 
 
 def slow_line_scores(d: np.ndarray, length: int, v: float) -> np.ndarray:
@@ -186,25 +189,64 @@ def vectorised_line_scores(d: np.ndarray, length: int, v: float, means=None) -> 
 
 @pytest.mark.parametrize("v", [1.0, -0.5, 2.0])
 def test_stored_value_error_is_within_its_bound(v):
-    """Every term is the difference rounded once to float32 and to the quantum ``u``, so a
-    window mean differs from the float64 score by at most ``2**-24 max|d| + u``."""
+    """Every term is the difference rounded once to a multiple of the quantum ``u`` (at
+    most ``u / 2`` off; a fill, the rounded mean of rounded values, at most ``u``), so a
+    window mean differs from the float64 score by at most ``u`` (``u / 2`` where the
+    window lies inside the reference), while no value saturates."""
     rng = np.random.default_rng(11)
     d = rng.normal(size=(60, 45)) * 7.0 + 3.0
     d[5:9] *= 1e-7  # values far below the quantum's scale
+    d[20] *= 6.0  # below the saturation (8 times the first row's largest)
     length = 9
     exact = slow_line_scores(d, length, v)
     err = np.abs(fixed_window_scores(d, length, v) - exact)
     _, _, u = stored_values(d)
-    bound = 2.0 ** -24 * np.abs(d).max() + u
-    assert err.max() <= bound
-    assert err.max() > 1e-3 * bound  # the rounding is there: a wrong bound would show
+    assert np.abs(d).max() < 32767 * u  # nothing saturates
+    assert err.max() <= u * (1 + 1e-9)
+    assert err.max() > 0.05 * u  # the rounding is there: a wrong bound would show
+    # the lines that stay inside the reference over the window: terms alone, u / 2
+    inside = np.ones_like(exact)
+    if v > 0:
+        reach = int(np.ceil(v * (length - 1))) + 1
+        inside[:, :reach] = 0
+    else:
+        reach = int(np.ceil(-v * (length - 1))) + 1
+        inside[:, d.shape[1] - reach:] = 0
+    inside[: length - 1] = 0
+    assert err[inside > 0].max() <= 0.5 * u * (1 + 1e-9)
+
+
+def test_values_beyond_the_headroom_saturate_and_never_wrap():
+    """Codes are int16: a later row ten times larger than the first stores ±32767 u (the
+    largest code), never a wrapped-around value of the opposite sign; the window sums
+    stay exact over the saturated values."""
+    rng = np.random.default_rng(14)
+    d = rng.normal(size=(30, 40))
+    d[0, 0] = 3.0  # first row's largest: 3 < 2**2, so u = 2**-10 and 32767 u < 32
+    d[10] = np.abs(d[10]) * 10.0 + 40.0  # every value beyond the int16 range, positive
+    d[11] = -np.abs(d[11]) * 10.0 - 40.0  # and negative
+    values, means, u = stored_values(d)
+    assert u == 2.0**-10
+    np.testing.assert_array_equal(values[10], 32767 * u)
+    np.testing.assert_array_equal(values[11], -32767 * u)
+    for v in (1.0, -2.0):
+        got = fixed_window_scores(d, 4, v)
+        np.testing.assert_array_equal(got, vectorised_line_scores(values, 4, v, means))
+        single = fixed_window_scores(d, 1, v)
+        np.testing.assert_array_equal(single[10], 32767 * u)  # saturated, not wrapped
+        np.testing.assert_array_equal(single[11], -32767 * u)
+    matcher = SequenceMatcher(window=4, velocities=(1.0,))
+    for row in d[:12]:
+        matcher.step(row)
+    r = matcher._ring.shape[0]  # row t in ring[t % r]
+    assert matcher._ring[10 % r].min() == 32767 and matcher._ring[11 % r].max() == -32767
 
 
 @pytest.mark.parametrize("v", [1.0, -0.5, 3.0])
 def test_long_stream_is_exact(v):
     """5,000 frames of running sums (an addition and a subtraction per frame) equal, bit for
-    bit, every window summed afresh from the stored values: multiples of one quantum add
-    exactly in float64, so nothing drifts (and exact ties stay ties)."""
+    bit, every window summed afresh from the stored values: integer codes add exactly,
+    so nothing drifts (and exact ties stay ties)."""
     rng = np.random.default_rng(12)
     d = rng.normal(size=(5000, 23)) * 4.0 + 1.0
     length = 40
