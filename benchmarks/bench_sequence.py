@@ -39,6 +39,19 @@ adaptive rows need measuring again.
 ``--quick`` (a smoke run, under two minutes): seed 0 only, fixed windows {10, 50, 200},
 Nordland's first 600 query frames, no synthetic world, no rule-"consistent" or
 previous-default reference, no timing.
+
+``--ranking`` (an analysis of the confidence, prints a table and writes nothing): the
+default adaptive matcher once per dataset and condition, its matches ranked (a) by its
+own confidence, (b) by an oracle that puts every correct match first (the best AUC and
+R@100P any confidence can give at these matches; its AUC equals the accuracy), (c) by its
+own confidence with the first 5 or 10 frames after every jump of the query set to zero
+(a jump detector that knows the ground truth: how much the frames right after a jump
+cost), and (d) by the online candidate ``support_sum x P(on line)``: the current frame's
+likelihood ratio between "on the chosen line" (a normal of unit spread around the
+line's mean standardised difference ``mu``, the window score of the match) and "a random
+place" (a standard normal), ``P = sigmoid((z^2 - (z - mu)^2) / 2 - ln w)`` for prior odds
+``w`` of a jump. (b) and (c) read the ground truth and are no method; they bound what a
+confidence can gain.
 """
 
 from __future__ import annotations
@@ -270,6 +283,84 @@ def markdown(table: dict, timing_: dict | None, quick: bool) -> str:
     return "\n".join(lines)
 
 
+RANKING_ODDS = (0.3, 3.0)
+
+
+def _since_jump(query_index: np.ndarray) -> np.ndarray:
+    """Frames since the query last jumped (processing order; a step of more than 2 frames)."""
+    jump = np.r_[True, np.abs(np.diff(query_index)) > 2]
+    start = np.maximum.accumulate(np.where(jump, np.arange(query_index.size), 0))
+    return np.arange(query_index.size) - start
+
+
+def _ranked(c, match, confidence) -> tuple[float, float]:
+    m = evaluate(c.query.index, match, confidence, c.ground_truth).metrics
+    return m.auc, m.recall_at_100p
+
+
+def ranking() -> dict:
+    """Per dataset and condition (means over the UJI months): AUC and R@100P of the default
+    adaptive matches under each ranking of the module docstring's ``--ranking``."""
+    from scipy.special import expit, ndtr
+
+    from catgraph.hubs import apply_hub_offsets
+
+    conditions = condition_table(seeds=range(5))
+    out = {}
+    for name, cases, offsets in _cases(False):
+        rows_out = []
+        for condition in conditions:
+            per = []
+            for case in cases:
+                c = conditioned(case, condition)
+                res = match_sequences(c.differences, hub_offsets=offsets)
+                d = np.asarray(apply_hub_offsets(c.differences, offsets))
+                t = np.arange(d.shape[0])
+                mean, std = d.mean(axis=1), d.std(axis=1)
+                z = np.where(std > 0, (d[t, res.match] - mean) / np.where(std > 0, std, 1.0), 0.0)
+                mu = np.where(std > 0, (res.score - mean) / np.where(std > 0, std, 1.0), 0.0)
+                ev = evaluate(c.query.index, res.match, res.confidence, c.ground_truth)
+                since = _since_jump(np.asarray(c.query.index))
+                support_sum = res.confidence / ndtr(-z)
+                cell = {"accuracy": ev.metrics.accuracy,
+                        "default": (ev.metrics.auc, ev.metrics.recall_at_100p),
+                        "oracle": _ranked(c, res.match, ev.correct + 1e-6 * res.confidence / (1.0 + res.confidence.max())),
+                        "masked 5": _ranked(c, res.match, np.where(since < 5, 0.0, res.confidence)),
+                        "masked 10": _ranked(c, res.match, np.where(since < 10, 0.0, res.confidence))}
+                for w in RANKING_ODDS:
+                    on_line = expit((z ** 2 - (z - mu) ** 2) / 2.0 - np.log(w))
+                    cell[f"candidate w={w:g}"] = _ranked(c, res.match, support_sum * on_line)
+                per.append(cell)
+            row = {"label": condition.label, "group": _group(condition),
+                   "accuracy": float(np.mean([p["accuracy"] for p in per]))}
+            for key in per[0]:
+                if key != "accuracy":
+                    row[key] = tuple(float(np.mean([p[key][k] for p in per])) for k in range(2))
+            rows_out.append(row)
+            print(f"{name} | {condition.label}: default {row['default'][0]:.3f} oracle {row['oracle'][0]:.3f}",
+                  flush=True)
+        out[name] = rows_out
+    return out
+
+
+def ranking_markdown(result: dict) -> str:
+    keys = ["default", "oracle", "masked 5", "masked 10"] + [f"candidate w={w:g}" for w in RANKING_ODDS]
+    lines = []
+    for name, rows in result.items():
+        lines += [f"**{name}** (AUC / R@100P; shuffles: mean over seeds, worst AUC in brackets)", "",
+                  "| condition | accuracy | " + " | ".join(keys) + " |", "|---" * (len(keys) + 2) + "|"]
+        for group in GROUPS:
+            rs = [r for r in rows if r["group"] == group]
+            cells = [f"{np.mean([r['accuracy'] for r in rs]):.3f}"]
+            for key in keys:
+                auc = [r[key][0] for r in rs]
+                cell = f"{np.mean(auc):.3f}" + (f" ({min(auc):.3f})" if len(rs) > 1 else "")
+                cells.append(cell + f" / {np.mean([r[key][1] for r in rs]):.2f}")
+            lines.append(f"| {group} | " + " | ".join(cells) + " |")
+        lines.append("")
+    return "\n".join(lines)
+
+
 def figure(table: dict, path: Path) -> None:
     import matplotlib
 
@@ -308,9 +399,14 @@ def main() -> None:
     parser.add_argument("--only", nargs="+", metavar="METHOD",
                         help="re-measure only these methods (e.g. 'adaptive (default)'); the other rows are kept "
                              "from the committed sequence.json where it has them")
+    parser.add_argument("--ranking", action="store_true",
+                        help="analyse the default's confidence (oracle, jump-masked, candidates); prints, writes nothing")
     args = parser.parse_args()
     if not DATA.exists():
         raise SystemExit(f"no data at {DATA}; this benchmark needs ../shared/data (see its README)")
+    if args.ranking:
+        print(ranking_markdown(ranking()))
+        return
     start = time.perf_counter()
     kept, kept_timing = {}, None
     if args.only and (RESULTS / "sequence.json").exists():
