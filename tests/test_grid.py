@@ -161,6 +161,40 @@ def test_log_odds_ordered_by_confidence():
     assert np.all(np.isfinite(odds)) and np.all(np.diff(odds) > 0)
 
 
+
+def _reference_score(log_odds, level, frames, penalty):
+    """The ranking score, slowly: the log-odds, less ``penalty`` at every frame before the
+    first run of ``frames`` consecutive log-odds above ``level`` is complete."""
+    out = np.array(log_odds, dtype=float)
+    for k in range(len(out)):
+        converged = frames == 0 or any(np.all(np.asarray(log_odds[t - frames + 1:t + 1]) > level)
+                                       for t in range(frames - 1, k + 1))
+        if not converged:
+            out[k] -= penalty
+    return out
+
+
+@pytest.mark.parametrize("level,frames,penalty", [(1.0, 8, 1.0), (3.0, 3, 2.5), (0.0, 0, 1.0), (1.0, 8, 0.0)])
+def test_score_is_lowered_until_the_filter_first_converges(level, frames, penalty):
+    rng = np.random.default_rng(5)
+    n = 300
+    # a weak start (the filter is unsure), a track, then a jump: the penalty never returns
+    places = np.concatenate([rng.integers(0, n, 15), 20 + np.arange(60), 200 + np.arange(40)])
+    rows = _track_rows(n, places, rng, depth=2.0)
+    rows[:15] = rng.standard_normal((15, n))
+    loc = GridLocalizer(PlaceGraph.chain(n), _fixed(1.0), converged_log_odds=level, converged_frames=frames,
+                        unconverged_penalty=penalty)
+    res = loc.run(rows)
+    expected = _reference_score(res.log_odds, level, frames, penalty)
+    np.testing.assert_allclose(res.score, expected)
+    assert loc.converged_
+    if penalty > 0 and frames > 0:
+        assert res.score[0] == res.log_odds[0] - penalty  # the first frames are penalised
+        assert np.any(res.score[-60:] == res.log_odds[-60:])  # the converged track is not
+    step = GridLocalizer(PlaceGraph.chain(n), _fixed(1.0), converged_log_odds=level, converged_frames=frames,
+                         unconverged_penalty=penalty)
+    np.testing.assert_allclose([step.step(r).score for r in rows], res.score)  # one step = run
+
 @pytest.mark.parametrize("bad", [float("nan"), float("inf"), -1.0])
 def test_bad_odometry_refused_on_every_step_first_included(bad):
     g = PlaceGraph.chain(10)
@@ -180,6 +214,10 @@ def test_parameters_validated():
         GridLocalizer(g, _fixed(), velocities=[1.0, 1.0]).reset()
     with pytest.raises(InvalidParameterError, match="blur"):
         GridLocalizer(g, _fixed(), blur=0.5).reset()
+    with pytest.raises(InvalidParameterError, match="converged_frames"):
+        GridLocalizer(g, _fixed(), converged_frames=-1).reset()
+    with pytest.raises(InvalidParameterError, match="unconverged_penalty"):
+        GridLocalizer(g, _fixed(), unconverged_penalty=-1.0).reset()
     with pytest.raises(ShapeMismatchError):
         GridLocalizer(g, _fixed()).step(np.zeros(9))
     with pytest.raises(DataError):
