@@ -57,6 +57,49 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+def _status_mb(key: str) -> float:
+    """``VmRSS`` (now) or ``VmHWM`` (peak since the last reset) of this process, MB."""
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith(key + ":"):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def _reset_peak() -> bool:
+    """Start a new peak-RSS window (Linux: ``/proc/self/clear_refs`` ← 5 resets ``VmHWM``)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def _arrays(obj, seen: set, depth: int = 0):
+    """Every distinct ndarray reachable through attributes, lists and dicts (owners of
+    their memory only, so a view is not counted twice)."""
+    if isinstance(obj, np.ndarray):
+        base = obj
+        while isinstance(base.base, np.ndarray):
+            base = base.base
+        if id(base) not in seen:
+            seen.add(id(base))
+            yield base
+        return
+    if id(obj) in seen or depth > 8:
+        return
+    seen.add(id(obj))
+    if isinstance(obj, (list, tuple)):
+        children = obj
+    elif isinstance(obj, dict):
+        children = obj.values()
+    else:
+        children = getattr(obj, "__dict__", {}).values()
+    for child in children:
+        yield from _arrays(child, seen, depth + 1)
+
+
 def _floor_ms(reference: np.ndarray, repeats: int = 7) -> float:
     """Median time to read every byte of the reference once, all cores."""
     import numba
@@ -102,9 +145,8 @@ def _median_ms(fn, repeats: int) -> tuple[float, float]:
 def _reference(n: int) -> np.ndarray:
     rng = np.random.default_rng(0)
     out = np.empty((n, DIM), dtype=np.float32)
-    for start in range(0, n, 100_000):  # bounded scratch while generating
-        stop = min(n, start + 100_000)
-        out[start:stop] = rng.standard_normal((stop - start, DIM), dtype=np.float32)
+    for start in range(0, n, 100_000):  # written in place: no scratch beside the map
+        rng.standard_normal(dtype=np.float32, out=out[start : start + 100_000])
     return out
 
 
@@ -130,10 +172,18 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
         out.update(median_ms=float(np.median(ms)), p99_ms=float(np.percentile(ms, 99)),
                    floor_ms=float("nan"), peak_rss_mb=_peak_rss_mb(), l_max=l_max)
         return out
+    if case in ("live", "live-u8"):  # the process before any map: Python, numpy, numba, the live kernels loaded
+        import gc
+
+        from catgraph.live import warm_up
+
+        warm_up(models=("combined",), layouts=("uint8" if case == "live-u8" else "float32",), steps=2)
+        gc.collect()
+        out["baseline_mb"] = _status_mb("VmRSS")
     reference = _reference(n)
     out["floor_ms"] = _floor_ms(reference)
     query = rng.standard_normal((frames, DIM), dtype=np.float32)
-    if case.endswith("-u8"):
+    if case == "row-u8":
         out["floor_u8_ms"] = _floor_codes_ms(n)
         out["floor_np_u8_ms"] = _floor_numpy_codes_ms(n)
     if case in ("row", "row-1t", "cosine", "row-u8"):
@@ -162,18 +212,35 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
         from catgraph.io import CatgraphMap
         from catgraph.live import LiveLocalizer, LiveMap
 
+        layout = "uint8" if case == "live-u8" else "float32"
         the_map = CatgraphMap(reference, "sad", {"size": None, "patch": 4, "metric": None, "normalise": True},
                               PlaceGraph.chain(n), meta={"kind": "images"})
+        del reference
         start = time.perf_counter()
-        live_map = LiveMap(the_map, layout="uint8" if case == "live-u8" else "float32")
+        live_map = LiveMap(the_map, layout=layout)
+        del the_map  # the compact map keeps only its codes; the float32 map is its own kernel array
+        gc.collect()
         live = LiveLocalizer(live_map, model="combined", n_particles=2000, l_max=l_max, anchor_rows=anchor_rows)
         out["prepare_s"] = time.perf_counter() - start
+        out["prepare_peak_rss_mb"] = _status_mb("VmHWM")  # float map, codes, bootstrap blocks
+        out["streaming_window"] = _reset_peak()  # from here: the streaming peak
         images = rng.uniform(0, 255, (frames + 1, 16, 32)).astype(np.float32)
         live.step(images[0])
         matcher = live._sequence.matcher_  # fill its ring buffer: steady-state memory and cost
         rows = rng.standard_normal((8, n))
         for k in range(l_max):
             matcher.step(rows[k % 8])
+        del rows
+        inner = matcher.step
+        matcher_seconds = []
+
+        def timed_step(row):
+            t = time.perf_counter()
+            result = inner(row)
+            matcher_seconds.append(time.perf_counter() - t)
+            return result
+
+        matcher.step = timed_step  # the matcher's share of the model time
         parts = {"frontend": [], "difference": [], "model": []}
         times = []
         for k in range(frames):
@@ -183,11 +250,32 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
             for key in parts:
                 parts[key].append(est.seconds[key])
         ms = 1000.0 * np.asarray(times)
+        out["streaming_peak_rss_mb"] = _status_mb("VmHWM")
+        del matcher.step
+        # what the step holds, by component (array bytes reachable from each)
+        seen: set = set()
+        ring = sum(a.nbytes for name, a in vars(matcher).items() if isinstance(a, np.ndarray) and "ring" in name)
+        sums = sum(a.nbytes for name, a in vars(matcher).items() if isinstance(a, np.ndarray) and "sums" in name)
+        held = {"map_mb": sum(a.nbytes for a in _arrays(live_map.reference, seen)),
+                "matcher_mb": sum(a.nbytes for a in _arrays(matcher, seen)),
+                "graph_mb": sum(a.nbytes for a in _arrays(live_map.graph, seen)),
+                "filter_mb": sum(a.nbytes for a in _arrays(live.localizer_, seen)),
+                "other_mb": sum(a.nbytes for a in _arrays(live, seen))}
+        out.update({k: v / 2**20 for k, v in held.items()}, ring_mb=ring / 2**20, sums_mb=sums / 2**20,
+                   ring_dtype=str(getattr(matcher, "_ring", np.empty(0)).dtype))
         out.update(median_ms=float(np.median(ms)), p99_ms=float(np.percentile(ms, 99)), l_max=l_max,
-                   anchor_rows=anchor_rows, **{f"{k}_ms": 1000.0 * float(np.median(v)) for k, v in parts.items()})
+                   anchor_rows=anchor_rows, filter=type(live.localizer_).__name__,
+                   matcher_ms=1000.0 * float(np.median(matcher_seconds)),
+                   **{f"{k}_ms": 1000.0 * float(np.median(v)) for k, v in parts.items()})
+        out["model_rest_ms"] = 1000.0 * float(np.median(np.asarray(parts["model"]) - np.asarray(matcher_seconds)))
+        # floors last (their scratch arrays must not count in the streaming peak)
+        if case == "live-u8":
+            out["floor_u8_ms"] = _floor_codes_ms(n)
+            out["floor_np_u8_ms"] = _floor_numpy_codes_ms(n)
+        out["peak_rss_mb"] = max(out["prepare_peak_rss_mb"], _peak_rss_mb())
     else:
         raise SystemExit(f"unknown case {case!r}")
-    out["peak_rss_mb"] = _peak_rss_mb()
+    out.setdefault("peak_rss_mb", _peak_rss_mb())
     return out
 
 
@@ -427,22 +515,56 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
     row("… of which front-end", "live", "frontend_ms", ratio=False)
     row("… of which difference row", "live", "difference_ms", ratio=False)
     row("… of which models + filter", "live", "model_ms", ratio=False)
+    row("… … of which the sequence matcher (`SequenceMatcher.step`)", "live", "matcher_ms", ratio=False)
+    row("… … of which the rest (histogram model, combination, filter)", "live", "model_rest_ms", ratio=False)
     row("**full live step on the compact map** (combined, 2000 particles)", "live-u8", floor="floor_u8_ms")
     row("… of which front-end", "live-u8", "frontend_ms", ratio=False)
     row("… of which difference row", "live-u8", "difference_ms", ratio=False)
     row("… of which models + filter", "live-u8", "model_ms", ratio=False)
+    row("… … of which the sequence matcher (`SequenceMatcher.step`)", "live-u8", "matcher_ms", ratio=False)
+    row("… … of which the rest (histogram model, combination, filter)", "live-u8", "model_rest_ms", ratio=False)
     row("full live step on the compact map, against the plain memory read", "live-u8", floor="floor_np_u8_ms")
     lines += ["", "Peak RSS of each process (reference, buffers, models; Python and numba ≈ 150–200 MB):", "",
               "| process | " + " | ".join(f"N = {n:,}" for n in sizes) + " |", "|---|" + "---|" * len(sizes)]
     for label, case in (("difference rows (SAD)", "row"), ("difference rows, compact layout (the peak includes the float map while it is coded; the codes are N × 512 B)", "row-u8"),
                         ("matcher alone (adaptive, l_max 500)", "matcher"),
-                        ("full live step (combined)", "live"),
-                        ("full live step (combined), compact map (the float map is held too)", "live-u8")):
+                        ("full live step (combined), whole process (preparing included)", "live"),
+                        ("full live step (combined), compact map, whole process (the float map while it is coded "
+                         "included)", "live-u8")):
         cells = []
         for n in sizes:
             r = by.get((case, n))
             cells.append("not run" if r is None else f"{_fmt(r['peak_rss_mb'], 0)} MB")
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
+
+    def mem_row(label, case, value):
+        cells = []
+        for n in sizes:
+            r = by.get((case, n))
+            cells.append("not run" if r is None or "streaming_peak_rss_mb" not in r else value(r))
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+
+    def floor_mb(r):
+        return r["baseline_mb"] + r["map_mb"] + r["ring_mb"] + r["sums_mb"]
+
+    for case, what in (("live-u8", "compact map (uint8 codes)"), ("live", "float32 map")):
+        if not any((case, n) in by and "streaming_peak_rss_mb" in by[(case, n)] for n in sizes):
+            continue
+        mem_row(f"**streaming peak, full live step, {what}** (after preparing; ring filled, frames stepped)", case,
+                lambda r: f"{r['streaming_peak_rss_mb']:.0f} MB, ×{r['streaming_peak_rss_mb'] / floor_mb(r):.2f} floor")
+        mem_row("… floor: the process before the map + the map + the matcher's ring and sums", case,
+                lambda r: f"{floor_mb(r):.0f} MB")
+        mem_row("… … the process before the map (Python, numpy, numba, live kernels loaded)", case,
+                lambda r: f"{r['baseline_mb']:.0f} MB")
+        mem_row("… … the map as the kernels read it", case, lambda r: f"{r['map_mb']:.0f} MB")
+        mem_row("… … the matcher's ring of the last l_max + 1 rows", case,
+                lambda r: f"{r['ring_mb']:.0f} MB ({r['ring_dtype']})")
+        mem_row("… … the matcher's running sums", case, lambda r: f"{r['sums_mb']:.0f} MB")
+        mem_row("… the rest of the matcher, the filter (state, particles), the place graph", case,
+                lambda r: f"{r['matcher_mb'] - r['ring_mb'] - r['sums_mb']:.0f} + {r['filter_mb']:.0f} + "
+                          f"{r['graph_mb']:.0f} MB ({r['filter']})")
+        mem_row("… peak while preparing (float map, codes, bootstrap blocks)", case,
+                lambda r: f"{r['prepare_peak_rss_mb']:.0f} MB")
     for case, what in (("live", "float32"), ("live-u8", "uint8 codes")):
         live = [by[(case, n)] for n in sizes if (case, n) in by]
         if live:
