@@ -13,7 +13,7 @@ same arithmetic.
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import log_ndtr, ndtr
+from scipy.special import expit, log_ndtr, ndtr
 
 #: with rule "sustained": the longest admitted window at least this fraction as significant
 SUSTAINED_FRACTION = 0.5
@@ -33,6 +33,11 @@ RIVAL_FRACTION = 0.2
 #: chance: ``log p < -ln N - RIVAL_MARGIN`` (``N`` reference places; ``-ln N`` is about the
 #: log probability of the best of ``N`` random places)
 RIVAL_MARGIN = 10.0
+
+
+#: with confidence "posterior": prior odds that the query jumped away from the chosen line at
+#: the current frame (against staying on it); chosen on the whole condition table
+JUMP_ODDS = 0.3
 
 
 def _needs_sub(cfg: _Config) -> bool:
@@ -129,18 +134,39 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
     return admissible
 
 
-def _current_z(rows: np.ndarray, match: np.ndarray) -> np.ndarray:
+def _current_z(rows: np.ndarray, match: np.ndarray, score: np.ndarray | None = None):
     """``(n,)``: each frame's own difference at its match, standardised over its row.
 
-    One row at a time, so that the streaming and the batch forms do the same arithmetic.
+    With ``score`` (the window score of each match) also returns that score standardised
+    with the same row's mean and spread: the chosen line's mean standardised difference
+    per frame. One row at a time, so that the streaming and the batch forms do the same
+    arithmetic.
     """
     out = np.zeros(match.shape[0])
+    line = np.zeros(match.shape[0])
     for t in range(match.shape[0]):
         row = rows[t]
         spread = row.std()
         if spread > 0:
-            out[t] = (row[match[t]] - row.mean()) / spread
-    return out
+            centre = row.mean()
+            out[t] = (row[match[t]] - centre) / spread
+            if score is not None:
+                line[t] = (score[t] - centre) / spread
+    return out if score is None else (out, line)
+
+
+def _on_line(z: np.ndarray, mu: np.ndarray) -> np.ndarray:
+    """``(n,)``: the posterior probability that the current frame still lies on the chosen line.
+
+    Two hypotheses for the current frame's standardised difference ``z`` at the match: the
+    frame lies on the line (a unit normal around the line's mean standardised difference
+    ``mu``) or the query jumped and the match is a random place (a standard normal), with
+    prior odds :data:`JUMP_ODDS` of a jump. The log likelihood ratio is
+    ``(z^2 - (z - mu)^2) / 2``; the probability is its logistic less ``ln JUMP_ODDS``.
+    Where single frames say little (``mu`` near 0) it stays near its prior; where they are
+    distinctive it follows the current frame.
+    """
+    return expit((z * z - (z - mu) ** 2) / 2.0 - np.log(JUMP_ODDS))
 
 
 def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool, rows_d: np.ndarray):
@@ -163,18 +189,22 @@ def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool
     best = st.best_s[rows, v, g]
     std = _common_std(st)[rows, 0, g]
     match = st.best_j[rows, v, g]
-    if cfg.confidence == "gap" or (cfg.confidence == "support" and cfg.fixed):
+    if cfg.confidence == "gap" or (cfg.confidence in ("posterior", "support") and cfg.fixed):
         with np.errstate(divide="ignore", invalid="ignore"):
             conf = np.where(std > 0, (st.second_s[rows, v, g] - best) / std, 0.0)
         conf = np.where(np.isfinite(conf), conf, 0.0)
-    elif cfg.confidence == "support":
+    elif cfg.confidence in ("posterior", "support"):
         # the gaps of every admitted window (chosen velocity) whose best place agrees
         stds = _common_std(st)[:, 0, :]
         with np.errstate(divide="ignore", invalid="ignore"):
             gaps = np.where(stds > 0, (st.second_s[rows, v] - st.best_s[rows, v]) / stds, 0.0)
         gaps = np.where(np.isfinite(gaps), gaps, 0.0)
         agree = admissible & (np.abs(st.best_j[rows, v] - match[:, None]) <= cfg.radius)
-        conf = np.where(agree, gaps, 0.0).sum(axis=1) * ndtr(-_current_z(rows_d, match))
+        conf = np.where(agree, gaps, 0.0).sum(axis=1)
+        if cfg.confidence == "support":
+            conf = conf * ndtr(-_current_z(rows_d, match))
+        else:
+            conf = conf * _on_line(*_current_z(rows_d, match, best))
     elif cfg.confidence == "neglogp":
         conf = -lp[rows, g]
     else:

@@ -162,7 +162,7 @@ Confidence
 ----------
 ``confidence="gap"`` is the SeqSLAM-style margin between the best hypothesis and the
 best one more than ``radius`` places away (same velocity and window), in units of the
-common score spread: ``(s_second - s_best) / std``. ``"support"`` (default) adds up the
+common score spread: ``(s_second - s_best) / std``. ``"support"`` adds up the
 gaps of every *admitted* candidate window (at the chosen velocity) whose own best
 hypothesis lies within ``radius`` places of the match, and weighs the sum by how well
 the *current* frame alone agrees with the match::
@@ -177,16 +177,39 @@ lengths against each other one by one (the gap grows with the window, so ranking
 gaps ranks frames mostly by their chosen length). The factor ``Phi(-z_i)`` is the
 probability that a random place is further from the current frame than the match is:
 right after a jump the long windows still carry the old line for a few frames (their
-sub-windows cannot yet see the jump), but the current frame already disagrees with it,
-so the confidence falls at once. With a fixed window ``"support"`` is SeqSLAM's gap
-(no factor), so that a fixed window gives the classic method's numbers. Measured
-on the condition table against ``"gap"`` at the same matches (``docs/sequence.md``):
-AUC on UJI's shuffles +0.007 … +0.14 per cell (in order, reversed, speed 2 within
-0.002), Nordland −0.013 … +0.018; R@100P on shuffled Nordland up in three of five
-seeds (0.17 → 0.38, 0.08 → 0.25, 0.15 → 0.60) but down on in-order-like queries
-(Nordland in order 0.82 → 0.76, speed 0.5 0.64 → 0.35; UJI in order 0.63 → 0.38). ``"neglogp"`` is
+sub-windows cannot yet see the jump), but the current frame already disagrees with it.
+Measured on the condition table against ``"gap"`` at the same matches
+(``docs/sequence.md``): AUC on UJI's shuffles +0.007 … +0.14 per cell (in order,
+reversed, speed 2 within 0.002), Nordland −0.013 … +0.018; R@100P on shuffled Nordland
+up in three of five seeds (0.17 → 0.38, 0.08 → 0.25, 0.15 → 0.60) but down on
+in-order-like queries (Nordland in order 0.82 → 0.76, speed 0.5 0.64 → 0.35; UJI in
+order 0.63 → 0.38).
+
+``"posterior"`` (default) keeps the sum but replaces ``Phi(-z_i)``, which hardly moves
+(0.84 at ``z_i = -1``, 0.98 at ``z_i = -2``: right after a jump the current frame of the
+old line typically lies at ``z_i`` between −2 and 0), by the posterior probability that
+the current frame still lies on the chosen line::
+
+    posterior_i = P_i * sum_{L admitted, |j*(L) - match_i| <= radius} gap_i(L),
+    P_i = sigmoid((z_i^2 - (z_i - mu_i)^2) / 2 - ln JUMP_ODDS),
+    mu_i = (s_best(L_i, v_i) - mean_j d_ij) / std_j d_ij
+
+a likelihood ratio between "on the line" (``z_i`` a unit normal around the line's mean
+standardised difference ``mu_i``) and "a random place after a jump" (a standard normal),
+with prior odds ``JUMP_ODDS = 0.3`` of a jump. Where single frames are distinctive (the
+Wi-Fi scans, the synthetic worlds: ``mu_i`` far below 0) one poor frame cuts the
+confidence; where they say little (Nordland: ``mu_i`` near 0) it stays near its prior
+and the windows' evidence ranks the frames. Measured on the condition table against
+``"support"`` at the same matches (``docs/sequence.md``, ``bench_sequence.py
+--ranking``): no AUC cell lower by more than 0.001 on Nordland, UJI or the synthetic world,
+synthetic world +0.007 … +0.025 per cell (held-out worlds of
+``bench_generalisation.py``: +0.002 … +0.020, one cell −0.001), R@100P on shuffled
+Nordland 0.27 → 0.34 (mean over seeds) but 0.80 → 0.77 in order, 0.84 → 0.82 at speed 2.
+
+With a fixed window ``"support"`` and ``"posterior"`` are SeqSLAM's gap (no factor), so
+that a fixed window gives the classic method's numbers. ``"neglogp"`` is
 ``-log p_i(L_i, v_i)``; ``"z"`` is ``(mean - s_best) / std``. Larger is more confident
-for all four.
+for all five.
 
 Two forms
 ---------
@@ -227,7 +250,7 @@ __all__ = [
 
 APPROXIMATIONS = ("gaussian", "robust", "gmm2", "gmm3")
 RULES = ("unrivalled", "evident", "consistent", "sustained", "literal")
-CONFIDENCES = ("support", "gap", "neglogp", "z")
+CONFIDENCES = ("posterior", "support", "gap", "neglogp", "z")
 #: reference places per query frame searched by default: driven backwards or forwards, 0.5x to 3x
 DEFAULT_VELOCITIES = (-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0)
 #: candidate window lengths by default: 13 geometric lengths from l_min to l_max
@@ -479,7 +502,7 @@ def match_sequences(
     window: int | str = "adaptive",
     approximation: str = "gaussian",
     rule: str = "unrivalled",
-    confidence: str = "support",
+    confidence: str = "posterior",
     l_min: int = 5,
     l_max: int = 500,
     grid: str | int | Sequence[int] = DEFAULT_GRID,
@@ -502,7 +525,7 @@ def match_sequences(
         Approximation of the score distribution used for ``p_i(L)``.
     rule : {"unrivalled", "evident", "consistent", "sustained", "literal"}
         Window choice, see the module docstring.
-    confidence : {"support", "gap", "neglogp", "z"}
+    confidence : {"posterior", "support", "gap", "neglogp", "z"}
         Confidence given to each match (see the module docstring).
     l_min, l_max : int
         Range of candidate window lengths (adaptive only).
@@ -510,8 +533,8 @@ def match_sequences(
         Candidate lengths, see :func:`window_grid`.
     radius : int
         Places either side of the best match excluded when looking for the second best
-        (``confidence="gap"`` and ``"support"``), and the agreement radius of
-        ``"support"``.
+        (``confidence="gap"``, ``"support"`` and ``"posterior"``), and the agreement
+        radius of ``"support"`` and ``"posterior"``.
     recent_fraction : float
         A window of length ``L`` is tested on its recent sub-windows of length ``l`` in
         the grid with ``recent_fraction * L <= l < L`` (the midpoint test of rules
@@ -604,7 +627,7 @@ class SequenceMatcher:
         window: int | str = "adaptive",
         approximation: str = "gaussian",
         rule: str = "unrivalled",
-        confidence: str = "support",
+        confidence: str = "posterior",
         l_min: int = 5,
         l_max: int = 500,
         grid: str | int | Sequence[int] = DEFAULT_GRID,

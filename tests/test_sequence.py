@@ -141,7 +141,8 @@ def test_support_confidence_sums_the_agreeing_windows_gaps():
     # whose own best place lies within the radius of the match
     d = planted(50, 60, seed=5)
     grid = [2, 4, 8, 16]
-    result = match_sequences(d, window="adaptive", rule="literal", grid=grid, radius=3, velocities=V1)
+    result = match_sequences(d, window="adaptive", rule="literal", grid=grid, radius=3, velocities=V1,
+                             confidence="support")
     gaps, best = [], []
     for length in grid:
         s = slow_scores(d, length)

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.special import log_ndtr
+from scipy.special import log_ndtr, ndtr
 
-from catgraph._window_rule import EVIDENT_SPREADS, RIVAL_FRACTION, RIVAL_MARGIN, RIVAL_SPREADS
+from catgraph._window_rule import EVIDENT_SPREADS, JUMP_ODDS, RIVAL_FRACTION, RIVAL_MARGIN, RIVAL_SPREADS, _on_line
 from catgraph.sequence import SequenceMatcher, match_sequences, window_grid
 
 V1 = (1.0,)
@@ -37,11 +37,15 @@ def slow_scores(d: np.ndarray, length: int) -> np.ndarray:
     return out
 
 
-def slow_choice(d: np.ndarray, grid: np.ndarray, rule: str, fraction: float = 0.0):
-    """Per frame: the admitted windows of ``rule`` and the most significant of them."""
+def slow_choice(d: np.ndarray, grid: np.ndarray, rule: str, fraction: float = 0.0, radius: int = 10,
+                with_confidence: bool = False):
+    """Per frame: the admitted windows of ``rule`` and the most significant of them (and,
+    on request, the confidence "posterior": the gaps of the admitted windows agreeing with
+    the match, times the posterior that the current frame lies on the chosen line)."""
     scores = {int(L): slow_scores(d, int(L)) for L in grid}
     match = np.empty(d.shape[0], dtype=int)
     length = np.empty(d.shape[0], dtype=int)
+    confidence = np.empty(d.shape[0])
     for i in range(d.shape[0]):
         rows = [scores[int(L)][i] for L in grid]
         best_j = [int(np.argmin(r)) for r in rows]
@@ -64,7 +68,16 @@ def slow_choice(d: np.ndarray, grid: np.ndarray, rule: str, fraction: float = 0.
         g = min(admitted, key=lambda k: (log_p[k], k))
         match[i] = best_j[g]
         length[i] = min(int(grid[g]), i + 1)
-    return match, length
+        support = 0.0
+        for k in admitted:
+            if abs(best_j[k] - match[i]) <= radius:
+                far = np.abs(np.arange(d.shape[1]) - best_j[k]) > radius
+                support += (rows[k][far].min() - rows[k].min()) / rows[k].std()
+        z = (d[i, match[i]] - d[i].mean()) / d[i].std()
+        mu = (rows[g][match[i]] - d[i].mean()) / d[i].std()
+        log_ratio = np.log(np.exp(-0.5 * (z - mu) ** 2) / np.exp(-0.5 * z ** 2))  # on the line vs a random place
+        confidence[i] = support / (1.0 + JUMP_ODDS * np.exp(-log_ratio))
+    return (match, length, confidence) if with_confidence else (match, length)
 
 
 def planted(n_q: int, n_ref: int, seed: int, jump_at: int | None = None, strength: float = 1.2,
@@ -115,10 +128,47 @@ def test_unrivalled_rule_differs_from_evident_somewhere():
     assert differs > 0
 
 
+@pytest.mark.parametrize("rule, fraction, seed, strength, radius", [
+    ("unrivalled", 0.05, 0, 1.2, 3), ("unrivalled", 0.05, 3, 3.0, 5), ("evident", 0.0, 1, 2.0, 2),
+    ("consistent", 0.3, 2, 1.5, 4)])
+def test_posterior_confidence_matches_slow_reference(rule, fraction, seed, strength, radius):
+    d = planted(36, 40, seed, jump_at=20, strength=strength, echo=0.6 * strength)
+    grid = window_grid(3, 24, 7)
+    result = match_sequences(d, "adaptive", rule=rule, grid=7, l_min=3, l_max=24, velocities=V1,
+                             recent_fraction=fraction, radius=radius)
+    match, length, confidence = slow_choice(d, grid, rule, fraction, radius, with_confidence=True)
+    np.testing.assert_array_equal(result.match, match)
+    np.testing.assert_allclose(result.confidence, confidence, rtol=1e-9, atol=1e-12)
+
+
+def test_posterior_is_the_gap_for_a_fixed_window():
+    """A fixed window keeps SeqSLAM's confidence, whatever the adaptive default."""
+    d = np.random.default_rng(8).normal(size=(40, 70))
+    posterior = match_sequences(d, window=7, confidence="posterior")
+    gap = match_sequences(d, window=7, confidence="gap")
+    np.testing.assert_array_equal(posterior.match, gap.match)
+    np.testing.assert_array_equal(posterior.confidence, gap.confidence)
+
+
+def test_on_line_posterior_follows_the_likelihood_ratio():
+    z = np.linspace(-4.0, 3.0, 15)
+    # single frames that say nothing (the line no better than a random place): the prior
+    np.testing.assert_allclose(_on_line(z, np.zeros_like(z)), 1.0 / (1.0 + JUMP_ODDS), rtol=1e-12)
+    # a distinctive line: a current frame like a random place is a likely jump, far below
+    # what Phi(-z) gives it; a frame at the line's own mean is on the line
+    mu = np.full_like(z, -3.0)
+    p = _on_line(z, mu)
+    at_random = np.argmin(np.abs(z))  # z = 0
+    assert p[at_random] < 0.05 and ndtr(-z[at_random]) == pytest.approx(0.5)
+    assert p[np.argmin(np.abs(z - mu))] > 0.98
+    assert np.all(np.diff(p) < 0)  # the worse the current frame, the less likely on the line
+
+
+@pytest.mark.parametrize("confidence", ["posterior", "support"])
 @pytest.mark.parametrize("rule", ["evident", "unrivalled"])
-def test_evident_streaming_equals_batch(rule):
+def test_evident_streaming_equals_batch(rule, confidence):
     d = planted(60, 50, 4, jump_at=30, strength=2.5, echo=1.5)
-    kwargs = dict(rule=rule, l_min=3, l_max=30, grid=6)
+    kwargs = dict(rule=rule, l_min=3, l_max=30, grid=6, confidence=confidence)
     batch = match_sequences(d, **kwargs)
     matcher = SequenceMatcher(**kwargs)
     steps = [matcher.step(row) for row in d]
