@@ -136,6 +136,31 @@ def test_fixed_window_gap_confidence_matches_definition():
         assert result.confidence[i] == pytest.approx((s[i][far].min() - s[i, j]) / s[i].std(), rel=1e-9)
 
 
+@pytest.mark.parametrize("v", [1.0, -2.0, 0.5])
+def test_best_and_second_across_blocks_match_the_scores(v):
+    """Best place (the first of exact ties) and gap over several blocks of the block
+    minima, with the excluded radius straddling a block boundary, against the scores."""
+    from catgraph import _sequence_kernels as k
+
+    n = 3 * k.BLOCK + 50
+    rng = np.random.default_rng(4)
+    d = on_grid(rng.normal(size=(25, n)))
+    edge = k.BLOCK  # plant a strong line that ends at the first block boundary
+    for i in range(25):
+        j = edge - (int(np.floor(v * 24 + 0.5)) - int(np.floor(v * i + 0.5)))
+        if 0 <= j < n:
+            d[i, j] -= 3.0
+    d = on_grid(d)
+    result = match_sequences(d, window=6, radius=5, confidence="gap", velocities=(v,))
+    s = fixed_window_scores(d, 6, v)
+    for i in range(25):
+        j = int(np.argmin(s[i]))
+        assert result.match[i] == j
+        far = np.abs(np.arange(n) - j) > 5
+        assert result.confidence[i] == pytest.approx((s[i][far].min() - s[i, j]) / s[i].std(), rel=1e-9)
+    assert result.match[-1] == edge
+
+
 def test_support_confidence_sums_the_agreeing_windows_gaps():
     # literal rule: every window is admitted, so support = sum of the gaps of the lengths
     # whose own best place lies within the radius of the match
@@ -372,14 +397,17 @@ def test_public_window_scores_equal_fixed_window_scores():
         m.window_scores(17)
 
 
-def test_block_minima_and_moments_of_the_fused_update_equal_numpy():
+@pytest.mark.parametrize("n", [150, 4500])
+def test_block_minima_and_moments_of_the_fused_update_equal_numpy(n):
     """The fused update's moments and block minima (integer minima of the sums) against
     numpy on the sums it leaves, for every velocity kind, with negative values, zeros
-    and blocks cut by the slot wrap and the entering lines, on int32 and int64 sums."""
+    and blocks cut by the slot wrap, the entering lines and (n = 4500) the chunks of
+    the update, on int32 and int64 sums."""
     from catgraph import _sequence_kernels as k
 
+    assert 4500 > 2 * k.CHUNK
     rng = np.random.default_rng(3)
-    n, length = 150, 4
+    length = 4
     d = rng.normal(size=(12, n))
     d[5, :40] = 0.0
     d[6, 40:80] = -0.0
@@ -400,13 +428,14 @@ def test_block_minima_and_moments_of_the_fused_update_equal_numpy():
             expected = [in_place[b:b + k.BLOCK].min() for b in range(0, n, k.BLOCK)]
             np.testing.assert_array_equal(bmin, expected)
             y = in_place - shift
-            assert a == y.sum()  # an exact integer sum
+            assert a == float(y.sum())  # integers: exact in float64 at this size
             assert q == pytest.approx((y.astype(np.float64) ** 2).sum(), rel=1e-12)
 
 
 def test_segment_minimum_of_integer_sums():
     from catgraph import _sequence_kernels as k
 
+    rng = np.random.default_rng(5)
     for dtype in (np.int32, np.int64):
         info = np.iinfo(np.int32)
         x = np.array([35, 0, -1, info.min + 1, info.max - 1, -7, 7, -7, 2], dtype=dtype)
@@ -416,12 +445,16 @@ def test_segment_minimum_of_integer_sums():
                 k._segment_min(x[lo:hi].copy(), 0, bmin)
                 assert bmin[0] == x[lo:hi].min()
         # blocks: a segment starting inside a block folds into the existing minima
-        seg = np.arange(200, dtype=dtype)[::-1].copy()
-        bmin = np.array([-5, 1 << 62, 1 << 62, 1 << 62, 1 << 62], dtype=np.int64)
+        b = k.BLOCK
+        seg = rng.integers(-1000, 1000, size=3 * b + 7).astype(dtype)
+        bmin = np.array([-5000, 1 << 62, 1 << 62, 1 << 62, 1 << 62], dtype=np.int64)
         k._segment_min(seg, 10, bmin)
         full = np.concatenate([np.full(10, 1 << 40), seg.astype(np.int64)])
-        expected = [min(-5, full[:64].min())] + [full[b:b + 64].min() for b in range(64, 210, 64)] + [1 << 62]
+        expected = [-5000] + [full[lo:lo + b].min() for lo in range(b, full.size, b)] + [1 << 62]
         np.testing.assert_array_equal(bmin, expected)
+        bmin[:] = 1 << 62
+        k._segment_min(seg, 10, bmin)
+        assert bmin[0] == seg[:b - 10].min()
     bmin = np.full(1, 1 << 62, dtype=np.int64)
     k._segment_min(np.empty(0, dtype=np.int32), 0, bmin)
     assert bmin[0] == 1 << 62
