@@ -60,8 +60,16 @@ mass has moved to the new place. :attr:`Estimate.score` and the confidence drop 
 soon as either happens.
 
 Estimate. Mass per place ``m_j = (1 − P(new)) Σ_b P[j, b]``; the answer ``argmax_j m_j``,
-its confidence the mass within ``confidence_radius`` places (or metres, on a graph with
-positions, ``confidence_radius_m``), its log-odds the log-odds of that mass. Log-odds are
+its confidence the mass within ``confidence_radius`` places of it along the route (or
+metres, on a graph with positions, ``confidence_radius_m``), its log-odds the log-odds of
+that mass. A "place" of the radius is the map's mean spacing along the route
+(:attr:`~catgraph.graph.PlaceGraph.frame_spacing`), not an index step: the neighbourhood is
+every place whose route distance from the answer is at most ``confidence_radius`` mean
+spacings. On a map of evenly spaced frames the two agree (±2 places); on a map surveyed
+as several samples per point (UJI's Wi-Fi: six scans at each point, 4.4 m between
+points, mean spacing 0.9 m) an index step would count a neighbouring point's first scan
+as the same place as this point's last, so at every point boundary the confidence would
+mix two points; by route distance the neighbourhood is the point's own scans. Log-odds are
 computed from the masses with a floor of ``1e-300`` on the outside mass, so they stay
 finite and ordered when the confidence is exactly 1 (a two-place map).
 
@@ -591,7 +599,8 @@ class GridLocalizer:
         The new-place hypothesis' two-state prior (as :class:`~catgraph.localizer.Localizer`,
         with its defaults 0.05 and 0.8; ``new_place_prior=0`` switches it off).
     confidence_radius : int
-        Places either side of the answer counted in its confidence.
+        Places either side of the answer counted in its confidence, in mean spacings of
+        the map along the route (on a frame graph: places; see the module docstring).
     confidence_radius_m : float, optional
         A metric radius instead (needs graph positions).
     converged_log_odds : float
@@ -723,6 +732,11 @@ class GridLocalizer:
         self.converged_ = self.converged_frames == 0
         self._held = 0
         self.model.reset()
+        rd = np.asarray(g.route_distance, dtype=np.float64)
+        # the confidence neighbourhood by route distance (a slice where the route is monotone)
+        self._route = rd if len(rd) < 2 or bool(np.all(np.diff(rd) >= 0)) else None
+        spacing = float(g.frame_spacing)
+        self._route_radius = self.confidence_radius * spacing + 1e-9 * spacing
         if self.confidence_radius_m is not None:
             from scipy.spatial import cKDTree
 
@@ -833,6 +847,10 @@ class GridLocalizer:
         if self.confidence_radius_m is not None:
             near = np.zeros(g.n_places, dtype=bool)
             near[self._tree.query_ball_point(g.positions[best], self.confidence_radius_m)] = True
+        elif self._route is not None:
+            rd = self._route
+            near = slice(int(np.searchsorted(rd, rd[best] - self._route_radius, "left")),
+                         int(np.searchsorted(rd, rd[best] + self._route_radius, "right")))
         else:
             near = slice(max(0, best - self.confidence_radius), best + self.confidence_radius + 1)
         w_in, w_out = _inside_outside(mass, near)

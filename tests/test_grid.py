@@ -195,6 +195,47 @@ def test_score_is_lowered_until_the_filter_first_converges(level, frames, penalt
                          unconverged_penalty=penalty)
     np.testing.assert_allclose([step.step(r).score for r in rows], res.score)  # one step = run
 
+
+def test_confidence_neighbourhood_is_measured_along_the_route():
+    """On a map surveyed as several samples per point, the confidence counts the places
+    within ``confidence_radius`` mean spacings of route distance (the answer's own point),
+    not ``confidence_radius`` index steps (which would reach into the next point)."""
+    per_point, n_points, gap = 4, 12, 4.0
+    n = per_point * n_points
+    rd = np.repeat(np.arange(n_points) * gap, per_point).astype(float)
+    i = np.arange(n - 1)
+    edges = np.concatenate([np.stack([i, i + 1], 1), np.stack([i + 1, i], 1)]).astype(np.int64)
+    lengths = np.tile(np.maximum(np.diff(rd), 1e-6), 2)
+    kinds = np.concatenate([np.zeros(n - 1, np.int64), np.ones(n - 1, np.int64)])
+    g = PlaceGraph.from_edges(n, edges, lengths, kinds, route_distance=rd, unit="m")
+    rng = np.random.default_rng(7)
+    rows = rng.standard_normal((30, n))
+    rows[np.arange(30), np.arange(30) + 5] -= 2.0
+    loc = GridLocalizer(g, _fixed(1.0))
+    spacing = g.frame_spacing
+    differs = 0
+    for row in rows:
+        est = loc.step(row)
+        post = loc.place_posterior_
+        near = np.abs(rd - rd[est.place]) <= 2 * spacing + 1e-12
+        assert est.confidence == pytest.approx(post[near].sum(), rel=1e-9)
+        index_window = post[max(0, est.place - 2):est.place + 3].sum()
+        differs += not np.isclose(est.confidence, index_window)
+    assert 2 * spacing < gap  # the radius stays within a point here ...
+    assert differs > 0  # ... so the confidence is not the index window's
+
+
+def test_confidence_neighbourhood_on_an_even_route_is_the_index_window():
+    rng = np.random.default_rng(8)
+    n = 80
+    g = PlaceGraph.chain(n, spacing=3.0)
+    rows = _track_rows(n, 10 + np.arange(40), rng, depth=2.0)
+    loc = GridLocalizer(g, _fixed(1.0), confidence_radius=2)
+    for row in rows:
+        est = loc.step(row)
+        assert est.confidence == pytest.approx(loc.place_posterior_[max(0, est.place - 2):est.place + 3].sum(),
+                                               rel=1e-9)
+
 @pytest.mark.parametrize("bad", [float("nan"), float("inf"), -1.0])
 def test_bad_odometry_refused_on_every_step_first_included(bad):
     g = PlaceGraph.chain(10)
