@@ -105,6 +105,7 @@ def case_stream(package: str, n: int, frames: int) -> dict:
         "floor_ms_median": 1e3 * float(np.median(floors)),
         "rss_start_mb": rss_start, "rss_peak_mb": _rss_mb(),
         "ring_mb": m._ring.nbytes / 1e6, "sums_mb": m._sums.nbytes / 1e6,
+        "ring_dtype": str(m._ring.dtype), "sums_dtype": str(m._sums.dtype),
         "scratch_mb": sum(b.nbytes for b in m._buffers) / 1e6,
         "bytes_per_velocity": int((m._sums.nbytes + m._buffers[0].nbytes) // v_count),
         "threads": numba.get_num_threads(),
@@ -210,23 +211,27 @@ def _markdown(res: dict) -> str:
     st = res.get("stream", [])
     if st:
         lines += ["## Streaming step and memory", "",
-                  "One process per N. Floor: one parallel pass adding a row to every running sum (the V·G·N float64 "
-                  "values each step must read and write), same process, same threads. RSS at start: after imports "
-                  "and compiling (or loading) the kernels, before the matcher allocates.", "",
+                  "One process per N. Floor: one parallel pass adding a stored row to every running sum (the V·G·N "
+                  "values each step must read and write, in the package's own types), same process, same threads. "
+                  "RSS at start: after imports and loading the kernels from the cache a first process filled, "
+                  "before the matcher allocates.", "",
                   "| N | package | step median | step p99 | floor (same process) | step / floor | peak RSS "
-                  "| RSS at start | ring (float32, shared) | running sums (float64) | bytes per velocity |",
+                  "| RSS at start | ring (shared) | running sums | bytes per velocity |",
                   "|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in st:
             lines.append(
                 f"| {r['n']:,} | {r.get('label', 'current')} | {r['step_ms_median']:.1f} ms | {r['step_ms_p99']:.1f} ms "
                 f"({r['frames']} steps) | {r['floor_ms_median']:.1f} ms | ×{r['step_ms_median'] / r['floor_ms_median']:.1f} "
-                f"| {r['rss_peak_mb']:.0f} MiB | {r['rss_start_mb']:.0f} MiB | {r['ring_mb']:.0f} MB | {r['sums_mb']:.0f} MB "
+                f"| {r['rss_peak_mb']:.0f} MiB | {r['rss_start_mb']:.0f} MiB | {r['ring_mb']:.0f} MB "
+                f"({r.get('ring_dtype', 'float32')}) | {r['sums_mb']:.0f} MB ({r.get('sums_dtype', 'float64')}) "
                 f"| {r['bytes_per_velocity'] / 1e6:.2f} MB ({r['bytes_per_velocity'] / r['n']:.0f} B per place) |")
-        lines += ["", "Memory layout: one float32 ring of `l_max + 1` rows shared by all velocities "
-                  "(4·N·501 B), plus per velocity 13 float64 running sums and one float64 scratch row "
-                  "(8·N·14 B = 112 B per place). Before this layout: one float64 prefix ring per velocity, "
-                  "8·N·501 B = 4008 B per place per velocity (3237 MB peak at N = 10⁵ in "
-                  "`benchmarks/results/live.md`; 10⁶ not runnable).", ""]
+        lines += ["", "Memory layout (current): one int16 ring of the codes of the last `l_max + 1` rows shared by "
+                  "all velocities (2·501 = 1002 B per place), plus per velocity 13 int32 running sums (4·13 = 52 B "
+                  "per place per velocity; 416 B per place for 8 velocities): 1418 B per place in all, 142 MB at "
+                  "N = 10⁵, 1.42 GB at N = 10⁶. The float32 ring with float64 sums before it: 4·501 + 8·13·8 = "
+                  "2836 B per place. Before that: one float64 prefix ring per velocity, 8·N·501 B = 4008 B per "
+                  "place per velocity (3237 MB peak at N = 10⁵ in `benchmarks/results/live.md`; 10⁶ not "
+                  "runnable).", ""]
     nl = res.get("nordland", {})
     if nl:
         lines += ["## Whole Nordland (3576 × 3576), adaptive", "",
