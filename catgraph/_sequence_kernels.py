@@ -335,24 +335,22 @@ def _update_stats(sums_g, ring, mring, i, v, length, shift, bmin):
             if hi <= lo:
                 continue
             sh = n - sbase if seg == 0 else -sbase
-            if i < length:
-                da, dq = _stretch(sums_g, cur, old, m_old, 0, lo, hi, sh, off, fshift, bmin)
-                sa += da
-                sq += dq
-            else:
-                # the old term lies inside the reference for j - off in [0, n)
+            if i < length:  # no old term yet: one stretch
+                k_lo = lo
+                k_hi = lo
+            else:  # the old term lies inside the reference for j - off in [0, n)
                 k_lo = off if off > lo else lo
                 k_hi = n + off if n + off < hi else hi
                 if k_hi < k_lo:
                     k_lo = hi
                     k_hi = hi
-                da, dq = _stretch(sums_g, cur, old, m_old, 2, lo, k_lo, sh, off, fshift, bmin)
-                sa += da
-                sq += dq
-                da, dq = _stretch(sums_g, cur, old, m_old, 1, k_lo, k_hi, sh, off, fshift, bmin)
-                sa += da
-                sq += dq
-                da, dq = _stretch(sums_g, cur, old, m_old, 2, k_hi, hi, sh, off, fshift, bmin)
+            # [lo, k_lo) and [k_hi, hi): old term outside (or none yet); [k_lo, k_hi): inside.
+            # One call site for every kind keeps the compiled code (and the compile) small.
+            for q in range(3):
+                s_lo = lo if q == 0 else (k_lo if q == 1 else k_hi)
+                s_hi = k_lo if q == 0 else (k_hi if q == 1 else hi)
+                kind = 1 if q == 1 else (0 if i < length else 2)
+                da, dq = _stretch(sums_g, cur, old, m_old, kind, s_lo, s_hi, sh, off, fshift, bmin)
                 sa += da
                 sq += dq
     return sa, sq
