@@ -15,7 +15,9 @@ applied. Methods:
 * every fixed window L ∈ {5, 10, 20, 50, 100, 200, 500}, with the default velocity search;
 * the classic SeqSLAM fixed windows (the same lengths, forward diagonal v = 1 only, the
   same hub-corrected rows), so that "the best fixed window" is the better of the two;
-* the default adaptive matcher (``match_sequences`` defaults: rule "unrivalled");
+* the default adaptive matcher (``match_sequences`` defaults: rule "unrivalled",
+  confidence "posterior");
+* the same matches ranked by confidence "support" (the default before "posterior");
 * the adaptive matcher with rule "evident" (the default before the rival test);
 * the adaptive matcher with rule "consistent" and every shorter sub-window tested (the
   0.2 draft default, for comparison);
@@ -41,17 +43,17 @@ Nordland's first 600 query frames, no synthetic world, no rule-"consistent" or
 previous-default reference, no timing.
 
 ``--ranking`` (an analysis of the confidence, prints a table and writes nothing): the
-default adaptive matcher once per dataset and condition, its matches ranked (a) by its
-own confidence, (b) by an oracle that puts every correct match first (the best AUC and
-R@100P any confidence can give at these matches; its AUC equals the accuracy), (c) by its
-own confidence with the first 5 or 10 frames after every jump of the query set to zero
+default adaptive matcher once per dataset and condition, its matches ranked (a) by
+confidence "support" (the default until "posterior"), (b) by an oracle that puts every correct match first (the best AUC and
+R@100P any confidence can give at these matches; its AUC equals the accuracy), (c) by
+"support" with the first 5 or 10 frames after every jump of the query set to zero
 (a jump detector that knows the ground truth: how much the frames right after a jump
 cost), and (d) by the online candidate ``support_sum x P(on line)``: the current frame's
 likelihood ratio between "on the chosen line" (a normal of unit spread around the
 line's mean standardised difference ``mu``, the window score of the match) and "a random
 place" (a standard normal), ``P = sigmoid((z^2 - (z - mu)^2) / 2 - ln w)`` for prior odds
-``w`` of a jump. (b) and (c) read the ground truth and are no method; they bound what a
-confidence can gain.
+``w`` of a jump (``w = 0.3`` is confidence "posterior", the default). (b) and (c) read the
+ground truth and are no method; they bound what a confidence can gain.
 """
 
 from __future__ import annotations
@@ -82,6 +84,7 @@ FIGURES = ROOT / "docs" / "figures"
 FIXED = (5, 10, 20, 50, 100, 200, 500)
 QUICK_FIXED = (10, 50, 200)
 ADAPTIVE = "adaptive (default)"
+SUPPORT = "adaptive, confidence support"
 CONSISTENT = "adaptive, rule consistent"
 EVIDENT = "adaptive, rule evident"
 PREVIOUS = "previous default"
@@ -107,6 +110,7 @@ def _methods(quick: bool):
         yield f"SeqSLAM L={length}", dict(window=length, velocities=(1.0,)), True
     yield ADAPTIVE, {}, True
     if not quick:
+        yield SUPPORT, dict(confidence="support"), True
         yield EVIDENT, EVIDENT_KWARGS, True
         yield CONSISTENT, CONSISTENT_KWARGS, True
         yield PREVIOUS, PREVIOUS_KWARGS, False  # no hub offsets
@@ -313,7 +317,7 @@ def ranking() -> dict:
             per = []
             for case in cases:
                 c = conditioned(case, condition)
-                res = match_sequences(c.differences, hub_offsets=offsets)
+                res = match_sequences(c.differences, hub_offsets=offsets, confidence="support")
                 d = np.asarray(apply_hub_offsets(c.differences, offsets))
                 t = np.arange(d.shape[0])
                 mean, std = d.mean(axis=1), d.std(axis=1)
@@ -323,7 +327,7 @@ def ranking() -> dict:
                 since = _since_jump(np.asarray(c.query.index))
                 support_sum = res.confidence / ndtr(-z)
                 cell = {"accuracy": ev.metrics.accuracy,
-                        "default": (ev.metrics.auc, ev.metrics.recall_at_100p),
+                        "support": (ev.metrics.auc, ev.metrics.recall_at_100p),
                         "oracle": _ranked(c, res.match, ev.correct + 1e-6 * res.confidence / (1.0 + res.confidence.max())),
                         "masked 5": _ranked(c, res.match, np.where(since < 5, 0.0, res.confidence)),
                         "masked 10": _ranked(c, res.match, np.where(since < 10, 0.0, res.confidence))}
@@ -337,14 +341,14 @@ def ranking() -> dict:
                 if key != "accuracy":
                     row[key] = tuple(float(np.mean([p[key][k] for p in per])) for k in range(2))
             rows_out.append(row)
-            print(f"{name} | {condition.label}: default {row['default'][0]:.3f} oracle {row['oracle'][0]:.3f}",
+            print(f"{name} | {condition.label}: support {row['support'][0]:.3f} oracle {row['oracle'][0]:.3f}",
                   flush=True)
         out[name] = rows_out
     return out
 
 
 def ranking_markdown(result: dict) -> str:
-    keys = ["default", "oracle", "masked 5", "masked 10"] + [f"candidate w={w:g}" for w in RANKING_ODDS]
+    keys = ["support", "oracle", "masked 5", "masked 10"] + [f"candidate w={w:g}" for w in RANKING_ODDS]
     lines = []
     for name, rows in result.items():
         lines += [f"**{name}** (AUC / R@100P; shuffles: mean over seeds, worst AUC in brackets)", "",

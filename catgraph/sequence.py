@@ -185,10 +185,11 @@ up in three of five seeds (0.17 → 0.38, 0.08 → 0.25, 0.15 → 0.60) but down
 in-order-like queries (Nordland in order 0.82 → 0.76, speed 0.5 0.64 → 0.35; UJI in
 order 0.63 → 0.38).
 
-``"posterior"`` (default) keeps the sum but replaces ``Phi(-z_i)``, which hardly moves
-(0.84 at ``z_i = -1``, 0.98 at ``z_i = -2``: right after a jump the current frame of the
-old line typically lies at ``z_i`` between −2 and 0), by the posterior probability that
-the current frame still lies on the chosen line::
+``"posterior"`` (default) keeps the sum but replaces ``Phi(-z_i)`` (a factor of a few at
+most: 0.84 at ``z_i = -1``, 0.98 at ``z_i = -2``, where many correct frames lie, against
+supports that differ tenfold; the most confident wrong frames right after a jump on
+shuffled Nordland lie at ``z_i`` between about −1.3 and +0.6) by the posterior
+probability that the current frame still lies on the chosen line::
 
     posterior_i = P_i * sum_{L admitted, |j*(L) - match_i| <= radius} gap_i(L),
     P_i = sigmoid((z_i^2 - (z_i - mu_i)^2) / 2 - ln JUMP_ODDS),
@@ -200,11 +201,11 @@ with prior odds ``JUMP_ODDS = 0.3`` of a jump. Where single frames are distincti
 Wi-Fi scans, the synthetic worlds: ``mu_i`` far below 0) one poor frame cuts the
 confidence; where they say little (Nordland: ``mu_i`` near 0) it stays near its prior
 and the windows' evidence ranks the frames. Measured on the condition table against
-``"support"`` at the same matches (``docs/sequence.md``, ``bench_sequence.py
---ranking``): no AUC cell lower by more than 0.001 on Nordland, UJI or the synthetic world,
-synthetic world +0.007 … +0.025 per cell (held-out worlds of
-``bench_generalisation.py``: +0.002 … +0.020, one cell −0.001), R@100P on shuffled
-Nordland 0.27 → 0.34 (mean over seeds) but 0.80 → 0.77 in order, 0.84 → 0.82 at speed 2.
+``"support"`` at the same matches (``benchmarks/results/sequence.md``, ``docs/sequence.md``):
+AUC per cell Nordland −0.000 … +0.003, UJI −0.002 … +0.003, synthetic world +0.008 …
++0.025 (held-out worlds of ``bench_generalisation.py``: +0.002 … +0.020, one cell
+−0.001); R@100P on shuffled Nordland 0.27 → 0.34 (mean over seeds) but 0.80 → 0.77 in
+order, 0.81 → 0.80 reversed, 0.84 → 0.82 at speed 2.
 
 With a fixed window ``"support"`` and ``"posterior"`` are SeqSLAM's gap (no factor), so
 that a fixed window gives the classic method's numbers. ``"neglogp"`` is
