@@ -318,6 +318,18 @@ class SequenceObservation:
         consecutive frames' window scores share ``L − 1`` of their ``L`` frames, so a
         filter that multiplies them frame after frame counts each frame's evidence
         about ``L`` times; ``1 / L_k`` counts it about once.
+    calibration : {"online", "agreement"}
+        How standardised scores ``z`` become log-ratios. ``"online"`` (default): paper 2's
+        online histograms, ``P(z|L)`` learned from each frame's best ``z``. On a shuffled
+        query that sample is mostly wrong (a window across a jump matches neither line and
+        still names a place), so the ratios stand 8–11 nats above the row's median whether
+        the best place is right or wrong (``docs/particle_filter.md``). ``"agreement"``:
+        the tempered model's linear ratio ``−z`` (:class:`TemperedObservation`, no hub
+        correction, no novelty weight) at the temperature ``agreement_scale · ρ``, ``ρ`` how
+        probable the part's own best place is after the filter has weighed it — a part
+        that the filter rarely confirms is flattened.
+    agreement_scale : float
+        ``τ`` per unit of agreement for ``calibration="agreement"``.
 
     Attributes
     ----------
@@ -329,28 +341,43 @@ class SequenceObservation:
     """
 
     def __init__(self, window: int | str = "adaptive", matcher_params: dict | None = None, n_init: int = 20,
-                 exclusion_radius: int = 5, temperature: float | str = 1.0) -> None:
+                 exclusion_radius: int = 5, temperature: float | str = 1.0, calibration: str = "online",
+                 agreement_scale: float = 4.0) -> None:
         self.window = window
         self.matcher_params = matcher_params
         self.n_init = n_init
         self.exclusion_radius = exclusion_radius
         self.temperature = temperature
+        self.calibration = calibration
+        self.agreement_scale = agreement_scale
 
     def reset(self) -> None:
-        for k in ("matcher_", "recogniser_", "last_match_", "_scores"):
+        for k in ("matcher_", "recogniser_", "last_match_", "_scores", "_tempered"):
             self.__dict__.pop(k, None)
 
     def feedback(self, feedback: FilterFeedback) -> None:
-        """The score histograms learn from the frames alone: nothing to do."""
+        """``"online"``: the score histograms learn from the frames alone, nothing to do;
+        ``"agreement"``: the tempered calibration learns how often the filter confirms
+        the part's best place."""
+        tempered = getattr(self, "_tempered", None)
+        if tempered is not None:
+            tempered.feedback(feedback)
 
     def _start(self) -> None:
         from .likelihood import HistogramPlaceRecogniser
         from .sequence import SequenceMatcher
 
+        owner = type(self).__name__
         if self.temperature != "window":
-            check_scalar(self.temperature, "temperature", type(self).__name__, float, 0.0, low_inclusive=False)
+            check_scalar(self.temperature, "temperature", owner, float, 0.0, low_inclusive=False)
+        if self.calibration not in ("online", "agreement"):
+            raise InvalidParameterError(f"The 'calibration' parameter of {owner} must be 'online' or 'agreement'. "
+                                        f"Got {self.calibration!r} instead.")
+        check_scalar(self.agreement_scale, "agreement_scale", owner, float, 0.0, low_inclusive=False)
         self.matcher_ = SequenceMatcher(window=self.window, **(self.matcher_params or {}))
         self.recogniser_ = HistogramPlaceRecogniser(n_init=self.n_init, exclusion_radius=self.exclusion_radius)
+        self._tempered = (TemperedObservation(hub=None, novelty=False, temperature_scale=self.agreement_scale)
+                          if self.calibration == "agreement" else None)
 
     def window_scores(self, length: int | None = None) -> np.ndarray:
         """``(n_places,)`` scores ``s_kj(L, v)`` of the latest frame, along the lines of
@@ -374,13 +401,17 @@ class SequenceObservation:
         s = self.window_scores()
         sd = s.std()
         z = (s - s.mean()) / sd if sd > 0 else np.zeros_like(s)
+        tau = (1.0 / max(int(self.last_match_.window_length), 1) if self.temperature == "window"
+               else float(self.temperature))
+        if self._tempered is not None:
+            r = tau * self._tempered.observe(z).log_ratio
+            top = float(r.max())
+            return Observation(r, top + math.log(float(np.mean(np.exp(r - top)))), True, self._recent_support())
         rec = self.recogniser_
         informative = not rec.initialising
         rec.update(z)
         if not informative:
             return Observation(np.zeros(len(row)), 0.0, False)
-        tau = (1.0 / max(int(self.last_match_.window_length), 1) if self.temperature == "window"
-               else float(self.temperature))
         model = rec.model_
         return Observation(tau * np.asarray(model.log_likelihood_ratio(z), dtype=np.float64),
                            tau * float(model.new_place_log_likelihood()), True, self._recent_support())

@@ -12,7 +12,7 @@ from catgraph.grid import (GridLocalizer, _bin_moves, _shift_frames, predict, ro
                            velocity_transition)
 from catgraph.localizer import Localizer
 from catgraph.motion import VelocityMotion
-from catgraph.observation import TemperedObservation
+from catgraph.observation import CombinedObservation, SequenceObservation, TemperedObservation
 
 
 def _fixed(tau=1.0):
@@ -235,6 +235,51 @@ def test_confidence_neighbourhood_on_an_even_route_is_the_index_window():
         est = loc.step(row)
         assert est.confidence == pytest.approx(loc.place_posterior_[max(0, est.place - 2):est.place + 3].sum(),
                                                rel=1e-9)
+
+
+def test_sequence_part_calibrated_by_agreement_is_the_tempered_ratio_of_its_scores():
+    """``calibration="agreement"``: the log-ratio is ``(1/L_k) · τ · (−z)``, ``z`` the
+    standardised window scores, ``τ = agreement_scale · ρ`` (ρ starts at 1/2 and learns
+    from the filter's feedback)."""
+    from catgraph.observation import FilterFeedback
+
+    rng = np.random.default_rng(9)
+    n = 60
+    places = 5 + np.arange(30)
+    rows = _track_rows(n, places, rng, depth=2.0)
+    obs = SequenceObservation(window=10, calibration="agreement", temperature="window", agreement_scale=3.0)
+    taus = []
+    for k, row in enumerate(rows):
+        out = obs.observe(row)
+        s = obs.window_scores()
+        z = (s - s.mean()) / s.std()
+        tau = obs._tempered.temperature_
+        taus.append(tau)
+        np.testing.assert_allclose(out.log_ratio, tau / int(obs.last_match_.window_length) * (-z), rtol=1e-9,
+                                   atol=1e-12)
+        top = float(out.log_ratio.max())
+        assert out.new_place_log_ratio == pytest.approx(top + math.log(np.mean(np.exp(out.log_ratio - top))))
+        post = np.zeros(n)
+        post[places[k]] = 1.0
+        obs.feedback(FilterFeedback(post, post, slice(places[k] - 2, places[k] + 3)))
+    assert taus[0] == pytest.approx(1.5)  # 3 · ½ before any feedback
+    assert taus[-1] > 2.0  # the filter confirmed the part's best place: ρ rose towards 1
+
+
+def test_sequence_calibration_validated():
+    with pytest.raises(InvalidParameterError, match="calibration"):
+        SequenceObservation(window=10, calibration="bogus").observe(np.zeros(20))
+
+
+def test_combined_with_agreement_calibrated_sequence_part_tracks():
+    rng = np.random.default_rng(10)
+    n = 120
+    places = 10 + np.arange(70)
+    model = CombinedObservation([TemperedObservation(hub=None),
+                                 SequenceObservation(window=10, calibration="agreement", temperature="window")],
+                                reliability=None)
+    res = GridLocalizer(PlaceGraph.chain(n), model).run(_track_rows(n, places, rng, depth=1.5))
+    assert np.mean(np.abs(res.place[20:] - places[20:]) <= 2) > 0.9
 
 @pytest.mark.parametrize("bad", [float("nan"), float("inf"), -1.0])
 def test_bad_odometry_refused_on_every_step_first_included(bad):
