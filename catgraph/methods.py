@@ -496,7 +496,8 @@ def _filter_params() -> tuple[Param, ...]:
         Param("n_particles", "int", 2000, "number of particles", low=1, high=10_000_000, flag="--particles"),
         Param("seed", "int", 0, "seed of the particle filter and of the histogram models' samples", low=0),
         Param("confidence_radius", "int", 2, "places either side of the answer counted in its confidence "
-              "(a parameter of the method, not of the evaluation)", low=0, high=1_000_000),
+              "(the grid: the map's mean spacings along the route; a parameter of the method, not of the "
+              "evaluation)", low=0, high=1_000_000),
         Param("confidence_radius_m", "float", None, "count posterior mass within METRES instead (needs positions)",
               low=0.0, optional=True),
         Param("use_odometry", "bool", True, "drive the motion model by the query's odometry where it has one"),
