@@ -239,6 +239,19 @@ def test_streaming_memory_is_one_int16_ring_and_int32_running_sums():
     assert k.sums_dtype(65_538) == np.int32 and k.sums_dtype(65_539) == np.int64
 
 
+def test_windows_beyond_the_int32_range_keep_int64_sums():
+    """A window so long that int32 sums could overflow runs on int64 sums with the same
+    results: while fewer frames than either window have been seen, both use them all."""
+    d = np.random.default_rng(6).normal(size=(15, 7))
+    long = SequenceMatcher(window=70_000, velocities=(1.0, -2.0))
+    steps = [long.step(row) for row in d]
+    assert long._sums.dtype == np.int64
+    short = match_sequences(d, window=20, velocities=(1.0, -2.0))
+    np.testing.assert_array_equal(short.match, [s.match for s in steps])
+    np.testing.assert_array_equal(short.score, [s.score for s in steps])
+    np.testing.assert_array_equal(short.confidence, [s.confidence for s in steps])
+
+
 def test_streaming_reset_and_shape_check():
     matcher = SequenceMatcher(window=3)
     matcher.step(np.zeros(5))
