@@ -705,6 +705,7 @@ class TemperedObservation:
         self._decay = 0.5 ** (1.0 / float(self.memory))
         self._hits, self._trials = 0.0, 0.0
         self._rho_sum, self._rho_n, self.novelty_ = 0.0, 0.0, 1.0
+        self._previous = None  # the previous frame's row (a copy), for the novelty weight
         self.agreement_ = 0.5
         first = float(self.temperature_scale) * 0.5 if self.temperature == "agreement" else float(taus[len(taus) // 2])
         self.temperature_, self.hub_weight_ = first, float(lams[0])
@@ -777,13 +778,17 @@ class TemperedObservation:
         ``[0, novelty_cap]``, ``ρ_k`` the correlation of this row with the previous one
         and ``ρ̄`` its discounted mean. A repeated frame (``ρ_k = 1``) adds nothing; a
         frame unlike its predecessor (after a jump) counts more."""
-        prev = getattr(self, "_previous", None)
-        self._previous = row
-        if not self.novelty or prev is None:
+        prev = self._previous
+        if prev is None:
+            # a copy: the caller may refill the same buffer with the next frame's row
+            self._previous = row.astype(np.float64, copy=True)
+            return 1.0
+        if not self.novelty:
             return 1.0
         a, b = row - row.mean(), prev - prev.mean()
         den = float(np.sqrt((a * a).sum() * (b * b).sum()))
         rho = float((a * b).sum()) / den if den > 0 else 1.0
+        prev[...] = row
         self._rho_sum = self._decay * self._rho_sum + rho
         self._rho_n = self._decay * self._rho_n + 1.0
         mean = self._rho_sum / self._rho_n

@@ -84,7 +84,7 @@ def test_map_bootstrap_equals_full_matrix_bootstrap(world):
     np.testing.assert_allclose(hub, hub_full, atol=1e-9)
 
 
-@pytest.mark.parametrize("model", ["histogram", "histogram-bootstrap", "adaptive", "combined"])
+@pytest.mark.parametrize("model", ["histogram", "histogram-bootstrap", "adaptive", "combined", "tempered"])
 def test_live_steps_give_the_batch_answers(world, short_query, model):
     from catgraph.compare import localize
 
