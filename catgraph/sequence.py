@@ -45,7 +45,9 @@ value, and places whose windows tie exactly keep tying (the first place wins). S
 and statistics are converted to float64 once, where they are divided. Against the
 float64 scores of the same policy each score is off by at most ``u`` (``u / 2`` for a
 line inside the reference; a fill, the rounded mean of rounded values, by up to ``u``),
-plus the saturation; for rows normalised to unit spread ``u`` is about ``2^-9``.
+plus the saturation. On the benchmark data (rows normalised to unit spread, every
+traversal condition) ``u`` is ``2^-10`` or ``2^-9`` and the largest code below 6,000:
+nothing saturates (``benchmarks/results/matcher.md``).
 
 Edges (a documented policy). Early query frames (``i < L - 1``) use the
 ``L_eff = min(L, i + 1)`` frames seen so far; the reported ``window_length`` is that
