@@ -28,7 +28,11 @@ Methods
     tempered by the filter's own answers): the exact grid filter over (place, velocity)
     (``mode="grid"``) or the CAT-Graph particle filter (``mode="particles"``,
     signed-velocity motion by default); ``mode="auto"`` (default) takes the grid up to
-    :data:`GRID_MAX_PLACES` places and particles above. The observation model's options
+    :data:`GRID_MAX_PLACES` places and particles above. ``model="combined"`` adds the
+    adaptive sequence matcher's evidence to the tempered whole-image evidence, its ratios
+    tempered by how often the filter confirms the matcher's best place and counted once per
+    frame of its window; ``"histogram-combined"`` is paper 2's product of the bootstrapped
+    histogram model and the sequence scores' online histograms. The observation model's options
     (``window``, ``approximation``, ``n_init`` …) are parameters of the filter method,
     so a sweep can vary them.
 
@@ -57,7 +61,8 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["Param", "Method", "METHODS", "FILTER_MODELS", "get_method", "resolve_params"]
 
 #: Observation models of the particle filter.
-FILTER_MODELS = ("tempered", "histogram", "histogram-bootstrap", "sequence", "adaptive", "combined")
+FILTER_MODELS = ("tempered", "histogram", "histogram-bootstrap", "sequence", "adaptive", "combined",
+                 "histogram-combined")
 _LEARNING = ("online", "bootstrap", "trained")
 
 
@@ -379,11 +384,11 @@ def observation_model(params: dict, n_places: int, bootstrap_samples: Callable[[
         values = bootstrap_samples(_bootstrap_gap(params, n_places), params["max_different"], params["seed"])
         return HistogramObservation(mode="bootstrap", likelihood=HistogramLikelihood().fit(np.empty(0), values), **kw)
 
-    def sequence(default_window) -> SequenceObservation:
+    def sequence(default_window, **calibration) -> SequenceObservation:
         window = params.get("window") or default_window
         matcher = {k: params[k] for k in _WINDOW_ADAPTIVE} if window == "adaptive" else {}
         # the matcher searches its velocities; the observation reads the lines of the chosen one
-        return SequenceObservation(window=window, matcher_params=matcher)
+        return SequenceObservation(window=window, matcher_params=matcher, **calibration)
 
     if model == "tempered":
         return TemperedObservation()
@@ -395,7 +400,13 @@ def observation_model(params: dict, n_places: int, bootstrap_samples: Callable[[
         return sequence(50)
     if model == "adaptive":
         return sequence("adaptive")
-    return CombinedObservation([histogram(True), sequence("adaptive")])
+    if model == "histogram-combined":
+        return CombinedObservation([histogram(True), sequence("adaptive")])
+    # "combined": the whole-image evidence of the default model and the sequence part, its
+    # ratios tempered by how often the filter confirms its best place and counted once per
+    # frame of its window (docs/particle_filter.md, "the combined model")
+    part = sequence("adaptive", calibration="agreement", temperature="window", agreement_scale=1.0)
+    return CombinedObservation([TemperedObservation(), part], reliability=None)
 
 
 _PARTICLE_KEYS = ("n_particles", "resampler", "ess_threshold", "redraw_fraction", "proposal")
@@ -447,8 +458,8 @@ def _filter(params: dict, inputs: "MethodInputs") -> RunResult:
 def _filter_not_applicable(params: dict) -> dict[str, str]:
     model = params["model"]
     out: dict[str, str] = {}
-    sequence_models = ("sequence", "adaptive", "combined")
-    histogram_models = ("histogram", "histogram-bootstrap", "combined")
+    sequence_models = ("sequence", "adaptive", "combined", "histogram-combined")
+    histogram_models = ("histogram", "histogram-bootstrap", "histogram-combined")
     if params["mode"] == "grid":  # "auto" keeps them: they apply where it chooses particles
         # the seed also draws the histogram models' samples, so it stays for those
         for k in (*_PARTICLE_KEYS, "motion", *(("seed",) if model not in histogram_models else ())):
@@ -469,7 +480,7 @@ def _filter_not_applicable(params: dict) -> dict[str, str]:
             out[k] = f"model {model!r} has no histogram model"
     if model != "histogram":
         out.setdefault("n_init", "only the online histogram model has an initialisation stage")
-    if model not in ("histogram-bootstrap", "combined"):
+    if model not in ("histogram-bootstrap", "histogram-combined"):
         for k in ("gap", "max_different"):
             out[k] = f"model {model!r} is not bootstrapped from the map"
     if params["confidence_radius_m"] is not None:

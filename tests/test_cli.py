@@ -136,9 +136,12 @@ def test_localize_and_compare_on_the_synthetic_world(tmp_path, capsys):
     table = capsys.readouterr().out
     for name in ("single-frame", "adaptive", "grid-filter/histogram", "grid-filter/combined", "ms/frame"):
         assert name in table
-    assert len(json.loads((tmp_path / "c.json").read_text())["runs"]) == 10
+    from catgraph.methods import FILTER_MODELS
+
+    # four standalone methods, then the filter with every observation model
+    assert len(json.loads((tmp_path / "c.json").read_text())["runs"]) == 4 + len(FILTER_MODELS)
     assert main(["report", str(tmp_path / "c.json"), "--out", str(tmp_path / "rep"), "-q"]) == 0
-    assert (tmp_path / "rep" / "results.md").read_text().count("grid-filter/") == 6
+    assert (tmp_path / "rep" / "results.md").read_text().count("grid-filter/") == len(FILTER_MODELS)
 
 
 def test_saved_map_gives_the_same_result_as_the_reference(image_pair, tmp_path):
@@ -188,7 +191,9 @@ def test_compare_and_localize_with_a_saved_map(tmp_path):
     assert main(["compare", "--map", str(m), "synthetic:5", "--particles", "100", "-q",
                  "-o", str(tmp_path / "c.json")]) == 0
     runs = json.loads((tmp_path / "c.json").read_text())["runs"]
-    assert [r["params"]["map"] for r in runs] == [str(m)] * 10
+    from catgraph.methods import FILTER_MODELS
+
+    assert [r["params"]["map"] for r in runs] == [str(m)] * (4 + len(FILTER_MODELS))
     a, b = tmp_path / "a.json", tmp_path / "b.json"
     assert main(["localize", "--map", str(m), "synthetic:5", "--particles", "100", "-q", "-o", str(a)]) == 0
     assert main(["localize", "synthetic:5", "synthetic:5", "--junction-radius-m", "10", "--particles", "100", "-q",

@@ -36,9 +36,9 @@ def _plan():
     for method, params in compare_plan(window=5):
         if method == "filter":
             params = {**params, "n_particles": 200}
-            if params["model"] in ("adaptive", "combined"):
+            if params["model"] in ("adaptive", "combined", "histogram-combined"):
                 params["l_max"] = 20
-            if params["model"] in ("histogram-bootstrap", "combined"):
+            if params["model"] in ("histogram-bootstrap", "histogram-combined"):
                 params["max_different"] = 2000
         elif method == "sequence" and params["window"] == "adaptive":
             params = {**params, "l_max": 20}
@@ -131,7 +131,7 @@ def test_filter_options_reach_the_filter_from_the_cli_and_a_sweep(tmp_path):
     runs = {}
     for window in ("3", "15"):
         out = tmp_path / f"w{window}.json"
-        assert main(["localize", "synthetic:2", "synthetic:2", "--model", "combined", "--window", window,
+        assert main(["localize", "synthetic:2", "synthetic:2", "--model", "histogram-combined", "--window", window,
                      "--particles", "200", "--max-different", "2000", "-o", str(out), "-q"]) == 0
         runs[window] = json.loads(out.read_text())
         assert runs[window]["params"]["window"] == int(window)
@@ -140,7 +140,7 @@ def test_filter_options_reach_the_filter_from_the_cli_and_a_sweep(tmp_path):
     from catgraph.experiment import run_experiment
 
     config = parse_config({"dataset": [{"name": "c", "reference": "synthetic:2", "query": "synthetic:2"}],
-                           "method": [{"method": "filter", "params": {"model": "combined", "n_particles": 200,
+                           "method": [{"method": "filter", "params": {"model": "histogram-combined", "n_particles": 200,
                                                                       "max_different": 2000},
                                        "grid": {"window": [3, 15]}}]})
     swept = [run_experiment(spec) for spec in config.specs]
@@ -230,9 +230,9 @@ def test_every_filter_model_runs_on_the_grid_with_its_seed(image_pair):
     prepared = prepare(Experiment(query=qry, reference=ref, tolerance=1))
     for model in FILTER_MODELS:
         params = {"model": model, "mode": "grid"}
-        if model in ("adaptive", "combined"):
+        if model in ("adaptive", "combined", "histogram-combined"):
             params["l_max"] = 20
-        if model in ("histogram-bootstrap", "combined"):
+        if model in ("histogram-bootstrap", "histogram-combined"):
             params["max_different"] = 2000
         result = run_method("filter", params, prepared)
         assert result.method == f"grid-filter/{model}"

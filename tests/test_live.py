@@ -84,7 +84,8 @@ def test_map_bootstrap_equals_full_matrix_bootstrap(world):
     np.testing.assert_allclose(hub, hub_full, atol=1e-9)
 
 
-@pytest.mark.parametrize("model", ["histogram", "histogram-bootstrap", "adaptive", "combined", "tempered"])
+@pytest.mark.parametrize("model", ["histogram", "histogram-bootstrap", "adaptive", "combined", "tempered",
+                                   "histogram-combined"])
 def test_live_steps_give_the_batch_answers(world, short_query, model):
     from catgraph.compare import localize
 
@@ -97,7 +98,7 @@ def test_live_steps_give_the_batch_answers(world, short_query, model):
     assert np.array_equal([e.new_place_probability for e in estimates], batch.extra["p_new_place"])
     last = estimates[-1]
     assert isinstance(last, LiveEstimate) and set(last.seconds) == {"frontend", "difference", "model"}
-    if model in ("adaptive", "combined"):
+    if model in ("adaptive", "combined", "histogram-combined"):
         assert last.window_length >= 1 and last.velocity is not None
     else:
         assert last.window_length is None
@@ -140,8 +141,8 @@ def test_uint8_live_map_equals_the_batch_matcher_on_its_own_differences(world):
     p = live.params_
     batch = match_sequences(d, radius=p["exclusion"], **_sequence_kwargs(p))
     assert np.array_equal([g.place for g in got], batch.match)
-    # the combined filter runs on the compact map and its bootstrap
-    live = LiveLocalizer(live_map, model="combined", n_particles=100, seed=0)
+    # the bootstrapped combined filter runs on the compact map and its bootstrap
+    live = LiveLocalizer(live_map, model="histogram-combined", n_particles=100, seed=0)
     assert 0 <= live.step(world.query.frames[0]).place < live_map.n_places
 
 
