@@ -52,6 +52,8 @@ import numpy as np
 
 from ._validation import check_scalar
 from .differences import LAYOUTS, METRICS, PreparedReference, _combine, _zero_spread, code_scale
+from ._jit import njit
+from ._sequence_kernels import _NONE, encode, unit_of
 from .exceptions import InvalidParameterError, MissingDependencyError
 
 #: Shards hold a whole multiple of this many places (the normalisation's sum chunk);
@@ -107,49 +109,134 @@ def _scale(block: np.ndarray, mean: np.ndarray, std: np.ndarray) -> np.ndarray:
     return out
 
 
-def _tail(block: np.ndarray, width: int) -> np.ndarray:
+def _tail(codes: tuple, width: int) -> np.ndarray:
+    """The last ``width`` code columns of a shard (its right neighbour's halo)."""
+    block = codes[0]
     return np.ascontiguousarray(block[:, block.shape[1] - width :])
 
 
-def _scores(block: np.ndarray, halo: np.ndarray | None, first_row: int, skip: int, window: int,
-            means: np.ndarray, lo: int) -> np.ndarray:
-    """Window scores of rows ``skip:`` of ``block`` (block row ``a`` is query frame
-    ``first_row + a``) for the shard's places ``lo …``; ``halo`` holds the normalised
-    columns left of the shard (``None`` for the first shard), ``means`` the normalised
-    rows' means (the fill before the reference start). Edge policy of
-    :mod:`catgraph.sequence`."""
+def _row_peak(block: np.ndarray, row: int) -> float:
+    """``max_j |d_row,j|`` over the shard's columns (the quantum's reduction)."""
+    return float(np.abs(block[row]).max()) if block.shape[1] else 0.0
+
+
+@njit(nogil=True)
+def _encode_block(block, unit, codes, totals):  # pragma: no cover - compiled
+    """``codes[a, b]``: ``block[a, b]`` coded as the local matcher codes it
+    (:func:`catgraph._sequence_kernels.encode`); ``totals[a]``: the row's code sum."""
+    for a in range(block.shape[0]):
+        total = 0
+        for b in range(block.shape[1]):
+            c = encode(block[a, b], unit)
+            codes[a, b] = c
+            total += c
+        totals[a] = total
+
+
+def _codes(block: np.ndarray, unit: float) -> tuple[np.ndarray, np.ndarray]:
+    """The shard's normalised columns as int16 codes of the quantum ``unit``, and each
+    row's (exact, int64) code sum over the shard."""
+    codes = np.empty(block.shape, dtype=np.int16)
+    totals = np.empty(block.shape[0], dtype=np.int64)
+    _encode_block(block, unit, codes, totals)
+    return codes, totals
+
+
+def _first(pair: tuple) -> np.ndarray:
+    return pair[0]
+
+
+@njit(nogil=True)
+def _diagonal_sums(d, offset, first_row, skip, window, cum, lo, out, last):  # pragma: no cover - compiled
+    """Integer window sums (the kernel of :func:`_window_sums`); ``last[a - skip]`` gets
+    the sum of row ``a - 1`` at the shard's last place (``0`` for query frame 0)."""
+    rows, cols = d.shape
+    width = out.shape[1]
+    c = np.zeros((rows + 1, cols + 1), dtype=np.int64)  # c[a + 1, b + 1]: diagonal prefix sum ending at (a, b)
+    for a in range(rows):
+        for b in range(cols):
+            c[a + 1, b + 1] = d[a, b] + c[a, b]
+    start = skip - 1 if skip > 0 else 0
+    for a in range(start, rows):
+        eff = min(window, first_row + a + 1)
+        for k in range(width):
+            g = lo + k  # place index
+            b = offset + k  # column in d
+            if g >= eff - 1:  # every term of the window lies on the reference
+                v = c[a + 1, b + 1] - c[a - eff + 1, b - eff + 1]
+            else:  # terms before the reference start: their rows' mean codes
+                v = c[a + 1, b + 1] + (cum[a - g] - cum[a - eff + 1])
+            if a >= skip:
+                out[a - skip, k] = v
+            if k == width - 1 and a + 1 >= skip and a + 1 < rows:
+                last[a + 1 - skip] = v
+    if skip == 0 and rows > 0:
+        last[0] = 0  # query frame 0 (the block starts the query): the matcher's sums start at zero
+
+
+def _window_sums(codes: tuple, halo: np.ndarray | None, first_row: int, skip: int, window: int,
+                 mean_codes: np.ndarray, lo: int) -> tuple[np.ndarray, np.ndarray]:
+    """Integer window sums ``S`` of rows ``skip:`` of the coded block (block row ``a`` is
+    query frame ``first_row + a``) for the shard's places ``lo …``; ``halo`` holds the
+    codes of the columns left of the shard (``None`` for the first shard), ``mean_codes``
+    the rows' mean codes (the fill before the reference start). Edge policy of
+    :mod:`catgraph.sequence`; ``S`` equals the local matcher's running sums exactly.
+
+    Also returns, per row, the previous row's sum at the shard's last place (the local
+    kernel's shift for the moments, read from the last shard only).
+    """
+    block = codes[0]
     d = block if halo is None else np.concatenate([halo, block], axis=1)
     offset = 0 if halo is None else halo.shape[1]
-    rows, cols = d.shape
-    c = np.zeros((rows + 1, cols + 1))  # c[a + 1, b + 1]: diagonal prefix sum ending at (a, b)
-    for a in range(rows):
-        c[a + 1, 1:] = d[a] + c[a, :-1]
-    cum = np.concatenate([[0.0], np.cumsum(means)])
-    width = block.shape[1]
-    g = lo + np.arange(width)  # place index
-    b = offset + np.arange(width)  # column in d
-    out = np.empty((rows - skip, width))
-    for a in range(skip, rows):
-        eff = min(window, first_row + a + 1)
-        cur = c[a + 1, b + 1]
-        v = np.empty(width)
-        full = g >= eff - 1  # every term of the window lies on the reference
-        v[full] = cur[full] - c[a - eff + 1, b[full] - eff + 1]
-        fill = ~full  # terms before the reference start: their rows' mean difference
-        v[fill] = cur[fill] + (cum[a - g[fill]] - cum[a - eff + 1])
-        out[a - skip] = v / eff
-    return out
+    cum = np.concatenate([[0], np.cumsum(mean_codes, dtype=np.int64)])
+    out = np.empty((block.shape[0] - skip, block.shape[1]), dtype=np.int64)
+    last = np.zeros(block.shape[0] - skip, dtype=np.int64)
+    _diagonal_sums(d, offset, first_row, skip, window, cum, lo, out, last)
+    return out, last
 
 
-def _row_min(scores: np.ndarray, lo: int) -> tuple[np.ndarray, np.ndarray]:
-    j = np.argmin(scores, axis=1)
-    return scores[np.arange(len(j)), j], j + lo
+@njit(nogil=True)
+def _summarise(s, lo, low, place, total, high_sq, low_sq):  # pragma: no cover - compiled
+    """Per row: the smallest sum and its first place, the sum of the sums and of their
+    squares, the squares split at ``2^32`` so that both halves add up exactly in int64."""
+    mask = (np.int64(1) << 32) - 1
+    for a in range(s.shape[0]):
+        m = s[a, 0]
+        jm = 0
+        t = np.int64(0)
+        qh = np.int64(0)
+        ql = np.int64(0)
+        for k in range(s.shape[1]):
+            x = s[a, k]
+            if x < m:
+                m = x
+                jm = k
+            t += x
+            sq = x * x  # |S| < 2^31: exact in int64
+            qh += sq >> 32
+            ql += sq & mask
+        low[a] = m
+        place[a] = jm + lo
+        total[a] = t
+        high_sq[a] = qh
+        low_sq[a] = ql
 
 
-def _row_min_outside(scores: np.ndarray, lo: int, best_j: np.ndarray, radius: int) -> np.ndarray:
-    g = lo + np.arange(scores.shape[1])
+def _row_summary(sums: tuple, lo: int) -> tuple[np.ndarray, ...]:
+    """``(min, first place of the min, sum S, sum S^2 high half, low half, previous row's
+    last sum)`` per row of the shard's window sums (all int64, exact)."""
+    s, last = sums
+    out = tuple(np.empty(s.shape[0], dtype=np.int64) for _ in range(5))
+    _summarise(s, lo, *out)
+    return (*out, last)
+
+
+def _row_min_outside(sums: tuple, lo: int, best_j: np.ndarray, radius: int) -> np.ndarray:
+    """The smallest sum more than ``radius`` places from ``best_j`` (``_NONE`` if none)."""
+    s = sums[0]
+    g = lo + np.arange(s.shape[1])
     inside = np.abs(g[None, :] - best_j[:, None]) <= radius
-    return np.where(inside, np.inf, scores).min(axis=1)
+    return np.where(inside, _NONE, s).min(axis=1)
 
 
 # ---------------------------------------------------------------------------------------
@@ -292,32 +379,62 @@ def difference_matrix(query, ref: ShardedReference, normalise: bool = True, bloc
     return out
 
 
-def _score_blocks(ref: ShardedReference, q: np.ndarray, start: int, stop: int, window: int,
-                  blank: np.ndarray | None = None) -> list:
-    """Futures of each shard's window scores for query rows ``[start, stop)``."""
+def _quantum(ref: ShardedReference, blocks: list) -> float:
+    """The local matcher's quantum (:func:`catgraph._sequence_kernels.unit_of`) from
+    row 0 of ``blocks`` (query frame 0): the largest ``|d_0j|`` of every shard, reduced
+    here, once per query."""
+    peaks = ref.client.gather([ref.submit(s, _row_peak, b, 0) for s, b in enumerate(blocks)])
+    return float(unit_of(np.array([max(peaks)])))
+
+
+def _sum_blocks(ref: ShardedReference, q: np.ndarray, start: int, stop: int, window: int,
+                unit: float | None, blank: np.ndarray | None = None) -> tuple[list, float]:
+    """Futures of each shard's integer window sums (and previous-row last sums) for query
+    rows ``[start, stop)``, and the quantum (fixed by the first block when ``unit`` is
+    ``None``)."""
     c = ref.client
     first = max(0, start - window)
     blocks = _normalised_blocks(ref, q[first:stop], True, None if blank is None else blank[first:stop])
-    # running sum of the normalised rows' means (the fill before the reference start)
-    parts = c.gather([ref.submit(s, _chunk_sums, b, None, 1) for s, b in enumerate(blocks)])
-    means = _combine(np.concatenate(parts, axis=1)) / ref.n_places
+    if unit is None:  # the first block starts at query frame 0
+        unit = _quantum(ref, blocks)
+    coded = [ref.submit(s, _codes, b, unit) for s, b in enumerate(blocks)]
+    del blocks  # the float64 columns are freed once coded
+    # each row's mean code (the fill before the reference start), as the local ring rounds it
+    totals = np.sum(c.gather([ref.submit(s, _totals, b) for s, b in enumerate(coded)]), axis=0)
+    mean_codes = np.rint(totals / ref.n_places).astype(np.int64)
     out = []
-    for s, ((lo, hi), block) in enumerate(zip(ref.bounds, blocks)):
-        halo = None if s == 0 else ref.submit(s - 1, _tail, blocks[s - 1], window)  # moves L columns
-        out.append(ref.submit(s, _scores, block, halo, first, start - first, window, means, lo))
-    return out
+    for s, ((lo, hi), block) in enumerate(zip(ref.bounds, coded)):
+        # the last L code columns of the left neighbour: 2 L bytes per row
+        halo = None if s == 0 else ref.submit(s - 1, _tail, coded[s - 1], window)
+        out.append(ref.submit(s, _window_sums, block, halo, first, start - first, window, mean_codes, lo))
+    return out, unit
+
+
+def _totals(codes: tuple) -> np.ndarray:
+    return codes[1]
+
+
+def _effective(start: int, stop: int, window: int) -> np.ndarray:
+    """``L_eff = min(L, i + 1)`` of query frames ``start … stop - 1`` (int64)."""
+    return np.minimum(window, np.arange(start + 1, stop + 1, dtype=np.int64))
 
 
 def window_scores(query, ref: ShardedReference, window: int, block_rows: int = 256) -> np.ndarray:
     """All fixed-window scores ``s_ij(L)``, ``(n_query, N)``, gathered to the client
-    (tests and small maps; see :func:`catgraph.sequence.fixed_window_scores`)."""
+    (tests and small maps): identical, bit for bit, to
+    :func:`catgraph.sequence.fixed_window_scores` on the normalised difference matrix
+    (``S u / L_eff`` from the same integer sums)."""
     check_scalar(window, "window", "window_scores", int, 1, SHARD_UNIT)
     q = ref.prepare_query(query)
     out = np.empty((q.shape[0], ref.n_places))
+    unit = None
     for start in range(0, q.shape[0], block_rows):
         stop = min(q.shape[0], start + block_rows)
-        for (lo, hi), block in zip(ref.bounds, ref.client.gather(_score_blocks(ref, q, start, stop, window))):
-            out[start:stop, lo:hi] = block
+        futs, unit = _sum_blocks(ref, q, start, stop, window, unit)
+        eff = _effective(start, stop, window)[:, None]
+        for (lo, hi), block in zip(ref.bounds, ref.client.gather([ref.submit(s, _first, f)
+                                                                  for s, f in enumerate(futs)])):
+            out[start:stop, lo:hi] = block.astype(np.float64) * unit / eff
     return out
 
 
@@ -330,13 +447,42 @@ class ShardedMatches:
     confidence: np.ndarray
 
 
+def _spread(summaries: list, n: int, unit: float, eff: np.ndarray) -> np.ndarray:
+    """Each row's score spread, as the local kernel computes it (:func:`_window`):
+    ``y = S - shift`` with ``shift`` the previous row's sum at the last place,
+    ``var = sum(y^2) / N - (sum(y) / N)^2`` and ``sqrt(var) u / L_eff``.
+
+    The shards' integer sums are combined exactly (Python integers), so ``sum(y)`` and
+    ``sum(y^2)`` are the exact sums, rounded once to float64; the local kernel adds the
+    same integer terms in float64, exactly while ``sum(y^2) < 2^53`` (every partial sum
+    is then an integer below ``2^53``). Within that bound the spread is the local one,
+    bit for bit.
+    """
+    shift = summaries[-1][5]  # the last shard holds place N - 1
+    std = np.empty(eff.shape[0])
+    for a in range(eff.shape[0]):
+        total = sum(int(s[2][a]) for s in summaries)
+        squares = sum((int(s[3][a]) << 32) + int(s[4][a]) for s in summaries)
+        h = int(shift[a])
+        sy = total - n * h
+        syy = squares - 2 * h * total + n * h * h
+        my = float(sy) / n
+        var = float(syy) / n - my * my
+        std[a] = np.sqrt(var) * unit / float(eff[a]) if var > 0.0 else 0.0
+    return std
+
+
 def match_fixed_window(query, ref: ShardedReference, window: int, radius: int = 10,
                        block_rows: int = 256, no_information: np.ndarray | None = None) -> ShardedMatches:
     """Fixed-window sequence matching on the cluster (SeqSLAM gap confidence).
 
-    The same answers as :func:`catgraph.sequence.match_sequences` with ``window=L``,
-    ``confidence="gap"`` and ``radius``: matches identical, scores and confidences to
-    rounding. Only ``O(block_rows)`` values per shard and block return to the client.
+    The answers of :func:`catgraph.sequence.match_sequences` with ``window=L``,
+    ``velocities=(1.0,)``, ``confidence="gap"`` and ``radius`` on the normalised
+    difference matrix: the same quantum and int16 codes, the same integer window sums,
+    so matches and scores are identical, bit for bit; confidences too while each row's
+    ``sum_j (S_ij - shift_i)^2 < 2^53`` in codes (:func:`_spread`; beyond it the local
+    float64 sum rounds in its own order). Only ``O(block_rows)`` values per shard and
+    block return to the client.
 
     Parameters
     ----------
@@ -366,23 +512,25 @@ def match_fixed_window(query, ref: ShardedReference, window: int, radius: int = 
             raise InvalidParameterError(f"no_information must have one flag per query frame ({n_q}); got shape "
                                         f"{blank.shape}.")
     match, score, conf = np.empty(n_q, dtype=np.int64), np.empty(n_q), np.empty(n_q)
+    unit = None
     for start in range(0, n_q, block_rows):
         stop = min(n_q, start + block_rows)
-        scores = _score_blocks(ref, q, start, stop, window, blank)
-        mins = c.gather([ref.submit(k, _row_min, s, lo) for k, (s, (lo, _)) in enumerate(zip(scores, ref.bounds))])
-        values = np.stack([v for v, _ in mins])
-        places = np.stack([j for _, j in mins])
-        pick = np.argmin(values, axis=0)  # first shard holding the minimum: the lowest index
+        sums, unit = _sum_blocks(ref, q, start, stop, window, unit, blank)
+        summaries = c.gather([ref.submit(k, _row_summary, s, lo) for k, (s, (lo, _)) in enumerate(zip(sums, ref.bounds))])
+        values = np.stack([m[0] for m in summaries])
+        places = np.stack([m[1] for m in summaries])
+        pick = np.argmin(values, axis=0)  # first shard holding the minimum: the lowest place, as locally
         rows = np.arange(stop - start)
         best, best_j = values[pick, rows], places[pick, rows]
         second = np.min(c.gather([ref.submit(k, _row_min_outside, s, lo, best_j, radius)
-                                  for k, (s, (lo, _)) in enumerate(zip(scores, ref.bounds))]), axis=0)
-        parts = c.gather([ref.submit(k, _chunk_sums, s, None, 1) for k, s in enumerate(scores)])
-        mean = _combine(np.concatenate(parts, axis=1)) / ref.n_places
-        parts = c.gather([ref.submit(k, _chunk_sums, s, mean, 2) for k, s in enumerate(scores)])
-        std = np.sqrt(_combine(np.concatenate(parts, axis=1)) / ref.n_places)
+                                  for k, (s, (lo, _)) in enumerate(zip(sums, ref.bounds))]), axis=0)
+        eff = _effective(start, stop, window)
+        # the local kernel's arithmetic (_sequence_kernels._window, _window_rule._decide)
+        best_s = best.astype(np.float64) * unit / eff
+        second_s = np.where(second == _NONE, np.inf, second.astype(np.float64) * unit / eff)
+        std = _spread(summaries, ref.n_places, unit, eff)
         with np.errstate(divide="ignore", invalid="ignore"):
-            gap = np.where(std > 0, (second - best) / std, 0.0)
-        match[start:stop], score[start:stop] = best_j, best
+            gap = np.where(std > 0, (second_s - best_s) / std, 0.0)
+        match[start:stop], score[start:stop] = best_j, best_s
         conf[start:stop] = np.where(np.isfinite(gap), gap, 0.0)
     return ShardedMatches(match, score, conf)

@@ -5,24 +5,55 @@ import pytest
 
 from catgraph.differences import difference_matrix
 from catgraph.exceptions import InvalidParameterError
+from catgraph.sequence import fixed_window_scores, match_sequences
 
 distributed = pytest.importorskip("distributed")
 from catgraph import distributed as dd  # noqa: E402
 
 
-def slow_scores(d, window):
-    """Obviously correct window scores: direct sums, the edge policy of catgraph.sequence."""
+def coded(d):
+    """The local matcher's stored values, obviously: the quantum of row 0, int16-range codes
+    (round half to even, saturated at ±32767) and each row's rounded mean code."""
+    u = 2.0 ** (int(np.frexp(np.abs(d[0]).max())[1]) - 12)
+    codes = np.clip(np.rint(d / u), -32767, 32767).astype(np.int64)
+    return u, codes, np.rint(codes.sum(1) / d.shape[1]).astype(np.int64)
+
+
+def slow_sums(d, window):
+    """Obviously correct integer window sums: direct sums of the codes, edge policy of catgraph.sequence."""
+    u, codes, means = coded(d)
     n_q, n = d.shape
-    row_mean = d.mean(1)
-    out = np.empty_like(d)
+    out = np.empty(d.shape, dtype=np.int64)
     for i in range(n_q):
         eff = min(window, i + 1)
-        total = np.zeros(n)
+        total = np.zeros(n, dtype=np.int64)
         for k in range(eff):
             col = np.arange(n) - k
-            total += np.where(col >= 0, d[i - k, np.maximum(col, 0)], row_mean[i - k])
-        out[i] = total / eff
-    return out
+            total += np.where(col >= 0, codes[i - k, np.maximum(col, 0)], means[i - k])
+        out[i] = total
+    return u, out
+
+
+def slow_scores(d, window):
+    u, sums = slow_sums(d, window)
+    return sums * u / np.minimum(window, np.arange(1, d.shape[0] + 1))[:, None]
+
+
+def assert_same_as_local(res, d, window, radius):
+    """Matches, scores and confidences identical to the local fixed-window matcher, and the
+    gap within float64 rounding of a direct computation from the slow scores."""
+    local = match_sequences(d, window=window, velocities=[1.0], confidence="gap", radius=radius)
+    assert np.array_equal(res.match, local.match)
+    assert np.array_equal(res.score, local.score)
+    assert np.array_equal(res.confidence, local.confidence)
+    expected = slow_scores(d, window)
+    assert np.array_equal(res.match, expected.argmin(1))
+    best = expected.min(1)
+    g = np.arange(d.shape[1])
+    second = np.where(np.abs(g[None] - res.match[:, None]) <= radius, np.inf, expected).min(1)
+    spread = expected.std(1)
+    gap = (second - best) / np.where(spread > 0, spread, 1.0)
+    np.testing.assert_allclose(res.confidence, np.where(spread > 0, gap, 0.0), rtol=1e-9, atol=1e-12)
 
 
 @pytest.fixture(scope="module")
@@ -57,16 +88,44 @@ def test_sharded_window_scores_and_matches_equal_local(client, data):
     ref = dd.shard_reference(r, "sad", client, shard_places=1)  # rounded up to one unit
     assert ref.bounds[0] == (0, dd.SHARD_UNIT)
     local = difference_matrix(q, r, "sad", normalise=True)
-    expected = slow_scores(local, 12)
-    got = dd.window_scores(q, ref, 12, block_rows=37)
-    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
-    res = dd.match_fixed_window(q, ref, 12, radius=5, block_rows=37)
-    assert np.array_equal(res.match, expected.argmin(1))  # window spans shard boundaries at 4096
+    for window in (1, 12):
+        got = dd.window_scores(q, ref, window, block_rows=37)
+        assert np.array_equal(got, slow_scores(local, window))
+        assert np.array_equal(got, fixed_window_scores(local, window))
+        res = dd.match_fixed_window(q, ref, window, radius=5, block_rows=37)  # windows span the edge at 4096
+        assert_same_as_local(res, local, window, 5)
     assert np.all(np.abs(res.match[20:100] - (4050 + np.arange(20, 100))) <= 1)
-    best = expected.min(1)
-    g = np.arange(r.shape[0])
-    second = np.where(np.abs(g[None] - res.match[:, None]) <= 5, np.inf, expected).min(1)
-    np.testing.assert_allclose(res.confidence, (second - best) / expected.std(1), rtol=1e-9)
+
+
+def test_saturated_codes_equal_local(client, data):
+    # a far place (every later row's largest difference, ~85 spreads) and a first frame whose row
+    # spans only ±4 spreads: its quantum is 2^-9, so the far place's codes saturate at 32767 u ≈ 64
+    q, r = data
+    r, q = r.copy(), q.copy()
+    r[6000] += 40
+    q[0] = 20
+    local = difference_matrix(q, r, "sad", normalise=True)
+    u, codes, _ = coded(local)
+    assert u == 2.0**-9 and np.abs(local[0]).max() < 8
+    assert np.sum(np.abs(codes) == 32767) > 100 and np.abs(local).max() > 80
+    assert not np.array_equal(slow_sums(np.clip(local, -60, 60), 12)[1], slow_sums(local, 12)[1])  # not trivial
+    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
+    assert np.array_equal(dd.window_scores(q, ref, 12, block_rows=50), fixed_window_scores(local, 12))
+    for window in (3, 12):
+        assert_same_as_local(dd.match_fixed_window(q, ref, window, radius=5, block_rows=50), local, window, 5)
+
+
+def test_first_frame_without_information(client, data):
+    # a blank first frame: a zero row, quantum 2^-12 (as locally: unit_of of a zero row)
+    q, r = data
+    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
+    blank = np.zeros(q.shape[0], dtype=bool)
+    blank[[0, 40]] = True
+    local = difference_matrix(q, r, "sad", normalise=True)
+    local[blank] = 0.0
+    assert coded(local)[0] == 2.0**-12
+    res = dd.match_fixed_window(q, ref, 12, radius=5, block_rows=64, no_information=blank)
+    assert_same_as_local(res, local, 12, 5)
 
 
 def test_bad_inputs(client, data):
@@ -85,7 +144,7 @@ def test_cluster_experiment_equals_the_local_run(client, data, condition):
     import warnings
 
     from catgraph.conditions import Condition
-    from catgraph.experiment import Experiment, prepare, run, run_on_cluster
+    from catgraph.experiment import Experiment, run, run_on_cluster
     from catgraph.traverse import Traverse
 
     q, r = data
@@ -101,26 +160,8 @@ def test_cluster_experiment_equals_the_local_run(client, data, condition):
         local, local_out, _ = run(exp)
         remote, remote_out, _ = run_on_cluster(exp, client, shard_places=4096, block_rows=37)
     assert np.array_equal(remote.query_index, local.query_index)
-    # the local matcher keeps its rows as integer codes of a quantum u fixed by the first row
-    # (catgraph.sequence, "Precision"): each score within u of the float64 scores the shards compute.
-    # So a match may differ only at a near tie (the two places' float64 scores within 2u), and a
-    # gap (s2 - s1) / std lies within (2 + |gap|) u / std where the matches agree
-    from catgraph.sequence import fixed_window_scores
-
-    d = np.asarray(prepare(exp).differences, dtype=np.float64)  # rows in processing order
-    u = 2.0 ** (int(np.frexp(np.abs(d[0]).max())[1]) - 12)
-
-    def exact(i, j):  # float64 window score along v = 1 (edge fill: the row's mean)
-        terms = [d[i - t, j - t] if j - t >= 0 else d[i - t].mean() for t in range(min(12, i + 1))]
-        return sum(terms) / len(terms)
-
-    same = remote.match == local.match
-    assert same.mean() > 0.95
-    for i in np.flatnonzero(~same):
-        assert abs(exact(i, local.match[i]) - exact(i, remote.match[i])) <= 2 * u
-    spread = fixed_window_scores(d, 12).std(axis=1)
-    bound = (2 + np.abs(local.confidence)) * u / spread * (1 + 1e-6)
-    assert np.all(np.abs(remote.confidence - local.confidence)[same] <= bound[same])
+    assert np.array_equal(remote.match, local.match)
+    assert np.array_equal(remote.confidence, local.confidence)
     assert np.array_equal(remote.extra["window_length"], local.extra["window_length"])
     assert remote_out["method"] == local_out["method"] and remote_out["params"] == local_out["params"]
 
@@ -154,20 +195,8 @@ def test_match_command_with_scheduler_writes_the_local_results(client, data, tmp
     assert main(["match", *common, "--scheduler", client.scheduler.address, "-o", str(tmp_path / "cluster.json")]) == 0
     local, cluster = (json.loads((tmp_path / f"{k}.json").read_text()) for k in ("local", "cluster"))
     assert cluster["frames"]["match"] == local["frames"]["match"]
-    # integer codes of a quantum u locally (see test_cluster_experiment_equals_the_local_run): a gap
-    # within (2 + |gap|) u / std of the float64 one
-    from catgraph.experiment import Experiment, prepare
-    from catgraph.sequence import fixed_window_scores
-    from catgraph.traverse import Traverse
-
-    d = np.asarray(prepare(Experiment(query=Traverse(q, meta={"kind": "descriptors"}),
-                                      reference=Traverse(r, meta={"kind": "descriptors"}),
-                                      frontend={"metric": "sad"})).differences, dtype=np.float64)
-    u = 2.0 ** (int(np.frexp(np.abs(d[0]).max())[1]) - 12)
-    conf = np.array(local["frames"]["confidence"])
-    bound = (2 + np.abs(conf)) * u / fixed_window_scores(d, 12).std(axis=1) * (1 + 1e-6)
-    assert np.all(np.abs(np.array(cluster["frames"]["confidence"]) - conf) <= bound)
-    assert cluster["metrics"]["auc"] == pytest.approx(local["metrics"]["auc"])
+    assert cluster["frames"]["confidence"] == local["frames"]["confidence"]
+    assert cluster["metrics"] == local["metrics"]
     common.remove("--no-hub-correction")
     assert main(["match", *common, "--scheduler", client.scheduler.address]) == 1
     assert "--no-hub-correction" in capsys.readouterr().err
@@ -185,6 +214,7 @@ def test_uint8_shards_equal_the_local_compact_reference(client, data):
         got = dd.difference_matrix(q, ref, normalise=normalise, block_rows=50)
         assert np.array_equal(got, difference_matrix(q, local, "sad", normalise=normalise))
     res = dd.match_fixed_window(q, ref, 12, radius=5, block_rows=37)
+    assert_same_as_local(res, difference_matrix(q, local, "sad", normalise=True), 12, 5)
     assert np.all(np.abs(res.match[20:100] - (4050 + np.arange(20, 100))) <= 1)
     with pytest.raises(InvalidParameterError, match="layout"):
         dd.shard_reference(r, "sad", client, layout="int4")
