@@ -14,19 +14,41 @@ block are computed *where the shards live*, and only per-frame summaries travel 
    sums a local run adds, in the same order: the means and standard deviations, and
    so the normalised block, are identical to :func:`catgraph.differences.difference_matrix`
    with ``normalise=True`` (two small round trips: means, then squared deviations).
-3. **Window scores** ``s_ij(L)`` (:mod:`catgraph.sequence`, same edge policy) need the
-   diagonal ``d_{i−k, j−k}``, which crosses into the previous shard: each worker
-   receives the last ``L`` normalised columns of its left neighbour (a halo of
-   ``L × rows × 8`` bytes) and the query block carries ``L`` earlier rows, so every
-   score is computed locally with diagonal prefix sums. The sums start at the block's
-   edge instead of the query's first frame, so scores agree with
-   :func:`catgraph.sequence.fixed_window_scores` to rounding (``~1e-12``), not bit
-   for bit; the matches agree exactly.
-4. **Matching** (fixed window, SeqSLAM's gap confidence): per-shard minima → the global
-   best place (ties: the lowest index, as locally), then per-shard minima outside
-   ``± radius`` of it → the second best, and the score spread from partial sums.
+3. **Codes** (:mod:`catgraph.sequence`, "Precision"). The local matcher stores each
+   normalised difference once as an int16 code of a quantum ``u`` fixed by the query's
+   first row. The client reduces ``max_j |d_0j|`` over the shards once per query and
+   fixes ``u`` with the matcher's own :func:`~catgraph._sequence_kernels.unit_of`; each
+   worker codes its columns with the matcher's own rounding
+   (:func:`~catgraph._sequence_kernels.encode`: nearest code, saturated at ``±32767``)
+   and returns each row's integer code sum, from which the client rounds the row's mean
+   code (the fill before the reference start) exactly as the local ring does.
+4. **Window sums** ``S_ij(L) = s_ij(L) L_eff / u`` need the diagonal ``d_{i−k, j−k}``,
+   which crosses into the previous shard: each worker receives the last ``L`` code
+   columns of its left neighbour (a halo of ``2 L`` bytes per query row) and the query
+   block carries ``L`` earlier rows, so every sum is computed locally from integer
+   diagonal prefix sums. Integer sums do not depend on where they start or in which
+   order they are added: they equal the local matcher's running sums exactly, and the
+   scores ``S u / L_eff`` are :func:`catgraph.sequence.fixed_window_scores` bit for bit.
+5. **Matching** (fixed window, SeqSLAM's gap confidence): per-shard integer minima → the
+   global best place (ties: the lowest index, as locally), then per-shard minima outside
+   ``± radius`` of it → the second best; the score spread from each shard's exact
+   integer sums of ``S`` and ``S²``, combined on the client as the local kernel's
+   ``y = S − shift`` moments (``shift``: the previous row's sum at place ``N − 1``, from
+   the last shard). Matches and scores are those of
+   :func:`catgraph.sequence.match_sequences` (``window=L``, ``velocities=(1.0,)``,
+   ``confidence="gap"``) bit for bit; so are the confidences while each row's
+   ``Σ_j y_j² < 2^53`` (the local float64 sums are then exact). Beyond it the local
+   kernel's float64 sums round in their own order, and a confidence differs by at most
+   ``1.5 N 2^-53 (1 + ȳ² / var y)`` relative (the standard bound on a float64 sum of
+   ``N`` rounded terms, carried through ``var = E[y²] − ȳ²`` and the square root).
+   Measured on the benchmark data (rows normalised, every traversal condition):
+   ``Σ_j y_j²`` at most ``2^46.1`` (Nordland, 3,576 places, ``L = 100``), and the
+   largest mean ``y²`` per place (UJI month 02, ``L = 100``) would reach ``2^53`` at
+   about 2.6 × 10⁵ places (8 × 10⁵ at ``L = 50``), so larger maps of such data are in
+   the bounded regime.
 
-Only ``O(rows)`` numbers per shard return to the client per block; the full
+Only ``O(rows)`` numbers per shard return to the client per block (five client rounds
+per block, one more for the quantum), and the full
 ``n_query × N`` matrix is never gathered (:func:`difference_matrix` gathers it on
 request, for tests and small maps).
 
@@ -50,10 +72,10 @@ from typing import Any
 
 import numpy as np
 
-from ._validation import check_scalar
-from .differences import LAYOUTS, METRICS, PreparedReference, _combine, _zero_spread, code_scale
 from ._jit import njit
 from ._sequence_kernels import _NONE, encode, unit_of
+from ._validation import check_scalar
+from .differences import LAYOUTS, METRICS, PreparedReference, _combine, _zero_spread, code_scale
 from .exceptions import InvalidParameterError, MissingDependencyError
 
 #: Shards hold a whole multiple of this many places (the normalisation's sum chunk);
@@ -480,9 +502,10 @@ def match_fixed_window(query, ref: ShardedReference, window: int, radius: int = 
     ``velocities=(1.0,)``, ``confidence="gap"`` and ``radius`` on the normalised
     difference matrix: the same quantum and int16 codes, the same integer window sums,
     so matches and scores are identical, bit for bit; confidences too while each row's
-    ``sum_j (S_ij - shift_i)^2 < 2^53`` in codes (:func:`_spread`; beyond it the local
-    float64 sum rounds in its own order). Only ``O(block_rows)`` values per shard and
-    block return to the client.
+    ``sum_j y_j^2 < 2^53`` with ``y_j = S_ij - shift_i`` in codes (:func:`_spread`).
+    Beyond it the local float64 sums round in their own order, and a confidence differs
+    by at most ``1.5 N 2^-53 (1 + mean(y)^2 / var(y))`` relative (tested). Only
+    ``O(block_rows)`` values per shard and block return to the client.
 
     Parameters
     ----------
@@ -516,7 +539,8 @@ def match_fixed_window(query, ref: ShardedReference, window: int, radius: int = 
     for start in range(0, n_q, block_rows):
         stop = min(n_q, start + block_rows)
         sums, unit = _sum_blocks(ref, q, start, stop, window, unit, blank)
-        summaries = c.gather([ref.submit(k, _row_summary, s, lo) for k, (s, (lo, _)) in enumerate(zip(sums, ref.bounds))])
+        summaries = c.gather([ref.submit(k, _row_summary, s, lo)
+                              for k, (s, (lo, _)) in enumerate(zip(sums, ref.bounds))])
         values = np.stack([m[0] for m in summaries])
         places = np.stack([m[1] for m in summaries])
         pick = np.argmin(values, axis=0)  # first shard holding the minimum: the lowest place, as locally

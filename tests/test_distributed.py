@@ -128,6 +128,34 @@ def test_first_frame_without_information(client, data):
     assert_same_as_local(res, local, 12, 5)
 
 
+def test_spread_beyond_exact_float64_sums_within_the_stated_bound(client):
+    # a smooth route and a blank first frame (quantum 2^-12): sum_j (S_ij - shift_i)^2 passes 2^53
+    # on most rows, where the local kernel's float64 moments round in their own order. Matches and
+    # scores stay identical (integer sums); a confidence is within the relative bound of
+    # match_fixed_window's docstring: 1.5 N 2^-53 (1 + mean(y)^2 / var(y)), y = S - shift
+    rng = np.random.default_rng(3)
+    r = np.cumsum(rng.normal(size=(9000, 16)), axis=0).astype(np.float32)
+    q = np.concatenate([np.ones((1, 16), np.float32),
+                        r[3000:3240] + 0.3 * rng.normal(size=(240, 16)).astype(np.float32)])
+    blank = np.zeros(len(q), dtype=bool)
+    blank[0] = True
+    d = difference_matrix(q, r, "sad", normalise=True)
+    d[blank] = 0.0
+    window = 200
+    eff = np.minimum(window, np.arange(1, len(q) + 1))[:, None]
+    sums = np.rint(fixed_window_scores(d, window) * eff / 2.0**-12)  # the exact integer sums
+    y = sums - np.concatenate([[0.0], sums[:-1, -1]])[:, None]  # shift: the previous row's last sum
+    assert np.sum((y**2).sum(1) >= 2.0**53) > 50
+    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
+    res = dd.match_fixed_window(q, ref, window, radius=5, block_rows=64, no_information=blank)
+    local = match_sequences(d, window=window, velocities=[1.0], confidence="gap", radius=5)
+    assert np.array_equal(res.match, local.match) and np.array_equal(res.score, local.score)
+    spread = y.var(1)
+    ratio = np.where(spread > 0, y.mean(1) ** 2 / np.where(spread > 0, spread, 1.0), 0.0)
+    bound = 1.5 * d.shape[1] * 2.0**-53 * (1 + ratio)
+    assert np.all(np.abs(res.confidence - local.confidence) <= bound * np.abs(local.confidence))
+
+
 def test_bad_inputs(client, data):
     q, r = data
     with pytest.raises(InvalidParameterError, match="metric"):
