@@ -85,6 +85,7 @@ __all__ = [
     "map_bootstrap_samples",
     "reference_bootstrap_samples",
     "reference_hub_offsets",
+    "release_free_memory",
     "warm_up",
     "warm_up_batch",
 ]
@@ -318,6 +319,31 @@ def reference_hub_offsets(reference: PreparedReference, normalise: bool = True, 
     return _outlying(typical, threshold)
 
 
+def release_free_memory() -> bool:
+    """Hand the memory the process has freed but the C allocator still keeps back to the
+    operating system (glibc's ``malloc_trim``), so a live process starts streaming from
+    what it holds, not from the high-water mark of its preparation (coding scratch,
+    bootstrap blocks, the place graph's construction). Called once a
+    :class:`LiveLocalizer` is built; nothing is freed that is in use.
+
+    Returns
+    -------
+    bool
+        Whether the allocator could be asked (``False`` off glibc: nothing happens).
+    """
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        trim = libc.malloc_trim
+    except (OSError, AttributeError):
+        return False
+    trim.argtypes = [ctypes.c_size_t]
+    trim(0)
+    return True
+
+
 class LiveMap:
     """A map prepared for one-frame-at-a-time localisation.
 
@@ -542,6 +568,7 @@ class LiveLocalizer:
             hubs = live_map.hub_offsets() if self.params_["hub_correction"] else None
             self.matcher_ = SequenceMatcher(radius=self.params_["exclusion"], hub_offsets=hubs,
                                             **_sequence_kwargs(self.params_))
+            release_free_memory()
             return
         from .methods import make_filter, observation_model
 
@@ -558,6 +585,7 @@ class LiveLocalizer:
         self.use_odometry = bool(p["use_odometry"]) and live_map.graph.unit == "m"
         self.localizer_ = make_filter(p, live_map.graph, obs)
         self.localizer_.reset()
+        release_free_memory()
 
     def reset(self) -> "LiveLocalizer":
         """Start a new query (models and filter forget every frame)."""

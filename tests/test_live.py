@@ -271,3 +271,16 @@ def test_batch_warm_up_plan_is_valid_for_the_registry_and_runs_both_inputs():
     assert sorted(seconds) == ["sequence/window=10/chain", "sequence/window=10/graph",
                                "single-frame//chain", "single-frame//graph"]
     assert all(v >= 0 for v in seconds.values())
+
+
+def test_release_free_memory_runs_and_keeps_every_array(world):
+    import sys
+
+    from catgraph.live import release_free_memory
+
+    live = LiveLocalizer(LiveMap(world.reference, layout="uint8"), model="adaptive", n_particles=50, seed=1)
+    before = live.live_map.reference.descriptors.copy()
+    done = release_free_memory()
+    assert done == sys.platform.startswith("linux") or done is False
+    assert np.array_equal(live.live_map.reference.descriptors, before)
+    assert 0 <= live.step(world.query.frames[0]).place < live.live_map.n_places
