@@ -535,13 +535,13 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
     row("… of which difference row", "live", "difference_ms", ratio=False)
     row("… of which models + filter", "live", "model_ms", ratio=False)
     row("… … of which the sequence matcher (`SequenceMatcher.step`)", "live", "matcher_ms", ratio=False)
-    row("… … of which the rest (histogram model, combination, filter)", "live", "model_rest_ms", ratio=False)
+    row("… … of which the rest (whole-image model, combination, filter)", "live", "model_rest_ms", ratio=False)
     row("**full live step on the compact map** (combined, 2000 particles)", "live-u8", floor="floor_u8_ms")
     row("… of which front-end", "live-u8", "frontend_ms", ratio=False)
     row("… of which difference row", "live-u8", "difference_ms", ratio=False)
     row("… of which models + filter", "live-u8", "model_ms", ratio=False)
     row("… … of which the sequence matcher (`SequenceMatcher.step`)", "live-u8", "matcher_ms", ratio=False)
-    row("… … of which the rest (histogram model, combination, filter)", "live-u8", "model_rest_ms", ratio=False)
+    row("… … of which the rest (whole-image model, combination, filter)", "live-u8", "model_rest_ms", ratio=False)
     row("full live step on the compact map, against the plain memory read", "live-u8", floor="floor_np_u8_ms")
     lines += ["", "Peak RSS of each process (reference, buffers, models; Python and numba ≈ 150–200 MB):", "",
               "| process | " + " | ".join(f"N = {n:,}" for n in sizes) + " |", "|---|" + "---|" * len(sizes)]
