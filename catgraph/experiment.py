@@ -484,7 +484,8 @@ def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
     Returns
     -------
     (RunResult, payload, Evaluation or None)
-        As :func:`run`: the same matches and (to rounding) confidences.
+        As :func:`run`: the same matches, scores and confidences (bit for bit while each
+        row's moment sum stays below 2**53; see :mod:`catgraph.distributed`).
     """
     import time
 
