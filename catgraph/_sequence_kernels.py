@@ -101,7 +101,7 @@ def position(v, i):
     return np.int64(np.floor(v * i + 0.5))
 
 
-@njit
+@njit(inline="always")
 def unit_of(d_row):
     """The quantum ``u = 2**(e - FIRST_ROW_BITS)`` fixed by the first row, ``max|d_0j| < 2**e``."""
     top = 0.0
@@ -113,7 +113,7 @@ def unit_of(d_row):
     return math.ldexp(1.0, e - FIRST_ROW_BITS)
 
 
-@njit
+@njit(inline="always")
 def encode(x, unit):
     """``x`` as a code: ``rint(x / unit)`` saturated at ``±CODE_MAX`` (int64)."""
     c = np.rint(x / unit)
@@ -142,7 +142,7 @@ def advance(ring, mring, state, i, d_row):
     mring[i % r] = np.int64(np.rint(total / n))
 
 
-@njit
+@njit(inline="always")
 def _fill_sum(mring, i, eff):
     """Sum of the mean codes of frames ``i - eff + 1 .. i - 1`` (a new line's earlier terms)."""
     r = mring.shape[0]
@@ -232,7 +232,7 @@ def _segment_min(seg, j_lo, bmin):
 CHUNK = 2048
 
 
-@njit
+@njit(inline="always")
 def _stretch(sums_g, cur, old, fill, kind, lo, hi, sh, off, shift, bmin):
     """Places ``[lo, hi)`` (slots ``lo + sh ..``) of one kind of old term (``kind`` 0:
     none yet, 1: the old row, place ``j - off``; 2: outside, the fill), in chunks of
@@ -369,7 +369,7 @@ def scores_from_sums(sums_g, i, v, length, unit, s):
         s[j] = np.float64(sums_g[j - sbase]) * unit / eff
 
 
-@njit
+@njit(inline="always")
 def score_at(sums_g, i, v, length, unit, j):
     """One score ``s_ij(L, v)`` from the window sums (same arithmetic as :func:`scores_from_sums`)."""
     n = sums_g.shape[0]
@@ -523,7 +523,7 @@ def _best_and_second(sums_g, sbase, bmin, radius):
     return jb, vb, v2
 
 
-@njit
+@njit(inline="always")
 def _window(sums_g, ring, mring, i, v, length, unit, radius, bmin, g, best_j, best_s, second_s, mean, std):
     """Advance one window's sums to frame ``i`` and write its best place, best and
     second-best score, mean and spread into the outputs at ``g``.
@@ -562,7 +562,7 @@ def _sub_scores(sums_v, i, v, grid, unit, best_j, sub):
                 sub[g, h] = score_at(sums_v[h], i, v, grid[h], unit, best_j[g])
 
 
-@njit
+@njit(inline="always")
 def _velocity_stats_gaussian(sums_v, ring, mring, i, v, grid, unit, radius,
                              best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s):
     """:func:`_velocity_stats` for the Gaussian approximation alone (compiles without the
