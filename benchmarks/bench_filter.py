@@ -146,7 +146,9 @@ def _graph(case):
         from catgraph.datasets.synthetic import make_world
 
         return PlaceGraph.from_traverse(case.reference, junctions=make_world(seed=0).reference_junctions())
-    return PlaceGraph.chain(len(case.reference))
+    from catgraph.io import place_graph
+
+    return place_graph(case.reference)  # the registry's map graph (route distances of the survey)
 
 
 def _methods():
@@ -158,12 +160,12 @@ def _methods():
     def grid(case, graph):
         res = GridLocalizer(graph, TemperedObservation()).run(
             case.differences, odometry=case.query.odometry, query_index=case.query.index)
-        return res.place, res.log_odds, res.seconds_per_frame
+        return res.place, res.score, res.seconds_per_frame
 
     def particles(case, graph, seed=0):
         res = Localizer(graph, TemperedObservation(), n_particles=2000, motion=VelocityMotion(), seed=seed).run(
             case.differences, odometry=case.query.odometry, query_index=case.query.index)
-        return res.place, res.log_odds, res.seconds_per_frame
+        return res.place, res.score, res.seconds_per_frame
 
     def single(case, graph):
         t = time.perf_counter()
@@ -225,7 +227,10 @@ def _markdown(results: dict) -> str:
              "or condition: grid filter = `GridLocalizer(graph, TemperedObservation())`; particle filter = "
              "`Localizer(graph, TemperedObservation(), n_particles=2000, motion=VelocityMotion(), seed=0)`; "
              "single frame = best place per row, confidence = margin to the best place outside ±10 frames. "
-             "Filters are ranked by the posterior log-odds of the answer's ±2-place neighbourhood. "
+             "Filters are ranked by their score (`LocalizationResult.score`): the posterior log-odds of the "
+             "answer's neighbourhood (±2 mean spacings along the route), for the grid filter less 1 nat until it "
+             "first converges (`catgraph.grid`). Graphs: the registry's map graph (`catgraph.io.place_graph`); the "
+             "synthetic world's with its junctions. "
              "Tolerance: Nordland ±2 frames, UJI 3 m (same floor), synthetic world its own.", ""]
     for label, per_case in results.items():
         lines += [f"## {label}", "", "| dataset | method | AUC | R@100P | R@99P | R@90P | MTL | ms/frame |",
