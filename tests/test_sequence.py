@@ -184,12 +184,14 @@ def test_support_confidence_sums_the_agreeing_windows_gaps():
     np.testing.assert_allclose(result.confidence, expected, rtol=1e-9, atol=1e-12)
 
 
-def test_support_confidence_is_the_gap_for_a_fixed_window():
+@pytest.mark.parametrize("confidence", ["support", "posterior"])
+def test_adaptive_confidences_are_the_gap_for_a_fixed_window(confidence):
+    """A fixed window keeps SeqSLAM's confidence, whatever the adaptive default."""
     d = np.random.default_rng(6).normal(size=(40, 70))
-    support = match_sequences(d, window=5, confidence="support")
+    adaptive_kind = match_sequences(d, window=5, confidence=confidence)
     gap = match_sequences(d, window=5, confidence="gap")
-    np.testing.assert_array_equal(support.match, gap.match)
-    np.testing.assert_array_equal(support.confidence, gap.confidence)
+    np.testing.assert_array_equal(adaptive_kind.match, gap.match)
+    np.testing.assert_array_equal(adaptive_kind.confidence, gap.confidence)
 
 
 def test_support_confidence_falls_when_the_current_frame_leaves_the_line():

@@ -141,15 +141,6 @@ def test_posterior_confidence_matches_slow_reference(rule, fraction, seed, stren
     np.testing.assert_allclose(result.confidence, confidence, rtol=1e-9, atol=1e-12)
 
 
-def test_posterior_is_the_gap_for_a_fixed_window():
-    """A fixed window keeps SeqSLAM's confidence, whatever the adaptive default."""
-    d = np.random.default_rng(8).normal(size=(40, 70))
-    posterior = match_sequences(d, window=7, confidence="posterior")
-    gap = match_sequences(d, window=7, confidence="gap")
-    np.testing.assert_array_equal(posterior.match, gap.match)
-    np.testing.assert_array_equal(posterior.confidence, gap.confidence)
-
-
 def test_on_line_posterior_follows_the_likelihood_ratio():
     z = np.linspace(-4.0, 3.0, 15)
     # single frames that say nothing (the line no better than a random place): the prior
