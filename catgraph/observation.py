@@ -352,7 +352,7 @@ class SequenceObservation:
         self.agreement_scale = agreement_scale
 
     def reset(self) -> None:
-        for k in ("matcher_", "recogniser_", "last_match_", "_scores", "_tempered"):
+        for k in ("matcher_", "recogniser_", "last_match_", "_scores", "_tempered", "_z", "_exp"):
             self.__dict__.pop(k, None)
 
     def feedback(self, feedback: FilterFeedback) -> None:
@@ -378,6 +378,8 @@ class SequenceObservation:
         self.recogniser_ = HistogramPlaceRecogniser(n_init=self.n_init, exclusion_radius=self.exclusion_radius)
         self._tempered = (TemperedObservation(hub=None, novelty=False, temperature_scale=self.agreement_scale)
                           if self.calibration == "agreement" else None)
+        if self._tempered is not None:
+            self._tempered._new_place = False  # this model computes its own from the tempered ratios
 
     def window_scores(self, length: int | None = None) -> np.ndarray:
         """``(n_places,)`` scores ``s_kj(L, v)`` of the latest frame, along the lines of
@@ -400,13 +402,17 @@ class SequenceObservation:
         self.last_match_ = self.matcher_.step(row)
         s = self.window_scores()
         sd = s.std()
-        z = (s - s.mean()) / sd if sd > 0 else np.zeros_like(s)
+        z = _standardised(s, s.mean(), sd, self._work("_z", len(s)))
         tau = (1.0 / max(int(self.last_match_.window_length), 1) if self.temperature == "window"
                else float(self.temperature))
         if self._tempered is not None:
-            r = tau * self._tempered.observe(z).log_ratio
+            r = self._tempered.observe(z).log_ratio
+            r *= tau  # the tempered model's array is fresh every frame
             top = float(r.max())
-            return Observation(r, top + math.log(float(np.mean(np.exp(r - top)))), True, self._recent_support())
+            work = self._work("_exp", len(r))
+            np.subtract(r, top, out=work)
+            np.exp(work, out=work)
+            return Observation(r, top + math.log(float(np.mean(work))), True, self._recent_support())
         rec = self.recogniser_
         informative = not rec.initialising
         rec.update(z)
@@ -423,8 +429,23 @@ class SequenceObservation:
 
         s = self.window_scores(int(self.matcher_.window_grid_[0]))
         sd = s.std()
-        z = (s.mean() - s) / sd if sd > 0 else np.zeros_like(s)
-        return -log_ndtr(-z)
+        if not sd > 0:
+            return -log_ndtr(-np.zeros_like(s))
+        # −log Φ(−z), z = (mean − s) / sd, in one fresh array: −z = (s − mean) / sd exactly
+        # (negation is exact and the rounding of a quotient symmetric)
+        out = np.subtract(s, s.mean())
+        out /= sd
+        log_ndtr(out, out=out)
+        np.negative(out, out=out)
+        return out
+
+    def _work(self, name: str, n: int) -> np.ndarray:
+        """A float64 work array of length ``n`` kept between frames."""
+        buf = self.__dict__.get(name)
+        if buf is None or len(buf) != n:
+            buf = np.empty(n)
+            setattr(self, name, buf)
+        return buf
 
 
 class CombinedObservation:
@@ -520,22 +541,64 @@ class CombinedObservation:
             self._hits, self._trials = np.zeros(n), np.zeros(n)
             self.reliability_ = np.full(n, 0.5 if self.reliability else 1.0)
         parts = [m.observe(difference_row) for m in self.models]
-        self._best = [int(np.argmax(p.log_ratio)) if p.informative else -1 for p in parts]
+        # each part's own best place is read only to learn its reliability
+        self._best = ([int(np.argmax(p.log_ratio)) if p.informative else -1 for p in parts]
+                      if self.reliability is not None else None)
         rho = self.reliability_ if self.reliability else np.ones(len(parts))
         log_ratio, new, supports = None, 0.0, []
+        owned = False  # whether log_ratio is this method's own array (free to add into)
         for wi, p, r in zip(w, parts, rho):
             if not p.informative:
                 continue
             lr, nr = p.log_ratio, p.new_place_log_ratio
-            lr, nr = r * lr, r * nr
-            log_ratio = wi * lr if log_ratio is None else log_ratio + wi * lr
+            nr = r * nr
+            # a factor of exactly 1 leaves every value as it is: no product is formed
+            term = lr if r == 1.0 and wi == 1.0 else wi * (r * lr)
+            if log_ratio is None:
+                log_ratio, owned = term, term is not lr
+            elif owned:
+                log_ratio += term
+            else:
+                log_ratio, owned = log_ratio + term, True
             new += wi * nr
             if wi > 0 and p.support is not None:
                 supports.append(p.support)
         if log_ratio is None:
             return Observation(np.zeros(len(parts[0].log_ratio)), 0.0, False)
+        if not owned:  # a single part's own array: hand out a copy, as the sum would be
+            log_ratio = np.array(log_ratio, dtype=np.float64)
         support = None if not supports else (supports[0] if len(supports) == 1 else np.maximum.reduce(supports))
         return Observation(np.asarray(log_ratio, dtype=np.float64), float(new), True, support)
+
+
+def _median(values: np.ndarray, work: np.ndarray) -> float:
+    """``np.median(values)``, the same float, from one selection in the work array ``work``.
+
+    ``np.median`` copies the values and partitions the copy around both middle positions,
+    then averages them with ``np.mean``. Here the values are copied into ``work`` (unless
+    they are already there), partitioned around the upper middle position only, and the
+    lower middle value is the largest of the lower part (the order statistics are the
+    same values whichever way they are selected); ``np.mean`` of the one or two middle
+    values then gives the very same float.
+    """
+    n = len(values)
+    if values is not work:
+        np.copyto(work, values)
+    k = n // 2
+    work.partition(k)
+    if n % 2:
+        return float(np.mean(work[k:k + 1]))
+    return float(np.mean(np.array((work[:k].max(), work[k]))))
+
+
+def _standardised(s: np.ndarray, mean, sd, out: np.ndarray) -> np.ndarray:
+    """``(s − mean) / sd`` into ``out`` (zeros where ``sd`` is 0)."""
+    if not sd > 0:
+        out[...] = 0.0
+        return out
+    np.subtract(s, mean, out=out)
+    out /= sd
+    return out
 
 
 def _predictive_scores(base: np.ndarray, log_prior: np.ndarray, taus: np.ndarray) -> np.ndarray:
@@ -639,6 +702,10 @@ class TemperedObservation:
         ``temperature="predictive"`` or several hub weights).
     """
 
+    #: whether :meth:`observe` computes the new-place ratio (a model whose owner ignores
+    #: it, :class:`SequenceObservation`'s calibration, skips that pass over the places)
+    _new_place = True
+
     def __init__(self, likelihood: str = "linear", hub="online", temperature="agreement",
                  temperature_scale: float = 4.0,
                  temperatures: Sequence[float] = DEFAULT_TEMPERATURES, hub_weights: Sequence[float] = (1.0,),
@@ -705,7 +772,7 @@ class TemperedObservation:
         self._decay = 0.5 ** (1.0 / float(self.memory))
         self._hits, self._trials = 0.0, 0.0
         self._rho_sum, self._rho_n, self.novelty_ = 0.0, 0.0, 1.0
-        self._previous = None  # the previous frame's row (a copy), for the novelty weight
+        self._previous = None  # set once a frame was seen; its centred row is kept for the novelty weight
         self.agreement_ = 0.5
         first = float(self.temperature_scale) * 0.5 if self.temperature == "agreement" else float(taus[len(taus) // 2])
         self.temperature_, self.hub_weight_ = first, float(lams[0])
@@ -726,7 +793,9 @@ class TemperedObservation:
         if self._hub_map is not None:
             return self._hub_excess(self._hub_map)
         if isinstance(self.hub, str) and self._hub_count > 1:
-            return self._hub_excess(self._hub_sum / self._hub_count)
+            level = self._buffer("_level", len(self._hub_sum))
+            np.divide(self._hub_sum, self._hub_count, out=level)
+            return self._hub_excess(level)
         return None
 
     def _hub_excess(self, level: np.ndarray) -> np.ndarray:
@@ -739,12 +808,27 @@ class TemperedObservation:
         place information; a map with a run of flat, textureless frames (Nordland's
         tunnels) has its levels removed.
         """
-        med = float(np.median(level))
-        mad = 1.4826 * float(np.median(np.abs(level - med)))
+        work = self._buffer("_select", len(level))
+        med = _median(level, work)
+        np.subtract(level, med, out=work)
+        np.abs(work, out=work)
+        mad = 1.4826 * _median(work, work)
         hubs = int(np.count_nonzero(level < med - float(self.hub_threshold) * mad))
         self.n_hubs_ = hubs
         self.hub_shrinkage_ = min(1.0, hubs / (0.01 * len(level)))
-        return self.hub_shrinkage_ * (level - level.mean())
+        out = self._buffer("_excess", len(level))
+        np.subtract(level, level.mean(), out=out)
+        out *= self.hub_shrinkage_
+        return out
+
+    def _buffer(self, name: str, n: int) -> np.ndarray:
+        """A float64 work array of length ``n`` kept between frames (the per-frame
+        arithmetic writes into it instead of allocating)."""
+        buf = self.__dict__.get(name)
+        if buf is None or len(buf) != n:
+            buf = np.empty(n)
+            setattr(self, name, buf)
+        return buf
 
     def _bins(self, d: np.ndarray) -> np.ndarray:
         return np.clip(np.searchsorted(self._edges, d, side="right") - 1, 0, self.n_bins - 1)
@@ -754,10 +838,17 @@ class TemperedObservation:
         h = self._hub()
         out = []
         for m, lam in enumerate(self._lams):
-            d = row if (h is None or lam == 0.0) else row - lam * h
             if self.likelihood == "linear":
-                out.append(-d)
+                # −(row − λ h) into this weight's own buffer; λ h is h itself when λ = 1
+                base = self._buffer(f"_base{m}", len(row))
+                if h is None or lam == 0.0:
+                    np.negative(row, out=base)
+                else:
+                    np.subtract(row, h if lam == 1.0 else lam * h, out=base)
+                    np.negative(base, out=base)
+                out.append(base)
             else:
+                d = row if (h is None or lam == 0.0) else row - lam * h
                 out.append(self._tables[m][self._bins(d)])
         return out
 
@@ -767,10 +858,15 @@ class TemperedObservation:
             self._start(row)
         self._bases = self._base(row)
         i, m = self._pick
-        r = self.temperature_ * self._novelty(row) * self._bases[m]
+        r = np.multiply(self.temperature_ * self._novelty(row), self._bases[m])
         self._row = row
+        if not self._new_place:
+            return Observation(r, 0.0, True)
         top = float(r.max())
-        new = top + math.log(float(np.mean(np.exp(r - top))))
+        work = self._buffer("_select", len(r))
+        np.subtract(r, top, out=work)
+        np.exp(work, out=work)
+        new = top + math.log(float(np.mean(work)))
         return Observation(r, new, True)
 
     def _novelty(self, row: np.ndarray) -> float:
@@ -778,22 +874,48 @@ class TemperedObservation:
         ``[0, novelty_cap]``, ``ρ_k`` the correlation of this row with the previous one
         and ``ρ̄`` its discounted mean. A repeated frame (``ρ_k = 1``) adds nothing; a
         frame unlike its predecessor (after a jump) counts more."""
-        prev = self._previous
-        if prev is None:
-            # a copy: the caller may refill the same buffer with the next frame's row
-            self._previous = row.astype(np.float64, copy=True)
-            return 1.0
+        # The previous row enters only centred, with its sum of squares: both are kept
+        # from its own frame (the same values ``prev − prev.mean()`` would give again).
+        first = self._previous is None
+        self._previous = True
         if not self.novelty:
             return 1.0
-        a, b = row - row.mean(), prev - prev.mean()
-        den = float(np.sqrt((a * a).sum() * (b * b).sum()))
-        rho = float((a * b).sum()) / den if den > 0 else 1.0
-        prev[...] = row
+        n = len(row)
+        a = self._buffer("_centred_a", n)
+        square = self._buffer("_square", n)
+        mean = row.mean()
+        np.subtract(row, mean, out=a)
+        np.multiply(a, a, out=square)
+        aa = square.sum()
+        # the previous row was kept as a contiguous copy, whose mean numpy may sum in
+        # another order than a strided row's
+        kept = self._centred_b_next(row, a, aa)
+        if first:
+            self._kept = kept
+            if kept[0] is a:
+                self._centred_a = np.empty(n)
+            return 1.0
+        b, bb = self._kept
+        den = float(np.sqrt(aa * bb))
+        np.multiply(a, b, out=square)
+        rho = float(square.sum()) / den if den > 0 else 1.0
+        self._kept = kept
+        if kept[0] is a:
+            # the next frame centres into the previous row's buffer, free from now on
+            self._centred_a = b
         self._rho_sum = self._decay * self._rho_sum + rho
         self._rho_n = self._decay * self._rho_n + 1.0
         mean = self._rho_sum / self._rho_n
         self.novelty_ = float(np.clip((1.0 - rho) / max(1.0 - mean, 1e-6), 0.0, self.novelty_cap))
         return self.novelty_
+
+    def _centred_b_next(self, row: np.ndarray, a: np.ndarray, aa) -> tuple[np.ndarray, float]:
+        """This row centred as the next frame will need it, with its sum of squares."""
+        if row.flags.c_contiguous:
+            return a, aa
+        copy = np.ascontiguousarray(row)
+        b = copy - copy.mean()
+        return b, (b * b).sum()
 
     def feedback(self, feedback: FilterFeedback) -> None:
         """Score every (temperature, hub weight) on how well the filter predicted the

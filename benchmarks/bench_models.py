@@ -1,0 +1,239 @@
+"""Benchmark: the observation models' share of one live step, before and after a change.
+
+The grid filter's step at large maps is dominated by per-place passes: the difference
+row, the sequence matcher, and the observation model's own arithmetic (hub statistic,
+single-frame ratios, novelty weight, new-place ratio, the combined model's sum). This
+script times the models of two versions of :mod:`catgraph.observation` side by side in
+one process — the working tree's and the one committed at ``--before`` (default
+``HEAD``), loaded from git under another module name — on the same rows, interleaved
+step by step, so the shared machine's load hits both alike. It checks on the way that
+both versions give bit-identical matches, scores, confidences and log-ratios
+(``np.array_equal``), on random rows and, where the data is present, on a sample of
+Nordland's normalised difference rows.
+
+Models: ``GridLocalizer(PlaceGraph.chain(N), TemperedObservation())`` and the registry's
+``combined`` model (:func:`catgraph.methods.observation_model`) on the same chain.
+
+Writes ``benchmarks/results/models.md`` (``--out``). Run from the repository root::
+
+    python benchmarks/bench_models.py [--sizes 10000,100000] [--steps 25] [--before REV]
+        [--profile]
+
+``--profile``: also print a cProfile of the working tree's steps (top functions).
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import contextlib
+import importlib.util
+import platform
+import pstats
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import catgraph.observation as current  # noqa: E402
+from catgraph.graph import PlaceGraph  # noqa: E402
+from catgraph.grid import GridLocalizer  # noqa: E402
+from catgraph.methods import observation_model, resolve_params  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results"
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def load_before(rev: str):
+    """:mod:`catgraph.observation` as committed at ``rev``, as module ``catgraph._observation_before``.
+
+    The data classes the filters check against (``Observation``, ``FilterFeedback``,
+    ``CheckedRow``) are the current module's, so the filters treat both alike.
+    """
+    text = subprocess.run(["git", "show", f"{rev}:catgraph/observation.py"], cwd=ROOT, check=True,
+                          capture_output=True, text=True).stdout
+    path = Path(tempfile.mkdtemp()) / "observation_before.py"
+    path.write_text(text)
+    spec = importlib.util.spec_from_file_location("catgraph._observation_before", path)
+    module = importlib.util.module_from_spec(spec)
+    module.__package__ = "catgraph"
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    for name in ("Observation", "FilterFeedback", "CheckedRow"):
+        setattr(module, name, getattr(current, name))
+    return module
+
+
+@contextlib.contextmanager
+def observation_module(module):
+    """Let :func:`catgraph.methods.observation_model` build its models from ``module``."""
+    saved = sys.modules["catgraph.observation"]
+    sys.modules["catgraph.observation"] = module
+    try:
+        yield
+    finally:
+        sys.modules["catgraph.observation"] = saved
+
+
+def make_model(kind: str, module, n: int):
+    if kind == "tempered":
+        return module.TemperedObservation()
+    with observation_module(module):
+        return observation_model(resolve_params("filter", {"model": "combined"}), n, None)
+
+
+class Recorder:
+    """Wraps a model, keeping a copy of every observation it hands the filter."""
+
+    def __init__(self, model) -> None:
+        self.model, self.seen = model, []
+
+    def reset(self) -> None:
+        self.model.reset()
+
+    def feedback(self, feedback) -> None:
+        self.model.feedback(feedback)
+
+    def observe(self, row):
+        obs = self.model.observe(row)
+        self.seen.append((obs.log_ratio.copy(), obs.new_place_log_ratio,
+                          None if obs.support is None else obs.support.copy()))
+        return obs
+
+
+class Timer(Recorder):
+    """Wraps a model, timing its ``observe``."""
+
+    def observe(self, row):
+        t = time.perf_counter()
+        obs = self.model.observe(row)
+        self.last = time.perf_counter() - t
+        return obs
+
+
+def check_identical(kind: str, before, rows: np.ndarray) -> list[str]:
+    """Run both versions through ``rows``; the differences found (empty: bit-identical)."""
+    n = rows.shape[1]
+    out, problems = [], []
+    for module in (before, current):
+        rec = Recorder(make_model(kind, module, n))
+        loc = GridLocalizer(PlaceGraph.chain(n), rec)
+        est = [loc.step(r) for r in rows]
+        out.append((np.array([e.place for e in est]), np.array([e.score for e in est]),
+                    np.array([e.confidence for e in est]), rec.seen))
+    (p0, s0, c0, o0), (p1, s1, c1, o1) = out
+    for name, a, b in (("matches", p0, p1), ("scores", s0, s1), ("confidences", c0, c1)):
+        if not np.array_equal(a, b):
+            problems.append(f"{name} differ")
+    for k, (x, y) in enumerate(zip(o0, o1)):
+        if not (np.array_equal(x[0], y[0]) and x[1] == y[1]
+                and (x[2] is None) == (y[2] is None) and (x[2] is None or np.array_equal(x[2], y[2]))):
+            problems.append(f"observation of frame {k} differs")
+            break
+    return problems
+
+
+def time_steps(kind: str, before, n: int, steps: int, warm: int, seed: int, profile: bool):
+    """Median ms per step (the model alone, and the whole filter step) of both versions."""
+    rng = np.random.default_rng(seed)
+    rows = rng.standard_normal((warm + steps, n))
+    graph = PlaceGraph.chain(n)
+    runs = {}
+    for name, module in (("before", before), ("after", current)):
+        timer = Timer(make_model(kind, module, n))
+        runs[name] = (timer, GridLocalizer(graph, timer))
+    times = {name: {"step": [], "observe": []} for name in runs}
+    prof = cProfile.Profile() if profile else None
+    for k, row in enumerate(rows):
+        order = ("before", "after") if k % 2 == 0 else ("after", "before")
+        for name in order:
+            timer, loc = runs[name]
+            if prof is not None and name == "after" and k >= warm:
+                prof.enable()
+            t = time.perf_counter()
+            loc.step(row)
+            dt = time.perf_counter() - t
+            if prof is not None:
+                prof.disable()
+            if k >= warm:
+                times[name]["step"].append(dt)
+                times[name]["observe"].append(timer.last)
+    if prof is not None:
+        print(f"--- profile: {kind}, N = {n:,}, working tree, {steps} steps")
+        pstats.Stats(prof).sort_stats("tottime").print_stats(15)
+    return {name: {k: 1e3 * float(np.median(v)) for k, v in t.items()} for name, t in times.items()}
+
+
+def nordland_rows(count: int) -> np.ndarray | None:
+    from datasets import have_data, nordland
+
+    if not have_data():
+        return None
+    d = nordland().differences
+    return np.ascontiguousarray(d[:count], dtype=np.float64)
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", default="10000,100000")
+    ap.add_argument("--steps", type=int, default=25)
+    ap.add_argument("--warm", type=int, default=5)
+    ap.add_argument("--before", default="HEAD")
+    ap.add_argument("--profile", action="store_true")
+    ap.add_argument("--out", default="models.md")
+    args = ap.parse_args(argv)
+    before = load_before(args.before)
+    rev = subprocess.run(["git", "rev-parse", "--short", args.before], cwd=ROOT, capture_output=True,
+                         text=True).stdout.strip()
+
+    checks = []
+    rng = np.random.default_rng(1)
+    samples = [("random rows, N = 500", rng.standard_normal((120, 500)))]
+    nord = nordland_rows(300)
+    if nord is not None:
+        samples.append((f"Nordland 32x16, first {len(nord)} normalised rows, N = {nord.shape[1]}", nord))
+    for kind in ("tempered", "combined"):
+        for label, rows in samples:
+            problems = check_identical(kind, before, rows)
+            checks.append((kind, label, "bit-identical" if not problems else "; ".join(problems)))
+            print(checks[-1], flush=True)
+
+    sizes = [int(s) for s in args.sizes.split(",")]
+    table = {}
+    for kind in ("tempered", "combined"):
+        for n in sizes:
+            table[(kind, n)] = time_steps(kind, before, n, args.steps, args.warm, 0, args.profile)
+            print(kind, n, table[(kind, n)], flush=True)
+
+    lines = [
+        "# Observation models: time per live step, before and after",
+        "",
+        f"Generated by `benchmarks/bench_models.py`; `before` = `catgraph/observation.py` at {rev}, "
+        "`after` = the working tree, both in one process on the same random rows, stepped "
+        f"alternately (interleaved), medians of {args.steps} steps after {args.warm} warm-up steps; "
+        f"grid filter on `PlaceGraph.chain(N)`; {platform.machine()}, Python {platform.python_version()}, "
+        "2 cores shared with other work (compare the two columns of a row, not rows across runs).",
+        "",
+        "| model | N | model's `observe`, before | after | × | whole grid step, before | after | × |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for (kind, n), t in table.items():
+        b, a = t["before"], t["after"]
+        lines.append(f"| {kind} | {n:,} | {b['observe']:.2f} ms | {a['observe']:.2f} ms | "
+                     f"{b['observe'] / a['observe']:.2f} | {b['step']:.2f} ms | {a['step']:.2f} ms | "
+                     f"{b['step'] / a['step']:.2f} |")
+    lines += ["", "Results compared with `np.array_equal` (matches, scores, confidences of every frame; every "
+              "observation's log-ratios, new-place ratio and support):", "",
+              "| model | rows | result |", "|---|---|---|"]
+    lines += [f"| {k} | {label} | {res} |" for k, label, res in checks]
+    (RESULTS / args.out).write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
