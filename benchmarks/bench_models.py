@@ -12,7 +12,9 @@ both versions give bit-identical matches, scores, confidences and log-ratios
 Nordland's normalised difference rows.
 
 Models: ``GridLocalizer(PlaceGraph.chain(N), TemperedObservation())`` and the registry's
-``combined`` model (:func:`catgraph.methods.observation_model`) on the same chain.
+``combined`` model (:func:`catgraph.methods.observation_model`) on the same chain; the
+identity checks also run both under the particle filter (500 particles, seed 0), whose
+confidence score reads the combined model's recent support.
 
 Writes ``benchmarks/results/models.md`` (``--out``). Run from the repository root::
 
@@ -116,13 +118,17 @@ class Timer(Recorder):
         return obs
 
 
-def check_identical(kind: str, before, rows: np.ndarray) -> list[str]:
-    """Run both versions through ``rows``; the differences found (empty: bit-identical)."""
+def check_identical(kind: str, before, rows: np.ndarray, particles: bool = False) -> list[str]:
+    """Run both versions through ``rows`` (grid filter, or the particle filter, whose
+    confidence score reads the recent support); the differences found (empty: bit-identical)."""
+    from catgraph.localizer import Localizer
+
     n = rows.shape[1]
     out, problems = [], []
     for module in (before, current):
         rec = Recorder(make_model(kind, module, n))
-        loc = GridLocalizer(PlaceGraph.chain(n), rec)
+        loc = (Localizer(PlaceGraph.chain(n), rec, n_particles=500, seed=0) if particles
+               else GridLocalizer(PlaceGraph.chain(n), rec))
         est = [loc.step(r) for r in rows]
         out.append((np.array([e.place for e in est]), np.array([e.score for e in est]),
                     np.array([e.confidence for e in est]), rec.seen))
@@ -199,9 +205,11 @@ def main(argv=None) -> None:
         samples.append((f"Nordland 32x16, first {len(nord)} normalised rows, N = {nord.shape[1]}", nord))
     for kind in ("tempered", "combined"):
         for label, rows in samples:
-            problems = check_identical(kind, before, rows)
-            checks.append((kind, label, "bit-identical" if not problems else "; ".join(problems)))
-            print(checks[-1], flush=True)
+            for particles in (False, True):
+                problems = check_identical(kind, before, rows, particles)
+                checks.append((kind, "particle filter" if particles else "grid filter", label,
+                               "bit-identical" if not problems else "; ".join(problems)))
+                print(checks[-1], flush=True)
 
     sizes = [int(s) for s in args.sizes.split(",")]
     table = {}
@@ -229,8 +237,8 @@ def main(argv=None) -> None:
                      f"{b['step'] / a['step']:.2f} |")
     lines += ["", "Results compared with `np.array_equal` (matches, scores, confidences of every frame; every "
               "observation's log-ratios, new-place ratio and support):", "",
-              "| model | rows | result |", "|---|---|---|"]
-    lines += [f"| {k} | {label} | {res} |" for k, label, res in checks]
+              "| model | filter | rows | result |", "|---|---|---|---|"]
+    lines += [f"| {k} | {f} | {label} | {res} |" for k, f, label, res in checks]
     (RESULTS / args.out).write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

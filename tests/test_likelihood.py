@@ -547,3 +547,137 @@ def test_sequence_observation_window_temperature_counts_each_frame_once():
             assert b.new_place_log_ratio == pytest.approx(a.new_place_log_ratio / length)
     with pytest.raises(InvalidParameterError):
         SequenceObservation(temperature="hot").observe(rows[0])
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.sampled_from([-2.0, -0.0, 0.0, 0.5, 1e-300, 3.0, -1e300, 7.25]), min_size=1, max_size=40),
+       st.integers(0, 2**31))
+def test_median_from_one_selection_is_numpys_float(values, seed):
+    from catgraph.observation import _median
+
+    x = np.array(values) + np.random.default_rng(seed).integers(0, 2, len(values)) * 0.1
+    work = np.empty(len(x))
+    got = _median(x, work)
+    assert got == float(np.median(x)) and math.copysign(1, got) == math.copysign(1, float(np.median(x)))
+    np.copyto(work, x)
+    assert _median(work, work) == float(np.median(x))  # in place, the values already in the work array
+
+
+class _SlowTempered:
+    """The linear tempered model's per-frame formulas, written plainly (a fresh array
+    for every intermediate, ``np.median`` for the hub statistic, the previous row kept)."""
+
+    def __init__(self, threshold=3.0, cap=2.0, memory=200.0, scale=4.0):
+        self.threshold, self.cap, self.decay, self.scale = threshold, cap, 0.5 ** (1 / memory), scale
+        self.hub_sum, self.count, self.prev = None, 0, None
+        self.rho_sum = self.rho_n = self.hits = self.trials = 0.0
+        self.tau = scale * 0.5
+
+    def observe(self, row):
+        h = None
+        if self.count > 1:
+            level = self.hub_sum / self.count
+            med = float(np.median(level))
+            mad = 1.4826 * float(np.median(np.abs(level - med)))
+            hubs = int(np.count_nonzero(level < med - self.threshold * mad))
+            h = min(1.0, hubs / (0.01 * len(level))) * (level - level.mean())
+        self.base = -row if h is None else -(row - 1.0 * h)
+        nu = 1.0
+        if self.prev is None:
+            self.prev = row.astype(np.float64, copy=True)
+        else:
+            a, b = row - row.mean(), self.prev - self.prev.mean()
+            den = float(np.sqrt((a * a).sum() * (b * b).sum()))
+            rho = float((a * b).sum()) / den if den > 0 else 1.0
+            self.prev[...] = row
+            self.rho_sum = self.decay * self.rho_sum + rho
+            self.rho_n = self.decay * self.rho_n + 1.0
+            nu = float(np.clip((1.0 - rho) / max(1.0 - self.rho_sum / self.rho_n, 1e-6), 0.0, self.cap))
+        r = self.tau * nu * self.base
+        top = float(r.max())
+        self.row = row
+        return r, top + math.log(float(np.mean(np.exp(r - top))))
+
+    def feedback(self, posterior):
+        best = int(np.argmax(self.base))
+        hit = float(posterior[best]) / float(posterior.max())
+        self.hits = self.decay * self.hits + hit
+        self.trials = self.decay * self.trials + 1.0
+        self.tau = self.scale * (self.hits + 1.0) / (self.trials + 2.0)
+        self.hub_sum = self.row.copy() if self.hub_sum is None else self.hub_sum + self.row
+        self.count += 1
+
+
+@pytest.mark.parametrize("strided", [False, True])
+def test_tempered_is_bit_identical_to_the_plain_formulas(strided):
+    from catgraph.observation import FilterFeedback, TemperedObservation
+
+    rng = np.random.default_rng(11)
+    n = 301  # odd: the median is one middle value; the MAD's too
+    fast, slow = TemperedObservation(), _SlowTempered()
+    hubs = np.zeros(n)
+    hubs[:12] = -3.0  # a run of hub references (4 %): the correction is on
+    for k in range(30):
+        wide = rng.standard_normal((n, 2)) + hubs[:, None]
+        wide[k % 7] = wide[(k + 1) % 7]  # repeated values, ties in the selections
+        row = wide[:, 0] if strided else np.ascontiguousarray(wide[:, 0])
+        obs = fast.observe(row)
+        r, new = slow.observe(row)
+        assert np.array_equal(obs.log_ratio, r) and obs.new_place_log_ratio == new, k
+        post = rng.random(n)
+        post /= post.sum()
+        fast.feedback(FilterFeedback(np.full(n, 1 / n), post, slice(0, 3)))
+        slow.feedback(post)
+        assert fast.temperature_ == slow.tau
+    assert fast.n_hubs_ >= 12 and fast.hub_shrinkage_ == 1.0
+
+
+def test_recent_support_reads_only_what_is_asked_with_the_same_floats():
+    from scipy.special import log_ndtr
+
+    from catgraph.observation import RecentSupport
+
+    s = np.random.default_rng(12).standard_normal(1000) * 3.0
+    s[5] = s.mean()
+    z = (s.mean() - s) / s.std()
+    want = -log_ndtr(-z)
+    near = slice(3, 9)
+    mask = np.zeros(1000, dtype=bool)
+    mask[[0, 500, 999]] = True
+    assert np.array_equal(RecentSupport(s.copy())[near], want[near])
+    assert np.array_equal(RecentSupport(s.copy())[mask], want[mask])
+    support = RecentSupport(s.copy())
+    assert np.array_equal(np.asarray(support), want) and np.array_equal(support.copy(), want)
+    assert np.array_equal(support[near], want[near]) and len(support) == 1000 and support.shape == (1000,)
+    flat = RecentSupport(np.full(10, 2.0))  # no spread: every place as likely as any
+    assert np.array_equal(flat[2:4], -log_ndtr(np.zeros(2))) and np.array_equal(np.asarray(flat), -log_ndtr(np.zeros(10)))
+
+
+def test_combined_sum_without_reliability_is_the_parts_sum_in_a_fresh_array():
+    from catgraph.observation import CombinedObservation, Observation
+
+    class Fixed:
+        def __init__(self, r, new, support=None):
+            self.r, self.new, self.support = r, new, support
+
+        def reset(self):
+            pass
+
+        def observe(self, row):
+            return Observation(self.r, self.new, True, self.support)
+
+    rng = np.random.default_rng(13)
+    a, b = rng.standard_normal(50), rng.standard_normal(50)
+    sa, sb = rng.random(50), rng.random(50)
+    obs = CombinedObservation([Fixed(a, 0.5, sa), Fixed(b, -0.25, sb)], reliability=None).observe(np.zeros(50))
+    assert np.array_equal(obs.log_ratio, a + b) and obs.new_place_log_ratio == 0.25
+    assert np.array_equal(obs.support, np.maximum(sa, sb))
+    weighted = CombinedObservation([Fixed(a, 0.5), Fixed(b, 1.0)], weights=[2.0, 0.5], reliability=None)
+    obs = weighted.observe(np.zeros(50))
+    assert np.array_equal(obs.log_ratio, 2.0 * (1.0 * a) + 0.5 * (1.0 * b)) and obs.new_place_log_ratio == 1.5
+    one = CombinedObservation([Fixed(a, 0.5)], reliability=None).observe(np.zeros(50))
+    assert np.array_equal(one.log_ratio, a) and one.log_ratio is not a  # the part's own array is never handed on
+    online = CombinedObservation([Fixed(a, 0.5), Fixed(b, 1.0)])
+    obs = online.observe(np.zeros(50))
+    assert np.array_equal(obs.log_ratio, 0.5 * a + 0.5 * b)
+    assert online._best == [int(np.argmax(a)), int(np.argmax(b))]
