@@ -354,7 +354,7 @@ class SequenceObservation:
         self.agreement_scale = agreement_scale
 
     def reset(self) -> None:
-        for k in ("matcher_", "recogniser_", "last_match_", "_scores", "_tempered", "_z", "_exp"):
+        for k in ("matcher_", "recogniser_", "last_match_", "_scores", "_tempered", "_z", "_exp", "_square"):
             self.__dict__.pop(k, None)
 
     def feedback(self, feedback: FilterFeedback) -> None:
@@ -403,8 +403,7 @@ class SequenceObservation:
         row = _check_row(difference_row, getattr(self.matcher_, "n_reference_", None))
         self.last_match_ = self.matcher_.step(row)
         s = self.window_scores()
-        sd = s.std()
-        z = _standardised(s, s.mean(), sd, self._work("_z", len(s)))
+        z = _standardised(s, self._work("_z", len(s)), self._work("_square", len(s)))
         tau = (1.0 / max(int(self.last_match_.window_length), 1) if self.temperature == "window"
                else float(self.temperature))
         if self._tempered is not None:
@@ -644,12 +643,21 @@ def _median(values: np.ndarray, work: np.ndarray) -> float:
     return float(np.mean(np.array((work[:k].max(), work[k]))))
 
 
-def _standardised(s: np.ndarray, mean, sd, out: np.ndarray) -> np.ndarray:
-    """``(s − mean) / sd`` into ``out`` (zeros where ``sd`` is 0)."""
+def _standardised(s: np.ndarray, out: np.ndarray, work: np.ndarray) -> np.ndarray:
+    """``(s − s.mean()) / s.std()`` into ``out`` (zeros where ``s.std()`` is 0), the same floats.
+
+    ``np.std`` of a 1-D float64 array is ``sqrt(sum((s − m)²) / n)`` with ``m`` the
+    array's mean (numpy's own sums, in numpy's order); the centred values it squares are
+    those the standardisation divides, so they are formed once, in ``out``.
+    ``tests/test_likelihood.py`` checks the floats against ``s.std()`` and ``s.mean()``.
+    """
+    mean = s.mean()
+    np.subtract(s, mean, out=out)
+    np.square(out, out=work)
+    sd = np.sqrt(work.sum() / len(s))
     if not sd > 0:
         out[...] = 0.0
         return out
-    np.subtract(s, mean, out=out)
     out /= sd
     return out
 

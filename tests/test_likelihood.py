@@ -681,3 +681,19 @@ def test_combined_sum_without_reliability_is_the_parts_sum_in_a_fresh_array():
     obs = online.observe(np.zeros(50))
     assert np.array_equal(obs.log_ratio, 0.5 * a + 0.5 * b)
     assert online._best == [int(np.argmax(a)), int(np.argmax(b))]
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.integers(1, 3000), st.integers(0, 2**31), st.sampled_from([1e-3, 1.0, 1e6]))
+def test_standardised_scores_are_numpys_floats(n, seed, scale):
+    from catgraph.observation import _standardised
+
+    rng = np.random.default_rng(seed)
+    s = rng.standard_normal(n) * scale + rng.integers(-5, 5)
+    if n > 3:
+        s[: n // 3] = s[0]  # ties
+    sd = s.std()
+    want = (s - s.mean()) / sd if sd > 0 else np.zeros_like(s)
+    got = _standardised(s, np.empty(n), np.empty(n))
+    assert np.array_equal(got, want)
+    assert np.array_equal(_standardised(np.full(n, 2.5), np.empty(n), np.empty(n)), np.zeros(n))
