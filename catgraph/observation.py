@@ -56,6 +56,15 @@ confidence (:mod:`catgraph.localizer`).
 Every model takes a ``temperature`` ``τ`` (``r ← τ r``); values below 1 flatten an
 over-confident model so that one frame cannot wipe out the particle cloud.
 
+Per frame, a model makes a handful of passes over the places, and at 10⁵ places and more
+those passes are the model's cost: the arithmetic writes into work arrays kept between
+frames instead of allocating temporaries, the hub statistic's median and MAD take one
+selection each (:func:`_median`), the previous frame's centred row is kept for the novelty
+weight, and what no caller reads is not computed (the recent support is computed for the
+places read, :class:`RecentSupport`). Every sum stays numpy's own, so the floats are those
+of the plain formulas (``tests/test_likelihood.py`` checks them bit for bit;
+``benchmarks/bench_models.py`` times and checks the models against an earlier version).
+
 Models see the difference row the filter is given — usually the per-query normalised
 row (:func:`catgraph.differences.normalise_rows`), which makes histogram ranges
 comparable across frames and datasets.
@@ -879,7 +888,8 @@ class TemperedObservation:
         self.hub_shrinkage_ = min(1.0, hubs / (0.01 * len(level)))
         out = self._buffer("_excess", len(level))
         np.subtract(level, level.mean(), out=out)
-        out *= self.hub_shrinkage_
+        if self.hub_shrinkage_ != 1.0:  # a factor of exactly 1 leaves every value as it is
+            out *= self.hub_shrinkage_
         return out
 
     def _buffer(self, name: str, n: int) -> np.ndarray:
