@@ -19,7 +19,10 @@ confidence score reads the combined model's recent support.
 Writes ``benchmarks/results/models.md`` (``--out``). Run from the repository root::
 
     python benchmarks/bench_models.py [--sizes 10000,100000] [--steps 25] [--before REV]
-        [--profile]
+        [--profile] [--full]
+
+``--full``: check identity on the whole Nordland traverse, in order and under the
+condition table's first shuffle (else on its first 300 rows).
 
 ``--profile``: also profile both versions' steps (cProfile, top functions by own time)
 and add the tables to the results file.
@@ -188,13 +191,25 @@ def profile_rows(prof: cProfile.Profile, steps: int, top: int = 12) -> list[tupl
     return rows[:top]
 
 
-def nordland_rows(count: int) -> np.ndarray | None:
+def nordland_samples(count: int | None) -> list[tuple[str, np.ndarray]]:
+    """Nordland's normalised difference rows: the first ``count`` in order, or (``None``)
+    the whole traverse in order and under the table's first shuffle (2–20 %, seed 0)."""
     from datasets import have_data, nordland
 
+    from catgraph.conditions import condition_table
+
     if not have_data():
-        return None
+        return []
     d = nordland().differences
-    return np.ascontiguousarray(d[:count], dtype=np.float64)
+    n = d.shape[1]
+    if count is not None:
+        return [(f"Nordland 32x16, first {count} normalised rows, N = {n}",
+                 np.ascontiguousarray(d[:count], dtype=np.float64))]
+    out = []
+    for cond in condition_table()[:2]:
+        rows = np.ascontiguousarray(d[cond.order(len(d))], dtype=np.float64)
+        out.append((f"Nordland 32x16, all {len(d)} normalised rows, {cond.label}, N = {n}", rows))
+    return out
 
 
 def main(argv=None) -> None:
@@ -204,6 +219,8 @@ def main(argv=None) -> None:
     ap.add_argument("--warm", type=int, default=5)
     ap.add_argument("--before", default="HEAD")
     ap.add_argument("--profile", action="store_true")
+    ap.add_argument("--full", action="store_true", help="check identity on the whole Nordland traverse, "
+                    "in order and shuffled (else its first 300 rows)")
     ap.add_argument("--out", default="models.md")
     args = ap.parse_args(argv)
     before = load_before(args.before)
@@ -213,9 +230,7 @@ def main(argv=None) -> None:
     checks = []
     rng = np.random.default_rng(1)
     samples = [("random rows, N = 500", rng.standard_normal((120, 500)))]
-    nord = nordland_rows(300)
-    if nord is not None:
-        samples.append((f"Nordland 32x16, first {len(nord)} normalised rows, N = {nord.shape[1]}", nord))
+    samples += nordland_samples(None if args.full else 300)
     for kind in ("tempered", "combined"):
         for label, rows in samples:
             for particles in (False, True):
