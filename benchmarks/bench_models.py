@@ -180,6 +180,37 @@ def time_steps(kind: str, before, n: int, steps: int, warm: int, seed: int, prof
     return out
 
 
+def tempered_parts(before, n: int, steps: int, warm: int, seed: int) -> dict[str, dict[str, float]]:
+    """Median ms of the tempered model's per-frame parts, both versions, interleaved.
+
+    Each model first runs ``warm`` frames under the grid filter (so the online hub levels
+    exist), then its parts are called on fresh rows: the hub correction (``_hub``: levels,
+    median, MAD, hub count, excess), the single-frame ratios (``_base``, the hub
+    correction included), the novelty weight (``_novelty``), and the whole ``observe``.
+    """
+    rng = np.random.default_rng(seed)
+    rows = rng.standard_normal((warm + steps, n))
+    graph = PlaceGraph.chain(n)
+    models = {}
+    for name, module in (("before", before), ("after", current)):
+        model = module.TemperedObservation()
+        loc = GridLocalizer(graph, model)
+        for row in rows[:warm]:
+            loc.step(row)
+        models[name] = model
+    parts = ("_hub", "_base", "_novelty", "observe")
+    times = {name: {p: [] for p in parts} for name in models}
+    for k, row in enumerate(rows[warm:]):
+        for name in (("before", "after") if k % 2 == 0 else ("after", "before")):
+            model = models[name]
+            for part in parts:
+                fn = getattr(model, part)
+                t = time.perf_counter()
+                fn() if part == "_hub" else fn(row)
+                times[name][part].append(time.perf_counter() - t)
+    return {name: {p: 1e3 * float(np.median(v)) for p, v in t.items()} for name, t in times.items()}
+
+
 def profile_rows(prof: cProfile.Profile, steps: int, top: int = 12) -> list[tuple[str, float, float]]:
     """The ``top`` functions by own time: (name, own ms per step, cumulative ms per step)."""
     stats = pstats.Stats(prof).stats
@@ -245,6 +276,8 @@ def main(argv=None) -> None:
         for n in sizes:
             table[(kind, n)] = time_steps(kind, before, n, args.steps, args.warm, 0, False)
             print(kind, n, table[(kind, n)], flush=True)
+    parts = {n: tempered_parts(before, n, args.steps, args.warm, 0) for n in sizes}
+    print(parts, flush=True)
     profiles = {}
     if args.profile:  # a separate run: the profiler's overhead stays out of the medians
         for kind in ("tempered", "combined"):
@@ -268,6 +301,17 @@ def main(argv=None) -> None:
         lines.append(f"| {kind} | {n:,} | {b['observe']:.2f} ms | {a['observe']:.2f} ms | "
                      f"{b['observe'] / a['observe']:.2f} | {b['step']:.2f} ms | {a['step']:.2f} ms | "
                      f"{b['step'] / a['step']:.2f} |")
+    lines += ["", "The tempered model's parts, called one after another on a model warmed up under the grid "
+              "filter (medians over the same steps, both versions interleaved; `_base` includes `_hub`, "
+              "`observe` includes all):", "",
+              "| part | " + " | ".join(f"N = {n:,}, before | after" for n in sizes) + " |",
+              "|---|" + "---|---|" * len(sizes)]
+    labels = {"_hub": "hub correction (`_hub`: levels, median, MAD, count, excess)",
+              "_base": "single-frame ratios (`_base`, hub correction included)",
+              "_novelty": "novelty weight (`_novelty`)", "observe": "`observe`, all of it"}
+    for part, label in labels.items():
+        lines.append(f"| {label} | " + " | ".join(
+            f"{parts[n]['before'][part]:.2f} ms | {parts[n]['after'][part]:.2f} ms" for n in sizes) + " |")
     profiled = list(profiles.items())
     if profiled:
         lines += ["", "cProfile of the largest map's steps, a separate run of both versions interleaved the same "
