@@ -501,7 +501,9 @@ class RecentSupport:
     def __array__(self, dtype=None, copy=None) -> np.ndarray:
         if self._all is None:
             self._all = self._support(self._scores)
-        return self._all if dtype is None else self._all.astype(dtype)
+        if dtype is not None:
+            return self._all.astype(dtype)
+        return self._all.copy() if copy else self._all
 
     def copy(self) -> np.ndarray:
         """Every place's support, as a new array."""

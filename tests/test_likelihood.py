@@ -697,3 +697,14 @@ def test_standardised_scores_are_numpys_floats(n, seed, scale):
     got = _standardised(s, np.empty(n), np.empty(n))
     assert np.array_equal(got, want)
     assert np.array_equal(_standardised(np.full(n, 2.5), np.empty(n), np.empty(n)), np.zeros(n))
+
+
+def test_recent_support_as_an_array_is_numpys_array_protocol():
+    from catgraph.observation import RecentSupport
+
+    support = RecentSupport(np.arange(6.0))
+    full = np.asarray(support)
+    assert np.asarray(support) is full  # computed once
+    copied = np.array(support, copy=True)
+    assert copied is not full and np.array_equal(copied, full)
+    assert np.asarray(support, dtype=np.float32).dtype == np.float32
