@@ -16,6 +16,17 @@ def rng():
     return np.random.default_rng(0)
 
 
+@pytest.fixture
+def jump_route():
+    """Differences of a 200-frame query over a 400-place route that jumps at frame 100
+    (places 50-149, then 300-399), each frame's true place 1.5 spreads closer: ``(d, truth)``."""
+    rng = np.random.default_rng(5)
+    d = rng.normal(size=(200, 400))
+    truth = np.r_[np.arange(50, 150), np.arange(300, 400)]
+    d[np.arange(200), truth] -= 1.5
+    return d, truth
+
+
 def write_images(folder: Path, images, names=None, suffix=".png"):
     from PIL import Image
 

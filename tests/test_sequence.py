@@ -317,14 +317,10 @@ def test_every_integer_grid():
     assert g[0] == 10 and g[-1] == 500 and np.all(np.diff(g) > 0)
 
 
-def test_consistent_rule_shortens_window_after_a_jump():
+def test_consistent_rule_shortens_window_after_a_jump(jump_route):
     """After a jump to another part of the route the default rule drops the old alignment
     sooner than the literal rule does."""
-    rng = np.random.default_rng(5)
-    n_ref = 400
-    d = rng.normal(size=(200, n_ref))
-    truth = np.r_[np.arange(50, 150), np.arange(300, 400)]  # a jump at frame 100
-    d[np.arange(200), truth] -= 1.5
+    d, truth = jump_route  # a jump at frame 100
     common = dict(window="adaptive", l_min=5, l_max=100, grid=16, velocities=V1)
     literal = match_sequences(d, rule="literal", **common)
     after = slice(100, 200)

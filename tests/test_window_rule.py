@@ -168,14 +168,10 @@ def test_evident_streaming_equals_batch(rule, confidence):
     np.testing.assert_allclose(batch.confidence, [s.confidence for s in steps], rtol=1e-12, atol=0)
 
 
-def test_evident_rule_drops_the_old_alignment_after_a_jump():
+def test_evident_rule_drops_the_old_alignment_after_a_jump(jump_route):
     """After a jump to another part of the route the rule finds the new alignment within
     a few frames, where the literal rule holds on to the old one for dozens."""
-    rng = np.random.default_rng(5)
-    n_ref = 400
-    d = rng.normal(size=(200, n_ref))
-    truth = np.r_[np.arange(50, 150), np.arange(300, 400)]  # a jump at frame 100
-    d[np.arange(200), truth] -= 1.5
+    d, truth = jump_route  # a jump at frame 100
     common = dict(window="adaptive", l_min=5, l_max=100, grid=16, velocities=V1)
     evident = match_sequences(d, rule="evident", **common)
     literal = match_sequences(d, rule="literal", **common)
