@@ -844,7 +844,7 @@ class TemperedObservation:
         self._decay = 0.5 ** (1.0 / float(self.memory))
         self._hits, self._trials = 0.0, 0.0
         self._rho_sum, self._rho_n, self.novelty_ = 0.0, 0.0, 1.0
-        self._previous = None  # set once a frame was seen; its centred row is kept for the novelty weight
+        self._kept = None  # the previous frame's centred row and its sum of squares (novelty weight)
         self.agreement_ = 0.5
         first = float(self.temperature_scale) * 0.5 if self.temperature == "agreement" else float(taus[len(taus) // 2])
         self.temperature_, self.hub_weight_ = first, float(lams[0])
@@ -949,10 +949,9 @@ class TemperedObservation:
         frame unlike its predecessor (after a jump) counts more."""
         # The previous row enters only centred, with its sum of squares: both are kept
         # from its own frame (the same values ``prev − prev.mean()`` would give again).
-        first = self._previous is None
-        self._previous = True
         if not self.novelty:
             return 1.0
+        first = self._kept is None
         n = len(row)
         a = self._buffer("_centred_a", n)
         square = self._buffer("_square", n)
