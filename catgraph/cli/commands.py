@@ -333,9 +333,14 @@ def cmd_match(args) -> int:
 # ---------------------------------------------------------------------------- localize
 @register
 def register_localize(sub) -> None:
-    p = sub.add_parser("localize", help="localise the query with the CAT-Graph particle filter", usage=_USAGE,
-                       description="Run the particle filter on the place graph of the reference (or a saved map) "
-                                   "with the chosen observation model; evaluate where ground truth is given.")
+    from ..methods import GRID_MAX_PLACES
+
+    p = sub.add_parser("localize", help="localise the query with a Bayes filter on the place graph", usage=_USAGE,
+                       description="Run a filter on the place graph of the reference (or a saved map) with the "
+                                   "chosen observation model: by default the exact grid filter over (place, "
+                                   f"velocity) up to {GRID_MAX_PLACES:,} places, the CAT-Graph particle filter "
+                                   "above (--mode); "
+                                   "evaluate where ground truth is given.")
     add_common_inputs(p, graph_options=True)
     add_method_options(p, ("filter",))
     p.set_defaults(func=cmd_localize)
