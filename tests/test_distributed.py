@@ -3,9 +3,10 @@
 import numpy as np
 import pytest
 
+from catgraph.conditions import Condition
 from catgraph.differences import difference_matrix
 from catgraph.exceptions import InvalidParameterError
-from catgraph.sequence import fixed_window_scores, match_sequences
+from catgraph.sequence import DEFAULT_VELOCITIES, fixed_window_scores, match_sequences
 
 distributed = pytest.importorskip("distributed")
 from catgraph import distributed as dd  # noqa: E402
@@ -19,33 +20,41 @@ def coded(d):
     return u, codes, np.rint(codes.sum(1) / d.shape[1]).astype(np.int64)
 
 
-def slow_sums(d, window):
-    """Obviously correct integer window sums: direct sums of the codes, edge policy of catgraph.sequence."""
+def slow_sums(d, window, velocity=1.0):
+    """Obviously correct integer window sums: direct sums of the codes along the line of
+    ``velocity`` (frame t at place j - (pos(i) - pos(t)), pos(i) = floor(v i + 1/2)), the
+    row's mean code where that place is off the reference (edge policy of catgraph.sequence)."""
     u, codes, means = coded(d)
     n_q, n = d.shape
+    pos = np.floor(velocity * np.arange(n_q) + 0.5).astype(np.int64)
     out = np.empty(d.shape, dtype=np.int64)
     for i in range(n_q):
         eff = min(window, i + 1)
         total = np.zeros(n, dtype=np.int64)
-        for k in range(eff):
-            col = np.arange(n) - k
-            total += np.where(col >= 0, codes[i - k, np.maximum(col, 0)], means[i - k])
+        for t in range(i - eff + 1, i + 1):
+            col = np.arange(n) - (pos[i] - pos[t])
+            inside = (col >= 0) & (col < n)
+            total += np.where(inside, codes[t, np.clip(col, 0, n - 1)], means[t])
         out[i] = total
     return u, out
 
 
-def slow_scores(d, window):
-    u, sums = slow_sums(d, window)
+def slow_scores(d, window, velocity=1.0):
+    u, sums = slow_sums(d, window, velocity)
     return sums * u / np.minimum(window, np.arange(1, d.shape[0] + 1))[:, None]
 
 
-def assert_same_as_local(res, d, window, radius):
-    """Matches, scores and confidences identical to the local fixed-window matcher, and the
-    gap within float64 rounding of a direct computation from the slow scores."""
-    local = match_sequences(d, window=window, velocities=[1.0], confidence="gap", radius=radius)
+def assert_same_as_local(res, d, window, radius, velocities=(1.0,), confidence="gap"):
+    """Matches, scores, velocities and confidences identical to the local fixed-window
+    matcher; with one velocity, the gap also within float64 rounding of a direct
+    computation from the slow scores."""
+    local = match_sequences(d, window=window, velocities=velocities, confidence=confidence, radius=radius)
     assert np.array_equal(res.match, local.match)
     assert np.array_equal(res.score, local.score)
+    assert np.array_equal(res.velocity, local.velocity)
     assert np.array_equal(res.confidence, local.confidence)
+    if tuple(velocities) != (1.0,) or confidence != "gap":
+        return local
     expected = slow_scores(d, window)
     assert np.array_equal(res.match, expected.argmin(1))
     best = expected.min(1)
@@ -54,6 +63,7 @@ def assert_same_as_local(res, d, window, radius):
     spread = expected.std(1)
     gap = (second - best) / np.where(spread > 0, spread, 1.0)
     np.testing.assert_allclose(res.confidence, np.where(spread > 0, gap, 0.0), rtol=1e-9, atol=1e-12)
+    return local
 
 
 @pytest.fixture(scope="module")
@@ -92,9 +102,72 @@ def test_sharded_window_scores_and_matches_equal_local(client, data):
         got = dd.window_scores(q, ref, window, block_rows=37)
         assert np.array_equal(got, slow_scores(local, window))
         assert np.array_equal(got, fixed_window_scores(local, window))
-        res = dd.match_fixed_window(q, ref, window, radius=5, block_rows=37)  # windows span the edge at 4096
+        res = dd.match_fixed_window(q, ref, window, radius=5, velocities=[1.0], confidence="gap", block_rows=37)
         assert_same_as_local(res, local, window, 5)
     assert np.all(np.abs(res.match[20:100] - (4050 + np.arange(20, 100))) <= 1)
+
+
+@pytest.fixture(scope="module")
+def route():
+    """A route whose stretches cross the shard edge at 4096 and run off the end of the map
+    (shards of 4096, 4096 and 8 places)."""
+    rng = np.random.default_rng(5)
+    r = rng.normal(size=(8200, 16)).astype(np.float32)
+    places = np.concatenate([np.arange(3990, 4190), np.arange(8120, 8200)])
+    return r[places] + 0.4 * rng.normal(size=(places.size, 16)).astype(np.float32), r
+
+
+def test_window_scores_along_every_velocity_equal_local(client, route):
+    q, r = route
+    q = q[::3]  # lines of every velocity cross both shard edges and both ends of the map
+    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
+    assert ref.bounds == [(0, 4096), (4096, 8192), (8192, 8200)]
+    local = difference_matrix(q, r, "sad", normalise=True)
+    for velocity in DEFAULT_VELOCITIES:
+        got = dd.window_scores(q, ref, 7, velocity=velocity, block_rows=40)
+        assert np.array_equal(got, fixed_window_scores(local, 7, velocity))
+        assert np.array_equal(got, slow_scores(local, 7, velocity))
+
+
+@pytest.mark.parametrize("condition", [Condition("in-order"), Condition("reverse"), Condition("speed", factor=2.0)])
+def test_velocity_search_equals_the_local_matcher(client, route, condition):
+    q, r = route
+    q = q[condition.order(len(q))]
+    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
+    local = difference_matrix(q, r, "sad", normalise=True)
+    res = dd.match_fixed_window(q, ref, 20, block_rows=64)  # the defaults of match_sequences
+    out = assert_same_as_local(res, local, 20, 10, DEFAULT_VELOCITIES, "posterior")
+    assert len(np.unique(out.velocity)) > 1  # not trivial: several velocities chosen
+    expected = {"in-order": 1.0, "reverse": -1.0, "speed": 2.0}[condition.kind]
+    assert np.mean(out.velocity[20:] == expected) > 0.8
+
+
+@pytest.mark.parametrize("confidence", ["gap", "neglogp", "z"])
+def test_every_fixed_window_confidence_and_radius_equals_local(client, route, confidence):
+    q, r = route
+    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
+    local = difference_matrix(q, r, "sad", normalise=True)
+    # radius 0; one that covers the last shard from the one before it; one beyond a whole shard
+    for radius in (0, 30, 5000):
+        res = dd.match_fixed_window(q, ref, 9, radius=radius, velocities=(-1.0, 0.5, 1.0, 3.0),
+                                    confidence=confidence, block_rows=100)
+        assert_same_as_local(res, local, 9, radius, (-1.0, 0.5, 1.0, 3.0), confidence)
+
+
+def test_halos_from_several_shards_equal_local(client):
+    # a window whose lines at |v| = 3 reach over a whole 4096-place shard: the last shard's
+    # halo comes from both shards before it, the first shard's from both after it
+    rng = np.random.default_rng(8)
+    r = rng.normal(size=(8200, 8)).astype(np.float32)
+    q = r[2000:3450] + 0.5 * rng.normal(size=(1450, 8)).astype(np.float32)
+    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
+    assert dd._halo(np.array([3.0, -3.0]), 0, 1450, 1400) == (4200, 4200)
+    local = difference_matrix(q, r, "sad", normalise=True)
+    for velocity in (3.0, -3.0):
+        assert np.array_equal(dd.window_scores(q, ref, 1400, velocity=velocity, block_rows=1000),
+                              fixed_window_scores(local, 1400, velocity))
+    res = dd.match_fixed_window(q, ref, 1400, velocities=(-3.0, 0.5, 3.0), block_rows=1000)
+    assert_same_as_local(res, local, 1400, 10, (-3.0, 0.5, 3.0), "posterior")
 
 
 def test_saturated_codes_equal_local(client, data):
@@ -112,7 +185,8 @@ def test_saturated_codes_equal_local(client, data):
     ref = dd.shard_reference(r, "sad", client, shard_places=4096)
     assert np.array_equal(dd.window_scores(q, ref, 12, block_rows=50), fixed_window_scores(local, 12))
     for window in (3, 12):
-        assert_same_as_local(dd.match_fixed_window(q, ref, window, radius=5, block_rows=50), local, window, 5)
+        assert_same_as_local(dd.match_fixed_window(q, ref, window, radius=5, velocities=[1.0], confidence="gap",
+                                                    block_rows=50), local, window, 5)
 
 
 def test_first_frame_without_information(client, data):
@@ -124,8 +198,11 @@ def test_first_frame_without_information(client, data):
     local = difference_matrix(q, r, "sad", normalise=True)
     local[blank] = 0.0
     assert coded(local)[0] == 2.0**-12
-    res = dd.match_fixed_window(q, ref, 12, radius=5, block_rows=64, no_information=blank)
+    res = dd.match_fixed_window(q, ref, 12, radius=5, velocities=[1.0], confidence="gap", block_rows=64,
+                                 no_information=blank)
     assert_same_as_local(res, local, 12, 5)
+    res = dd.match_fixed_window(q, ref, 12, radius=5, block_rows=64, no_information=blank)  # every velocity
+    assert_same_as_local(res, local, 12, 5, DEFAULT_VELOCITIES, "posterior")
 
 
 def test_spread_beyond_exact_float64_sums_within_the_stated_bound(client):
@@ -147,7 +224,8 @@ def test_spread_beyond_exact_float64_sums_within_the_stated_bound(client):
     y = sums - np.concatenate([[0.0], sums[:-1, -1]])[:, None]  # shift: the previous row's last sum
     assert np.sum((y**2).sum(1) >= 2.0**53) > 50
     ref = dd.shard_reference(r, "sad", client, shard_places=4096)
-    res = dd.match_fixed_window(q, ref, window, radius=5, block_rows=64, no_information=blank)
+    res = dd.match_fixed_window(q, ref, window, radius=5, velocities=[1.0], confidence="gap", block_rows=64,
+                                 no_information=blank)
     local = match_sequences(d, window=window, velocities=[1.0], confidence="gap", radius=5)
     assert np.array_equal(res.match, local.match) and np.array_equal(res.score, local.score)
     spread = y.var(1)
@@ -165,10 +243,17 @@ def test_bad_inputs(client, data):
     ref = dd.shard_reference(r, "sad", client)
     with pytest.raises(InvalidParameterError, match="window"):
         dd.match_fixed_window(q, ref, dd.SHARD_UNIT + 1)
+    with pytest.raises(InvalidParameterError, match="velocities"):
+        dd.match_fixed_window(q, ref, 12, velocities=[1.0, 1.0])
+    with pytest.raises(InvalidParameterError, match="confidence"):
+        dd.match_fixed_window(q, ref, 12, confidence="margin")
+    with pytest.raises(InvalidParameterError, match="velocities"):
+        dd.window_scores(q, ref, 12, velocity=float("nan"))
 
 
-@pytest.mark.parametrize("condition", ["in-order", "reverse"])
-def test_cluster_experiment_equals_the_local_run(client, data, condition):
+@pytest.mark.parametrize("condition,velocities", [("in-order", [1.0]), ("reverse", [1.0]),
+                                                  ("in-order", None), ("reverse", None)])
+def test_cluster_experiment_equals_the_local_run(client, data, condition, velocities):
     import warnings
 
     from catgraph.conditions import Condition
@@ -180,7 +265,9 @@ def test_cluster_experiment_equals_the_local_run(client, data, condition):
     q[40] = 1.0  # a constant frame: no information, a zero row in both runs
     reference = Traverse(r, meta={"kind": "descriptors"}, name="ref")
     query = Traverse(q, meta={"kind": "descriptors"}, name="query")
-    params = {"window": 12, "velocities": [1.0], "hub_correction": False, "exclusion": 5}
+    params = {"window": 12, "hub_correction": False, "exclusion": 5}
+    if velocities is not None:  # else the registry's default velocities
+        params["velocities"] = velocities
     exp = Experiment(query=query, reference=reference, method="sequence", params=params,
                      frontend={"metric": "sad"}, condition=Condition(condition))
     with warnings.catch_warnings():
@@ -200,7 +287,7 @@ def test_cluster_experiment_refuses_what_it_cannot_match_locally(client, data):
 
     q, r = data
     kw = {"query": Traverse(q, meta={"kind": "descriptors"}), "reference": Traverse(r, meta={"kind": "descriptors"})}
-    with pytest.raises(InvalidParameterError, match="--velocities 1.*--no-hub-correction"):
+    with pytest.raises(InvalidParameterError, match="needs --no-hub-correction"):
         run_on_cluster(Experiment(method="sequence", params={"window": 12}, **kw), client)
     with pytest.raises(InvalidParameterError, match="fixed --window"):
         run_on_cluster(Experiment(method="sequence", params={"window": "adaptive", "velocities": [1.0],
@@ -218,7 +305,7 @@ def test_match_command_with_scheduler_writes_the_local_results(client, data, tmp
     np.save(tmp_path / "ref.npy", r)
     np.save(tmp_path / "query.npy", q)
     common = [str(tmp_path / "ref.npy"), str(tmp_path / "query.npy"), "--metric", "sad", "--window", "12",
-              "--velocities", "1", "--no-hub-correction", "--tolerance", "2", "-q"]
+              "--no-hub-correction", "--tolerance", "2", "-q"]  # the default velocities
     assert main(["match", *common, "-o", str(tmp_path / "local.json")]) == 0
     assert main(["match", *common, "--scheduler", client.scheduler.address, "-o", str(tmp_path / "cluster.json")]) == 0
     local, cluster = (json.loads((tmp_path / f"{k}.json").read_text()) for k in ("local", "cluster"))
@@ -241,7 +328,7 @@ def test_uint8_shards_equal_the_local_compact_reference(client, data):
     for normalise in (False, True):
         got = dd.difference_matrix(q, ref, normalise=normalise, block_rows=50)
         assert np.array_equal(got, difference_matrix(q, local, "sad", normalise=normalise))
-    res = dd.match_fixed_window(q, ref, 12, radius=5, block_rows=37)
+    res = dd.match_fixed_window(q, ref, 12, radius=5, velocities=[1.0], confidence="gap", block_rows=37)
     assert_same_as_local(res, difference_matrix(q, local, "sad", normalise=True), 12, 5)
     assert np.all(np.abs(res.match[20:100] - (4050 + np.arange(20, 100))) <= 1)
     with pytest.raises(InvalidParameterError, match="layout"):
