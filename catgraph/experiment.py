@@ -455,8 +455,6 @@ def _cluster_params(exp: Experiment) -> dict:
     fixes = []
     if params["window"] == "adaptive":
         fixes.append("a fixed --window N instead of adaptive")
-    if [float(v) for v in params["velocities"]] != [1.0]:
-        fixes.append("--velocities 1 (the cluster searches the forward diagonal only)")
     if params["hub_correction"]:
         fixes.append("--no-hub-correction (hub offsets need the whole map on one machine)")
     if fixes:
@@ -471,7 +469,7 @@ def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
     Parameters
     ----------
     exp : Experiment
-        Method ``sequence`` with a fixed ``window``, ``velocities=[1.0]`` and
+        Method ``sequence`` with a fixed ``window`` (any ``velocities``) and
         ``hub_correction=False`` (anything else is refused: the cluster path would not
         give the local answers); a map whose differences are normalised.
     scheduler : str or distributed.Client
@@ -508,7 +506,8 @@ def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
     client = _client(scheduler)
     try:
         sharded = shard_reference(the_map.descriptors, the_map.metric, client, shard_places)
-        res = match_fixed_window(q, sharded, window, radius=int(params["exclusion"]), block_rows=block_rows,
+        res = match_fixed_window(q, sharded, window, radius=int(params["exclusion"]),
+                                 velocities=tuple(params["velocities"]), block_rows=block_rows,
                                  no_information=~informative)
     finally:
         if client is not scheduler:  # a client made here from an address is closed here

@@ -305,7 +305,7 @@ def register_match(sub) -> None:
     add_method_options(p, ("sequence", "single-frame", "histogram"))
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="run on a Dask cluster (tcp://host:8786), the map sharded over its workers: fixed --window N "
-                        "with --velocities 1 --no-hub-correction; needs pip install \"catgraph[dask]\"")
+                        "with --no-hub-correction; needs pip install \"catgraph[dask]\"")
     p.set_defaults(func=cmd_match)
 
 
