@@ -40,7 +40,7 @@ block are computed *where the shards live*, and only per-frame summaries travel 
    where they start or in which order they are added: they equal the local matcher's
    running sums exactly, and the scores ``S u / L_eff`` are
    :func:`catgraph.sequence.fixed_window_scores` bit for bit, for every velocity.
-5. **Matching** (fixed window). Per row and velocity each shard returns, in one round:
+5. **Matching** (:func:`match_fixed_window`). Per row and velocity each shard returns, in one round:
    its smallest sum and that sum's first place, its exact integer sums of ``S`` and
    ``S²``, its smallest sum more than ``radius`` places from its own best, the smallest
    sums of its places past the first (last) ``k ≤ radius`` (for a global best within
@@ -65,28 +65,49 @@ block are computed *where the shards live*, and only per-frame summaries travel 
    and the largest mean ``y²`` per place (UJI month 02, ``L = 100``) would reach
    ``2^53`` at about 2.6 × 10⁵ places (8 × 10⁵ at ``L = 50``), so larger maps of such
    data are in the bounded regime.
+6. **Adaptive window** (:func:`match_adaptive_window`; the library's default matcher).
+   The same summaries for every candidate length ``L`` of the grid (the block carries
+   ``l_max`` earlier rows, the halos reach ``l_max`` frames back), and, per length
+   ``g``, the sums of every length ``h`` at the shard's own best place of length ``g``:
+   the global best of length ``g`` is the first best of the shard that holds it, so the
+   client takes these from that shard and has the local kernel's sub-window scores
+   exactly, in the same round. The statistics are those the local kernel hands to the
+   window rule; the default approximation ("gaussian") is built from them alone (the
+   robust and mixture approximations need every score of a window in one place: the
+   median, or an EM fit on a subsample, and are refused). The confidences "posterior"
+   (the default) and "support" also read the current frame's own row: its difference at
+   the match (each shard returns its row's value at its best places) and the row's
+   ``mean()`` and ``std()`` as numpy computes them. numpy sums a contiguous float64 row
+   pairwise (halves cut at a multiple of 8, blocks of at most 128 values with eight
+   interleaved accumulators), so a sum of shard sums would differ in the last bits; the
+   client plans numpy's tree for ``N`` values, each shard sums the subtrees that lie in
+   it with numpy itself (the same values in the same order), the at most 128-value
+   blocks across a shard edge are gathered, and the client adds the parts along the
+   tree (two rounds: the sums, then the squared deviations from the mean, formed as
+   numpy forms them; ``tests/test_distributed.py`` checks this against the installed
+   numpy's own ``mean()`` and ``std()``). The rule, the velocity, the length and the confidence then come
+   from :func:`catgraph._window_rule._decide` itself. Matches, scores, velocities,
+   window lengths and confidences equal the local :func:`catgraph.sequence.match_sequences`
+   bit for bit (tested: every rule, every confidence, in order, reversed, at speed 2,
+   frames without information), within the ``2^53`` bound of step 5.
 
-Only ``O(rows V (radius + 8))`` numbers per shard return to the client per block (four
-client rounds per block: two for the normalisation, one for the mean codes, one for
-the summaries; one more per query for the quantum), and the full ``n_query × N``
-matrix is never gathered (:func:`difference_matrix` gathers it on request, for tests
-and small maps).
-
-The adaptive window is not run here: its rule needs, besides per-length versions of
-the same reductions and the sub-window scores of each length's best line (one more
-round), the current frame's mean and spread over the whole row as numpy computes them
-(the ``"posterior"`` confidence), which a sum over shards does not reproduce bit for
-bit (numpy's pairwise summation follows the row's length, not the shards).
+Per block, only ``O(rows V G (radius + G + 8))`` numbers per shard return to the client
+(``G`` candidate lengths, 1 for a fixed window): four client rounds for a fixed window
+(two for the normalisation, one for the mean codes, one for the summaries; one more per
+query for the quantum), two more for the row moments of the adaptive window's
+confidence; the full ``n_query × N`` matrix is never gathered
+(:func:`difference_matrix` gathers it on request, for tests and small maps).
 
 What to call
 ------------
 :func:`shard_reference` once per map (``client`` from ``distributed.Client(ADDRESS)``
-or a ``LocalCluster``), then :func:`match_fixed_window` for matches (every velocity
-of :data:`catgraph.sequence.DEFAULT_VELOCITIES` by default, as locally) or
+or a ``LocalCluster``), then :func:`match_adaptive_window` or :func:`match_fixed_window`
+for matches (every velocity of :data:`catgraph.sequence.DEFAULT_VELOCITIES` by
+default, as locally) or
 :func:`difference_matrix` / :func:`window_scores` for the arrays. A command line option
 ``--scheduler ADDRESS`` maps to ``shard_reference(descriptors, metric,
-distributed.Client(ADDRESS))`` (:func:`catgraph.experiment.run_on_cluster`). Sizing for a 10⁷-place map, from measured per-shard
-figures, is in ``docs/live.md``.
+distributed.Client(ADDRESS))`` (:func:`catgraph.experiment.run_on_cluster`). Sizing
+for a 10⁷-place map, from measured per-shard figures, is in ``docs/live.md``.
 
 Workers run the same compiled kernels; on machines with different SIMD widths the
 last bits of the raw differences can differ (see :mod:`catgraph._diff_kernels`).
@@ -102,16 +123,17 @@ import numpy as np
 from ._jit import njit
 from ._sequence_kernels import _NONE, encode, position, unit_of
 from ._validation import check_scalar
+from ._window_rule import _decide, _needs_sub, _Stats
 from .differences import LAYOUTS, METRICS, PreparedReference, _combine, _zero_spread, code_scale
-from ._window_rule import _decide, _Stats
 from .exceptions import InvalidParameterError, MissingDependencyError
-from .sequence import DEFAULT_VELOCITIES, _config, _velocity_set
+from .sequence import DEFAULT_GRID, DEFAULT_VELOCITIES, _config, _velocity_set
 
 #: Shards hold a whole multiple of this many places (the normalisation's sum chunk);
 #: a window may not be longer (its sums' squares then stay exact in int64).
 SHARD_UNIT = 4096
 
-__all__ = ["ShardedReference", "shard_reference", "difference_matrix", "window_scores", "match_fixed_window"]
+__all__ = ["ShardedReference", "ShardedMatches", "shard_reference", "difference_matrix", "window_scores",
+           "match_fixed_window", "match_adaptive_window"]
 
 
 def _client(scheduler: Any):
@@ -193,41 +215,42 @@ def _codes(block: np.ndarray, unit: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit(nogil=True)
-def _line_pass(d, ext_lo, n, lo, first_row, skip, window, v, mean_codes, vi, scores, low, place, total,
-               high_sq, low_sq, outside, pre, suf, prev_sum, prev_here, radius, w):  # pragma: no cover - compiled
-    """Integer window sums ``S`` of velocity ``v`` along lines, for the shard's places
-    ``lo … lo + w - 1`` and block rows ``skip …`` (block row ``r`` is query frame
-    ``first_row + r``), and their per-row summaries.
+def _line_pass(d, ext_lo, n, lo, w, first_row, skip, windows, v, mean_codes, vi, radius, scores, low, place, total,
+               high_sq, low_sq, outside, pre, suf, prev_sum, prev_here, sub):  # pragma: no cover - compiled
+    """Integer window sums ``S`` of velocity ``v`` and every length in ``windows`` along
+    lines, for the shard's places ``lo … lo + w - 1`` and block rows ``skip …`` (block row
+    ``r`` is query frame ``first_row + r``), and their per-row summaries.
 
     ``d`` holds the codes of places ``ext_lo …`` (the shard and its halo); a term whose
     place lies outside ``[0, n)`` is its row's mean code (``mean_codes``), the edge policy
     of :mod:`catgraph.sequence`. Row ``r`` sums the ``e = min(L, i + 1, r + 1)`` latest
     terms of each line: the window itself from row ``skip - 1`` on (the block carries
-    ``L`` earlier rows), fewer before. A line that continues from the previous row within
-    the shard takes one new term and drops the one ``L`` frames back (the local matcher's
-    update); a line that enters the shard's places is summed term by term (``|Δpos|`` per
-    row, ``O(L)`` each). The sums are integers, so they equal the local running sums
-    exactly, however they were added.
+    ``max(windows)`` earlier rows), fewer before. A line that continues from the previous
+    row within the shard takes one new term and drops the one ``L`` frames back (the
+    local matcher's update); a line that enters the shard's places is summed term by term
+    (``|Δpos|`` lines per row, ``O(L)`` each). The sums are integers, so they equal the
+    local running sums exactly, however they were added.
 
-    Per output row ``o = r - skip`` and velocity index ``vi``: the smallest sum and its
-    first place, the sum of the sums and of their squares (split at ``2^32`` so that the
-    halves add up exactly), the smallest sum more than ``radius`` places from the shard's
-    best (``outside``), ``pre[o, vi, k] = min S[lo + k:]`` and ``suf[o, vi, k] = min
-    S[:hi - k]`` (``k < K``: the second best when the global best lies within ``radius``
-    of the shard's edge), and the previous row's sum at place ``(pos_v(i-1) - pos_v(i))
-    mod n`` where the shard holds it (the local kernel's shift for the moments).
-    ``scores`` (``(rows, w)`` or empty) receives the sums themselves.
+    Per output row ``o = r - skip``, velocity index ``vi`` and length index ``g``: the
+    smallest sum and its first place, the sum of the sums and of their squares (split at
+    ``2^32`` so that the halves add up exactly), the smallest sum more than ``radius``
+    places from the shard's best (``outside``), ``pre[o, vi, g, k] = min S[lo + k:]`` and
+    ``suf[o, vi, g, k] = min S[:hi - k]`` (``k < K``: the second best when the global best
+    lies within ``radius`` of the shard's edge), the previous row's sum at place
+    ``(pos_v(i-1) - pos_v(i)) mod n`` where the shard holds it (the local kernel's shift
+    for the moments), and, when ``sub`` is not empty, ``sub[o, vi, g, h]``: the sum of
+    length ``h`` at the shard's best place of length ``g``. ``scores`` (``(rows, w)`` or
+    empty) receives the sums of the first length.
     """
     rows = d.shape[0]
-    k_count = pre.shape[2]
+    g_count = windows.shape[0]
+    k_count = pre.shape[3]
     mask = (np.int64(1) << 32) - 1
-    last = np.zeros(w, dtype=np.int64)
-    cur = np.zeros(w, dtype=np.int64)
-    want = scores.shape[0] > 0
+    last = np.zeros((g_count, w), dtype=np.int64)
+    cur = np.zeros((g_count, w), dtype=np.int64)
     for r in range(rows):
         i = first_row + r
         p = position(v, i)
-        e = min(window, i + 1, r + 1)
         delta = 0
         c_lo = 0
         c_hi = 0
@@ -235,96 +258,109 @@ def _line_pass(d, ext_lo, n, lo, first_row, skip, window, v, mean_codes, vi, sco
             delta = p - position(v, i - 1)
             c_lo = max(0, delta)
             c_hi = min(w, w + delta)
-        drop = r >= window
-        off = p - position(v, i - window) if drop else 0
-        m_old = np.int64(mean_codes[r - window]) if drop else np.int64(0)
-        for k in range(w):
-            j = lo + k
-            if c_lo <= k < c_hi:
-                s = last[k - delta] + np.int64(d[r, j - ext_lo])
-                if drop:
-                    q = j - off
-                    s -= np.int64(d[r - window, q - ext_lo]) if 0 <= q < n else m_old
-            else:  # a line entering the shard's places: its window term by term
-                s = np.int64(0)
-                for t in range(i - e + 1, i + 1):
-                    q = j - (p - position(v, t))
-                    rr = t - first_row
-                    s += np.int64(d[rr, q - ext_lo]) if 0 <= q < n else np.int64(mean_codes[rr])
-            cur[k] = s
+        for g in range(g_count):
+            window = windows[g]
+            e = min(window, i + 1, r + 1)
+            drop = r >= window
+            off = p - position(v, i - window) if drop else 0
+            m_old = np.int64(mean_codes[r - window]) if drop else np.int64(0)
+            for k in range(w):
+                j = lo + k
+                if c_lo <= k < c_hi:
+                    s = last[g, k - delta] + np.int64(d[r, j - ext_lo])
+                    if drop:
+                        q = j - off
+                        s -= np.int64(d[r - window, q - ext_lo]) if 0 <= q < n else m_old
+                else:  # a line entering the shard's places: its window term by term
+                    s = np.int64(0)
+                    for t in range(i - e + 1, i + 1):
+                        q = j - (p - position(v, t))
+                        rr = t - first_row
+                        s += np.int64(d[rr, q - ext_lo]) if 0 <= q < n else np.int64(mean_codes[rr])
+                cur[g, k] = s
         if r >= skip:
             o = r - skip
-            m = cur[0]
-            jm = 0
-            tot = np.int64(0)
-            qh = np.int64(0)
-            ql = np.int64(0)
-            for k in range(w):
-                x = cur[k]
-                if x < m:
-                    m = x
-                    jm = k
-                tot += x
-                sq = x * x  # |S| <= 4096 * 32767 < 2^27: exact in int64
-                qh += sq >> 32
-                ql += sq & mask
-            low[o, vi] = m
-            place[o, vi] = lo + jm
-            total[o, vi] = tot
-            high_sq[o, vi] = qh
-            low_sq[o, vi] = ql
-            mo = _NONE
-            for k in range(w):
-                if (k < jm - radius or k > jm + radius) and cur[k] < mo:
-                    mo = cur[k]
-            outside[o, vi] = mo
-            tail = _NONE
-            for k in range(k_count, w):
-                tail = min(tail, cur[k])
-            for k in range(k_count - 1, -1, -1):
-                tail = min(tail, cur[k])
-                pre[o, vi, k] = tail
-            head = _NONE
-            for k in range(0, w - k_count):
-                head = min(head, cur[k])
-            for k in range(k_count - 1, -1, -1):
-                head = min(head, cur[w - k - 1])
-                suf[o, vi, k] = head
-            if i >= 1:
-                ps = (position(v, i - 1) - p) % n
-                if lo <= ps < lo + w:
-                    prev_sum[o, vi] = last[ps - lo]
-                    prev_here[o, vi] = True
-            if want:
+            ps = (position(v, i - 1) - p) % n if i >= 1 else -1
+            for g in range(g_count):
+                row = cur[g]
+                m = row[0]
+                jm = 0
+                tot = np.int64(0)
+                qh = np.int64(0)
+                ql = np.int64(0)
                 for k in range(w):
-                    scores[o, k] = cur[k]
+                    x = row[k]
+                    if x < m:
+                        m = x
+                        jm = k
+                    tot += x
+                    sq = x * x  # |S| <= 4096 * 32767 < 2^27: exact in int64
+                    qh += sq >> 32
+                    ql += sq & mask
+                low[o, vi, g] = m
+                place[o, vi, g] = lo + jm
+                total[o, vi, g] = tot
+                high_sq[o, vi, g] = qh
+                low_sq[o, vi, g] = ql
+                mo = _NONE
+                for k in range(w):
+                    if (k < jm - radius or k > jm + radius) and row[k] < mo:
+                        mo = row[k]
+                outside[o, vi, g] = mo
+                tail = _NONE
+                for k in range(k_count, w):
+                    tail = min(tail, row[k])
+                for k in range(k_count - 1, -1, -1):
+                    tail = min(tail, row[k])
+                    pre[o, vi, g, k] = tail
+                head = _NONE
+                for k in range(0, w - k_count):
+                    head = min(head, row[k])
+                for k in range(k_count - 1, -1, -1):
+                    head = min(head, row[w - k - 1])
+                    suf[o, vi, g, k] = head
+                if lo <= ps < lo + w:
+                    prev_sum[o, vi, g] = last[g, ps - lo]
+                    prev_here[o, vi, g] = True
+                if sub.shape[3] > 0:
+                    for h in range(g_count):
+                        sub[o, vi, g, h] = cur[h, jm]
+            if scores.shape[0] > 0:
+                for k in range(w):
+                    scores[o, k] = cur[0, k]
         last, cur = cur, last
 
 
-def _shard_lines(codes: tuple, left: list, right: list, first_row: int, skip: int, window: int,
+def _shard_lines(codes: tuple, left: list, right: list, first_row: int, skip: int, windows: np.ndarray,
                  velocities: np.ndarray, mean_codes: np.ndarray, lo: int, n: int, radius: int,
-                 want_sums: bool) -> dict:
-    """One shard's window sums along the lines of every velocity (:func:`_line_pass`),
-    with the code columns ``left`` and ``right`` of it (the halos, from the neighbours)."""
-    block = codes[0]
-    rows, w = block.shape
-    d = np.concatenate([*left, block, *right], axis=1) if left or right else block
+                 want_sums: bool = False, want_sub: bool = False, block: np.ndarray | None = None) -> dict:
+    """One shard's window sums along the lines of every velocity and length
+    (:func:`_line_pass`), with the code columns ``left`` and ``right`` of it (the halos,
+    from the neighbours); with ``block`` (the shard's normalised rows), also each best
+    place's own difference (``"at_best"``, for the current frame's term of the
+    confidence)."""
+    coded = codes[0]
+    rows, w = coded.shape
+    d = np.concatenate([*left, coded, *right], axis=1) if left or right else coded
     ext_lo = lo - sum(h.shape[1] for h in left)
-    v_count, out_rows = velocities.shape[0], rows - skip
+    shape = (rows - skip, velocities.shape[0], windows.shape[0])
     k_count = min(radius + 1, w)
-    out = {name: np.zeros((out_rows, v_count), dtype=np.int64)
+    out = {name: np.zeros(shape, dtype=np.int64)
            for name in ("low", "place", "total", "high_sq", "low_sq", "outside", "prev_sum")}
-    out["prev_here"] = np.zeros((out_rows, v_count), dtype=np.bool_)
-    pre = np.empty((out_rows, v_count, k_count), dtype=np.int64)
-    suf = np.empty((out_rows, v_count, k_count), dtype=np.int64)
-    sums = np.empty((v_count, out_rows if want_sums else 0, w if want_sums else 0), dtype=np.int64)
-    for vi in range(v_count):
-        _line_pass(d, ext_lo, n, lo, first_row, skip, window, float(velocities[vi]), mean_codes, vi, sums[vi],
-                   out["low"], out["place"], out["total"], out["high_sq"], out["low_sq"], out["outside"],
-                   pre, suf, out["prev_sum"], out["prev_here"], radius, w)
-    out["pre"], out["suf"] = pre, suf
+    out["prev_here"] = np.zeros(shape, dtype=np.bool_)
+    out["pre"] = np.empty((*shape, k_count), dtype=np.int64)
+    out["suf"] = np.empty((*shape, k_count), dtype=np.int64)
+    out["sub"] = np.empty((*shape, windows.shape[0] if want_sub else 0), dtype=np.int64)
+    sums = np.empty((shape[1], shape[0] if want_sums else 0, w if want_sums else 0), dtype=np.int64)
+    for vi in range(shape[1]):
+        _line_pass(d, ext_lo, n, lo, w, first_row, skip, windows, float(velocities[vi]), mean_codes, vi, radius,
+                   sums[vi], out["low"], out["place"], out["total"], out["high_sq"], out["low_sq"], out["outside"],
+                   out["pre"], out["suf"], out["prev_sum"], out["prev_here"], out["sub"])
     if want_sums:
         out["sums"] = sums
+    if block is not None:
+        rows_out = np.arange(skip, rows)[:, None, None]
+        out["at_best"] = block[rows_out, out["place"] - lo]
     return out
 
 
@@ -477,9 +513,10 @@ def _quantum(ref: ShardedReference, blocks: list) -> float:
 
 def _halo(velocities: np.ndarray, first: int, stop: int, window: int) -> tuple[int, int]:
     """Columns a shard needs left and right of its places for query frames ``first …
-    stop - 1``: the largest ``pos_v(i) - pos_v(i - L)`` over the rows and the forward
-    (left) and backward (right) velocities, from the kernels' own ``pos_v`` arithmetic
-    (``pos_v`` is monotone, so no earlier term of a window reaches further)."""
+    stop - 1`` and windows up to ``window``: the largest ``pos_v(i) - pos_v(i - L)`` over
+    the rows and the forward (left) and backward (right) velocities, from the kernels'
+    own ``pos_v`` arithmetic (``pos_v`` is monotone, so no earlier term of a window, and
+    no shorter window, reaches further)."""
     i = np.arange(first, stop, dtype=np.float64)
     left = right = 0
     for v in velocities:
@@ -489,23 +526,25 @@ def _halo(velocities: np.ndarray, first: int, stop: int, window: int) -> tuple[i
     return left, right
 
 
-def _line_blocks(ref: ShardedReference, q: np.ndarray, start: int, stop: int, window: int,
+def _line_blocks(ref: ShardedReference, q: np.ndarray, start: int, stop: int, windows: np.ndarray,
                  velocities: np.ndarray, unit: float | None, radius: int, want_sums: bool = False,
-                 blank: np.ndarray | None = None) -> tuple[list, float]:
+                 blank: np.ndarray | None = None, want_sub: bool = False,
+                 keep_rows: bool = False) -> tuple[list, float, list | None]:
     """Futures of each shard's window sums and summaries (:func:`_shard_lines`) for query
-    rows ``[start, stop)`` and every velocity, and the quantum (fixed by the first block
-    when ``unit`` is ``None``)."""
+    rows ``[start, stop)``, every velocity and every length in ``windows``; the quantum
+    (fixed by the first block when ``unit`` is ``None``); with ``keep_rows``, the futures
+    of the shards' normalised rows (else ``None``)."""
     c = ref.client
-    first = max(0, start - window)
+    longest = int(windows[-1])
+    first = max(0, start - longest)
     blocks = _normalised_blocks(ref, q[first:stop], True, None if blank is None else blank[first:stop])
     if unit is None:  # the first block starts at query frame 0
         unit = _quantum(ref, blocks)
     coded = [ref.submit(s, _codes, b, unit) for s, b in enumerate(blocks)]
-    del blocks  # the float64 columns are freed once coded
     # each row's mean code (the fill outside the reference), as the local ring rounds it
     totals = np.sum(c.gather([ref.submit(s, _totals, b) for s, b in enumerate(coded)]), axis=0)
     mean_codes = np.rint(totals / ref.n_places).astype(np.int64)
-    reach_left, reach_right = _halo(velocities, first, stop, window)
+    reach_left, reach_right = _halo(velocities, first, stop, longest)
     out = []
     for s, (lo, hi) in enumerate(ref.bounds):
         # the code columns [lo - reach_left, lo) and [hi, hi + reach_right) on the map, from
@@ -514,9 +553,15 @@ def _line_blocks(ref: ShardedReference, q: np.ndarray, start: int, stop: int, wi
         for a, b in ((max(0, lo - reach_left), lo), (hi, min(ref.n_places, hi + reach_right))):
             parts.append([ref.submit(t, _columns, coded[t], max(a, t_lo) - t_lo, min(b, t_hi) - t_lo)
                           for t, (t_lo, t_hi) in enumerate(ref.bounds) if t_lo < b and a < t_hi])
-        out.append(ref.submit(s, _shard_lines, coded[s], parts[0], parts[1], first, start - first, window,
-                              velocities, mean_codes, lo, ref.n_places, radius, want_sums))
-    return out, unit
+        out.append(ref.submit(s, _shard_lines, coded[s], parts[0], parts[1], first, start - first, windows,
+                              velocities, mean_codes, lo, ref.n_places, radius, want_sums, want_sub,
+                              blocks[s] if keep_rows else None))
+    rows = [ref.submit(s, _rows_from, b, start - first) for s, b in enumerate(blocks)] if keep_rows else None
+    return out, unit, rows
+
+
+def _rows_from(block: np.ndarray, skip: int) -> np.ndarray:
+    return block[skip:]
 
 
 def _totals(codes: tuple) -> np.ndarray:
@@ -550,7 +595,7 @@ def window_scores(query, ref: ShardedReference, window: int, velocity: float = 1
     unit = None
     for start in range(0, q.shape[0], block_rows):
         stop = min(q.shape[0], start + block_rows)
-        futs, unit = _line_blocks(ref, q, start, stop, window, velocities, unit, 0, want_sums=True)
+        futs, unit, _ = _line_blocks(ref, q, start, stop, np.array([window]), velocities, unit, 0, want_sums=True)
         eff = _effective(start, stop, window)[:, None]
         for (lo, hi), block in zip(ref.bounds, ref.client.gather([ref.submit(s, _sums_only, f)
                                                                   for s, f in enumerate(futs)])):
@@ -560,34 +605,38 @@ def window_scores(query, ref: ShardedReference, window: int, velocity: float = 1
 
 @dataclass(frozen=True)
 class ShardedMatches:
-    """Per-frame results of :func:`match_fixed_window` (processing order).
+    """Per-frame results of :func:`match_fixed_window` and :func:`match_adaptive_window`
+    (processing order), as :class:`catgraph.sequence.SequenceResult` has them.
 
     Attributes
     ----------
     match : ndarray of int, shape (n_query,)
     score, confidence : ndarray of float, shape (n_query,)
     velocity : ndarray of float, shape (n_query,)
-        The velocity chosen per frame (as :attr:`catgraph.sequence.SequenceResult.velocity`).
+        The velocity chosen per frame.
+    window_length : ndarray of int, shape (n_query,)
+        The effective window length per frame.
     """
 
     match: np.ndarray
     score: np.ndarray
     confidence: np.ndarray
     velocity: np.ndarray | None = None
+    window_length: np.ndarray | None = None
 
 
 def _second_best(parts: list, bounds: list, best_j: np.ndarray, radius: int) -> np.ndarray:
     """The smallest sum more than ``radius`` places from the global best ``best_j``
-    (``(rows, V)``), from each shard's summaries, exactly: a shard that holds the best
+    (``(rows, V, G)``), from each shard's summaries, exactly: a shard that holds the best
     gives its own minimum outside the best's neighbourhood; one that the neighbourhood
     does not reach gives its minimum; one whose first (last) places it covers gives the
     minimum of the rest (``pre``, ``suf``); one it covers whole gives nothing."""
     second = np.full(best_j.shape, _NONE, dtype=np.int64)
     for part, (lo, hi) in zip(parts, bounds):
         za, zb = np.maximum(best_j - radius, lo), np.minimum(best_j + radius, hi - 1)
-        k_count = part["pre"].shape[2]
-        head = np.take_along_axis(part["pre"], np.clip(zb + 1 - lo, 0, k_count - 1)[..., None], axis=2)[..., 0]
-        tail = np.take_along_axis(part["suf"], np.clip(hi - za, 0, k_count - 1)[..., None], axis=2)[..., 0]
+        k_count = part["pre"].shape[-1]
+        head = np.take_along_axis(part["pre"], np.clip(zb + 1 - lo, 0, k_count - 1)[..., None], axis=-1)[..., 0]
+        tail = np.take_along_axis(part["suf"], np.clip(hi - za, 0, k_count - 1)[..., None], axis=-1)[..., 0]
         value = np.select([za > zb, (best_j >= lo) & (best_j < hi), (za <= lo) & (zb >= hi - 1), za <= lo],
                           [part["low"], part["outside"], _NONE, head], tail)
         second = np.minimum(second, value)
@@ -595,11 +644,12 @@ def _second_best(parts: list, bounds: list, best_j: np.ndarray, radius: int) -> 
 
 
 def _moments(parts: list, n: int, unit: float, eff: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each row's and velocity's score mean and spread, as the local kernel computes them
-    (:func:`catgraph._sequence_kernels._window`): ``y = S - shift`` with ``shift`` the
-    previous row's sum at place ``(pos_v(i-1) - pos_v(i)) mod N`` (0 at frame 0),
-    ``E[y] = sum(y) / N``, ``var = sum(y^2) / N - E[y]^2``, mean ``(shift + E[y]) u /
-    L_eff`` and spread ``sqrt(var) u / L_eff``.
+    """Each row's, velocity's and length's score mean and spread, as the local kernel
+    computes them (:func:`catgraph._sequence_kernels._window`): ``y = S - shift`` with
+    ``shift`` the previous row's sum at place ``(pos_v(i-1) - pos_v(i)) mod N`` (0 at
+    frame 0), ``E[y] = sum(y) / N``, ``var = sum(y^2) / N - E[y]^2``, mean ``(shift +
+    E[y]) u / L_eff`` and spread ``sqrt(var) u / L_eff`` (``eff``: ``L_eff``, broadcast
+    against ``(rows, V, G)``).
 
     The shards' integer sums are combined exactly (Python integers), so ``sum(y)`` and
     ``sum(y^2)`` are the exact sums, rounded once to float64; the local kernel adds the
@@ -615,11 +665,170 @@ def _moments(parts: list, n: int, unit: float, eff: np.ndarray) -> tuple[np.ndar
     syy = (squares - 2 * h * total + n * h * h).astype(np.float64)
     my = sy / n
     var = syy / n - my * my
-    eff = eff[:, None]
     mean = (shift.astype(np.float64) + my) * unit / eff
     with np.errstate(invalid="ignore"):
         std = np.where(var > 0.0, np.sqrt(np.where(var > 0.0, var, 0.0)) * unit / eff, 0.0)
     return mean, std
+
+
+# ---------------------------------------------------------------------------------------
+# the current frame's mean and spread, as numpy computes them
+
+#: numpy sums a contiguous float64 row pairwise: halves (cut at a multiple of 8) down to
+#: blocks of at most this many values, each added with eight interleaved accumulators
+_PAIRWISE_BLOCK = 128
+
+
+def _pairwise_plan(n: int, bounds: list) -> tuple[Any, list, list]:
+    """numpy's pairwise summation tree of a row of ``n`` values, cut at the shards: the
+    tree, per shard the ``(a, b)`` column ranges of its whole subtrees, per shard the
+    column ranges of its part of each block that straddles a shard edge.
+
+    Every subtree that lies in one shard is summed there by numpy itself (the same
+    recursion on the same values: the same float64 result); a block of at most
+    :data:`_PAIRWISE_BLOCK` values across an edge is gathered and summed here; the
+    client adds the subtrees' sums along the tree, in numpy's order.
+    """
+    los = [lo for lo, _ in bounds]
+    whole: list[list] = [[] for _ in bounds]
+    pieces: list[list] = [[] for _ in bounds]
+
+    def build(a: int, m: int):
+        s = int(np.searchsorted(los, a, side="right")) - 1
+        lo, hi = bounds[s]
+        if a + m <= hi:
+            whole[s].append((a - lo, a + m - lo))
+            return ("whole", s, len(whole[s]) - 1)
+        if m <= _PAIRWISE_BLOCK:
+            refs = []
+            for t, (t_lo, t_hi) in enumerate(bounds):
+                if t_lo < a + m and a < t_hi:
+                    pieces[t].append((max(a, t_lo) - t_lo, min(a + m, t_hi) - t_lo))
+                    refs.append((t, len(pieces[t]) - 1))
+            return ("block", refs)
+        half = m // 2
+        half -= half % 8
+        return ("pair", build(a, half), build(a + half, m - half))
+
+    return build(0, n), whole, pieces
+
+
+def _pairwise_parts(rows: np.ndarray, whole: list, pieces: list, centre: np.ndarray | None) -> tuple[list, list]:
+    """A shard's sums of its whole subtrees and its parts of the straddling blocks, of
+    the rows (``centre is None``) or of their squared deviations from ``centre``, formed
+    as :meth:`numpy.ndarray.std` forms them (``x = row - mean; x = x * x``)."""
+    x = rows
+    if centre is not None:
+        x = rows - centre[:, None]
+        x = np.multiply(x, x, out=x)
+    return [x[:, a:b].sum(axis=1) for a, b in whole], [np.ascontiguousarray(x[:, a:b]) for a, b in pieces]
+
+
+def _pairwise_sum(tree, sums: list, parts: list) -> np.ndarray:
+    kind = tree[0]
+    if kind == "whole":
+        return sums[tree[1]][0][tree[2]]
+    if kind == "block":
+        return np.concatenate([parts[t][1][k] for t, k in tree[1]], axis=1).sum(axis=1)
+    return _pairwise_sum(tree[1], sums, parts) + _pairwise_sum(tree[2], sums, parts)
+
+
+def _row_moments(ref: ShardedReference, rows: list) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's ``row.mean()`` and ``row.std()`` as numpy computes them on the whole
+    row (two rounds: the sums, then the squared deviations from the mean)."""
+    tree, whole, pieces = _pairwise_plan(ref.n_places, ref.bounds)
+    c = ref.client
+    parts = c.gather([ref.submit(s, _pairwise_parts, r, whole[s], pieces[s], None) for s, r in enumerate(rows)])
+    mean = _pairwise_sum(tree, parts, parts) / ref.n_places
+    parts = c.gather([ref.submit(s, _pairwise_parts, r, whole[s], pieces[s], mean) for s, r in enumerate(rows)])
+    return mean, np.sqrt(_pairwise_sum(tree, parts, parts) / ref.n_places)
+
+
+class _Row:
+    """One difference row as the window rule reads it (:func:`catgraph._window_rule._current_z`):
+    its mean, its spread and its values at the candidate places."""
+
+    def __init__(self, mean: np.float64, std: np.float64, values: dict):
+        self._mean, self._std, self._values = mean, std, values
+
+    def mean(self) -> np.float64:
+        return self._mean
+
+    def std(self) -> np.float64:
+        return self._std
+
+    def __getitem__(self, place) -> np.float64:
+        return self._values[int(place)]
+
+
+class _Rows:
+    """The block of difference rows the window rule is handed: their shape, and each row
+    as a :class:`_Row` (the rows themselves stay on the shards)."""
+
+    def __init__(self, n: int, mean=None, std=None, places=None, values=None, rows: int = 0):
+        self.shape = (rows if mean is None else mean.shape[0], n)
+        self._mean, self._std, self._places, self._values = mean, std, places, values
+
+    def __getitem__(self, t: int) -> _Row:
+        values = dict(zip(self._places[t].ravel().tolist(), self._values[t].ravel()))
+        return _Row(self._mean[t], self._std[t], values)
+
+
+# ---------------------------------------------------------------------------------------
+# matching
+
+
+def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, owner: str) -> ShardedMatches:
+    """Match every query frame with the window rule of ``cfg`` (:func:`catgraph.sequence._config`)."""
+    check_scalar(block_rows, "block_rows", owner, int, 1)
+    c = ref.client
+    q = ref.prepare_query(query)
+    n_q, n = q.shape[0], ref.n_places
+    blank = None
+    if no_information is not None:
+        blank = np.asarray(no_information, dtype=bool)
+        if blank.shape != (n_q,):
+            raise InvalidParameterError(f"no_information must have one flag per query frame ({n_q}); got shape "
+                                        f"{blank.shape}.")
+    with_sub = _needs_sub(cfg)
+    # the current frame's term of the confidence ("posterior", "support" with an adaptive window)
+    current = not cfg.fixed and cfg.confidence in ("posterior", "support")
+    windows = cfg.grid
+    match, score, conf = np.empty(n_q, dtype=np.int64), np.empty(n_q), np.empty(n_q)
+    velocity, length = np.empty(n_q), np.empty(n_q, dtype=np.int64)
+    unit = None
+    for start in range(0, n_q, block_rows):
+        stop = min(n_q, start + block_rows)
+        futs, unit, rows = _line_blocks(ref, q, start, stop, windows, cfg.velocities, unit, cfg.radius, blank=blank,
+                                        want_sub=with_sub, keep_rows=current)
+        parts = c.gather([ref.submit(s, _summaries_only, f) for s, f in enumerate(futs)])
+        values = np.stack([p["low"] for p in parts])
+        pick = np.argmin(values, axis=0)[None]  # the first shard holding the minimum: the lowest place, as locally
+        best = np.take_along_axis(values, pick, axis=0)[0]
+        best_j = np.take_along_axis(np.stack([p["place"] for p in parts]), pick, axis=0)[0]
+        second = _second_best(parts, ref.bounds, best_j, cfg.radius)
+        eff = np.minimum(windows[None, None, :], np.arange(start + 1, stop + 1)[:, None, None])  # (rows, 1, G)
+        mean, std = _moments(parts, n, unit, eff)
+        # the statistics the local kernel hands to the window rule (_sequence_kernels._window, _sub_scores)
+        st = _Stats(stop - start, cfg.velocities.shape[0], windows.shape[0], 1, with_sub=with_sub)
+        st.best_j[...] = best_j
+        st.best_s[...] = best.astype(np.float64) * unit / eff
+        st.second_s[...] = np.where(second == _NONE, np.inf, second.astype(np.float64) * unit / eff)
+        st.mean[...], st.std[...] = mean, std
+        st.weights[...] = 1.0
+        st.locs[..., 0], st.scales[..., 0] = mean, std
+        if with_sub:
+            sub = np.take_along_axis(np.stack([p["sub"] for p in parts]), pick[..., None], axis=0)[0]
+            st.sub[...] = sub.astype(np.float64) * unit / eff[:, :, None, :]
+        if current:
+            at_best = np.take_along_axis(np.stack([p["at_best"] for p in parts]), pick, axis=0)[0]
+            row_mean, row_std = _row_moments(ref, rows)
+            rows_d = _Rows(n, row_mean, row_std, best_j, at_best)
+        else:  # the rule reads the rows' width only
+            rows_d = _Rows(n, rows=stop - start)
+        m, s, k, w, v, _ = _decide(st, cfg, np.arange(start, stop), False, rows_d)
+        match[start:stop], score[start:stop], conf[start:stop], length[start:stop], velocity[start:stop] = m, s, k, w, v
+    return ShardedMatches(match, score, conf, velocity, length)
 
 
 def match_fixed_window(query, ref: ShardedReference, window: int, radius: int = 10,
@@ -659,43 +868,52 @@ def match_fixed_window(query, ref: ShardedReference, window: int, radius: int = 
         makes them.
     """
     check_scalar(window, "window", "match_fixed_window", int, 1, SHARD_UNIT)
-    check_scalar(radius, "radius", "match_fixed_window", int, 0)
-    check_scalar(block_rows, "block_rows", "match_fixed_window", int, 1)
     cfg = _config("match_fixed_window", int(window), "gaussian", "unrivalled", confidence, 1, 1, 1, radius, 0.0,
                   velocities, None)
-    c = ref.client
-    q = ref.prepare_query(query)
-    n_q, n = q.shape[0], ref.n_places
-    blank = None
-    if no_information is not None:
-        blank = np.asarray(no_information, dtype=bool)
-        if blank.shape != (n_q,):
-            raise InvalidParameterError(f"no_information must have one flag per query frame ({n_q}); got shape "
-                                        f"{blank.shape}.")
-    match, score, conf = np.empty(n_q, dtype=np.int64), np.empty(n_q), np.empty(n_q)
-    velocity = np.empty(n_q)
-    unit = None
-    for start in range(0, n_q, block_rows):
-        stop = min(n_q, start + block_rows)
-        futs, unit = _line_blocks(ref, q, start, stop, window, cfg.velocities, unit, radius, blank=blank)
-        parts = c.gather([ref.submit(s, _summaries_only, f) for s, f in enumerate(futs)])
-        values = np.stack([p["low"] for p in parts])
-        pick = np.argmin(values, axis=0)[None]  # the first shard holding the minimum: the lowest place, as locally
-        best = np.take_along_axis(values, pick, axis=0)[0]
-        best_j = np.take_along_axis(np.stack([p["place"] for p in parts]), pick, axis=0)[0]
-        second = _second_best(parts, ref.bounds, best_j, radius)
-        eff = _effective(start, stop, window)
-        mean, std = _moments(parts, n, unit, eff)
-        # the statistics the local kernel hands to the window rule (_sequence_kernels._window)
-        st = _Stats(stop - start, cfg.velocities.shape[0], 1, 1, with_sub=False)
-        st.best_j[..., 0] = best_j
-        st.best_s[..., 0] = best.astype(np.float64) * unit / eff[:, None]
-        st.second_s[..., 0] = np.where(second == _NONE, np.inf, second.astype(np.float64) * unit / eff[:, None])
-        st.mean[..., 0], st.std[..., 0] = mean, std
-        st.weights[...] = 1.0
-        st.locs[..., 0, 0], st.scales[..., 0, 0] = mean, std
-        # a fixed window's rule reads the rows' width only (no sub-windows, no current-frame term)
-        rows_d = np.broadcast_to(np.zeros((1, 1)), (stop - start, n))
-        m, s, k, _, v, _ = _decide(st, cfg, np.arange(start, stop), False, rows_d)
-        match[start:stop], score[start:stop], conf[start:stop], velocity[start:stop] = m, s, k, v
-    return ShardedMatches(match, score, conf, velocity)
+    return _match(query, ref, cfg, block_rows, no_information, "match_fixed_window")
+
+
+def match_adaptive_window(query, ref: ShardedReference, rule: str = "unrivalled", confidence: str = "posterior",
+                          l_min: int = 5, l_max: int = 500, grid=DEFAULT_GRID, radius: int = 10,
+                          recent_fraction: float = 0.05, velocities=DEFAULT_VELOCITIES,
+                          approximation: str = "gaussian", block_rows: int = 512,
+                          no_information: np.ndarray | None = None) -> ShardedMatches:
+    """Adaptive-window sequence matching on the cluster (paper 2, the library's default).
+
+    The answers of :func:`catgraph.sequence.match_sequences` with ``window="adaptive"``
+    and the same parameters on the normalised difference matrix (Gaussian approximation,
+    the default: the only one whose statistics are reductions over the places). For every
+    frame, velocity and candidate length the shards return the summaries of
+    :func:`match_fixed_window` and the sums of every length at their best place of each
+    length (the sub-window scores the rules test); the client rebuilds the local kernel's
+    statistics from them and hands them to the local window rule
+    (:func:`catgraph._window_rule._decide`). The confidences "posterior" and "support"
+    also read the current frame's mean and spread over the whole row, which the client
+    reduces in numpy's own pairwise order from the shards' subtree sums
+    (:func:`_row_moments`, two more rounds), and the frame's difference at the match.
+    Matches, scores, velocities, window lengths and confidences are then identical, bit
+    for bit, within the bound of :func:`match_fixed_window` (tested). The block carries
+    ``l_max`` earlier rows, so ``block_rows`` well above ``l_max`` keeps that overhead
+    small.
+
+    Parameters
+    ----------
+    query : array_like, shape (n_query, d)
+    ref : ShardedReference
+    rule, confidence, l_min, l_max, grid, radius, recent_fraction, velocities, approximation
+        As :func:`catgraph.sequence.match_sequences` (``l_max`` at most
+        :data:`SHARD_UNIT`; ``approximation`` "gaussian" only).
+    block_rows : int
+        Query rows per round.
+    no_information : ndarray of bool, shape (n_query,), optional
+        As :func:`match_fixed_window`.
+    """
+    owner = "match_adaptive_window"
+    if approximation != "gaussian":
+        raise InvalidParameterError(
+            f"The 'approximation' parameter of {owner} must be 'gaussian' (the others need every score of a "
+            f"window in one place). Got {approximation!r} instead; run match_sequences on one machine for it.")
+    check_scalar(l_max, "l_max", owner, int, 1, SHARD_UNIT)
+    cfg = _config(owner, "adaptive", approximation, rule, confidence, l_min, l_max, grid, radius, recent_fraction,
+                  velocities, None)
+    return _match(query, ref, cfg, block_rows, no_information, owner)

@@ -170,6 +170,80 @@ def test_halos_from_several_shards_equal_local(client):
     assert_same_as_local(res, local, 1400, 10, (-3.0, 0.5, 3.0), "posterior")
 
 
+@pytest.mark.parametrize("condition", [Condition("in-order"), Condition("reverse"), Condition("speed", factor=2.0)])
+def test_adaptive_window_equals_the_local_matcher(client, route, condition):
+    # the library's default matcher (rule "unrivalled", confidence "posterior", every velocity),
+    # on a shorter grid so that the test stays fast; the route also jumps (a second stretch)
+    q, r = route
+    q = q[condition.order(len(q))]
+    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
+    local = difference_matrix(q, r, "sad", normalise=True)
+    params = {"l_max": 64, "grid": 6}
+    res = dd.match_adaptive_window(q, ref, block_rows=100, **params)
+    out = match_sequences(local, **params)
+    for name in ("match", "score", "velocity", "window_length", "confidence"):
+        assert np.array_equal(getattr(res, name), getattr(out, name)), name
+    assert len(np.unique(out.window_length[70:])) > 2  # not trivial: several lengths chosen
+
+
+def test_adaptive_window_with_every_default_equals_local(client, route):
+    # match_sequences' defaults as they are (13 lengths from 5 to 500, every velocity) on a
+    # query whose frames are fewer than the longest window
+    q, r = route
+    q = q[60:]  # a jump to the map's end at frame 140
+    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
+    local = difference_matrix(q, r, "sad", normalise=True)
+    res = dd.match_adaptive_window(q, ref)
+    out = match_sequences(local)
+    for name in ("match", "score", "velocity", "window_length", "confidence"):
+        assert np.array_equal(getattr(res, name), getattr(out, name)), name
+
+
+@pytest.mark.parametrize("params", [{"confidence": "support", "rule": "evident"}, {"rule": "consistent"},
+                                    {"rule": "sustained", "confidence": "neglogp"}, {"rule": "literal",
+                                                                                     "confidence": "z"}])
+def test_adaptive_rules_and_confidences_equal_local(client, route, params):
+    q, r = route
+    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
+    local = difference_matrix(q, r, "sad", normalise=True)
+    params = {"l_min": 3, "l_max": 40, "grid": 5, "radius": 6, "velocities": (-1.0, 0.5, 1.0, 2.0), **params}
+    res = dd.match_adaptive_window(q, ref, block_rows=90, **params)
+    out = match_sequences(local, **params)
+    for name in ("match", "score", "velocity", "window_length", "confidence"):
+        assert np.array_equal(getattr(res, name), getattr(out, name)), name
+
+
+def test_adaptive_window_with_frames_without_information(client, route):
+    q, r = route
+    blank = np.zeros(len(q), dtype=bool)
+    blank[[0, 57]] = True
+    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
+    local = difference_matrix(q, r, "sad", normalise=True)
+    local[blank] = 0.0
+    res = dd.match_adaptive_window(q, ref, l_max=30, grid=4, block_rows=128, no_information=blank)
+    out = match_sequences(local, l_max=30, grid=4)
+    for name in ("match", "score", "velocity", "window_length", "confidence"):
+        assert np.array_equal(getattr(res, name), getattr(out, name)), name
+
+
+@pytest.mark.parametrize("n", [1, 7, 8, 100, 128, 129, 4096, 4100, 8200, 9001])
+def test_row_moments_are_numpys(n):
+    # numpy's pairwise sum, cut at shards of 4096 places: every subtree inside a shard summed
+    # there, blocks across an edge gathered; the result is row.mean() and row.std() exactly
+    rng = np.random.default_rng(n)
+    rows = rng.normal(size=(3, n)) * 10.0 ** rng.integers(-4, 5, size=(3, n))
+    bounds = [(lo, min(n, lo + 4096)) for lo in range(0, n, 4096)]
+    tree, whole, pieces = dd._pairwise_plan(n, bounds)
+    parts = [dd._pairwise_parts(rows[:, lo:hi], whole[s], pieces[s], None) for s, (lo, hi) in enumerate(bounds)]
+    mean = dd._pairwise_sum(tree, parts, parts) / n
+    parts = [dd._pairwise_parts(rows[:, lo:hi], whole[s], pieces[s], mean) for s, (lo, hi) in enumerate(bounds)]
+    std = np.sqrt(dd._pairwise_sum(tree, parts, parts) / n)
+    for t in range(3):
+        assert mean[t] == rows[t].mean() and std[t] == rows[t].std()
+    if n >= 8200:  # not trivial: adding the shards' own sums gives another float somewhere
+        assert any(sum(rows[t, lo:hi].sum() for lo, hi in bounds) != rows[t].sum() for t in range(3))
+
+
 def test_saturated_codes_equal_local(client, data):
     # a far place (every later row's largest difference, ~85 spreads) and a first frame whose row
     # spans only ±4 spreads: its quantum is 2^-9, so the far place's codes saturate at 32767 u ≈ 64
@@ -249,6 +323,12 @@ def test_bad_inputs(client, data):
         dd.match_fixed_window(q, ref, 12, confidence="margin")
     with pytest.raises(InvalidParameterError, match="velocities"):
         dd.window_scores(q, ref, 12, velocity=float("nan"))
+    with pytest.raises(InvalidParameterError, match="approximation.*gaussian"):
+        dd.match_adaptive_window(q, ref, approximation="robust")
+    with pytest.raises(InvalidParameterError, match="l_max"):
+        dd.match_adaptive_window(q, ref, l_max=dd.SHARD_UNIT + 1)
+    with pytest.raises(InvalidParameterError, match="rule"):
+        dd.match_adaptive_window(q, ref, rule="longest")
 
 
 @pytest.mark.parametrize("condition,velocities", [("in-order", [1.0]), ("reverse", [1.0]),
