@@ -7,7 +7,12 @@ scores of the best hypothesis over its shorter sub-windows) in a :class:`_Stats`
 module turns those statistics into the match, the velocity, the window length and the
 confidence (the rules and confidences are described in :mod:`catgraph.sequence`). The
 code is vectorised over frames, so the streaming and the batch forms run exactly the
-same arithmetic.
+same arithmetic. Rule "predictive" is the one rule with a memory from frame to frame
+(each candidate length's recent predictive record, a :class:`_Record`): it runs one
+small loop over the frames of a block, ``O(G)`` per frame, and its state is carried from
+block to block (batch) or from step to step (streaming), so both forms again run the
+same arithmetic. It reads only ``G`` (frame, place) values of each difference row and the
+row's mean and spread.
 """
 
 from __future__ import annotations
@@ -40,8 +45,81 @@ RIVAL_MARGIN = 10.0
 JUMP_ODDS = 0.3
 
 
+#: with rule "predictive": each window's line at frame ``i - PREDICTION_HORIZON`` predicts the
+#: place at frame ``i`` ...
+PREDICTION_HORIZON = 10
+
+#: ... and the window whose predictions have been best over a discounted recent past wins,
+#: the past weighted with this half-life in frames
+PREDICTION_HALF_LIFE = 30.0
+
+
 def _needs_sub(cfg: _Config) -> bool:
-    return not cfg.fixed and cfg.rule != "literal" and cfg.grid.shape[0] > 1
+    return not cfg.fixed and cfg.rule not in ("literal", "predictive") and cfg.grid.shape[0] > 1
+
+
+def _position(v: float, i) -> np.ndarray:
+    """``pos_v(i) = floor(v * i + 1/2)`` as int64 (the kernels' :func:`position`)."""
+    return np.floor(v * np.asarray(i, dtype=np.float64) + 0.5).astype(np.int64)
+
+
+class _Record:
+    """Rule "predictive": the state carried from one frame to the next.
+
+    For the last :data:`PREDICTION_HORIZON` frames, the line each candidate length chose
+    (its offset ``c = j* - pos_v(i)`` and the frame's velocity ``v``), and per candidate
+    length the discounted sum of its prediction losses and the discounted count of
+    losses, with the decay of :data:`PREDICTION_HALF_LIFE`. ``O(G K)`` numbers, whatever
+    the number of places.
+    """
+
+    def __init__(self, g_count: int, horizon: int = PREDICTION_HORIZON, half_life: float = PREDICTION_HALF_LIFE):
+        self.horizon = int(horizon)
+        self.decay = 2.0 ** (-1.0 / float(half_life))
+        self.offsets = np.zeros((self.horizon, g_count), dtype=np.int64)
+        self.velocity = np.zeros(self.horizon)
+        self.total = np.zeros(g_count)
+        self.weight = 0.0
+
+    def loss(self, row: np.ndarray, i: int) -> np.ndarray | None:
+        """``(G,)``: the standardised difference of ``row`` (frame ``i``) at the place each
+        length's line of frame ``i - K`` predicts, ``0`` (a random place's expectation)
+        where the line has left the reference or the row is flat; ``None`` before frame ``K``."""
+        if i < self.horizon:
+            return None
+        slot = i % self.horizon
+        places = self.offsets[slot] + _position(self.velocity[slot], i)
+        inside = (places >= 0) & (places < row.shape[0])
+        spread = row.std()
+        if not spread > 0:
+            return np.zeros(places.shape[0])
+        return np.where(inside, (row[np.where(inside, places, 0)] - row.mean()) / spread, 0.0)
+
+    def choose(self, loss: np.ndarray | None) -> int:
+        """Add the frame's losses to the record; the length with the best record (ties: the longer)."""
+        if loss is not None:
+            self.total = self.decay * self.total + loss
+            self.weight = self.decay * self.weight + 1.0
+        if self.weight == 0.0:
+            return self.total.shape[0] - 1
+        mean = self.total / self.weight
+        return self.total.shape[0] - 1 - int(np.argmin(mean[::-1]))
+
+    def remember(self, i: int, best_j: np.ndarray, velocity: float) -> None:
+        """Store frame ``i``'s lines (``best_j``: each length's best place at ``velocity``)."""
+        slot = i % self.horizon
+        self.offsets[slot] = best_j - _position(velocity, i)
+        self.velocity[slot] = velocity
+
+
+def _predictive_choice(st: _Stats, cfg: _Config, frame_index: np.ndarray, rows_d: np.ndarray, v: np.ndarray,
+                       record: _Record) -> np.ndarray:
+    """``(n,)`` chosen length index per frame, in order, updating ``record``."""
+    g = np.empty(frame_index.shape[0], dtype=np.int64)
+    for t, i in enumerate(frame_index):
+        g[t] = record.choose(record.loss(rows_d[t], int(i)))
+        record.remember(int(i), st.best_j[t, v[t]], float(cfg.velocities[v[t]]))
+    return g
 
 
 
@@ -169,7 +247,8 @@ def _on_line(z: np.ndarray, mu: np.ndarray) -> np.ndarray:
     return expit((z * z - (z - mu) ** 2) / 2.0 - np.log(JUMP_ODDS))
 
 
-def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool, rows_d: np.ndarray):
+def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool, rows_d: np.ndarray,
+            record: _Record | None = None):
     n, v_count, g_count = st.best_s.shape
     rows = np.arange(n)
     log_p = _log_p(st)
@@ -184,6 +263,8 @@ def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool
         floor = SUSTAINED_FRACTION * masked.min(axis=1, keepdims=True)
         qualified = admissible & (lp <= floor)
         g = g_count - 1 - np.argmax(qualified[:, ::-1], axis=1)
+    elif cfg.rule == "predictive" and not cfg.fixed:
+        g = _predictive_choice(st, cfg, frame_index, rows_d, v, record)
     else:
         g = np.argmin(masked, axis=1)
     best = st.best_s[rows, v, g]

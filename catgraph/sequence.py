@@ -235,7 +235,7 @@ from typing import Sequence
 import numpy as np
 
 from ._validation import check_array, check_scalar
-from ._window_rule import SUSTAINED_FRACTION, _decide, _needs_sub, _Stats
+from ._window_rule import SUSTAINED_FRACTION, _decide, _needs_sub, _Record, _Stats
 from .exceptions import InvalidParameterError, NotFittedError, ShapeMismatchError
 
 __all__ = [
@@ -252,7 +252,7 @@ __all__ = [
 ]
 
 APPROXIMATIONS = ("gaussian", "robust", "gmm2", "gmm3")
-RULES = ("unrivalled", "evident", "consistent", "sustained", "literal")
+RULES = ("unrivalled", "evident", "consistent", "sustained", "literal", "predictive")
 CONFIDENCES = ("posterior", "support", "gap", "neglogp", "z")
 #: reference places per query frame searched by default: driven backwards or forwards, 0.5x to 3x
 DEFAULT_VELOCITIES = (-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0)
@@ -478,6 +478,11 @@ def _state(cfg: _Config, n: int, chunk: int = 1):
     return sums, ring, mring, state, (scores, work, resp)
 
 
+def _record(cfg: _Config) -> _Record | None:
+    """Rule "predictive" carries each length's predictive record from frame to frame."""
+    return _Record(cfg.grid.shape[0]) if cfg.rule == "predictive" and not cfg.fixed else None
+
+
 def _em_stride(n: int) -> int:
     """Mixtures are fitted to every ``stride``-th score, at most ~``EM_MAX_POINTS``."""
     return max(1, -(-n // EM_MAX_POINTS))
@@ -526,7 +531,7 @@ def match_sequences(
         A fixed window length, or ``"adaptive"`` to choose one per frame.
     approximation : {"gaussian", "robust", "gmm2", "gmm3"}
         Approximation of the score distribution used for ``p_i(L)``.
-    rule : {"unrivalled", "evident", "consistent", "sustained", "literal"}
+    rule : {"unrivalled", "evident", "consistent", "sustained", "literal", "predictive"}
         Window choice, see the module docstring.
     confidence : {"posterior", "support", "gap", "neglogp", "z"}
         Confidence given to each match (see the module docstring).
@@ -570,6 +575,7 @@ def match_sequences(
     sums, ring, mring, state, scratch = _state(cfg, n, max(1, min(64, _CHUNK_VALUES // n)))
     # rows are processed in blocks so that the (block, V, G, G) sub-window scores stay small
     block = max(1, min(n_q, _BLOCK_VALUES // (v_count * g * g)))
+    record = _record(cfg)
     parts = []
     for start in range(0, n_q, block):
         stop = min(n_q, start + block)
@@ -577,7 +583,7 @@ def match_sequences(
         run(d[start:stop], start, sums, ring, mring, state, cfg.velocities, cfg.grid, cfg.approx_code,
             EM_ITERATIONS, _em_stride(n), cfg.radius, st.best_j, st.best_s, st.second_s, st.mean, st.std,
             st.weights, st.locs, st.scales, st.sub, *scratch)
-        parts.append(_decide(st, cfg, np.arange(start, stop), return_curves, d[start:stop]))
+        parts.append(_decide(st, cfg, np.arange(start, stop), return_curves, d[start:stop], record))
     match, score, conf, length, velocity = (np.concatenate([p[c] for p in parts]) for c in range(5))
     log_p = np.concatenate([p[5] for p in parts]) if return_curves else None
     return SequenceResult(match=match, score=score, confidence=conf, window_length=length,
@@ -654,7 +660,7 @@ class SequenceMatcher:
     def reset(self) -> "SequenceMatcher":
         """Forget all frames (the next step starts a new query)."""
         for name in ("n_reference_", "n_steps_", "window_grid_", "velocities_", "_cfg", "_sums", "_ring", "_mring",
-                     "_state", "_buffers", "_stats"):
+                     "_state", "_buffers", "_stats", "_record"):
             self.__dict__.pop(name, None)
         return self
 
@@ -669,6 +675,7 @@ class SequenceMatcher:
         self.n_steps_ = 0
         self._sums, self._ring, self._mring, self._state, self._buffers = _state(cfg, n)
         self._stats = _Stats(1, cfg.velocities.shape[0], cfg.grid.shape[0], cfg.n_components, _needs_sub(cfg))
+        self._record = _record(cfg)
 
     def window_scores(self, length: int, velocity: float | None = None) -> np.ndarray:
         """``(N,)`` window scores ``s_ij(L, v)`` of the latest frame ``i`` at length ``L``.
@@ -731,7 +738,8 @@ class SequenceMatcher:
             cfg.approx_code, EM_ITERATIONS, _em_stride(self.n_reference_), cfg.radius, st.best_j, st.best_s,
             st.second_s, st.mean, st.std, st.weights, st.locs, st.scales, st.sub, s, work, resp)
         self.n_steps_ = i + 1
-        match, score, conf, length, velocity, log_p = _decide(st, cfg, np.array([i]), return_curve, row[None, :])
+        match, score, conf, length, velocity, log_p = _decide(st, cfg, np.array([i]), return_curve, row[None, :],
+                                                             self._record)
         return SequenceMatch(
             match=int(match[0]), score=float(score[0]), confidence=float(conf[0]), window_length=int(length[0]),
             log_p=None if log_p is None else log_p[0].copy(),
