@@ -132,6 +132,10 @@ from .sequence import DEFAULT_GRID, DEFAULT_VELOCITIES, _config, _velocity_set
 #: a window may not be longer (its sums' squares then stay exact in int64).
 SHARD_UNIT = 4096
 
+#: Window rules that :func:`match_adaptive_window` runs exactly: each decides a frame from
+#: that frame's window statistics (and its own row) alone.
+EXACT_RULES = ("unrivalled", "evident", "consistent", "sustained", "literal")
+
 __all__ = ["ShardedReference", "ShardedMatches", "shard_reference", "difference_matrix", "window_scores",
            "match_fixed_window", "match_adaptive_window"]
 
@@ -901,8 +905,9 @@ def match_adaptive_window(query, ref: ShardedReference, rule: str = "unrivalled"
     query : array_like, shape (n_query, d)
     ref : ShardedReference
     rule, confidence, l_min, l_max, grid, radius, recent_fraction, velocities, approximation
-        As :func:`catgraph.sequence.match_sequences` (``l_max`` at most
-        :data:`SHARD_UNIT`; ``approximation`` "gaussian" only).
+        As :func:`catgraph.sequence.match_sequences` (``rule`` one of
+        :data:`EXACT_RULES`; ``l_max`` at most :data:`SHARD_UNIT`; ``approximation``
+        "gaussian" only).
     block_rows : int
         Query rows per round.
     no_information : ndarray of bool, shape (n_query,), optional
@@ -913,6 +918,10 @@ def match_adaptive_window(query, ref: ShardedReference, rule: str = "unrivalled"
         raise InvalidParameterError(
             f"The 'approximation' parameter of {owner} must be 'gaussian' (the others need every score of a "
             f"window in one place). Got {approximation!r} instead; run match_sequences on one machine for it.")
+    if rule not in EXACT_RULES:
+        raise InvalidParameterError(
+            f"The 'rule' parameter of {owner} must be one of {EXACT_RULES} (the rules decided from the window "
+            f"statistics alone). Got {rule!r} instead; run match_sequences on one machine for it.")
     check_scalar(l_max, "l_max", owner, int, 1, SHARD_UNIT)
     cfg = _config(owner, "adaptive", approximation, rule, confidence, l_min, l_max, grid, radius, recent_fraction,
                   velocities, None)

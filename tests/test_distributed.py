@@ -327,13 +327,14 @@ def test_bad_inputs(client, data):
         dd.match_adaptive_window(q, ref, approximation="robust")
     with pytest.raises(InvalidParameterError, match="l_max"):
         dd.match_adaptive_window(q, ref, l_max=dd.SHARD_UNIT + 1)
-    with pytest.raises(InvalidParameterError, match="rule"):
+    with pytest.raises(InvalidParameterError, match="rule.*one machine"):
         dd.match_adaptive_window(q, ref, rule="longest")
 
 
-@pytest.mark.parametrize("condition,velocities", [("in-order", [1.0]), ("reverse", [1.0]),
-                                                  ("in-order", None), ("reverse", None)])
-def test_cluster_experiment_equals_the_local_run(client, data, condition, velocities):
+@pytest.mark.parametrize("condition,velocities,window", [("in-order", [1.0], 12), ("reverse", [1.0], 12),
+                                                         ("in-order", None, 12), ("reverse", None, 12),
+                                                         ("in-order", None, "adaptive"), ("reverse", None, "adaptive")])
+def test_cluster_experiment_equals_the_local_run(client, data, condition, velocities, window):
     import warnings
 
     from catgraph.conditions import Condition
@@ -345,9 +346,11 @@ def test_cluster_experiment_equals_the_local_run(client, data, condition, veloci
     q[40] = 1.0  # a constant frame: no information, a zero row in both runs
     reference = Traverse(r, meta={"kind": "descriptors"}, name="ref")
     query = Traverse(q, meta={"kind": "descriptors"}, name="query")
-    params = {"window": 12, "hub_correction": False, "exclusion": 5}
+    params = {"window": window, "hub_correction": False, "exclusion": 5}
     if velocities is not None:  # else the registry's default velocities
         params["velocities"] = velocities
+    if window == "adaptive":  # a shorter grid than the default, for speed
+        params.update({"l_max": 50, "grid": 6})
     exp = Experiment(query=query, reference=reference, method="sequence", params=params,
                      frontend={"metric": "sad"}, condition=Condition(condition))
     with warnings.catch_warnings():
@@ -369,10 +372,13 @@ def test_cluster_experiment_refuses_what_it_cannot_match_locally(client, data):
     kw = {"query": Traverse(q, meta={"kind": "descriptors"}), "reference": Traverse(r, meta={"kind": "descriptors"})}
     with pytest.raises(InvalidParameterError, match="needs --no-hub-correction"):
         run_on_cluster(Experiment(method="sequence", params={"window": 12}, **kw), client)
-    with pytest.raises(InvalidParameterError, match="fixed --window"):
-        run_on_cluster(Experiment(method="sequence", params={"window": "adaptive", "velocities": [1.0],
+    with pytest.raises(InvalidParameterError, match="approximation.*gaussian"):
+        run_on_cluster(Experiment(method="sequence", params={"window": "adaptive", "approximation": "robust",
                                                              "hub_correction": False}, **kw), client)
-    with pytest.raises(InvalidParameterError, match="fixed-window sequence"):
+    with pytest.raises(InvalidParameterError, match="l_min.*longer than the query"):
+        run_on_cluster(Experiment(method="sequence", params={"window": "adaptive", "l_min": 400, "l_max": 500,
+                                                             "hub_correction": False}, **kw), client)
+    with pytest.raises(InvalidParameterError, match="does sequence matching"):
         run_on_cluster(Experiment(method="single-frame", **kw), client)
 
 
