@@ -33,7 +33,7 @@ so sweeps can run it in any process or on any Dask worker: same spec, same resul
 
 A map too large for one machine
 -------------------------------
-:func:`run_on_cluster` runs a fixed-window ``sequence`` experiment on a Dask cluster
+:func:`run_on_cluster` runs a ``sequence`` experiment on a Dask cluster
 (``catgraph match --scheduler ADDRESS``): stages 1–3 as above, then the map's
 descriptors are sharded over the workers (:mod:`catgraph.distributed`) and stage 4
 happens there — difference rows, normalisation and window scores are computed where
@@ -449,12 +449,10 @@ def _cluster_params(exp: Experiment) -> dict:
     give the local answers."""
     if exp.method != "sequence":
         raise InvalidParameterError(
-            f"a cluster run (--scheduler) does fixed-window sequence matching; got method {exp.method!r}. Give "
-            "--window N (N ≥ 2), or run without --scheduler.")
+            f"a cluster run (--scheduler) does sequence matching; got method {exp.method!r}. Give "
+            "--window N (N ≥ 2) or --window adaptive, or run without --scheduler.")
     params = get_method("sequence").resolve(exp.params)
     fixes = []
-    if params["window"] == "adaptive":
-        fixes.append("a fixed --window N instead of adaptive")
     if params["hub_correction"]:
         fixes.append("--no-hub-correction (hub offsets need the whole map on one machine)")
     if fixes:
@@ -464,12 +462,12 @@ def _cluster_params(exp: Experiment) -> dict:
 
 def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
                    block_rows: int = 256) -> tuple[RunResult, dict, "Evaluation | None"]:
-    """Run a fixed-window ``sequence`` experiment with the map sharded over a Dask cluster.
+    """Run a ``sequence`` experiment with the map sharded over a Dask cluster.
 
     Parameters
     ----------
     exp : Experiment
-        Method ``sequence`` with a fixed ``window`` (any ``velocities``) and
+        Method ``sequence`` (a fixed or the adaptive ``window``, any ``velocities``) with
         ``hub_correction=False`` (anything else is refused: the cluster path would not
         give the local answers); a map whose differences are normalised.
     scheduler : str or distributed.Client
@@ -487,7 +485,8 @@ def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
     """
     import time
 
-    from .distributed import _client, match_fixed_window, shard_reference
+    from .distributed import _client, match_adaptive_window, match_fixed_window, shard_reference
+    from .methods import _WINDOW_ADAPTIVE
     from .io import describe_query
 
     params = _cluster_params(exp)
@@ -497,23 +496,28 @@ def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
                                     "normalise off: build it again with normalisation, or run without --scheduler.")
     if exp.condition.kind != "in-order":
         query = exp.condition.apply(query)
-    window = int(params["window"])
-    if window > len(query):
-        raise InvalidParameterError(f"window = {window} frames is longer than the query ({len(query)} frames); "
+    adaptive = params["window"] == "adaptive"
+    shortest = int(params["l_min"] if adaptive else params["window"])
+    if shortest > len(query):
+        what = "l_min (the shortest adaptive window)" if adaptive else "window"
+        raise InvalidParameterError(f"{what} = {shortest} frames is longer than the query ({len(query)} frames); "
                                     f"choose at most {len(query)}.")
     q, informative = describe_query(the_map, query)
     start = time.perf_counter()
     client = _client(scheduler)
     try:
         sharded = shard_reference(the_map.descriptors, the_map.metric, client, shard_places)
-        res = match_fixed_window(q, sharded, window, radius=int(params["exclusion"]),
-                                 velocities=tuple(params["velocities"]), block_rows=block_rows,
-                                 no_information=~informative)
+        common = {"radius": int(params["exclusion"]), "velocities": tuple(params["velocities"]),
+                  "block_rows": block_rows, "no_information": ~informative}
+        if adaptive:
+            res = match_adaptive_window(q, sharded, **{k: params[k] for k in _WINDOW_ADAPTIVE}, **common)
+        else:
+            res = match_fixed_window(q, sharded, int(params["window"]), **common)
     finally:
         if client is not scheduler:  # a client made here from an address is closed here
             client.close()
-    result = RunResult(f"sequence-L{window}", dict(params), query.index, res.match, res.confidence,
-                       extra={"window_length": np.minimum(np.arange(1, len(query) + 1), window)},
+    result = RunResult("adaptive" if adaptive else f"sequence-L{params['window']}", dict(params), query.index,
+                       res.match, res.confidence, extra={"window_length": res.window_length},
                        seconds=time.perf_counter() - start)
     prepared = Prepared(the_map, reference, query, np.empty((len(query), 0)), ground_truth, sources,
                         junction_radius_m=exp.junction_radius_m, _graph=graph)
