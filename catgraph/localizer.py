@@ -70,9 +70,10 @@ frame alone looks good.)
 Estimate. Posterior mass per place ``m_j = (1 − P(new)) (Σ_{i: place(i) = j} w_i + ρ_j)``
 (a particle belongs to the nearer of its two places; ``ρ_j`` the recovery share's exact
 mass at ``j``); the answer is
-``argmax_j m_j``, its confidence the mass within ``± confidence_radius`` places (along the
-reference index), or within ``confidence_radius_m`` metres where the graph has positions
-and that is given. A loop closure is declared when confidence ≥ a threshold; sweeping
+``argmax_j m_j``, its confidence the mass within ``confidence_radius`` mean spacings of the
+map along the route (the grid filter's neighbourhood: ``± confidence_radius`` places on
+a map of evenly spaced frames, a surveyed point's own scans on a Wi-Fi map), or within
+``confidence_radius_m`` metres where the graph has positions and that is given. A loop closure is declared when confidence ≥ a threshold; sweeping
 it gives the PR curve.
 
 Score. The posterior log-odds of that mass ranks frames badly at the top: sequence
@@ -91,6 +92,24 @@ concluded (:class:`~catgraph.observation.FilterFeedback`: the place masses befor
 after the frame and the answer's neighbourhood) through ``ObservationModel.feedback``,
 its own named step: the tempered whole-image model chooses its temperature and learns
 ``P(d|L)`` from it, the combined model its parts' reliability.
+
+The velocity marginalised (``marginal_velocity``, the default where it applies: a
+:class:`~catgraph.motion.VelocityMotion` on a route without junctions, frames without
+odometry). A particle then carries a *distribution* over the velocity bins instead of
+one sampled bin (Rao–Blackwellisation), and the prediction and the frame are taken
+together (:meth:`~catgraph.motion.VelocityMotion.move_marginal`): the particles on one
+place predict as the grid filter predicts a state with all its mass there; they move to
+destinations drawn from that prediction times the frame's likelihood (the locally optimal
+proposal), split systematically in proportion to it, and their weight gains the
+predictive likelihood ``Σ_c π_c e^{r_c}`` rather than the likelihood of where they
+happened to land. The place masses ``m_j`` are the particles' predictions before that
+draw (Rao–Blackwellised too), the first frame is drawn systematically from its own
+posterior ``∝ e^{r_j}``, and the recovery generation is born with the jump's velocity
+distribution (half the posterior velocity marginal, half uniform) instead of a sampled
+bin. So in this mode the order of a step is observe → move with the frame → inject →
+reweight the newborn → resample → summarise → feedback. What it bought, per condition
+and dataset, is measured in ``benchmarks/results/particles.md``: the sampled velocity
+and the landing place were most of the filter's seed-to-seed spread.
 
 Cost. A step is O(n_particles · hops + n_places), in compiled loops (motion, recovery,
 reweighting with the place masses, systematic resampling) over arrays allocated once in
@@ -112,7 +131,7 @@ from ._validation import as_generator, check_array, check_scalar
 from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .graph import PlaceGraph
 from .grid import learn_jump_rate
-from .motion import FrameMotion, MotionModel, OdometryMotion
+from .motion import FrameMotion, MotionModel, OdometryMotion, VelocityMotion
 from .observation import Observation, ObservationModel
 from .particles import ParticleSet, _first_in_edge, get_resampler, normalise_in_place
 
@@ -193,7 +212,7 @@ def _likelihood_cumulative(log_ratio, out):  # pragma: no cover - compiled
 
 @njit
 def _birth_kernel(kind, like, proposal, top, log_keep, log_recovery, start, stop, edge, fraction, log_weight,
-                  velocity, uniform, out_ptr, first_in):  # pragma: no cover - compiled
+                  velocity, uniform, out_ptr, first_in, normalise):  # pragma: no cover - compiled
     """The prediction's mixture ``(1 − ε) · particles + ε · uniform``, in place.
 
     The particles outside the birth slots ``start .. stop`` are normalised and scaled
@@ -205,15 +224,22 @@ def _birth_kernel(kind, like, proposal, top, log_keep, log_recovery, start, stop
     where its position falls inside the place's interval. Velocities as the grid
     filter's jump: even slots copy the velocity of a particle drawn systematically
     (offset ``uniform[1]``) from the others' weights — the velocity marginal — odd
-    slots draw from the prior (stratified, resolved by the motion model)."""
+    slots draw from the prior (stratified, resolved by the motion model).
+    ``normalise=False``: the particles outside the birth slots were already given their
+    share (and the frame's evidence) by the motion (:meth:`VelocityMotion.move_marginal`,
+    which also gives the newborn their velocity): only the births are made."""
     n_all = edge.shape[0]
     n = like.shape[0]
+    if not normalise:
+        log_keep = -np.inf  # no velocity copies below
     mx = -np.inf
     for i in range(n_all):
         if (i < start or i >= stop) and log_weight[i] > mx:
             mx = log_weight[i]
     n_rest = n_all - (stop - start)
-    if np.isfinite(mx):
+    if not normalise:
+        pass
+    elif np.isfinite(mx):
         t = 0.0
         for i in range(n_all):
             if i < start or i >= stop:
@@ -262,7 +288,7 @@ def _birth_kernel(kind, like, proposal, top, log_keep, log_recovery, start, stop
             fraction[k] = 1.0
         log_weight[k] = log_recovery - np.log(n * m_slots * width / total)
         velocity[k] = -1 - m // 2  # the prior, stratified (even slots are overwritten below)
-    n_copy = (m_slots + 1) // 2
+    n_copy = (m_slots + 1) // 2 if normalise else 0
     keep = np.exp(log_keep)
     acc = 0.0
     c = -1
@@ -278,7 +304,7 @@ def _birth_kernel(kind, like, proposal, top, log_keep, log_recovery, start, stop
 
 @njit
 def _reweight_kernel(edge, fraction, log_weight, source, target, log_ratio, start, stop, log_recovery, like, weight,
-                     mass):  # pragma: no cover - compiled
+                     mass, marginal, log_scale, marginal_mass):  # pragma: no cover - compiled
     """Reweight every particle, normalise, and sum the posterior mass per place.
 
     ``log_weight`` holds the prediction (:func:`_birth_kernel`); particle ``i`` gains
@@ -288,9 +314,17 @@ def _reweight_kernel(edge, fraction, log_weight, source, target, log_ratio, star
     went is sampled, never *how likely* it was. ``mass[j]`` gets the other particles
     plus that share's exact distribution ``∝ e^{r_j}`` (``like``, cumulative;
     Rao–Blackwellised), so the outside of any neighbourhood keeps the mass of a jump
-    there, as in the grid filter. Returns ``(log E_map, ESS)``, ``E_map = Σ prior · e^ℓ``."""
+    there, as in the grid filter. Returns ``(log E_map, ESS)``, ``E_map = Σ prior · e^ℓ``.
+
+    ``marginal``: the particles outside the newborn slots already carry the frame's
+    evidence in units of ``e^{log_scale}`` (:meth:`VelocityMotion.move_marginal`), and
+    their place masses are ``marginal_mass`` (their mixtures before the draw, same
+    units) instead of where they landed."""
     k = edge.shape[0]
     for i in range(k):
+        if marginal and (i < start or i >= stop):
+            log_weight[i] += log_scale
+            continue
         e = edge[i]
         f = fraction[i]
         log_weight[i] += (1.0 - f) * log_ratio[source[e]] + f * log_ratio[target[e]]
@@ -334,9 +368,13 @@ def _reweight_kernel(edge, fraction, log_weight, source, target, log_ratio, star
         w = np.exp(log_weight[i])
         weight[i] = w
         sq += w * w
-        if i < start or i >= stop:
+        if (i < start or i >= stop) and not marginal:
             e = edge[i]
             mass[source[e] if fraction[i] < 0.5 else target[e]] += w
+    if marginal:
+        scale = np.exp(log_scale - log_map)
+        for j in range(mass.shape[0]):
+            mass[j] += marginal_mass[j] * scale
     if np.isfinite(log_recovery):
         share = np.exp(log_recovery - log_map) / like[like.shape[0] - 1]
         below = 0.0
@@ -360,12 +398,13 @@ def _place_mass_kernel(edge, fraction, weight, source, target, out, skip_start, 
 
 @njit
 def _resample_pool(weight, n_out, start, stop, u, edge, fraction, velocity, log_weight, edge_tmp, fraction_tmp,
-                   velocity_tmp):  # pragma: no cover - compiled
+                   velocity_tmp, spread, spread_tmp):  # pragma: no cover - compiled
     """Systematic resampling of the pool — slots ``0 .. n_out`` and ``start .. stop`` — into
     slots ``0 .. n_out``, each then weighing the pool's mass ``/ n_out``; the other
     slots keep their particles and weights. The indices are the ones
     :func:`~catgraph.particles.systematic_resample` gives the pool's weights for the
-    same uniform ``u``, without building them. Returns the pool's mass."""
+    same uniform ``u``, without building them; ``spread`` (``(n, n_bins)``, the velocity
+    distributions; ``(n, 0)`` without) is copied with them. Returns the pool's mass."""
     total = 0.0
     for i in range(n_out):
         total += weight[i]
@@ -389,11 +428,15 @@ def _resample_pool(weight, n_out, start, stop, u, edge, fraction, velocity, log_
         edge_tmp[k] = edge[i]
         fraction_tmp[k] = fraction[i]
         velocity_tmp[k] = velocity[i]
+        for b in range(spread.shape[1]):
+            spread_tmp[k, b] = spread[i, b]
     each = total / n_out
     for k in range(n_out):
         edge[k] = edge_tmp[k]
         fraction[k] = fraction_tmp[k]
         velocity[k] = velocity_tmp[k]
+        for b in range(spread.shape[1]):
+            spread[k, b] = spread_tmp[k, b]
         weight[k] = each
         log_weight[k] = np.log(each)
     return total
@@ -557,13 +600,23 @@ class Localizer:
     new_place_stay : float in [0, 1)
         Per-step probability of staying in unmapped space.
     confidence_radius : int
-        Places either side of the answer counted in its confidence.
+        Places either side of the answer counted in its confidence, in mean spacings of
+        the map along the route (the grid filter's neighbourhood; on a map of evenly
+        spaced frames: places).
     confidence_radius_m : float, optional
         Use a metric radius instead (needs graph positions).
     confidence_score : {"joint", "posterior"}
         What :attr:`Estimate.score` ranks by: ``"joint"`` = the smaller of the posterior
         log-odds and the observation's recent support at the answer (where the model
         gives one), ``"posterior"`` = the posterior log-odds alone.
+    marginal_velocity : bool
+        Rao–Blackwellise the velocity (default): with a
+        :class:`~catgraph.motion.VelocityMotion` on a route without junctions and a
+        frame without odometry, each particle carries a distribution over the velocity
+        bins, predicts as the grid filter does from its one place, and moves with the
+        frame's evidence (:meth:`~catgraph.motion.VelocityMotion.move_marginal`); the
+        place masses are the particles' mixtures before their draw. ``False``, junction
+        graphs and odometry: one sampled velocity bin per particle.
     seed : int, Generator or None
 
     Attributes
@@ -585,7 +638,8 @@ class Localizer:
                  proposal_top_k: int = 10, proposal_power: float = 8.0, proposal_uniform: float = 0.5,
                  new_place_prior: float | None = None, new_place_stay: float = 0.8,
                  confidence_radius: int = 2, confidence_radius_m: float | None = None,
-                 confidence_score: str = "joint", seed: int | np.random.Generator | None = 0) -> None:
+                 confidence_score: str = "joint", marginal_velocity: bool = True,
+                 seed: int | np.random.Generator | None = 0) -> None:
         self.graph = graph
         self.model = model
         self.n_particles = n_particles
@@ -605,6 +659,7 @@ class Localizer:
         self.confidence_radius = confidence_radius
         self.confidence_radius_m = confidence_radius_m
         self.confidence_score = confidence_score
+        self.marginal_velocity = marginal_velocity
         self.seed = seed
 
     # ------------------------------------------------------------------ setup
@@ -619,9 +674,10 @@ class Localizer:
         check_scalar(self.n_particles, "n_particles", owner, int, 1)
         check_scalar(self.ess_threshold, "ess_threshold", owner, float, 0.0, 1.0)
         check_scalar(self.recovery, "recovery", owner, float, 0.0, 1.0, True, False)
-        if not isinstance(self.learn_recovery, (bool, np.bool_)):
-            raise InvalidParameterError(f"The 'learn_recovery' parameter of {owner} must be a bool. "
-                                        f"Got {self.learn_recovery!r} instead.")
+        for flag in ("learn_recovery", "marginal_velocity"):
+            if not isinstance(getattr(self, flag), (bool, np.bool_)):
+                raise InvalidParameterError(f"The '{flag}' parameter of {owner} must be a bool. "
+                                            f"Got {getattr(self, flag)!r} instead.")
         check_scalar(self.redraw_fraction, "redraw_fraction", owner, float, 0.0, 1.0, True, False)
         check_scalar(self.proposal_top_k, "proposal_top_k", owner, int, 1)
         check_scalar(self.proposal_power, "proposal_power", owner, float, 0.0)
@@ -691,6 +747,22 @@ class Localizer:
         self._support = None
         self._no_ratio = np.zeros(g.n_places)
         self._motions = (self.motion or FrameMotion(), self.motion or OdometryMotion())
+        self._marginal = bool(self.marginal_velocity) and isinstance(self.motion, VelocityMotion) and \
+            self.motion.supports_marginal(g)
+        nb = len(self.motion._v) if self._marginal else 0
+        self._spread = np.full((n, nb), 1.0 / max(nb, 1))  # velocity distributions (marginal mode)
+        self._gathered = (*self._gathered, np.empty((n, nb)))
+        self._velocity_prior = np.full(nb, 1.0 / max(nb, 1))
+        self._velocity_marginal = self._velocity_prior.copy()
+        self._e = np.empty(g.n_places)
+        self._marginal_mass = np.empty(g.n_places)
+        self._marginal_prior = np.empty(g.n_places)
+        self._marginal_step = False
+        rd = np.asarray(g.route_distance, dtype=np.float64)
+        monotone = len(rd) < 2 or bool(np.all(np.diff(rd) >= 0))
+        self._route = rd if monotone else None  # the confidence neighbourhood along the route
+        spacing = float(g.frame_spacing)
+        self._route_radius = self.confidence_radius * spacing + 1e-9 * spacing
         self.model.reset()
         self._has_feedback = callable(getattr(self.model, "feedback", None))
         if self.confidence_radius_m is not None:
@@ -724,8 +796,9 @@ class Localizer:
         row = _check_observation(observation, self.graph.n_places)
         odometry = check_odometry(odometry)
         obs = self.model.observe(row)
+        self._evidence(obs)
         self._move(odometry)
-        self._inject(obs)
+        self._inject()
         prior = self._predicted_mass() if self._has_feedback else None
         ess = self._reweight(obs)
         self._support = obs.support if obs.informative else None
@@ -740,6 +813,11 @@ class Localizer:
         """The prediction's place masses, ``(1 − ε) · particles + ε / n_places`` (the
         grid's ``prior_``): the particles', plus the recovery share exactly."""
         g = self.graph
+        if self._marginal_step:
+            self._prior[:] = self._marginal_prior
+            if self._newborn[1] > self._newborn[0]:
+                self._prior += self.recovery_ / g.n_places
+            return self._prior
         np.exp(self._log_weight, out=self._weight)
         _place_mass_kernel(self._edge, self._fraction, self._weight, g.source, g.target, self._prior, *self._newborn)
         if self._newborn[1] > self._newborn[0]:
@@ -753,40 +831,110 @@ class Localizer:
 
             self.model.feedback(FilterFeedback(prior.copy(), self.place_posterior_, near))
 
-    def _move(self, odometry: float | None) -> None:
-        if self.n_steps_ == 0:
-            return  # the first frame: nothing has moved yet
-        motion = self._motions[0] if odometry is None else self._motions[1]
-        motion.move(self.particles_, self.graph, self._rng, odometry)
-
-    def _inject(self, obs: Observation) -> None:
-        """The recovery share ``ε``: a new generation of particles in the slots the
-        oldest one left at the last resampling (:func:`_birth_kernel`); none on the
-        first frame."""
+    def _evidence(self, obs: Observation) -> None:
+        """The frame's log-ratios, their cumulative ``e^{r − max r}`` (the likelihood
+        proposal) and the recovery share's log-mass ``log ε + log mean_j e^{r_j}``."""
         g = self.graph
         log_ratio = obs.log_ratio if obs.informative else self._no_ratio
         self._log_ratio = log_ratio = np.ascontiguousarray(log_ratio, dtype=np.float64)
-        r_max = _likelihood_cumulative(log_ratio, self._like)
+        self._r_max = r_max = _likelihood_cumulative(log_ratio, self._like)
         self._log_like_mean = r_max + math.log(self._like[-1] / g.n_places)  # log mean_j e^{r_j}
         born = self._births > 0 and self.n_steps_ > 0
         self._newborn = self._generation(self.n_steps_ - 1) if born else (0, 0)
         self._log_recovery = math.log(self.recovery_) + self._log_like_mean if born else -math.inf
+        if self._marginal:
+            np.exp(np.subtract(log_ratio, r_max, out=self._e), out=self._e)
+
+    def _move(self, odometry: float | None) -> None:
+        """Predict: the motion model moves the particles (not on the first frame). With
+        the velocity marginalised (``marginal_velocity``), the particles outside the
+        coming births move with the frame's evidence and carry their share ``1 − ε``."""
+        self._marginal_step = self._marginal and odometry is None
+        if self.n_steps_ == 0:
+            if self._marginal_step:
+                self._spread_from_frame(0, self.n_particles, 0.0)
+            return  # the first frame: nothing has moved yet
+        motion = self._motions[0] if odometry is None else self._motions[1]
+        if not self._marginal_step:
+            if self._marginal:
+                self._sample_velocity()
+            motion.move(self.particles_, self.graph, self._rng, odometry)
+            if self._marginal:
+                self._spread[:] = 0.0
+                self._spread[np.arange(self.n_particles), np.maximum(self._velocity, 0)] = 1.0
+            return
+        start, stop = self._newborn
+        log_keep = math.log1p(-self.recovery_) if stop > start else 0.0
+        kept = motion.move_marginal(self.particles_, self._spread, self.graph, self._rng, self._e, log_keep,
+                                    self._newborn, self._marginal_mass, self._marginal_prior)
+        if kept == 0.0:  # every particle left the map: start them again from this frame
+            self._spread_from_frame(*self._cloud_slots(), log_keep)
+
+    def _cloud_slots(self) -> tuple[int, int]:
+        """The slots outside the coming births, as one range when the births are at the
+        end, else the cloud's (the young generations in between then keep theirs)."""
+        start, stop = self._newborn
+        return (0, start) if stop == self.n_particles or stop == start else (0, self._n_cloud)
+
+    def _spread_from_frame(self, first: int, last: int, log_keep: float) -> None:
+        """Slots ``first .. last`` drawn systematically from this frame's posterior under
+        a uniform prior, ``∝ e^{r_j}``, with equal weights summing to ``e^{log_keep}`` ·
+        mean_j e^{r_j}`` (in units of ``e^{max r}``) and the uniform velocity
+        distribution: the exact posterior of a uniform prediction (the first frame)."""
+        g, m = self.graph, last - first
+        cumulative = self._like / self._like[-1]
+        cumulative[-1] = 1.0
+        u = (self._rng.random() + np.arange(m)) / m
+        places = np.minimum(np.searchsorted(cumulative, u, side="right"), g.n_places - 1)
+        has_out = g.out_ptr[places + 1] > g.out_ptr[places]
+        self._edge[first:last] = np.where(has_out, g.out_ptr[places], self._first_in[places])
+        self._fraction[first:last] = np.where(has_out, 0.0, 1.0)
+        mean = self._like[-1] / g.n_places
+        self._log_weight[first:last] = log_keep + math.log(mean) - math.log(m)
+        self._spread[first:last] = self._velocity_prior
+        keep = math.exp(log_keep)
+        np.multiply(self._e, keep / g.n_places, out=self._marginal_mass)
+        self._marginal_prior[:] = keep / g.n_places
+        if last - first < self.n_particles:  # the rest (young generations) as they are: weight 0 here
+            rest = np.ones(self.n_particles, dtype=bool)
+            rest[first:last] = False
+            rest[self._newborn[0]:self._newborn[1]] = False
+            self._log_weight[rest] = -math.inf
+
+    def _sample_velocity(self) -> None:
+        """One bin per particle from its velocity distribution (for a step the sampled
+        motion takes: odometry)."""
+        c = np.cumsum(self._spread, axis=1)
+        u = self._rng.random(self.n_particles)[:, None] * c[:, -1:]
+        self._velocity[:] = np.minimum((c <= u).sum(1), c.shape[1] - 1)
+
+    def _inject(self) -> None:
+        """The recovery share ``ε``: a new generation of particles in the slots the
+        oldest one left at the last resampling (:func:`_birth_kernel`); none on the
+        first frame. With the velocity marginalised their velocity distribution is the
+        jump's, half the posterior velocity marginal and half uniform (the grid's)."""
+        g = self.graph
+        born = self._newborn[1] > self._newborn[0]
         if self.proposal == "sharpened" and born:
-            _sharpened_cumulative(log_ratio, r_max, float(self.proposal_power), float(self.proposal_uniform),
-                                  self._proposal)
+            _sharpened_cumulative(self._log_ratio, self._r_max, float(self.proposal_power),
+                                  float(self.proposal_uniform), self._proposal)
         if self.proposal == "best" and born:
-            self._top[:] = _top_k(log_ratio, len(self._top))
+            self._top[:] = _top_k(self._log_ratio, len(self._top))
         self._rng.random(out=self._uniform)
         _birth_kernel(_PROPOSAL_CODE[self.proposal], self._like, self._proposal, self._top,
                       math.log1p(-self.recovery_) if born else 0.0, math.log(self.recovery_) if born else -math.inf,
                       *self._newborn, self._edge, self._fraction, self._log_weight, self._velocity, self._uniform,
-                      g.out_ptr, self._first_in)
+                      g.out_ptr, self._first_in, not self._marginal_step)
+        if self._marginal and born:
+            self._spread[self._newborn[0]:self._newborn[1]] = 0.5 * self._velocity_marginal + 0.5 * self._velocity_prior
 
     def _reweight(self, obs: Observation) -> float:
         g = self.graph
         log_map, ess = _reweight_kernel(self._edge, self._fraction, self._log_weight, g.source, g.target,
                                         self._log_ratio, *self._newborn, self._log_recovery, self._like, self._weight,
-                                        self._mass)
+                                        self._mass, self._marginal_step, self._r_max, self._marginal_mass)
+        if self._marginal:  # the posterior velocity marginal, for the next jump's velocity
+            np.dot(self._weight, self._spread, out=self._velocity_marginal)
         if obs.informative and np.isfinite(log_map):
             self._learn_recovery(math.exp(self._log_like_mean - log_map))
             prior = self.new_place_stay * self.new_place_probability_ + self._new_place_prior * (
@@ -823,10 +971,10 @@ class Localizer:
             n_out, start, stop = n, 0, 0
         else:
             return False
-        e_tmp, f_tmp, v_tmp = self._gathered
+        e_tmp, f_tmp, v_tmp, s_tmp = self._gathered
         if self.resampler == "systematic":  # compiled, no index array
             _resample_pool(self._weight, n_out, start, stop, self._uniform[2], self._edge, self._fraction,
-                           self._velocity, self._log_weight, e_tmp, f_tmp, v_tmp)
+                           self._velocity, self._log_weight, e_tmp, f_tmp, v_tmp, self._spread, s_tmp)
             return True
         pool = np.concatenate([np.arange(n_out), np.arange(start, stop)])
         total = float(self._weight[pool].sum())
@@ -835,6 +983,7 @@ class Localizer:
             idx = idx[self._rng.permutation(len(idx))[:n_out]]
             self._edge[:n_out], self._fraction[:n_out] = self._edge[idx], self._fraction[idx]
             self._velocity[:n_out] = self._velocity[idx]
+            self._spread[:n_out] = self._spread[idx]
         self._weight[:n_out] = total / n_out
         self._log_weight[:n_out] = math.log(total / n_out) if total > 0 else -math.inf
         return True
@@ -846,6 +995,10 @@ class Localizer:
         if self.confidence_radius_m is not None:
             near = np.zeros(g.n_places, dtype=bool)
             near[self._tree.query_ball_point(g.positions[best], self.confidence_radius_m)] = True
+        elif self._route is not None:  # by route distance, in mean spacings (the grid filter's)
+            rd = self._route
+            near = slice(int(np.searchsorted(rd, rd[best] - self._route_radius, "left")),
+                         int(np.searchsorted(rd, rd[best] + self._route_radius, "right")))
         else:
             near = slice(max(0, best - self.confidence_radius), best + self.confidence_radius + 1)
         from .grid import _inside_outside

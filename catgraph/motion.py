@@ -414,8 +414,18 @@ class VelocityMotion(MotionModel):
         check_scalar(resolved["junction_probability"], "junction_probability", name, float, 0.0, 1.0)
         self._v = v
         self._blur = float(resolved["blur"])
-        self._cumulative = np.cumsum(velocity_transition(v, stay, reverse), axis=1)
+        self._transition = velocity_transition(v, stay, reverse)
+        nz = self._transition.T != 0  # the transition's columns, sparse
+        self._columns = (np.concatenate([[0], np.cumsum(nz.sum(1))]).astype(np.int64),
+                         np.nonzero(nz)[1].astype(np.int64), np.ascontiguousarray(self._transition.T[nz]))
+        self._cumulative = np.cumsum(self._transition, axis=1)
         self._cumulative[:, -1] = 1.0
+        speed = np.abs(v)
+        whole = np.floor(speed).astype(np.int64)
+        self._moves = (whole, speed - whole, np.where(v >= 0, 1, -1).astype(np.int64))
+        # route offsets a particle can reach in one step: its fastest bin's hops (one more
+        # for a fractional speed), then the blur's one place
+        self._reach = int(np.max(whole + (speed > whole))) + 1
 
     def move(self, particles: ParticleSet, graph, rng: np.random.Generator, odometry: float | None = None) -> None:
         self._check()
@@ -436,3 +446,371 @@ class VelocityMotion(MotionModel):
                          float(odometry) if metric else -1.0, graph.target, graph.out_ptr, graph.reverse,
                          graph.straight, float(self.straight_preference), self._blur, int(self.max_hops),
                          1e-9 * (graph.frame_spacing if metric else 1.0))
+
+    # ------------------------------------------------------------------ velocity marginalised
+    @staticmethod
+    def _route(graph) -> tuple:
+        """The grid filter's route neighbours of ``graph`` and each place's first in-edge,
+        computed once per graph."""
+        route = graph.__dict__.get("_marginal_route")
+        if route is None:
+            from .grid import route_neighbours
+            from .particles import _first_in_edge
+
+            fwd, bwd, _, _, _, junction_target = route_neighbours(graph)
+            route = (fwd, bwd, _first_in_edge(graph), len(junction_target) == 0)
+            object.__setattr__(graph, "_marginal_route", route)
+        return route
+
+    def supports_marginal(self, graph) -> bool:
+        """Whether :meth:`move_marginal` applies to ``graph``: a route without junction
+        edges whose forward and backward neighbours undo each other (a chain, e.g. every
+        map built from one traverse). Junction graphs and odometry take :meth:`move`."""
+        self._check()
+        fwd, bwd, _, plain = self._route(graph)
+        if not plain:
+            return False
+        ahead, behind = fwd >= 0, bwd >= 0
+        idx = np.arange(graph.n_places)
+        return bool(np.all(bwd[fwd[ahead]] == idx[ahead]) and np.all(fwd[bwd[behind]] == idx[behind]))
+
+    def marginal_transition(self, graph, place: int, velocity_distribution: np.ndarray) -> np.ndarray:
+        """The prediction of one particle that carries a velocity distribution: the grid
+        filter's prediction of a state with all its mass at ``place`` (no recovery share,
+        no normalisation: mass that runs past a route end is lost).
+
+        Parameters
+        ----------
+        graph : PlaceGraph
+            A graph :meth:`supports_marginal` accepts.
+        place : int
+        velocity_distribution : ndarray, shape (n_bins,)
+
+        Returns
+        -------
+        ndarray of float64, shape (n_places, n_bins)
+        """
+        self._check()
+        fwd, bwd, _, _ = self._route(graph)
+        whole, frac, sign = self._moves
+        width = 2 * self._reach + 1
+        window = np.empty(width, dtype=np.int64)
+        moved = np.empty((width, len(self._v)))
+        _marginal_transition(int(place), np.ascontiguousarray(velocity_distribution, dtype=np.float64),
+                             self._transition, whole, frac, sign, self._blur, fwd, bwd, self._reach, window,
+                             np.empty(len(self._v)), moved)
+        out = np.zeros((graph.n_places, len(self._v)))
+        for o in range(width):
+            if window[o] >= 0:
+                out[window[o]] += moved[o]
+        return out
+
+    def move_marginal(self, particles: ParticleSet, velocity: np.ndarray, graph, rng: np.random.Generator,
+                      like: np.ndarray, log_keep: float, skip: tuple[int, int], posterior: np.ndarray,
+                      prior: np.ndarray) -> float:
+        """Move particles that carry a velocity *distribution* (Rao–Blackwellised), with
+        the frame's evidence (the locally optimal proposal), in place.
+
+        Each particle ``i`` at place ``j`` with velocity distribution ``p_i`` predicts
+        exactly as the grid filter predicts a state with all its mass at ``j``
+        (:meth:`marginal_transition`): a mixture ``π_ic`` over the places ``c`` a step can
+        reach (and, per place, over velocity bins). It then moves to one place drawn
+        from that mixture times the frame's likelihood, its weight is multiplied by the
+        predictive likelihood ``L_i = Σ_c π_ic e^{r_c}`` (what its weight would gain on
+        average), and its velocity distribution becomes the mixture's at the chosen place.
+        No velocity is ever sampled, and the weights no longer depend on where a particle
+        happened to land. The particles' mixtures before the draw are also summed into
+        ``posterior`` and ``prior`` (place masses): the Rao–Blackwellised estimate.
+
+        Parameters
+        ----------
+        particles : ParticleSet
+            Particles on places (fraction 0, or 1 at a dead end).
+        velocity : ndarray of float64, shape (n, n_bins)
+            Each particle's velocity distribution (rows sum to 1); updated in place.
+        graph : PlaceGraph
+            A graph :meth:`supports_marginal` accepts.
+        rng : numpy.random.Generator
+            One uniform per particle.
+        like : ndarray of float64, shape (n_places,)
+            ``e^{r_j − max r}``.
+        log_keep : float
+            Log of the share of the prediction the particles carry (``log(1 − ε)``).
+        skip : (int, int)
+            Slots left alone (they are about to take new particles).
+        posterior, prior : ndarray of float64, shape (n_places,)
+            Filled with the mixtures (see :func:`_marginal_kernel`).
+
+        Returns
+        -------
+        float
+            The particles' predicted mass before normalisation (0: every one left the map).
+        """
+        self._check()
+        n = len(particles)
+        buffer = self.__dict__.get("_uniform_marginal")
+        if buffer is None or len(buffer) != n:
+            buffer = self._uniform_marginal = np.empty(n)
+        rng.random(out=buffer)
+        fwd, bwd, first_in, _ = self._route(graph)
+        whole, frac, sign = self._moves
+        family_of = graph.__dict__.get("_marginal_family")
+        if family_of is None:  # -1 per place, left so by the kernel
+            family_of = np.full(graph.n_places, -1, dtype=np.int64)
+            object.__setattr__(graph, "_marginal_family", family_of)
+        members = self.__dict__.get("_members")
+        if members is None or len(members) != n:
+            members = self._members = np.empty(n, dtype=np.int64)
+        return float(_marginal_kernel(particles.edge, particles.fraction, particles.log_weight, velocity,
+                                      int(skip[0]), int(skip[1]), float(log_keep), buffer, like, self._transition,
+                                      whole, frac, sign, self._blur, fwd, bwd, graph.source, graph.target,
+                                      graph.out_ptr, first_in, self._reach, posterior, prior, family_of, members))
+
+
+# ---------------------------------------------------------------------- the velocity marginalised
+@njit(inline="always")
+def _one_place_transition(j, p, transition, whole, frac, sign, blur, fwd, bwd, reach, window, q,
+                          moved):  # pragma: no cover - compiled
+    """The grid filter's prediction of a state with all its mass at place ``j`` and
+    velocity distribution ``p``, without the recovery share: ``moved[o, b]`` is the mass
+    at route offset ``o − reach`` from ``j`` (``window[o]``, ``-1`` past a route end) in
+    bin ``b``. Mass that runs past a route end is lost (``moved`` then sums to less
+    than 1), as the grid's is before its normalisation."""
+    nb = p.shape[0]
+    width = 2 * reach + 1
+    window[reach] = j
+    t = j
+    for o in range(1, reach + 1):
+        if t >= 0:
+            t = fwd[t]
+        window[reach + o] = t
+    t = j
+    for o in range(1, reach + 1):
+        if t >= 0:
+            t = bwd[t]
+        window[reach - o] = t
+    for b in range(nb):
+        acc = 0.0
+        for a in range(nb):
+            acc += p[a] * transition[a, b]
+        q[b] = acc
+    for o in range(width):
+        for b in range(nb):
+            moved[o, b] = 0.0
+    for b in range(nb):
+        if q[b] == 0.0:
+            continue
+        for extra in range(2):
+            m = q[b] * (frac[b] if extra == 1 else 1.0 - frac[b])
+            if m == 0.0:
+                continue
+            o = reach + sign[b] * (whole[b] + extra)
+            if window[o] < 0:
+                continue  # ran past the route's end: it leaves the map
+            moved[o, b] += (1.0 - 2.0 * blur) * m
+            ahead = o + 1 if window[o + 1] >= 0 else o  # a route end keeps its blur
+            behind = o - 1 if window[o - 1] >= 0 else o
+            moved[ahead, b] += blur * m
+            moved[behind, b] += blur * m
+
+
+@njit(fastmath=True)
+def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop, log_keep, uniform, like,
+                     transition, whole, frac, sign, blur, fwd, bwd, source, target, out_ptr, first_in,
+                     reach, posterior, prior, family_of, members):  # pragma: no cover - compiled
+    """One step of :meth:`VelocityMotion.move_marginal` for every particle outside
+    ``skip_start .. skip_stop``, in place; returns the particles' predicted mass
+    ``K = Σ_i w_i Σ_c π_ic`` before its normalisation (0: every particle left the map).
+
+    The particles on one place form a *family*: the prediction is linear in the state,
+    so the family predicts exactly as one particle of the family's weight ``W`` whose
+    velocity distribution is the members' weighted mean. That prediction is computed
+    once per family (:func:`_one_place_transition`'s, per route offset and bin; tested
+    against it), and its ``k`` members take the destinations at the systematic positions
+    ``(u + m) / k`` of the family's posterior (``u`` the first member's uniform), each
+    with weight ``W L / k``: a family splits over the places in proportion, not at
+    random, and a step costs one prediction per occupied place, not per particle.
+
+    ``like``: ``e^{r_j − max r}``. ``log_weight`` enters normalised over the particles
+    moved to ``log_keep`` (the share the prediction keeps) and leaves as
+    ``log(W L / (k K'))``, ``L = Σ_c π_c like[c]`` the family's predictive likelihood
+    (in units of ``e^{max r}``; ``K' = K / e^{log_keep}``). ``posterior[j]`` and
+    ``prior[j]`` get the families' mixtures before the draw (``Σ W π_c like[c] / K'``
+    and ``Σ W π_c / K'``): the Rao–Blackwellised place masses. ``family_of``:
+    ``(n_places,)`` int64 of ``-1`` (left so); ``members``: ``(n,)`` int64 scratch."""
+    nb = velocity.shape[1]
+    width = 2 * reach + 1
+    n = edge.shape[0]
+    window = np.empty(width, dtype=np.int64)
+    q = np.empty(nb)
+    column = np.empty(width)
+    moved = np.empty((width, nb))
+    origin = np.empty(nb, dtype=np.int64)
+    for b in range(nb):
+        origin[b] = reach + sign[b] * whole[b]
+    mx = -np.inf
+    for i in range(n):
+        if (i < skip_start or i >= skip_stop) and log_weight[i] > mx:
+            mx = log_weight[i]
+    for j in range(posterior.shape[0]):
+        posterior[j] = 0.0
+        prior[j] = 0.0
+    if not np.isfinite(mx):
+        return 0.0
+    total = 0.0
+    for i in range(n):
+        if i < skip_start or i >= skip_stop:
+            total += np.exp(log_weight[i] - mx)
+    log_norm = mx + np.log(total)
+    # the families: the occupied places, their weights and mean velocity distributions
+    place = np.empty(n, dtype=np.int64)
+    family_weight = np.zeros(n)
+    family_velocity = np.zeros((n, nb))
+    family_place = np.empty(n, dtype=np.int64)
+    family_first = np.empty(n, dtype=np.int64)
+    count = np.zeros(n + 1, dtype=np.int64)
+    n_families = 0
+    for i in range(n):
+        place[i] = -1
+        if skip_start <= i < skip_stop:
+            continue
+        w = np.exp(log_weight[i] - log_norm)
+        if w == 0.0:
+            log_weight[i] = -np.inf
+            continue
+        e = edge[i]
+        j = source[e] if fraction[i] < 0.5 else target[e]
+        f = family_of[j]
+        if f < 0:
+            f = n_families
+            family_of[j] = f
+            family_place[f] = j
+            family_first[f] = i
+            n_families += 1
+        place[i] = f
+        family_weight[f] += w
+        for b in range(nb):
+            family_velocity[f, b] += w * velocity[i, b]
+        count[f + 1] += 1
+    for f in range(n_families):
+        count[f + 1] += count[f]
+        family_of[family_place[f]] = -1
+    fill = count[:n_families].copy()
+    for i in range(n):
+        f = place[i]
+        if f >= 0:
+            members[fill[f]] = i
+            fill[f] += 1
+    centre = 1.0 - 2.0 * blur
+    kept = 0.0
+    for f in range(n_families):
+        weight = family_weight[f]
+        j = family_place[f]
+        window[reach] = j
+        t = j
+        u = j
+        for o in range(1, reach + 1):
+            if t >= 0:
+                t = fwd[t]
+            window[reach + o] = t
+            if u >= 0:
+                u = bwd[u]
+            window[reach - o] = u
+        inside = True
+        for o in range(width):
+            if window[o] < 0:
+                inside = False
+        for b in range(nb):
+            q[b] = 0.0
+        for a in range(nb):
+            pa = family_velocity[f, a] / weight
+            if pa != 0.0:
+                for b in range(nb):
+                    q[b] += pa * transition[a, b]
+        moved[:, :] = 0.0
+        if inside:  # every place of the window exists: no route end to check
+            for b in range(nb):
+                o = origin[b]
+                m = q[b] * (1.0 - frac[b])
+                moved[o, b] += centre * m
+                moved[o + 1, b] += blur * m
+                moved[o - 1, b] += blur * m
+                o += sign[b]
+                m = q[b] * frac[b]
+                moved[o, b] += centre * m
+                moved[o + 1, b] += blur * m
+                moved[o - 1, b] += blur * m
+        else:
+            for b in range(nb):
+                o = origin[b]
+                for extra in range(2):
+                    m = q[b] * (frac[b] if extra == 1 else 1.0 - frac[b])
+                    if extra == 1:
+                        o += sign[b]
+                    if window[o] < 0:
+                        continue  # past the route's end: it leaves the map
+                    moved[o, b] += centre * m
+                    moved[o + 1 if window[o + 1] >= 0 else o, b] += blur * m  # a route end keeps its blur
+                    moved[o - 1 if window[o - 1] >= 0 else o, b] += blur * m
+        stays = 0.0
+        evidence = 0.0
+        for o in range(width):
+            c = 0.0
+            for b in range(nb):
+                c += moved[o, b]
+            column[o] = c
+            if c > 0.0:
+                t = window[o]
+                stays += c
+                evidence += c * like[t]
+                prior[t] += weight * c
+                posterior[t] += weight * c * like[t]
+        kept += weight * stays
+        lo, hi = count[f], count[f + 1]
+        if not evidence > 0.0:
+            for m_ in range(lo, hi):
+                log_weight[members[m_]] = -np.inf
+            continue
+        # destinations from the family's own posterior (the locally optimal proposal), systematic
+        k = hi - lo
+        log_each = np.log(weight * evidence / k)
+        acc = 0.0
+        scan = -1
+        for m_ in range(k):
+            i = members[lo + m_]
+            pos = (uniform[family_first[f]] + m_) / k * evidence
+            while scan < width - 1 and (scan < 0 or acc <= pos):
+                scan += 1
+                if column[scan] > 0.0:
+                    acc += column[scan] * like[window[scan]]
+            pick = scan
+            while column[pick] <= 0.0 or like[window[pick]] <= 0.0:  # round-off past the end
+                pick -= 1
+            for b in range(nb):  # the velocity distribution at the chosen place
+                velocity[i, b] = moved[pick, b] / column[pick]
+            t = window[pick]
+            if out_ptr[t + 1] > out_ptr[t]:
+                edge[i] = out_ptr[t]
+                fraction[i] = 0.0
+            else:
+                edge[i] = first_in[t]
+                fraction[i] = 1.0
+            log_weight[i] = log_each
+    if not kept > 0.0:
+        return 0.0
+    shift = log_keep - np.log(kept)
+    for i in range(n):
+        if i < skip_start or i >= skip_stop:
+            log_weight[i] += shift
+    scale = np.exp(shift)
+    for j in range(posterior.shape[0]):
+        posterior[j] *= scale
+        prior[j] *= scale
+    return kept
+
+
+@njit
+def _marginal_transition(j, p, transition, whole, frac, sign, blur, fwd, bwd, reach, window, q,
+                         moved):  # pragma: no cover - compiled
+    """:func:`_one_place_transition`, callable from Python."""
+    _one_place_transition(j, p, transition, whole, frac, sign, blur, fwd, bwd, reach, window, q, moved)

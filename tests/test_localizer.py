@@ -445,8 +445,10 @@ def test_compiled_pool_resampling_picks_what_systematic_resample_picks():
         with np.errstate(divide="ignore"):
             lw = np.log(w)
         e, f, v, ww = src.copy(), src.astype(float), src.copy(), w.copy()
+        spread = np.stack([src, -src], 1).astype(float)
         total = _resample_pool(ww, n_out, start, stop, u, e, f, v, lw, np.empty(n, dtype=np.int64), np.empty(n),
-                               np.empty(n, dtype=np.int64))
+                               np.empty(n, dtype=np.int64), spread, np.empty((n, 2)))
+        np.testing.assert_array_equal(spread[:, 0], e)  # the velocity distributions travel with their particles
         assert total == pytest.approx(w[pool].sum())
         if want is not None:
             np.testing.assert_array_equal(e[:n_out], want)
