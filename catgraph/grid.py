@@ -423,6 +423,14 @@ def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, fr
                 w3 = t_val[c0 + 3] if k > 3 else 0.0
                 for i in range(z - a):
                     tt[i] = (w0 * r0[i] + w1 * r1[i] + w2 * r2[i] + w3 * r3[i]) * lk[i]
+            elif k <= 6:  # a speed next to a phased one: its neighbour's phases add a source each
+                r0, r1, r2 = p[t_src[c0], a:z], p[t_src[c0 + 1], a:z], p[t_src[c0 + 2], a:z]
+                r3, r4 = p[t_src[c0 + 3], a:z], p[t_src[c0 + 4], a:z]
+                r5 = p[t_src[c0 + 5], a:z] if k > 5 else r0
+                w0, w1, w2, w3, w4 = t_val[c0], t_val[c0 + 1], t_val[c0 + 2], t_val[c0 + 3], t_val[c0 + 4]
+                w5 = t_val[c0 + 5] if k > 5 else 0.0
+                for i in range(z - a):
+                    tt[i] = (w0 * r0[i] + w1 * r1[i] + w2 * r2[i] + w3 * r3[i] + w4 * r4[i] + w5 * r5[i]) * lk[i]
             else:
                 for i in range(z - a):
                     tt[i] = 0.0
@@ -505,6 +513,85 @@ def _blur(p, out, q, fwd, bwd, recovery, velocity_prior):  # pragma: no cover
     for j in range(n):
         for b in range(nb):
             out[j, b] = keep * out[j, b] + share * velocity_prior[b]
+
+
+def phase_bins(velocities, max_phases: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                      np.ndarray]:
+    """The filter's state bins: every velocity, a fractional speed split into its phases.
+
+    A speed ``|v| = w + p/q`` (``p/q`` in lowest terms, ``q ≤ max_phases``) is driven
+    by ``q`` bins, the *phases* ``i = 0 … q − 1`` of a cycle: phase ``i`` moves
+    ``w + ⌊(i + 1) p/q⌋ − ⌊i p/q⌋`` whole places and hands its mass to phase
+    ``i + 1 (mod q)``. So ``v = 0.5`` alternates 0 and 1 places, exactly as a query
+    driven at half the reference's speed does, and a point mass stays a point mass.
+    (One bin per speed would have to split the mass between the two bracketing places
+    every frame, a random walk whose spread grows as ``√(k/4)`` places after ``k``
+    frames: a track at half speed held by the motion alone blurs over ±5 places in 100
+    frames.) Whole speeds, and fractions that need more than ``max_phases`` phases, keep
+    one bin and the linear split.
+
+    Returns
+    -------
+    owner : ndarray of int64, shape (n_bins,)
+        The velocity (index into ``velocities``) of each bin; bins of one velocity are
+        contiguous, in phase order.
+    whole, frac, sign : ndarray, shape (n_bins,)
+        Each bin's move (:func:`_bin_moves`): whole places, the fractional share moved
+        one place further (0 for a phase), direction.
+    mirror : ndarray of int64, shape (n_bins,)
+        The bin of ``−v`` (same phase where it has as many), or the bin itself.
+    successor : ndarray of int64, shape (n_bins,)
+        The bin a bin's mass moves to while keeping its velocity (the next phase).
+    """
+    from fractions import Fraction
+
+    v = np.asarray(velocities, dtype=np.float64)
+    owner, whole, frac, successor = [], [], [], []
+    for b, x in enumerate(v):
+        speed = abs(float(x))
+        w = math.floor(speed)
+        f = speed - w
+        ratio = Fraction(f).limit_denominator(max(int(max_phases), 1))
+        q = ratio.denominator if f > 0 and abs(float(ratio) - f) < 1e-9 and ratio.denominator > 1 else 1
+        first = len(owner)
+        for i in range(q):
+            owner.append(b)
+            if q == 1:
+                whole.append(w)
+                frac.append(f)
+            else:
+                whole.append(w + (i + 1) * ratio.numerator // q - i * ratio.numerator // q)
+                frac.append(0.0)
+            successor.append(first + (i + 1) % q)
+    owner = np.asarray(owner, dtype=np.int64)
+    sign = np.where(v[owner] >= 0, 1, -1).astype(np.int64)
+    start = np.searchsorted(owner, np.arange(len(v)))
+    count = np.bincount(owner, minlength=len(v))
+    _, _, _, velocity_mirror = _bin_moves(v)
+    mirror = np.empty(len(owner), dtype=np.int64)
+    for a, b in enumerate(owner):
+        m = velocity_mirror[b]
+        i = a - start[b]
+        mirror[a] = start[m] + (i if count[m] == count[b] else 0)
+    return (owner, np.asarray(whole, dtype=np.int64), np.asarray(frac, dtype=np.float64), sign, mirror,
+            np.asarray(successor, dtype=np.int64))
+
+
+def phase_transition(transition: np.ndarray, owner: np.ndarray, successor: np.ndarray) -> np.ndarray:
+    """The velocity transition over :func:`phase_bins`' bins, ``(n_bins, n_bins)``.
+
+    Keeping the velocity (``transition[v, v]``) moves to the next phase; changing it
+    (``transition[v, u]``, ``u ≠ v``) lands on every phase of ``u`` alike (the phase of
+    a new speed is unknown). Without phases this is ``transition`` itself.
+    """
+    t = np.asarray(transition, dtype=np.float64)
+    count = np.bincount(owner, minlength=t.shape[0]).astype(np.float64)
+    out = t[np.ix_(owner, owner)] / count[owner][None, :]
+    same = owner[:, None] == owner[None, :]
+    out[same] = 0.0
+    rows = np.arange(len(owner))
+    out[rows, successor] = t[owner, owner]
+    return out
 
 
 def _bin_moves(velocities: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -612,10 +699,16 @@ class GridLocalizer:
         Subtracted from the score (not the log-odds) of every frame before the first
         convergence (default 1.0 nat; 0: the score is the log-odds). See the module
         docstring.
+    max_phases : int
+        A fractional speed ``w + p/q`` with ``q ≤ max_phases`` is driven by ``q`` phase
+        bins that move ``w`` or ``w + 1`` places in a fixed cycle (``v = 0.5``: 0, 1, 0,
+        1 …), so that the motion alone keeps a track sharp (:func:`phase_bins`; default
+        4; 1: every speed one bin, a fractional one splitting its mass between the two
+        bracketing places each frame).
 
     Attributes
     ----------
-    state_ : ndarray of float64, shape (n_places, n_bins)
+    state_ : ndarray of float64, shape (n_places, n_velocities)
         Posterior over (place, velocity) given that the robot is in the map.
     prior_ : ndarray of float64, shape (n_places,)
         Predicted place masses before the latest observation.
@@ -634,7 +727,7 @@ class GridLocalizer:
                  junction_probability: float = 0.1, new_place_prior: float = 0.05, new_place_stay: float = 0.8,
                  confidence_radius: int = 2, confidence_radius_m: float | None = None,
                  learn_recovery: bool = True, converged_log_odds: float = 1.0, converged_frames: int = 8,
-                 unconverged_penalty: float = 1.0) -> None:
+                 unconverged_penalty: float = 1.0, max_phases: int = 4) -> None:
         self.graph = graph
         self.model = model
         self.velocities = velocities
@@ -651,10 +744,19 @@ class GridLocalizer:
         self.converged_log_odds = converged_log_odds
         self.converged_frames = converged_frames
         self.unconverged_penalty = unconverged_penalty
+        self.max_phases = max_phases
 
     @property
     def state_(self) -> np.ndarray:
-        """Posterior over (place, velocity bin), shape ``(n_places, n_bins)`` (a view)."""
+        """Posterior over (place, velocity), shape ``(n_places, n_velocities)`` (the phases
+        of a velocity summed)."""
+        bins = self._bin_state()
+        if len(self._owner) == len(self._v):
+            return bins
+        return np.add.reduceat(bins, self._phase_start, axis=1)
+
+    def _bin_state(self) -> np.ndarray:
+        """Posterior over (place, state bin), shape ``(n_places, n_bins)`` (a view)."""
         return (self._state * self._like).T
 
     # ------------------------------------------------------------------ setup
@@ -683,6 +785,7 @@ class GridLocalizer:
         check_scalar(self.converged_log_odds, "converged_log_odds", owner, float)
         check_scalar(self.converged_frames, "converged_frames", owner, int, 0)
         check_scalar(self.unconverged_penalty, "unconverged_penalty", owner, float, 0.0)
+        check_scalar(self.max_phases, "max_phases", owner, int, 1, 64)
         if not isinstance(self.learn_recovery, (bool, np.bool_)):
             raise InvalidParameterError(f"The 'learn_recovery' parameter of {owner} must be a bool. "
                                         f"Got {self.learn_recovery!r} instead.")
@@ -698,8 +801,13 @@ class GridLocalizer:
         g = self.graph
         nb = len(self._v)
         self._neighbours = route_neighbours(g)
-        self._transition = velocity_transition(self._v, self.velocity_stay, self.reverse_probability)
-        self._moves = _bin_moves(self._v)
+        owner, whole, frac, sign, mirror, successor = phase_bins(self._v, self.max_phases)
+        nb = len(owner)
+        self._owner = owner
+        self._phase_start = np.searchsorted(owner, np.arange(len(self._v)))
+        self._transition = phase_transition(velocity_transition(self._v, self.velocity_stay, self.reverse_probability),
+                                            owner, successor)
+        self._moves = (whole, frac, sign, mirror)
         fwd, bwd, _, _, _, jdst = self._neighbours
         idx = np.arange(g.n_places)
         self._line = len(jdst) == 0 and bool(np.all(fwd == np.where(idx + 1 < g.n_places, idx + 1, -1))
@@ -708,7 +816,8 @@ class GridLocalizer:
         self._t_sparse = (np.concatenate([[0], np.cumsum(nz.sum(1))]).astype(np.int64),
                           np.nonzero(nz)[1].astype(np.int64),
                           np.ascontiguousarray(self._transition.T[nz], dtype=np.float64))
-        self._velocity_prior = np.full(nb, 1.0 / nb)
+        # a uniform prior over velocities, each shared evenly by its phases
+        self._velocity_prior = 1.0 / (len(self._v) * np.bincount(owner)[owner])
         self._velocity = self._velocity_prior.copy()
         self.recovery_ = float(self.recovery)
         self._jumps, self._frames = 0.0, 0.0
@@ -720,7 +829,8 @@ class GridLocalizer:
         self._spare = np.empty((nb, g.n_places), dtype=dtype)
         # the posterior, factored: the prediction (velocity-major, so that shifts are
         # contiguous) times the latest frame's normalised likelihood per place
-        self._state = np.full((nb, g.n_places), 1.0 / (g.n_places * nb), dtype=dtype)
+        self._state = np.ascontiguousarray(np.repeat(self._velocity_prior[:, None] / g.n_places, g.n_places, 1),
+                                           dtype=dtype)
         self._ones = np.ones(g.n_places)  # the likelihood of a prediction not yet updated (never written)
         self._like = self._ones
         self.prior_ = self._state.sum(0, dtype=np.float64)
@@ -788,7 +898,7 @@ class GridLocalizer:
                 self.prior_ = mass
                 self._mass = mass
                 return
-            state = predict(np.ascontiguousarray(self.state_), self._transition, self._v, self._neighbours,
+            state = predict(np.ascontiguousarray(self._bin_state()), self._transition, self._v, self._neighbours,
                             self.blur, self.recovery_, jump_velocity, self.junction_probability, odometry, self._moves)
             self._state = np.ascontiguousarray(state.T, dtype=self._spare.dtype if self._line else np.float64)
             self._like = self._ones
@@ -807,7 +917,7 @@ class GridLocalizer:
         top = float(r.max())
         e = self._e
         np.exp(np.subtract(r, top, out=e), out=e)
-        velocity = np.empty(len(self._v))
+        velocity = np.empty(len(self._owner))
         # the previous frame's likelihood was consumed by the prediction: its buffer is free
         like = self._like_buffer
         mass = np.empty(len(r))

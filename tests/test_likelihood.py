@@ -590,9 +590,11 @@ class _SlowTempered:
             den = float(np.sqrt((a * a).sum() * (b * b).sum()))
             rho = float((a * b).sum()) / den if den > 0 else 1.0
             self.prev[...] = row
-            self.rho_sum = self.decay * self.rho_sum + rho
-            self.rho_n = self.decay * self.rho_n + 1.0
-            nu = float(np.clip((1.0 - rho) / max(1.0 - self.rho_sum / self.rho_n, 1e-6), 0.0, self.cap))
+            if 1.0 - rho > 1e-9:  # an exact repeat stays out of the mean
+                self.rho_sum = self.decay * self.rho_sum + rho
+                self.rho_n = self.decay * self.rho_n + 1.0
+            mean = self.rho_sum / self.rho_n if self.rho_n > 0 else rho
+            nu = float(np.clip((1.0 - rho) / max(1.0 - mean, 1e-6), 0.0, self.cap))
         r = self.tau * nu * self.base
         top = float(r.max())
         self.row = row
