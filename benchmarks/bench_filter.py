@@ -6,6 +6,7 @@ Usage (from the project root)::
     python benchmarks/bench_filter.py conditions [--quick]  # -> results/filter_compare.md (+ .json)
     python benchmarks/bench_filter.py seeds                 # particle-filter seed spread -> results/filter_seeds.md
     python benchmarks/bench_filter.py threshold             # one global threshold -> results/filter_threshold.md
+    python benchmarks/bench_filter.py jumps                 # oracle jumps, accuracy after a jump -> results/filter_jumps.md
 
 ``speed`` times one step of the particle filter (2,000 particles, observation
 precomputed) on Nordland's graph size and one step of the grid filter at 3,576 and
@@ -325,21 +326,163 @@ def threshold() -> str:
     return "\n".join(lines) + "\n"
 
 
+# ---------------------------------------------------------------------- jumps
+#: frames-since-jump bins of the accuracy curves (lower edges; the last is open)
+_SINCE = (0, 1, 2, 3, 5, 10, 20, 50, 100)
+
+
+def _true_jumps(index: np.ndarray) -> np.ndarray:
+    """Frames that begin a new segment: more than three frames (as loaded) from the
+    previous one. Ground truth of the benchmark, never shown to the method."""
+    jumps = np.zeros(len(index), dtype=bool)
+    jumps[1:] = np.abs(np.diff(index)) > 3
+    return jumps
+
+
+def _since(jumps: np.ndarray) -> np.ndarray:
+    """Frames since the last jump, the traverse's start counting as one (the filter
+    starts from the same uniform state it resets to)."""
+    start = np.where(jumps, np.arange(len(jumps)), 0)
+    return np.arange(len(jumps)) - np.maximum.accumulate(start)
+
+
+def _run_grid(case, graph, oracle: np.ndarray | None = None):
+    """The default grid filter; with ``oracle`` (a bool per frame), its state is reset to
+    the recovery prior (uniform over places × the velocity prior) before every frame the
+    oracle marks, the model's learned state kept. Benchmark only: the method never sees it."""
+    from catgraph.grid import GridLocalizer
+    from catgraph.observation import CheckedRow, TemperedObservation
+
+    loc = GridLocalizer(graph, TemperedObservation()).reset()
+    rows = case.differences.view(CheckedRow)
+    n = len(rows)
+    place, score = np.empty(n, dtype=np.int64), np.empty(n)
+    for k in range(n):
+        if oracle is not None and oracle[k] and k > 0:
+            loc._state[...] = (loc._velocity_prior[:, None] / graph.n_places).astype(loc._state.dtype)
+            loc._like = loc._ones
+            loc.prior_ = loc._state.sum(0, dtype=np.float64)
+            loc._mass = loc.prior_
+        est = loc.step(rows[k], None if case.query.odometry is None or k == 0 else float(case.query.odometry[k]))
+        place[k], score[k] = est.place, est.score
+    return place, score
+
+
+def jumps() -> tuple[str, dict]:
+    """What limits the filter on short shuffles: finding the jump, or relocalising after it."""
+    import datasets as ds
+    from catgraph.conditions import Condition
+    from catgraph.metrics import evaluate
+
+    conds = [Condition("shuffle", seed=s, segment_range=(0.005, 0.03)) for s in range(5)] + \
+        [Condition("shuffle", seed=s) for s in range(5)]
+    results: dict = {}
+    groups: dict = {}
+    for case in _cases():
+        group = "UJI 02-06" if case.name.startswith("UJI") else case.name.split(" ")[0]
+        graph = _graph(case)
+        for cond in conds:
+            c = ds.conditioned(case, cond)
+            truth = _true_jumps(c.query.index)
+            since = _since(truth)
+            for variant, oracle in (("default", None), ("oracle jumps", truth)):
+                place, score = _run_grid(c, graph, oracle)
+                ev = evaluate(c.query.index, place, score, c.ground_truth)
+                m = ev.metrics
+                key = f"{group}|{cond.label}|{variant}"
+                r = results.setdefault(key, {"auc": [], "r100": [], "mtl": [], "correct": [], "since": []})
+                r["auc"].append(float(m.auc))
+                r["r100"].append(float(m.recall_at_100p))
+                r["mtl"].append(int(m.mtl))
+                r["correct"].append(ev.correct.astype(bool))
+                r["since"].append(since)
+            groups[group] = True
+            print(f"{case.name:12s} {cond.label:28s} " + "  ".join(
+                f"{v}: {results[f'{group}|{cond.label}|{v}']['auc'][-1]:.3f}" for v in ("default", "oracle jumps")),
+                flush=True)
+    summary: dict = {}
+    for key, r in results.items():
+        correct, since = np.concatenate(r["correct"]), np.concatenate(r["since"])
+        curve = []
+        for lo, hi in zip(_SINCE, _SINCE[1:] + (10 ** 9,)):
+            sel = (since >= lo) & (since < hi)
+            curve.append(float(correct[sel].mean()) if sel.any() else None)
+        summary[key] = {"auc": float(np.mean(r["auc"])), "r100": float(np.mean(r["r100"])),
+                        "mtl": float(np.mean(r["mtl"])), "accuracy_since_jump": curve,
+                        "frames_since_jump_bins": list(_SINCE)}
+    return _jumps_markdown(summary), summary
+
+
+def _jumps_markdown(summary: dict) -> str:
+    lines = ["# Short shuffles: finding the jump, or relocalising after it", "",
+             "`python benchmarks/bench_filter.py jumps`. The default grid filter "
+             "(`GridLocalizer(graph, TemperedObservation())`, the registry's map graph) against an *oracle-jump* "
+             "variant of it that is told, by the benchmark, the frames where the shuffled query jumps (a frame more "
+             "than 3 frames, as loaded, from its predecessor) and resets its state there to its recovery prior "
+             "(uniform over places × the velocity prior; the observation model's learned state kept). The oracle "
+             "removes jump *detection*; what it still loses is relocalisation: the evidence a few frames give. "
+             "UJI: means over months 02–06.", "",
+             "## AUC / R@100P / MTL", "", "| dataset | condition | default | oracle jumps |", "|---|---|---|---|"]
+    keys = sorted({k.rsplit("|", 1)[0] for k in summary}, key=lambda k: list(summary).index(k + "|default"))
+    for k in keys:
+        a, b = summary[k + "|default"], summary[k + "|oracle jumps"]
+        group, label = k.split("|")
+        lines.append(f"| {group} | {label} | {a['auc']:.3f} / {a['r100']:.2f} / {a['mtl']:.0f} | "
+                     f"{b['auc']:.3f} / {b['r100']:.2f} / {b['mtl']:.0f} |")
+    bins = [f"{lo}–{hi - 1}" if hi - lo > 1 else f"{lo}" for lo, hi in zip(_SINCE, _SINCE[1:])] + [f"≥{_SINCE[-1]}"]
+    lines += ["", "## Accuracy (share of frames whose answer is right) against frames since the last jump", "",
+              "Pooled over the five seeds of each segment range (UJI: and months). Frame 0 of a segment is the jump "
+              "itself.", "", "| dataset | shuffle | variant | " + " | ".join(bins) + " |",
+              "|---|---|---|" + "---|" * len(bins)]
+    pooled: dict = {}
+    for key, r in summary.items():
+        group, label, variant = key.split("|")
+        rng = label.split(" (")[0]
+        pooled.setdefault((group, rng, variant), []).append(r["accuracy_since_jump"])
+    for (group, rng, variant), curves in pooled.items():
+        arr = np.array([[np.nan if v is None else v for v in c] for c in curves], dtype=float)
+        with np.errstate(all="ignore"):
+            mean = np.array([np.nanmean(col) if np.isfinite(col).any() else np.nan for col in arr.T])
+        lines.append(f"| {group} | {rng} | {variant} | " + " | ".join("–" if np.isnan(v) else f"{v:.2f}" for v in mean)
+                     + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _stamped(text: str) -> str:
+    """``text`` with the commit it was measured at under its title (``+ changes`` where
+    the working tree differs from it in the package or the benchmarks)."""
+    import subprocess
+
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                              check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "catgraph", "benchmarks/bench_filter.py",
+                                "benchmarks/datasets.py"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return text
+    title, _, rest = text.partition("\n")
+    return f"{title}\n\nMeasured at commit `{head}`{' + changes' if dirty else ''}.\n{rest}"
+
+
 def main(argv: list[str]) -> None:
     what = argv[0] if argv else "speed"
     RESULTS.mkdir(parents=True, exist_ok=True)
     if what == "speed":
-        (RESULTS / "filter_speed.md").write_text(speed())
+        (RESULTS / "filter_speed.md").write_text(_stamped(speed()))
     elif what == "conditions":
         text, results = conditions(quick="--quick" in argv)
-        (RESULTS / "filter_compare.md").write_text(text)
+        (RESULTS / "filter_compare.md").write_text(_stamped(text))
         (RESULTS / "filter_compare.json").write_text(json.dumps(results, indent=1))
     elif what == "threshold":
-        (RESULTS / "filter_threshold.md").write_text(threshold())
+        (RESULTS / "filter_threshold.md").write_text(_stamped(threshold()))
     elif what == "seeds":
         (RESULTS / "filter_seeds.md").write_text(seeds())
+    elif what == "jumps":
+        text, results = jumps()
+        (RESULTS / "filter_jumps.md").write_text(_stamped(text))
+        (RESULTS / "filter_jumps.json").write_text(json.dumps(results, indent=1))
     else:
-        raise SystemExit(f"unknown benchmark {what!r}; use speed, conditions, threshold or seeds.")
+        raise SystemExit(f"unknown benchmark {what!r}; use speed, conditions, threshold, seeds or jumps.")
 
 
 if __name__ == "__main__":
