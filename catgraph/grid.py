@@ -26,8 +26,14 @@ ratios ``r_j`` (:mod:`catgraph.observation`)::
 
 ``T`` keeps a velocity with probability ``velocity_stay``, moves to a neighbouring
 speed of the same sign otherwise, and turns round (``v → −v``) with probability
-``reverse_probability``. A fractional speed moves mass to the two bracketing places
-linearly (``v = 0.5``: half stays, half moves one place). A *hop* follows the route
+``reverse_probability``. A fractional speed ``w + p/q`` (``q ≤ max_phases``, default 4)
+is driven by ``q`` *phase bins* that move ``w`` or ``w + 1`` places in a fixed cycle
+(``v = 0.5``: 0, 1, 0, 1 … places; :func:`phase_bins`), so that a track at half the
+reference's speed stays as sharp as one at full speed; a fraction that would need more
+phases moves mass to the two bracketing places linearly (a random walk: one bin at
+``v = 0.5`` spreads a point mass over ±5 places in 100 frames, which lost Nordland at
+half speed, ``docs/particle_filter.md``). ``P[j, b]`` and ``T`` are over these state
+bins; :attr:`GridLocalizer.state_` sums the phases of each velocity. A *hop* follows the route
 edge of the direction of travel (chain edge forwards, reverse edge backwards); at a
 place with junction edges a share ``junction_probability`` per junction leaves along
 it and continues at the other place, half in each direction (a crossing may turn
@@ -93,7 +99,7 @@ models that learn from the filter (the tempered whole-image model) do it there.
 Cost. On a *line* graph (the chain of a route: place ``j``'s neighbours are ``j ± 1``,
 no junctions) without odometry, the prediction is a per-velocity shift by index
 arithmetic plus the blur, computed in one compiled pass over a velocity-major state, a
-block of places at a time (:data:`_LINE_BLOCK`; the transition of all eight velocity
+block of places at a time (:data:`_LINE_BLOCK`; the transition of all ten state
 rows of a block and its halo stay in cache), and the update is kept factored
 (prediction × the frame's likelihood per place, whose ``exp`` numpy computes), so a step
 reads the state twice and writes it once: ``O(n_places · n_bins)`` (see
@@ -349,7 +355,7 @@ def _likelihood(state, e, prior_mass, like, velocity, mass):  # pragma: no cover
     return total, like_sum / n
 
 
-#: Places per block of the line kernel (its working set, 8 velocity rows of a block
+#: Places per block of the line kernel (its working set, the ten state rows of a block
 #: plus their halo, stays in the second-level cache).
 _LINE_BLOCK = 1024
 
