@@ -51,7 +51,7 @@ PREDICTION_HORIZON = 10
 
 #: ... and the window whose predictions have been best over a discounted recent past wins,
 #: the past weighted with this half-life in frames
-PREDICTION_HALF_LIFE = 30.0
+PREDICTION_HALF_LIFE = 1000.0
 
 
 def _needs_sub(cfg: _Config) -> bool:
