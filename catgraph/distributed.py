@@ -249,9 +249,9 @@ def _line_pass(d, ext_lo, n, lo, w, first_row, skip, windows, v, mean_codes, vi,
     rows = d.shape[0]
     g_count = windows.shape[0]
     k_count = pre.shape[3]
-    mask = (np.int64(1) << 32) - 1
     last = np.zeros((g_count, w), dtype=np.int64)
     cur = np.zeros((g_count, w), dtype=np.int64)
+    base = lo - ext_lo  # column of place lo in d
     for r in range(rows):
         i = first_row + r
         p = position(v, i)
@@ -262,64 +262,63 @@ def _line_pass(d, ext_lo, n, lo, w, first_row, skip, windows, v, mean_codes, vi,
             delta = p - position(v, i - 1)
             c_lo = max(0, delta)
             c_hi = min(w, w + delta)
+        if c_hi <= c_lo:
+            c_lo = 0
+            c_hi = 0
+        new = d[r, base:base + w]
         for g in range(g_count):
             window = windows[g]
             e = min(window, i + 1, r + 1)
-            drop = r >= window
-            off = p - position(v, i - window) if drop else 0
-            m_old = np.int64(mean_codes[r - window]) if drop else np.int64(0)
-            for k in range(w):
-                j = lo + k
-                if c_lo <= k < c_hi:
-                    s = last[g, k - delta] + np.int64(d[r, j - ext_lo])
-                    if drop:
-                        q = j - off
-                        s -= np.int64(d[r - window, q - ext_lo]) if 0 <= q < n else m_old
-                else:  # a line entering the shard's places: its window term by term
-                    s = np.int64(0)
-                    for t in range(i - e + 1, i + 1):
-                        q = j - (p - position(v, t))
-                        rr = t - first_row
-                        s += np.int64(d[rr, q - ext_lo]) if 0 <= q < n else np.int64(mean_codes[rr])
-                cur[g, k] = s
+            cg = cur[g]
+            lg = last[g]
+            # lines entering the shard's places: their window term by term
+            for k in range(0, c_lo):
+                cg[k] = _direct(d, mean_codes, ext_lo, n, first_row, v, p, i, e, lo + k)
+            for k in range(c_hi, w):
+                cg[k] = _direct(d, mean_codes, ext_lo, n, first_row, v, p, i, e, lo + k)
+            if c_hi <= c_lo:
+                continue
+            # lines continuing within the shard: one new term, the one L frames back dropped
+            if r < window:
+                _add_new(cg[c_lo:c_hi], lg[c_lo - delta:c_hi - delta], new[c_lo:c_hi])
+                continue
+            off = p - position(v, i - window)  # the line through place j met place j - off then
+            m_old = np.int64(mean_codes[r - window])
+            old = d[r - window]
+            in_lo = min(max(c_lo, off - lo), c_hi)  # old place inside [0, n) for k in [in_lo, in_hi)
+            in_hi = max(min(c_hi, n + off - lo), in_lo)
+            _add_new_fill(cg[c_lo:in_lo], lg[c_lo - delta:in_lo - delta], new[c_lo:in_lo], m_old)
+            _add_new_old(cg[in_lo:in_hi], lg[in_lo - delta:in_hi - delta], new[in_lo:in_hi],
+                         old[base - off + in_lo:base - off + in_hi])
+            _add_new_fill(cg[in_hi:c_hi], lg[in_hi - delta:c_hi - delta], new[in_hi:c_hi], m_old)
         if r >= skip:
             o = r - skip
             ps = (position(v, i - 1) - p) % n if i >= 1 else -1
             for g in range(g_count):
                 row = cur[g]
-                m = row[0]
+                m, tot, qh, ql = _int_moments(row)
                 jm = 0
-                tot = np.int64(0)
-                qh = np.int64(0)
-                ql = np.int64(0)
-                for k in range(w):
-                    x = row[k]
-                    if x < m:
-                        m = x
-                        jm = k
-                    tot += x
-                    sq = x * x  # |S| <= 4096 * 32767 < 2^27: exact in int64
-                    qh += sq >> 32
-                    ql += sq & mask
+                while row[jm] != m:
+                    jm += 1
                 low[o, vi, g] = m
                 place[o, vi, g] = lo + jm
                 total[o, vi, g] = tot
                 high_sq[o, vi, g] = qh
                 low_sq[o, vi, g] = ql
-                mo = _NONE
-                for k in range(w):
-                    if (k < jm - radius or k > jm + radius) and row[k] < mo:
-                        mo = row[k]
-                outside[o, vi, g] = mo
-                tail = _NONE
-                for k in range(k_count, w):
-                    tail = min(tail, row[k])
+                outside[o, vi, g] = min(_min_of(row[:max(0, jm - radius)]), _min_of(row[min(w, jm + radius + 1):]))
+                if w >= 2 * k_count:  # pre[k] = min row[k:], suf[k] = min row[:w - k], k < K
+                    tail = _min_of(row[k_count:w - k_count])
+                    head = tail
+                    for k in range(w - k_count, w):
+                        tail = min(tail, row[k])
+                    for k in range(0, k_count):
+                        head = min(head, row[k])
+                else:
+                    tail = _min_of(row[k_count:])
+                    head = _min_of(row[:w - k_count])
                 for k in range(k_count - 1, -1, -1):
                     tail = min(tail, row[k])
                     pre[o, vi, g, k] = tail
-                head = _NONE
-                for k in range(0, w - k_count):
-                    head = min(head, row[k])
                 for k in range(k_count - 1, -1, -1):
                     head = min(head, row[w - k - 1])
                     suf[o, vi, g, k] = head
@@ -333,6 +332,67 @@ def _line_pass(d, ext_lo, n, lo, w, first_row, skip, windows, v, mean_codes, vi,
                 for k in range(w):
                     scores[o, k] = cur[0, k]
         last, cur = cur, last
+
+
+@njit(nogil=True)
+def _direct(d, mean_codes, ext_lo, n, first_row, v, p, i, e, j):  # pragma: no cover - compiled
+    """The window sum of the line through place ``j`` at frame ``i`` (``e`` terms), term by term."""
+    s = np.int64(0)
+    for t in range(i - e + 1, i + 1):
+        q = j - (p - position(v, t))
+        rr = t - first_row
+        s += np.int64(d[rr, q - ext_lo]) if 0 <= q < n else np.int64(mean_codes[rr])
+    return s
+
+
+@njit(nogil=True)
+def _add_new(out, prev, new):  # pragma: no cover - compiled
+    """``out = prev + new`` (equal-length views: a plain loop the compiler vectorises)."""
+    for k in range(out.shape[0]):
+        out[k] = prev[k] + np.int64(new[k])
+
+
+@njit(nogil=True)
+def _add_new_old(out, prev, new, old):  # pragma: no cover - compiled
+    """``out = prev + new - old``."""
+    for k in range(out.shape[0]):
+        out[k] = prev[k] + (np.int64(new[k]) - np.int64(old[k]))
+
+
+@njit(nogil=True)
+def _add_new_fill(out, prev, new, fill):  # pragma: no cover - compiled
+    """``out = prev + new - fill`` (the dropped term off the reference: its row's mean code)."""
+    for k in range(out.shape[0]):
+        out[k] = prev[k] + (np.int64(new[k]) - fill)
+
+
+@njit(nogil=True)
+def _min_of(seg):  # pragma: no cover - compiled
+    """The smallest of some integer sums (``_NONE`` for none)."""
+    m = _NONE
+    for k in range(seg.shape[0]):
+        x = seg[k]
+        m = x if x < m else m
+    return m
+
+
+@njit(nogil=True)
+def _int_moments(seg):  # pragma: no cover - compiled
+    """The smallest sum, the sum of the sums and of their squares, the squares split at
+    ``2^32`` so that both halves add up exactly in int64 (``|S| < 2^27``: ``S^2`` exact)."""
+    mask = (np.int64(1) << 32) - 1
+    m = _NONE
+    t = np.int64(0)
+    qh = np.int64(0)
+    ql = np.int64(0)
+    for k in range(seg.shape[0]):
+        x = seg[k]
+        m = x if x < m else m
+        t += x
+        sq = x * x
+        qh += sq >> 32
+        ql += sq & mask
+    return m, t, qh, ql
 
 
 def _shard_lines(codes: tuple, left: list, right: list, first_row: int, skip: int, windows: np.ndarray,
