@@ -111,19 +111,23 @@ def speed() -> str:
     lines.append(f"| particle filter, 2,000 particles, VelocityMotion | {n:,} | {t:.3f} | {ref:.3f} | {t / ref:.1f} |")
     for n in (3576, 100_000):
         rows = rng.standard_normal((30, n))
-        for label, graph in (("line graph (fast path)", PlaceGraph.chain(n)),
-                             ("general path (the reference)", None)):
+        # the default (phase bins for the fractional speeds) and, beside it in the same
+        # run, one bin per speed (max_phases=1): what the phase bins cost
+        for label, line, phases in (("line graph (fast path)", True, 4), ("line graph, one bin per speed", True, 1),
+                                    ("general path (the reference)", False, 4)):
             g = PlaceGraph.chain(n)
 
             def one():
-                loc = GridLocalizer(g, _FixedModel(-rows[0])).reset()
-                loc._line = graph is not None
+                loc = GridLocalizer(g, _FixedModel(-rows[0]), max_phases=phases).reset()
+                loc._line = line
                 loc.reset = lambda: loc  # keep the path chosen above
                 return _time_steps(loc, rows)
 
             t = _median_ms(one)
             ref = 1e3 * _memory_reference(nb * n)
-            lines.append(f"| grid filter, {nb} velocity bins, {label} | {n:,} | {t:.3f} | {ref:.3f} | {t / ref:.1f} |")
+            bins = len(GridLocalizer(g, _FixedModel(-rows[0]), max_phases=phases).reset()._owner)
+            lines.append(f"| grid filter, {nb} velocities in {bins} state bins, {label} | {n:,} | {t:.3f} | "
+                         f"{ref:.3f} | {t / ref:.1f} |")
             print(lines[-1], flush=True)
     return "\n".join(lines) + "\n"
 
