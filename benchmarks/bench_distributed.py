@@ -1,0 +1,178 @@
+"""Per-shard figures of the Dask path (:func:`catgraph.distributed.match_fixed_window`).
+
+A local cluster of one-thread worker processes, one shard each, random float32
+descriptors; a query that runs along the route across the shard edge. For each setting
+(window ``L``, velocities searched) the same query is matched several times, settings
+alternated, and per run the script records the time per frame, the bytes each worker
+served (halos to its neighbours, summaries to the client), each worker's resident and
+peak memory. The one-velocity run (the forward diagonal) is the reference each other
+setting is compared with, measured in the same rounds.
+
+These are the per-block figures a 10⁷-place cluster run needs (``docs/live.md``, "A 10⁷-place
+map on a cluster"): per shard, the time and the bytes per query frame do not depend on
+how many other shards there are, except for the client's reductions.
+
+    python benchmarks/bench_distributed.py [--shard-places 65536] [--repeats 3] [--adaptive-query 640]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+
+DIM = 512
+RESULTS = Path(__file__).parent / "results"
+
+
+def _reference(n: int) -> np.ndarray:
+    rng = np.random.default_rng(0)
+    out = np.empty((n, DIM), dtype=np.float32)
+    for start in range(0, n, 100_000):
+        rng.standard_normal(dtype=np.float32, out=out[start : start + 100_000])
+    return out
+
+
+def _counters(dask_worker):
+    import resource
+
+    import psutil
+
+    return {"rss": psutil.Process().memory_info().rss,
+            "peak": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+            "out": getattr(dask_worker, "transfer_outgoing_bytes_total", 0)}
+
+
+def measure(shard_places: int, n_shards: int, settings: list[dict], repeats: int) -> list[dict]:
+    """Each setting: ``window`` (an int, or ``"adaptive"`` for the default adaptive window),
+    ``velocities``, ``block_rows``, ``n_query``; runs alternated, ``repeats`` rounds (a
+    setting with ``"once": True`` runs once, after the rounds)."""
+    import distributed
+
+    from catgraph import distributed as dd
+
+    reference = _reference(shard_places * n_shards)
+    rng = np.random.default_rng(2)
+    queries = []
+    for setting in settings:
+        start_place = shard_places - setting["n_query"] // 2  # the route crosses the shard edge
+        noise = 0.3 * rng.standard_normal((setting["n_query"], DIM), dtype=np.float32)
+        queries.append((start_place, reference[start_place : start_place + setting["n_query"]] + noise))
+
+    def run(k, client, ref, frames=None):
+        setting, (start_place, query) = settings[k], queries[k]
+        query = query if frames is None else query[:frames]
+        if setting["window"] == "adaptive":
+            return dd.match_adaptive_window(query, ref, velocities=setting["velocities"],
+                                            block_rows=setting["block_rows"])
+        return dd.match_fixed_window(query, ref, setting["window"], velocities=setting["velocities"],
+                                     block_rows=setting["block_rows"])
+
+    runs: dict[int, list] = {k: [] for k in range(len(settings))}
+    with distributed.LocalCluster(n_workers=n_shards, threads_per_worker=1, processes=True,
+                                  dashboard_address=None, memory_limit=None) as cluster, \
+            distributed.Client(cluster) as client:
+        ref = dd.shard_reference(reference, "sad", client, shard_places=shard_places)
+        client.gather(ref.shards)
+        for k in range(len(settings)):  # warm the kernels
+            run(k, client, ref, frames=40)
+        # the settings run once come after every round: a worker's peak RSS never falls, so
+        # the other settings' peaks are their own (and the shard's preparation)
+        order = [k for _ in range(repeats) for k, o in enumerate(settings) if not o.get("once")]
+        order += [k for k, o in enumerate(settings) if o.get("once")]
+        for k in order:
+            setting = settings[k]
+            before = client.run(_counters)
+            t0 = time.perf_counter()
+            res = run(k, client, ref)
+            seconds = time.perf_counter() - t0
+            after = client.run(_counters)
+            n_query = setting["n_query"]
+            truth = queries[k][0] + np.arange(n_query)
+            settle = 100 if setting["window"] == "adaptive" else setting["window"]
+            runs[k].append({
+                "ms_per_frame": 1000 * seconds / n_query,
+                "bytes_out_per_frame": [(a["out"] - b["out"]) / n_query
+                                        for a, b in zip(after.values(), before.values())],
+                "rss_mb": [a["rss"] / 2**20 for a in after.values()],
+                "peak_mb": [a["peak"] / 2**20 for a in after.values()],
+                "correct_after": float(np.mean(np.abs(res.match[settle:] - truth[settle:]) <= 1)),
+            })
+    out = []
+    for k, setting in enumerate(settings):
+        r = runs[k]
+        ref_k = [j for j, o in enumerate(settings) if o["window"] == setting["window"] and o["velocities"] == (1.0,)]
+        base = runs[ref_k[0]] if ref_k else None  # the one-velocity run of this window, same rounds
+        out.append({**{key: (list(v) if key == "velocities" else v) for key, v in setting.items()},
+                    "shard_places": shard_places, "n_shards": n_shards,
+                    "ms_per_frame": float(np.median([x["ms_per_frame"] for x in r])),
+                    "ms_per_frame_runs": [x["ms_per_frame"] for x in r],
+                    "ratio_to_one_velocity": None if base is None else
+                    float(np.median([x["ms_per_frame"] / y["ms_per_frame"] for x, y in zip(r, base)])),
+                    "bytes_out_per_frame": [float(np.median(v)) for v in zip(*[x["bytes_out_per_frame"] for x in r])],
+                    "rss_mb": [float(np.max(v)) for v in zip(*[x["rss_mb"] for x in r])],
+                    "peak_mb": [float(np.max(v)) for v in zip(*[x["peak_mb"] for x in r])],
+                    "correct_after": r[-1]["correct_after"], "runs": len(r)})
+    return out
+
+
+def write(results: list[dict], path: Path, commit: str) -> None:
+    s = results[0]
+    lines = ["# Dask path: per-shard figures", "",
+             f"`benchmarks/bench_distributed.py` at commit {commit}: `catgraph.distributed` on a `LocalCluster` of "
+             f"{s['n_shards']} one-thread worker processes on this shared 2-core machine, one shard each of "
+             f"{s['shard_places']:,} places × {DIM} float32 (float32 layout), a query along the route across the "
+             "shard edge. Settings alternated; time: median over the runs, and the median of each run's ratio to "
+             "the one-velocity run of the same window and round. Bytes: what each worker served per frame "
+             "(halos to its neighbour, summaries to the client; median over runs). Memory: largest resident and "
+             "peak RSS over the runs (a process's peak never falls: the peaks include preparing the shard and "
+             "every run before, so the adaptive run comes last).", "",
+             "| window | velocities | frames (block) | runs | ms per frame | × one velocity "
+             "| bytes served per frame and worker | worker RSS (MB) | worker peak RSS (MB) | matches within ±1 |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in results:
+        v = "1" if r["velocities"] == [1.0] else f"{len(r['velocities'])} (±0.5, ±1, ±2, ±3)"
+        w = "adaptive (13 lengths, 5–500)" if r["window"] == "adaptive" else f"L = {r['window']}"
+        ratio = "—" if r["ratio_to_one_velocity"] is None else f"{r['ratio_to_one_velocity']:.2f}"
+        settle = 100 if r["window"] == "adaptive" else r["window"]
+        lines.append(f"| {w} | {v} | {r['n_query']} ({r['block_rows']}) | {r['runs']} | {r['ms_per_frame']:.1f} | "
+                     f"{ratio} | " + " / ".join(f"{b / 1000:.1f} KB" for b in r["bytes_out_per_frame"]) + " | "
+                     + " / ".join(f"{m:.0f}" for m in r["rss_mb"]) + " | "
+                     + " / ".join(f"{m:.0f}" for m in r["peak_mb"]) + f" | {r['correct_after']:.2f} after "
+                     f"frame {settle} |")
+    path.write_text("\n".join(lines) + "\n")
+
+
+def main() -> None:
+    from catgraph.sequence import DEFAULT_VELOCITIES
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--shard-places", type=int, default=65536)
+    parser.add_argument("--shards", type=int, default=2)
+    parser.add_argument("--query", type=int, default=192)
+    parser.add_argument("--adaptive-query", type=int, default=640)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--out", default="distributed")
+    args = parser.parse_args()
+    fixed = {"block_rows": 64, "n_query": args.query}
+    settings = [{"window": 50, "velocities": (1.0,), **fixed}, {"window": 50, "velocities": DEFAULT_VELOCITIES, **fixed},
+                {"window": 100, "velocities": (1.0,), **fixed},
+                {"window": 100, "velocities": DEFAULT_VELOCITIES, **fixed}]
+    if args.adaptive_query:
+        settings.append({"window": "adaptive", "velocities": DEFAULT_VELOCITIES, "block_rows": args.adaptive_query // 2,
+                         "n_query": args.adaptive_query, "once": True})
+    results = measure(args.shard_places, args.shards, settings, args.repeats)
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                            cwd=Path(__file__).parent).stdout.strip()
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / f"{args.out}.json").write_text(json.dumps({"commit": commit, "results": results}, indent=1))
+    write(results, RESULTS / f"{args.out}.md", commit)
+    print((RESULTS / f"{args.out}.md").read_text())
+
+
+if __name__ == "__main__":
+    main()
