@@ -113,7 +113,9 @@ and the landing place were most of the filter's seed-to-seed spread.
 
 Cost. A step is O(n_particles · hops + n_places), in compiled loops (motion, recovery,
 reweighting with the place masses, systematic resampling) over arrays allocated once in
-:meth:`Localizer.reset`; no per-particle Python and no per-step particle arrays. Same
+:meth:`Localizer.reset`; no per-particle Python and no per-step particle arrays (the
+marginalised motion: O(occupied places · n_bins² + n_particles + n_places), its
+families' scratch allocated per step). Same
 seed, same output: every random draw comes from the one ``numpy.random.Generator`` made
 from ``seed``.
 """

@@ -42,6 +42,20 @@ stays valid and every fraction stays in ``[0, 1]``.
   grid filter's prediction and converges to it as particles grow
   (``tests/test_localizer.py``).
 
+:meth:`VelocityMotion.move_marginal` is the same motion with the velocity *marginalised*
+(Rao–Blackwellised): a particle carries a distribution over the velocity bins instead of
+one bin, and the particles on one place (a *family*) predict exactly as the grid filter
+predicts a state with all its mass at that place — transition, shift, fractional shift
+and blur (:meth:`VelocityMotion.marginal_transition`, tested against
+:func:`catgraph.grid.predict`). The family then splits over the places it can reach in
+proportion to that prediction times the frame's likelihood (systematic positions, one
+uniform per family), each member weighted by the family's predictive likelihood, and
+each member's velocity distribution becomes the prediction's at the place it took. So
+nothing about the velocity is sampled, and a step costs one small prediction
+(``O(n_bins²)``) per occupied place plus ``O(n_particles)``. It needs a route without
+junction edges (:meth:`VelocityMotion.supports_marginal`); odometry and junction graphs
+keep the sampled motion.
+
 Randomness is explicit and bounded: per step, per particle, one normal (two for
 odometry) and one uniform ``u`` for all its branch choices. A choice among ``m`` options
 takes ``k = ⌊u m⌋`` and goes on with ``u' = u m − k``, again uniform on [0, 1) and
@@ -426,6 +440,18 @@ class VelocityMotion(MotionModel):
         # route offsets a particle can reach in one step: its fastest bin's hops (one more
         # for a fractional speed), then the blur's one place
         self._reach = int(np.max(whole + (speed > whole))) + 1
+        # away from the route's ends, a one-bin state's prediction per (offset, bin): the
+        # prediction of any velocity distribution there is their mixture
+        width = 2 * self._reach + 1
+        line = np.arange(width + 2)
+        fwd, bwd = np.where(line + 1 < width + 2, line + 1, -1), line - 1
+        self._interior = np.empty((len(v), width, len(v)))
+        window, moved = np.empty(width, dtype=np.int64), np.empty((width, len(v)))
+        for a in range(len(v)):
+            _marginal_transition(self._reach + 1, np.eye(len(v))[a], self._transition, *self._moves, self._blur,
+                                 fwd, bwd, self._reach, window, np.empty(len(v)), moved)
+            self._interior[a] = moved
+        self._interior_column = np.ascontiguousarray(self._interior.sum(2))
 
     def move(self, particles: ParticleSet, graph, rng: np.random.Generator, odometry: float | None = None) -> None:
         self._check()
@@ -564,7 +590,8 @@ class VelocityMotion(MotionModel):
         return float(_marginal_kernel(particles.edge, particles.fraction, particles.log_weight, velocity,
                                       int(skip[0]), int(skip[1]), float(log_keep), buffer, like, self._transition,
                                       whole, frac, sign, self._blur, fwd, bwd, graph.source, graph.target,
-                                      graph.out_ptr, first_in, self._reach, posterior, prior, family_of, members))
+                                      graph.out_ptr, first_in, self._reach, posterior, prior, family_of, members,
+                                      self._interior, self._interior_column))
 
 
 # ---------------------------------------------------------------------- the velocity marginalised
@@ -617,7 +644,8 @@ def _one_place_transition(j, p, transition, whole, frac, sign, blur, fwd, bwd, r
 @njit(fastmath=True)
 def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop, log_keep, uniform, like,
                      transition, whole, frac, sign, blur, fwd, bwd, source, target, out_ptr, first_in,
-                     reach, posterior, prior, family_of, members):  # pragma: no cover - compiled
+                     reach, posterior, prior, family_of, members, interior,
+                     interior_column):  # pragma: no cover - compiled
     """One step of :meth:`VelocityMotion.move_marginal` for every particle outside
     ``skip_start .. skip_stop``, in place; returns the particles' predicted mass
     ``K = Σ_i w_i Σ_c π_ic`` before its normalisation (0: every particle left the map).
@@ -637,7 +665,10 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
     (in units of ``e^{max r}``; ``K' = K / e^{log_keep}``). ``posterior[j]`` and
     ``prior[j]`` get the families' mixtures before the draw (``Σ W π_c like[c] / K'``
     and ``Σ W π_c / K'``): the Rao–Blackwellised place masses. ``family_of``:
-    ``(n_places,)`` int64 of ``-1`` (left so); ``members``: ``(n,)`` int64 scratch."""
+    ``(n_places,)`` int64 of ``-1`` (left so); ``members``: ``(n,)`` int64 scratch.
+    ``interior[a, o, b]``: the prediction of bin ``a`` alone away from the route's ends
+    (``interior_column`` its sum over ``b``); a family there predicts as their mixture,
+    and its bins' split is computed only at the places its members draw."""
     nb = velocity.shape[1]
     width = 2 * reach + 1
     n = edge.shape[0]
@@ -645,6 +676,7 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
     q = np.empty(nb)
     column = np.empty(width)
     moved = np.empty((width, nb))
+    row = np.empty(nb)
     origin = np.empty(nb, dtype=np.int64)
     for b in range(nb):
         origin[b] = reach + sign[b] * whole[b]
@@ -658,9 +690,11 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
     if not np.isfinite(mx):
         return 0.0
     total = 0.0
+    scaled = np.empty(n)  # e^{log_weight − max}, computed once
     for i in range(n):
         if i < skip_start or i >= skip_stop:
-            total += np.exp(log_weight[i] - mx)
+            scaled[i] = np.exp(log_weight[i] - mx)
+            total += scaled[i]
     log_norm = mx + np.log(total)
     # the families: the occupied places, their weights and mean velocity distributions
     place = np.empty(n, dtype=np.int64)
@@ -674,7 +708,7 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
         place[i] = -1
         if skip_start <= i < skip_stop:
             continue
-        w = np.exp(log_weight[i] - log_norm)
+        w = scaled[i] / total
         if w == 0.0:
             log_weight[i] = -np.inf
             continue
@@ -720,27 +754,22 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
         for o in range(width):
             if window[o] < 0:
                 inside = False
-        for b in range(nb):
-            q[b] = 0.0
         for a in range(nb):
-            pa = family_velocity[f, a] / weight
-            if pa != 0.0:
-                for b in range(nb):
-                    q[b] += pa * transition[a, b]
-        moved[:, :] = 0.0
-        if inside:  # every place of the window exists: no route end to check
-            for b in range(nb):
-                o = origin[b]
-                m = q[b] * (1.0 - frac[b])
-                moved[o, b] += centre * m
-                moved[o + 1, b] += blur * m
-                moved[o - 1, b] += blur * m
-                o += sign[b]
-                m = q[b] * frac[b]
-                moved[o, b] += centre * m
-                moved[o + 1, b] += blur * m
-                moved[o - 1, b] += blur * m
+            q[a] = family_velocity[f, a] / weight  # the family's velocity distribution
+        if inside:  # away from the route's ends: the mixture of the bins' predictions
+            for o in range(width):
+                c = 0.0
+                for a in range(nb):
+                    c += q[a] * interior_column[a, o]
+                column[o] = c
         else:
+            p = q.copy()
+            for b in range(nb):
+                acc = 0.0
+                for a in range(nb):
+                    acc += p[a] * transition[a, b]
+                q[b] = acc
+            moved[:, :] = 0.0
             for b in range(nb):
                 o = origin[b]
                 for extra in range(2):
@@ -752,13 +781,17 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
                     moved[o, b] += centre * m
                     moved[o + 1 if window[o + 1] >= 0 else o, b] += blur * m  # a route end keeps its blur
                     moved[o - 1 if window[o - 1] >= 0 else o, b] += blur * m
+            for o in range(width):
+                c = 0.0
+                for b in range(nb):
+                    c += moved[o, b]
+                column[o] = c
+            for a in range(nb):
+                q[a] = p[a]
         stays = 0.0
         evidence = 0.0
         for o in range(width):
-            c = 0.0
-            for b in range(nb):
-                c += moved[o, b]
-            column[o] = c
+            c = column[o]
             if c > 0.0:
                 t = window[o]
                 stays += c
@@ -776,6 +809,7 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
         log_each = np.log(weight * evidence / k)
         acc = 0.0
         scan = -1
+        last_pick = -1
         for m_ in range(k):
             i = members[lo + m_]
             pos = (uniform[family_first[f]] + m_) / k * evidence
@@ -786,8 +820,18 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
             pick = scan
             while column[pick] <= 0.0 or like[window[pick]] <= 0.0:  # round-off past the end
                 pick -= 1
-            for b in range(nb):  # the velocity distribution at the chosen place
-                velocity[i, b] = moved[pick, b] / column[pick]
+            if pick != last_pick:  # the velocity distribution at the chosen place
+                last_pick = pick
+                for b in range(nb):
+                    if inside:
+                        share = 0.0
+                        for a in range(nb):
+                            share += q[a] * interior[a, pick, b]
+                        row[b] = share / column[pick]
+                    else:
+                        row[b] = moved[pick, b] / column[pick]
+            for b in range(nb):
+                velocity[i, b] = row[b]
             t = window[pick]
             if out_ptr[t + 1] > out_ptr[t]:
                 edge[i] = out_ptr[t]
