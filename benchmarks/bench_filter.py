@@ -98,7 +98,7 @@ def speed() -> str:
     rng = np.random.default_rng(0)
     nb = len(DEFAULT_VELOCITIES)
     lines = ["# Filter step time", "", f"`python benchmarks/bench_filter.py speed`. {platform.processor() or platform.machine()}, "
-             f"numpy {np.__version__}; medians of 5 runs; observation precomputed (a fixed log-ratio vector). The "
+             f"numpy {np.__version__}; medians of 5 runs (the grid filter's configurations interleaved); observation precomputed (a fixed log-ratio vector). The "
              "machine is shared, so each row also gives, measured in the same run, one `np.add` over an array of the "
              f"grid's size ({nb} × places float64) and the step as a multiple of it.", "",
              "| filter | places | step (ms) | np.add of the state (ms) | step / np.add |", "|---|---|---|---|---|"]
@@ -113,17 +113,23 @@ def speed() -> str:
         rows = rng.standard_normal((30, n))
         # the default (phase bins for the fractional speeds) and, beside it in the same
         # run, one bin per speed (max_phases=1): what the phase bins cost
-        for label, line, phases in (("line graph (fast path)", True, 4), ("line graph, one bin per speed", True, 1),
-                                    ("general path (the reference)", False, 4)):
-            g = PlaceGraph.chain(n)
+        configs = (("line graph (fast path)", True, 4), ("line graph, one bin per speed", True, 1),
+                   ("general path (the reference)", False, 4))
+        g = PlaceGraph.chain(n)
 
-            def one():
-                loc = GridLocalizer(g, _FixedModel(-rows[0]), max_phases=phases).reset()
-                loc._line = line
-                loc.reset = lambda: loc  # keep the path chosen above
-                return _time_steps(loc, rows)
+        def one(line, phases):
+            loc = GridLocalizer(g, _FixedModel(-rows[0]), max_phases=phases).reset()
+            loc._line = line
+            loc.reset = lambda: loc  # keep the path chosen above
+            return _time_steps(loc, rows)
 
-            t = _median_ms(one)
+        times: dict = {c: [] for c in configs}
+        for _ in range(5):  # the configurations interleaved, so that the machine's load falls on each alike
+            for c in configs:
+                times[c].append(one(c[1], c[2]))
+        for c in configs:
+            label, _, phases = c
+            t = 1e3 * statistics.median(times[c])
             ref = 1e3 * _memory_reference(nb * n)
             bins = len(GridLocalizer(g, _FixedModel(-rows[0]), max_phases=phases).reset()._owner)
             lines.append(f"| grid filter, {nb} velocities in {bins} state bins, {label} | {n:,} | {t:.3f} | "
