@@ -14,6 +14,10 @@ block are computed *where the shards live*, and only per-frame summaries travel 
    sums a local run adds, in the same order: the means and standard deviations, and
    so the normalised block, are identical to :func:`catgraph.differences.difference_matrix`
    with ``normalise=True`` (two small round trips: means, then squared deviations).
+   With hub offsets (:func:`catgraph.hubs.map_hub_offsets`, computed from the map),
+   each worker subtracts its places' offsets and the rows are normalised again as
+   :func:`catgraph.hubs.apply_hub_offsets` does it, with the rows' numpy ``mean()`` and
+   ``std()`` reduced in numpy's own order (see 6; two more rounds).
 3. **Codes** (:mod:`catgraph.sequence`, "Precision"). The local matcher stores each
    normalised difference once as an int16 code of a quantum ``u`` fixed by the query's
    first row. The client reduces ``max_j |d_0j|`` over the shards once per query and
@@ -95,7 +99,7 @@ Per block, only ``O(rows V G (radius + G + 8))`` numbers per shard return to the
 (``G`` candidate lengths, 1 for a fixed window): four client rounds for a fixed window
 (two for the normalisation, one for the mean codes, one for the summaries; one more per
 query for the quantum), two more for the row moments of the adaptive window's
-confidence; the full ``n_query × N`` matrix is never gathered
+confidence, two more for the hub correction; the full ``n_query × N`` matrix is never gathered
 (:func:`difference_matrix` gathers it on request, for tests and small maps).
 
 What to call
@@ -534,9 +538,11 @@ def shard_reference(descriptors, metric: str, scheduler, shard_places: int | Non
 # blocks of query rows
 
 
-def _normalised_blocks(ref: ShardedReference, q: np.ndarray, normalise: bool, blank: np.ndarray | None = None) -> list:
+def _normalised_blocks(ref: ShardedReference, q: np.ndarray, normalise: bool, blank: np.ndarray | None = None,
+                       hubs: list | None = None) -> list:
     """Futures of each shard's (normalised) columns for query rows ``q``; rows where
-    ``blank`` is true become zeros (a frame with no information, as locally)."""
+    ``blank`` is true become zeros (a frame with no information, as locally); with
+    ``hubs`` (each shard's hub offsets, :func:`_hub_futures`), hub-corrected."""
     c = ref.client
     q_fut = c.scatter(q, broadcast=True, direct=False)
     raw = [ref.submit(s, _raw, shard, q_fut) for s, shard in enumerate(ref.shards)]
@@ -549,7 +555,37 @@ def _normalised_blocks(ref: ShardedReference, q: np.ndarray, normalise: bool, bl
     std[_zero_spread(std, mean)] = 0.0
     if blank is not None:
         std[blank] = 0.0
-    return [ref.submit(s, _scale, b, mean, std) for s, b in enumerate(raw)]
+    scaled = [ref.submit(s, _scale, b, mean, std) for s, b in enumerate(raw)]
+    if hubs is None:
+        return scaled
+    # the hub correction (catgraph.hubs.apply_hub_offsets): the offsets subtracted, each row
+    # normalised again with its numpy mean and std (two rounds, numpy's summation order)
+    shifted = [ref.submit(s, _subtract, b, o) for s, (b, o) in enumerate(zip(scaled, hubs))]
+    mean, std = _row_moments(ref, shifted)
+    return [ref.submit(s, _renormalise, b, mean, std) for s, b in enumerate(shifted)]
+
+
+def _subtract(block: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    return block - offsets
+
+
+def _renormalise(block: np.ndarray, mean: np.ndarray, std: np.ndarray) -> np.ndarray:
+    """:func:`catgraph.hubs.apply_hub_offsets`'s second normalisation, element by element."""
+    out = block - mean[:, None]
+    return np.divide(out, np.where(std > 0, std, 1.0)[:, None], out=out)
+
+
+def _hub_futures(ref: ShardedReference, hub_offsets, owner: str) -> list | None:
+    """Each shard's hub offsets, on its worker (``None``: no correction)."""
+    if hub_offsets is None:
+        return None
+    offsets = np.asarray(hub_offsets, dtype=np.float64)
+    if offsets.shape != (ref.n_places,):
+        raise InvalidParameterError(f"The 'hub_offsets' parameter of {owner} must have one offset per reference "
+                                    f"place ({ref.n_places}); got shape {offsets.shape}. Compute them from the "
+                                    "same map (catgraph.hubs.map_hub_offsets).")
+    return [ref.client.scatter(np.ascontiguousarray(offsets[lo:hi]), workers=[ref.workers[s]], direct=False)
+            for s, (lo, hi) in enumerate(ref.bounds)]
 
 
 def difference_matrix(query, ref: ShardedReference, normalise: bool = True, block_rows: int = 256) -> np.ndarray:
@@ -593,7 +629,7 @@ def _halo(velocities: np.ndarray, first: int, stop: int, window: int) -> tuple[i
 def _line_blocks(ref: ShardedReference, q: np.ndarray, start: int, stop: int, windows: np.ndarray,
                  velocities: np.ndarray, unit: float | None, radius: int, want_sums: bool = False,
                  blank: np.ndarray | None = None, want_sub: bool = False,
-                 keep_rows: bool = False) -> tuple[list, float, list | None]:
+                 keep_rows: bool = False, hubs: list | None = None) -> tuple[list, float, list | None]:
     """Futures of each shard's window sums and summaries (:func:`_shard_lines`) for query
     rows ``[start, stop)``, every velocity and every length in ``windows``; the quantum
     (fixed by the first block when ``unit`` is ``None``); with ``keep_rows``, the futures
@@ -601,7 +637,7 @@ def _line_blocks(ref: ShardedReference, q: np.ndarray, start: int, stop: int, wi
     c = ref.client
     longest = int(windows[-1])
     first = max(0, start - longest)
-    blocks = _normalised_blocks(ref, q[first:stop], True, None if blank is None else blank[first:stop])
+    blocks = _normalised_blocks(ref, q[first:stop], True, None if blank is None else blank[first:stop], hubs)
     if unit is None:  # the first block starts at query frame 0
         unit = _quantum(ref, blocks)
     coded = [ref.submit(s, _codes, b, unit) for s, b in enumerate(blocks)]
@@ -842,7 +878,8 @@ class _Rows:
 # matching
 
 
-def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, owner: str) -> ShardedMatches:
+def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, owner: str,
+           hub_offsets=None) -> ShardedMatches:
     """Match every query frame with the window rule of ``cfg`` (:func:`catgraph.sequence._config`)."""
     check_scalar(block_rows, "block_rows", owner, int, 1)
     c = ref.client
@@ -854,6 +891,7 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
         if blank.shape != (n_q,):
             raise InvalidParameterError(f"no_information must have one flag per query frame ({n_q}); got shape "
                                         f"{blank.shape}.")
+    hubs = _hub_futures(ref, hub_offsets, owner)
     with_sub = _needs_sub(cfg)
     # the current frame's term of the confidence ("posterior", "support" with an adaptive window)
     current = not cfg.fixed and cfg.confidence in ("posterior", "support")
@@ -864,7 +902,7 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
     for start in range(0, n_q, block_rows):
         stop = min(n_q, start + block_rows)
         futs, unit, rows = _line_blocks(ref, q, start, stop, windows, cfg.velocities, unit, cfg.radius, blank=blank,
-                                        want_sub=with_sub, keep_rows=current)
+                                        want_sub=with_sub, keep_rows=current, hubs=hubs)
         parts = c.gather([ref.submit(s, _summaries_only, f) for s, f in enumerate(futs)])
         values = np.stack([p["low"] for p in parts])
         pick = np.argmin(values, axis=0)[None]  # the first shard holding the minimum: the lowest place, as locally
@@ -897,7 +935,8 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
 
 def match_fixed_window(query, ref: ShardedReference, window: int, radius: int = 10,
                        velocities=DEFAULT_VELOCITIES, confidence: str = "posterior",
-                       block_rows: int = 256, no_information: np.ndarray | None = None) -> ShardedMatches:
+                       block_rows: int = 256, no_information: np.ndarray | None = None,
+                       hub_offsets: np.ndarray | None = None) -> ShardedMatches:
     """Fixed-window sequence matching on the cluster, searching velocities.
 
     The answers of :func:`catgraph.sequence.match_sequences` with ``window=L`` and the
@@ -930,18 +969,23 @@ def match_fixed_window(query, ref: ShardedReference, window: int, radius: int = 
         Frames with no information (:func:`catgraph.frontends.check_information`):
         their normalised rows are zeros, as :func:`catgraph.io.query_differences`
         makes them.
+    hub_offsets : ndarray, shape (N,), optional
+        The map's hub offsets (:func:`catgraph.hubs.map_hub_offsets`): every row is
+        corrected and normalised again as :func:`catgraph.hubs.apply_hub_offsets` does
+        it (the row's numpy mean and std, reduced in numpy's order: two more rounds).
     """
     check_scalar(window, "window", "match_fixed_window", int, 1, SHARD_UNIT)
     cfg = _config("match_fixed_window", int(window), "gaussian", "unrivalled", confidence, 1, 1, 1, radius, 0.0,
                   velocities, None)
-    return _match(query, ref, cfg, block_rows, no_information, "match_fixed_window")
+    return _match(query, ref, cfg, block_rows, no_information, "match_fixed_window", hub_offsets)
 
 
 def match_adaptive_window(query, ref: ShardedReference, rule: str = "unrivalled", confidence: str = "posterior",
                           l_min: int = 5, l_max: int = 500, grid=DEFAULT_GRID, radius: int = 10,
                           recent_fraction: float = 0.05, velocities=DEFAULT_VELOCITIES,
                           approximation: str = "gaussian", block_rows: int = 512,
-                          no_information: np.ndarray | None = None) -> ShardedMatches:
+                          no_information: np.ndarray | None = None,
+                          hub_offsets: np.ndarray | None = None) -> ShardedMatches:
     """Adaptive-window sequence matching on the cluster (paper 2, the library's default).
 
     The answers of :func:`catgraph.sequence.match_sequences` with ``window="adaptive"``
@@ -970,7 +1014,7 @@ def match_adaptive_window(query, ref: ShardedReference, rule: str = "unrivalled"
         "gaussian" only).
     block_rows : int
         Query rows per round.
-    no_information : ndarray of bool, shape (n_query,), optional
+    no_information, hub_offsets
         As :func:`match_fixed_window`.
     """
     owner = "match_adaptive_window"
@@ -985,4 +1029,4 @@ def match_adaptive_window(query, ref: ShardedReference, rule: str = "unrivalled"
     check_scalar(l_max, "l_max", owner, int, 1, SHARD_UNIT)
     cfg = _config(owner, "adaptive", approximation, rule, confidence, l_min, l_max, grid, radius, recent_fraction,
                   velocities, None)
-    return _match(query, ref, cfg, block_rows, no_information, owner)
+    return _match(query, ref, cfg, block_rows, no_information, owner, hub_offsets)

@@ -226,6 +226,36 @@ def test_adaptive_window_with_frames_without_information(client, route):
         assert np.array_equal(getattr(res, name), getattr(out, name)), name
 
 
+@pytest.mark.parametrize("window", [20, "adaptive"])
+def test_hub_correction_equals_local(client, window):
+    # flat frames (hubs) in every shard; the offsets from the map against itself (a sample of
+    # its frames); rows corrected and normalised again as apply_hub_offsets does it
+    from catgraph.hubs import hub_offsets
+
+    rng = np.random.default_rng(5)
+    r = rng.normal(size=(8200, 16)).astype(np.float32)
+    r[[100, 5000, 8195]] *= 0.05
+    places = np.concatenate([np.arange(3990, 4190), np.arange(8120, 8200)])
+    q = r[places] + 0.4 * rng.normal(size=(places.size, 16)).astype(np.float32)
+    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
+    local = difference_matrix(q, r, "sad", normalise=True)
+    offsets = hub_offsets(difference_matrix(r[::7], r, "sad", normalise=True), rows=np.arange(0, 8200, 7))
+    assert np.count_nonzero(offsets) == 3
+    if window == "adaptive":
+        res = dd.match_adaptive_window(q, ref, l_max=60, grid=5, block_rows=100, hub_offsets=offsets)
+        out = match_sequences(local, l_max=60, grid=5, hub_offsets=offsets)
+        plain = match_sequences(local, l_max=60, grid=5)
+    else:
+        res = dd.match_fixed_window(q, ref, window, block_rows=64, hub_offsets=offsets)
+        out = match_sequences(local, window=window, hub_offsets=offsets)
+        plain = match_sequences(local, window=window)
+    for name in ("match", "score", "velocity", "window_length", "confidence"):
+        assert np.array_equal(getattr(res, name), getattr(out, name)), name
+    assert not np.array_equal(plain.confidence, out.confidence)  # not trivial: the correction changes them
+    with pytest.raises(InvalidParameterError, match="hub_offsets.*one offset per reference place"):
+        dd.match_fixed_window(q, ref, 5, hub_offsets=offsets[:-1])
+
+
 @pytest.mark.parametrize("n", [1, 7, 8, 100, 128, 129, 4096, 4100, 8200, 9001])
 def test_row_moments_are_numpys(n):
     # numpy's pairwise sum, cut at shards of 4096 places: every subtree inside a shard summed
@@ -346,7 +376,7 @@ def test_cluster_experiment_equals_the_local_run(client, data, condition, veloci
     q[40] = 1.0  # a constant frame: no information, a zero row in both runs
     reference = Traverse(r, meta={"kind": "descriptors"}, name="ref")
     query = Traverse(q, meta={"kind": "descriptors"}, name="query")
-    params = {"window": window, "hub_correction": False, "exclusion": 5}
+    params = {"window": window, "hub_correction": window == 12, "exclusion": 5}  # both, corrected or not
     if velocities is not None:  # else the registry's default velocities
         params["velocities"] = velocities
     if window == "adaptive":  # a shorter grid than the default, for speed
@@ -370,8 +400,6 @@ def test_cluster_experiment_refuses_what_it_cannot_match_locally(client, data):
 
     q, r = data
     kw = {"query": Traverse(q, meta={"kind": "descriptors"}), "reference": Traverse(r, meta={"kind": "descriptors"})}
-    with pytest.raises(InvalidParameterError, match="needs --no-hub-correction"):
-        run_on_cluster(Experiment(method="sequence", params={"window": 12}, **kw), client)
     with pytest.raises(InvalidParameterError, match="approximation.*gaussian"):
         run_on_cluster(Experiment(method="sequence", params={"window": "adaptive", "approximation": "robust",
                                                              "hub_correction": False}, **kw), client)
@@ -391,16 +419,17 @@ def test_match_command_with_scheduler_writes_the_local_results(client, data, tmp
     np.save(tmp_path / "ref.npy", r)
     np.save(tmp_path / "query.npy", q)
     common = [str(tmp_path / "ref.npy"), str(tmp_path / "query.npy"), "--metric", "sad", "--window", "12",
-              "--no-hub-correction", "--tolerance", "2", "-q"]  # the default velocities
+              "--tolerance", "2", "-q"]  # the default velocities, with the hub correction
     assert main(["match", *common, "-o", str(tmp_path / "local.json")]) == 0
     assert main(["match", *common, "--scheduler", client.scheduler.address, "-o", str(tmp_path / "cluster.json")]) == 0
     local, cluster = (json.loads((tmp_path / f"{k}.json").read_text()) for k in ("local", "cluster"))
     assert cluster["frames"]["match"] == local["frames"]["match"]
     assert cluster["frames"]["confidence"] == local["frames"]["confidence"]
     assert cluster["metrics"] == local["metrics"]
-    common.remove("--no-hub-correction")
-    assert main(["match", *common, "--scheduler", client.scheduler.address]) == 1
-    assert "--no-hub-correction" in capsys.readouterr().err
+    common[common.index("12")] = "adaptive"
+    assert main(["match", *common, "--l-max", "20", "--scheduler", client.scheduler.address, "--approximation",
+                 "robust"]) == 1
+    assert "gaussian" in capsys.readouterr().err
 
 
 def test_uint8_shards_equal_the_local_compact_reference(client, data):
