@@ -445,19 +445,13 @@ def run(exp: Experiment, progress: bool = False) -> tuple[RunResult, dict, "Eval
 
 
 def _cluster_params(exp: Experiment) -> dict:
-    """The resolved ``sequence`` parameters, refused where the cluster path would not
-    give the local answers."""
+    """The resolved ``sequence`` parameters (another method is refused: the cluster path
+    does sequence matching only)."""
     if exp.method != "sequence":
         raise InvalidParameterError(
             f"a cluster run (--scheduler) does sequence matching; got method {exp.method!r}. Give "
             "--window N (N ≥ 2) or --window adaptive, or run without --scheduler.")
-    params = get_method("sequence").resolve(exp.params)
-    fixes = []
-    if params["hub_correction"]:
-        fixes.append("--no-hub-correction (hub offsets need the whole map on one machine)")
-    if fixes:
-        raise InvalidParameterError("a cluster run (--scheduler) needs " + "; ".join(fixes) + ".")
-    return params
+    return get_method("sequence").resolve(exp.params)
 
 
 def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
@@ -467,9 +461,9 @@ def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
     Parameters
     ----------
     exp : Experiment
-        Method ``sequence`` (a fixed or the adaptive ``window``, any ``velocities``) with
-        ``hub_correction=False`` (anything else is refused: the cluster path would not
-        give the local answers); a map whose differences are normalised.
+        Method ``sequence`` (a fixed or the adaptive ``window``, any ``velocities``; the
+        hub offsets, when asked for, are computed here from the map, as locally); a map
+        whose differences are normalised.
     scheduler : str or distributed.Client
         A scheduler address (``"tcp://host:8786"``) or a client.
     shard_places : int, optional
@@ -486,6 +480,7 @@ def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
     import time
 
     from .distributed import _client, match_adaptive_window, match_fixed_window, shard_reference
+    from .hubs import map_hub_offsets
     from .methods import _WINDOW_ADAPTIVE
     from .io import describe_query
 
@@ -508,7 +503,8 @@ def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
     try:
         sharded = shard_reference(the_map.descriptors, the_map.metric, client, shard_places)
         common = {"radius": int(params["exclusion"]), "velocities": tuple(params["velocities"]),
-                  "block_rows": block_rows, "no_information": ~informative}
+                  "block_rows": block_rows, "no_information": ~informative,
+                  "hub_offsets": map_hub_offsets(the_map) if params["hub_correction"] else None}
         if adaptive:
             res = match_adaptive_window(q, sharded, **{k: params[k] for k in _WINDOW_ADAPTIVE}, **common)
         else:

@@ -304,8 +304,8 @@ def register_match(sub) -> None:
                    help="'sequence' (SeqSLAM; --window 1 = single frame) or 'histogram' (P(d|L), P(d|¬L) model)")
     add_method_options(p, ("sequence", "single-frame", "histogram"))
     p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="run on a Dask cluster (tcp://host:8786), the map sharded over its workers: sequence matching "
-                        "with --no-hub-correction; needs pip install \"catgraph[dask]\"")
+                   help="run on a Dask cluster (tcp://host:8786), the map sharded over its workers: sequence matching; "
+                        "needs pip install \"catgraph[dask]\"")
     p.set_defaults(func=cmd_match)
 
 
