@@ -99,10 +99,10 @@ models that learn from the filter (the tempered whole-image model) do it there.
 Cost. On a *line* graph (the chain of a route: place ``j``'s neighbours are ``j ± 1``,
 no junctions) without odometry, the prediction is a per-velocity shift by index
 arithmetic plus the blur, computed in one compiled pass over a velocity-major state, a
-block of places at a time (:data:`_LINE_BLOCK`; the transition of all ten state
-rows of a block and its halo stay in cache), and the update is kept factored
-(prediction × the frame's likelihood per place, whose ``exp`` numpy computes), so a step
-reads the state twice and writes it once: ``O(n_places · n_bins)`` (see
+block of places at a time (:data:`_LINE_BLOCK`; a block's state rows and its halo stay
+in cache, and each row's transition is shifted and blurred while it is still there),
+and the update is kept factored (prediction × the frame's likelihood per place, whose
+``exp`` numpy computes), so a step reads the state twice and writes it once: ``O(n_places · n_bins)`` (see
 ``benchmarks/results/filter_speed.md``). That path stores the prediction in float32
 (half the memory traffic; every sum, the likelihood and the place masses stay
 float64): it agrees with the float64 path to about 1e-6 relative over tens of steps
@@ -355,8 +355,9 @@ def _likelihood(state, e, prior_mass, like, velocity, mass):  # pragma: no cover
     return total, like_sum / n
 
 
-#: Places per block of the line kernel (its working set, the ten state rows of a block
-#: plus their halo, stays in the second-level cache).
+#: Places per block of the line kernel (its working set, the state rows of a block plus
+#: their halo, stays in the second-level cache; the one row of the transition it works
+#: on, in the first).
 _LINE_BLOCK = 1024
 
 
@@ -366,11 +367,14 @@ def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, fr
     """:func:`predict` on a line graph (place ``j``'s neighbours are ``j ± 1``, no
     junctions, no odometry) from the factored posterior ``p[b, j] · like[j]``
     (velocity-major), in one pass over the state, ``block`` places at a time: for a block
-    (plus a halo of the largest hop and the blur), the transition of every velocity row
-    times the likelihood, then per row the shift by index arithmetic, the blur and the
-    recovery (into ``out[b]``); ``mass`` gets the predicted place masses. The mass that
-    runs past a route end, needed before the first place is written, is summed first
-    from the few places within reach of the ends."""
+    (plus a halo of the largest hop and the blur), row by row, the transition of the row
+    times the likelihood (one row buffer, still in cache when it is read back), then its
+    shift by index arithmetic, the blur and the recovery (into ``out[b]``); ``mass`` gets
+    the predicted place masses. A whole move (a whole speed, every phase bin) inside the
+    route reads the shifted row directly; a split move (a fraction beyond
+    ``max_phases``) and the blocks at the route's ends go through the moved-mass buffer.
+    The mass that runs past a route end, needed before the first place is written, is
+    summed first from the few places within reach of the ends."""
     nb, n = p.shape
     total_in = 0.0
     for j in range(n):
@@ -402,7 +406,7 @@ def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, fr
     side = keep * blur
     halo = reach + 2  # a hop of whole + 1 places, then the blur's one
     width = block + 2 * halo
-    tb = np.empty((nb, width))  # T·like over [j0 − halo, j1 + halo), zero outside the route
+    tb = np.empty(width)  # one row of T·like over [j0 − halo, j1 + halo), zero outside the route
     mv = np.empty(block + 2)  # moved mass over [j0 − 1, j1 + 1)
     for j0 in range(0, n, block):
         j1 = min(n, j0 + block)
@@ -410,13 +414,16 @@ def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, fr
         z = min(n, j1 + halo)
         off = a - (j0 - halo)
         lk = like[a:z]
-        for b in range(nb):
-            t = tb[b]
-            for i in range(off):  # before the route's start
-                t[i] = 0.0
-            for i in range(off + z - a, width):  # past its end
-                t[i] = 0.0
-            tt = t[off:off + z - a]
+        m = mass[j0:j1]
+        for j in range(j1 - j0):
+            m[j] = 0.0
+        w = j1 - j0
+        for i in range(off):  # before the route's start
+            tb[i] = 0.0
+        for i in range(off + z - a, width):  # past its end
+            tb[i] = 0.0
+        tt = tb[off:off + z - a]
+        for b in range(nb):  # each row's transition, then at once its shift and blur (the row in cache)
             c0, k = t_ptr[b], t_ptr[b + 1] - t_ptr[b]
             if k <= 4:  # velocity_transition's columns: the bin itself, two neighbours, the mirror
                 r0 = p[t_src[c0], a:z]
@@ -441,30 +448,30 @@ def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, fr
                 for i in range(z - a):
                     tt[i] = 0.0
                 for c in range(c0, c0 + k):
-                    src, w = p[t_src[c], a:z], t_val[c]
+                    src, wc = p[t_src[c], a:z], t_val[c]
                     for i in range(z - a):
-                        tt[i] += w * src[i]
+                        tt[i] += wc * src[i]
                 for i in range(z - a):
                     tt[i] *= lk[i]
-        m = mass[j0:j1]
-        for j in range(j1 - j0):
-            m[j] = 0.0
-        w = j1 - j0
-        for b in range(nb):
             # moved[j] = (1 − f) T[j − s h] + f T[j − s (h + 1)], j from j0 − 1 to j1
             step = sign[b] * whole[b]
             f0, f1 = 1.0 - frac[b], frac[b]
-            t = tb[b]
-            ti = t[halo - 1 - step:halo - 1 - step + w + 2]
-            tk = t[halo - 1 - step - sign[b]:halo - 1 - step - sign[b] + w + 2]
+            ti = tb[halo - 1 - step:halo - 1 - step + w + 2]
+            o = out[b, j0:j1]
+            base = share0 * velocity_prior[b]
+            if f1 == 0.0 and j0 > 0 and j1 < n:  # a whole move (every phase bin) inside the route: no split
+                for k in range(w):
+                    x = centre * ti[k + 1] + side * (ti[k] + ti[k + 2]) + base
+                    o[k] = x
+                    m[k] += x
+                continue
+            tk = tb[halo - 1 - step - sign[b]:halo - 1 - step - sign[b] + w + 2]
             for k in range(w + 2):
                 mv[k] = f0 * ti[k] + f1 * tk[k]
             if j0 == 0:  # a route end keeps the blur that would leave it
                 mv[0] = mv[1]
             if j1 == n:
                 mv[w + 1] = mv[w]
-            o = out[b, j0:j1]
-            base = share0 * velocity_prior[b]
             for k in range(w):
                 x = centre * mv[k + 1] + side * (mv[k] + mv[k + 2]) + base
                 o[k] = x

@@ -480,3 +480,28 @@ def test_line_fast_path_in_blocks_equals_the_general_path(block, monkeypatch):
         fast.step(row), slow.step(row)
         np.testing.assert_allclose(fast.prior_, slow.prior_, **EXACT)
         np.testing.assert_allclose(fast.state_, slow.state_, **EXACT)
+
+
+@pytest.mark.parametrize("block", [3, 16])
+@pytest.mark.parametrize("velocities, max_phases", [((-2.0, -0.5, 0.5, 1.0, 2.0), 1), ((-1.0, 0.0, 0.3, 1.5, 2.0), 4)])
+def test_line_fast_path_in_blocks_with_split_moves_equals_the_general_path(block, velocities, max_phases,
+                                                                           monkeypatch):
+    """Inside the route a whole move reads the shifted row directly and a split move (a
+    fraction with more phases than ``max_phases``) goes through the moved-mass buffer:
+    both, in blocks away from the route's ends, give the general walk's answer."""
+    import catgraph.grid as grid
+
+    monkeypatch.setattr(grid, "_LINE_BLOCK", block)
+    rng = np.random.default_rng(12)
+    n = 53
+    rows = _track_rows(n, 3 + np.arange(30), rng, depth=1.5)
+    rows[15:] = _track_rows(n, 40 - np.arange(15), rng, depth=1.5)  # a jump and a turn
+    kw = dict(velocities=velocities, max_phases=max_phases)
+    fast = _float64_state(GridLocalizer(PlaceGraph.chain(n), _fixed(0.8), **kw).reset())
+    slow = GridLocalizer(PlaceGraph.chain(n), _fixed(0.8), **kw).reset()
+    assert np.any(fast._moves[1] > 0) and fast._line
+    slow._line = False
+    for row in rows:
+        fast.step(row), slow.step(row)
+        np.testing.assert_allclose(fast.prior_, slow.prior_, **EXACT)
+        np.testing.assert_allclose(fast.state_, slow.state_, **EXACT)
