@@ -122,10 +122,10 @@ def measure(shard_places: int, n_shards: int, settings: list[dict], repeats: int
 
 
 def identity(conditions: list[str]) -> list[dict]:
-    """The cluster run against the local run on the real data (experiment layer: default
-    sequence method, the adaptive window and every velocity, hub correction off, as the
-    cluster needs), per dataset and condition: the frames whose match, confidence and
-    window length are identical."""
+    """The cluster run against the local run on the real data (experiment layer: the
+    registry's ``sequence`` method with its defaults, a fixed window of 50, and with the
+    adaptive window; every velocity and the hub correction), per dataset and condition:
+    the frames whose match, confidence and window length are identical."""
     import warnings
 
     import distributed
@@ -145,19 +145,20 @@ def identity(conditions: list[str]) -> list[dict]:
         cases.append(("UJI 02", {"query": db / "02" / "tst01", "reference": db / "01" / "trn01",
                                  "tolerance_m": WIFI_METRES}))
     out = []
-    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster, \
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster, \
             distributed.Client(cluster) as client:
         for name, inputs in cases:
-            for text in conditions:
-                exp = Experiment(method="sequence", params={"hub_correction": False}, condition=Condition.parse(text),
-                                 **inputs)
+            for text, params in [(t, p) for p in ({}, {"window": "adaptive"}) for t in conditions]:
+                exp = Experiment(method="sequence", params=params, condition=Condition.parse(text), **inputs)
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
                     local, local_out, _ = run(exp)
                     remote, remote_out, _ = run_on_cluster(exp, client, block_rows=512)
                 same = ((local.match == remote.match) & (local.confidence == remote.confidence)
                         & (local.extra["window_length"] == remote.extra["window_length"]))
-                out.append({"dataset": name, "condition": text, "frames": int(same.size),
+                out.append({"dataset": name, "window": params.get("window", 50), "condition": text,
+                            "frames": int(same.size),
                             "identical": int(same.sum()), "auc_local": local_out["metrics"].get("auc"),
                             "auc_cluster": remote_out["metrics"].get("auc")})
                 print(out[-1], flush=True)
@@ -208,19 +209,23 @@ def main() -> None:
     if args.identity is not None:
         rows = identity(args.identity or ["in-order", "reverse", "speed:2"])
         lines = ["# Dask path against the local run on the real data", "",
-                 "`benchmarks/bench_distributed.py --identity`: the experiment layer's default sequence method "
-                 "(adaptive window, every velocity) with the hub correction off, `run` against `run_on_cluster` "
+                 "`benchmarks/bench_distributed.py --identity`: the registry's `sequence` method with its defaults "
+                 "(window 50, every velocity, hub correction) and with `window = adaptive`, `run` against "
+                 "`run_on_cluster` "
                  "(one shard: these maps are smaller than 4096 places). Frames whose match, confidence and window "
                  "length are identical (bit for bit):", "",
-                 "| dataset | condition | identical frames | AUC local | AUC cluster |", "|---|---|---|---|---|"]
-        lines += [f"| {r['dataset']} | {r['condition']} | {r['identical']} / {r['frames']} | {r['auc_local']:.4f} "
+                 "| dataset | window | condition | identical frames | AUC local | AUC cluster |",
+                 "|---|---|---|---|---|---|"]
+        lines += [f"| {r['dataset']} | {r['window']} | {r['condition']} | {r['identical']} / {r['frames']} | "
+                  f"{r['auc_local']:.4f} "
                   f"| {r['auc_cluster']:.4f} |" for r in rows]
         RESULTS.mkdir(exist_ok=True)
         (RESULTS / "distributed_identity.md").write_text("\n".join(lines) + "\n")
         print("\n".join(lines))
         return
     fixed = {"block_rows": 64, "n_query": args.query}
-    settings = [{"window": 50, "velocities": (1.0,), **fixed}, {"window": 50, "velocities": DEFAULT_VELOCITIES, **fixed},
+    settings = [{"window": 50, "velocities": (1.0,), **fixed},
+                {"window": 50, "velocities": DEFAULT_VELOCITIES, **fixed},
                 {"window": 100, "velocities": (1.0,), **fixed},
                 {"window": 100, "velocities": DEFAULT_VELOCITIES, **fixed}]
     if args.adaptive_query:
