@@ -316,20 +316,23 @@ def _shift_walk(p, out, whole, frac, sign, fwd, bwd, t_ptr, t_src, t_val):  # pr
 
 
 @njit(fastmath=True)
-def _likelihood(state, e, prior_mass, like, velocity, mass):  # pragma: no cover - compiled
+def _likelihood(state, e, prior_mass, like, velocity, mass, summed):  # pragma: no cover - compiled
     """The update, kept factored, in one pass over the state. ``e`` holds
     ``e^{r_j − top}`` (computed by numpy, whose vectorised ``exp`` is several times
     numba's); ``like[j] = e_j / Σ_j prior_mass_j e_j``, so that the posterior is
     ``state[b, j] · like[j]`` (velocity-major ``state``, the prediction, left untouched);
     ``mass`` gets the posterior place masses ``prior_mass · like`` and ``velocity`` the
     posterior velocity marginal (summed with the unnormalised ``e`` in the same pass,
-    divided at the end). Returns ``(total, mean e)``: the normaliser before division (0:
-    every place impossible, ``like`` and ``mass`` left as they were)."""
+    divided at the end). ``summed``: ``velocity`` holds those sums already (the line
+    kernel forms them while it writes the prediction, :func:`_line_predict`), and the
+    state is not read at all. Returns ``(total, mean e)``: the normaliser before division
+    (0: every place impossible, ``like`` and ``mass`` left as they were)."""
     nb, n = state.shape
     like_sum = 0.0
     total = 0.0
-    for b in range(nb):
-        velocity[b] = 0.0
+    if not summed:
+        for b in range(nb):
+            velocity[b] = 0.0
     for j0 in range(0, n, 4096):
         j1 = min(n, j0 + 4096)
         ee = e[j0:j1]
@@ -337,6 +340,8 @@ def _likelihood(state, e, prior_mass, like, velocity, mass):  # pragma: no cover
         for j in range(j1 - j0):
             like_sum += ee[j]
             total += pm[j] * ee[j]
+        if summed:
+            continue
         for b in range(nb):
             row = state[b, j0:j1]
             acc = 0.0
@@ -363,7 +368,7 @@ _LINE_BLOCK = 1024
 
 @njit(fastmath=True)
 def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, frac, sign, blur,
-                  recovery, velocity_prior, block):  # pragma: no cover - compiled
+                  recovery, velocity_prior, block, e, velocity):  # pragma: no cover - compiled
     """:func:`predict` on a line graph (place ``j``'s neighbours are ``j ± 1``, no
     junctions, no odometry) from the factored posterior ``p[b, j] · like[j]``
     (velocity-major), in one pass over the state, ``block`` places at a time: for a block
@@ -374,8 +379,14 @@ def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, fr
     route reads the shifted row directly; a split move (a fraction beyond
     ``max_phases``) and the blocks at the route's ends go through the moved-mass buffer.
     The mass that runs past a route end, needed before the first place is written, is
-    summed first from the few places within reach of the ends."""
+    summed first from the few places within reach of the ends. Given the next frame's
+    ``e`` (:func:`_likelihood`; empty: none), ``velocity[b]`` gets ``Σ_j out[b, j] e_j``
+    (the stored prediction, rounded as stored) while the row is written, so that the
+    update need not read the state again."""
     nb, n = p.shape
+    fuse = len(e) > 0
+    for b in range(nb):
+        velocity[b] = 0.0
     total_in = 0.0
     for j in range(n):
         total_in += prior_mass[j] * like[j]
@@ -460,10 +471,20 @@ def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, fr
             o = out[b, j0:j1]
             base = share0 * velocity_prior[b]
             if f1 == 0.0 and j0 > 0 and j1 < n:  # a whole move (every phase bin) inside the route: no split
-                for k in range(w):
-                    x = centre * ti[k + 1] + side * (ti[k] + ti[k + 2]) + base
-                    o[k] = x
-                    m[k] += x
+                if fuse:
+                    ee = e[j0:j1]
+                    acc = 0.0
+                    for k in range(w):
+                        x = centre * ti[k + 1] + side * (ti[k] + ti[k + 2]) + base
+                        o[k] = x
+                        m[k] += x
+                        acc += o[k] * ee[k]
+                    velocity[b] += acc
+                else:
+                    for k in range(w):
+                        x = centre * ti[k + 1] + side * (ti[k] + ti[k + 2]) + base
+                        o[k] = x
+                        m[k] += x
                 continue
             tk = tb[halo - 1 - step - sign[b]:halo - 1 - step - sign[b] + w + 2]
             for k in range(w + 2):
@@ -476,6 +497,12 @@ def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, fr
                 x = centre * mv[k + 1] + side * (mv[k] + mv[k + 2]) + base
                 o[k] = x
                 m[k] += x
+            if fuse:
+                ee = e[j0:j1]
+                acc = 0.0
+                for k in range(w):
+                    acc += o[k] * ee[k]
+                velocity[b] += acc
 
 
 @njit
@@ -835,6 +862,8 @@ class GridLocalizer:
         self.recovery_ = float(self.recovery)
         self._jumps, self._frames = 0.0, 0.0
         self._e = np.empty(g.n_places)
+        self._no_e = np.empty(0)  # the line kernel without an update to form sums for
+        self._summed = None
         self._like_buffer = np.empty(g.n_places)
         # the line path keeps the prediction in float32 (half the memory traffic of a step;
         # every sum and the likelihood stay float64); the general path, the reference, float64
@@ -890,26 +919,45 @@ class GridLocalizer:
         row = _check_observation(observation, self.graph.n_places)
         odometry = check_odometry(odometry)
         obs = self.model.observe(row)
-        self._predict(odometry)
-        self._update(obs)
+        ratio = self._exp_ratio(obs)
+        self._predict(odometry, ratio)
+        self._update(ratio)
         estimate, near = self._summarise()
         self._feedback(near)
         self.n_steps_ += 1
         return estimate
 
-    def _predict(self, odometry: float | None) -> None:
+    def _exp_ratio(self, obs):
+        """``(e, top, new_place_log_ratio)`` of an informative observation, ``e_j =
+        e^{r_j − top}`` with ``top = max_j r_j`` (in a buffer of the filter's); ``None``
+        for an uninformative one (no update)."""
+        if not obs.informative:
+            return None
+        r = np.asarray(obs.log_ratio, dtype=np.float64)
+        top = float(r.max())
+        e = self._e
+        np.exp(np.subtract(r, top, out=e), out=e)
+        return e, top, float(obs.new_place_log_ratio)
+
+    def _predict(self, odometry: float | None, ratio=None) -> None:
+        self._summed = None
         if self.n_steps_ > 0:
             jump_velocity = self._jump_velocity()
             if self._line and odometry is None:
                 out = self._spare
                 whole, frac, sign, _ = self._moves
                 mass = np.empty(self.graph.n_places)
+                # the next frame's velocity sums formed while the prediction is written
+                summed = np.empty(len(self._owner))
                 _line_predict(self._state, self._like, self.prior_, out, mass, *self._t_sparse, whole,
-                              frac, sign, float(self.blur), self.recovery_, jump_velocity, _LINE_BLOCK)
+                              frac, sign, float(self.blur), self.recovery_, jump_velocity, _LINE_BLOCK,
+                              self._no_e if ratio is None else ratio[0], summed)
                 self._spare, self._state = self._state, out
                 self._like = self._ones
                 self.prior_ = mass
                 self._mass = mass
+                if ratio is not None:
+                    self._summed = summed
                 return
             state = predict(np.ascontiguousarray(self._bin_state()), self._transition, self._v, self._neighbours,
                             self.blur, self.recovery_, jump_velocity, self.junction_probability, odometry, self._moves)
@@ -923,18 +971,16 @@ class GridLocalizer:
         speed, so half the current velocity marginal and half uniform."""
         return 0.5 * self._velocity + 0.5 * self._velocity_prior
 
-    def _update(self, obs) -> None:
-        if not obs.informative:
+    def _update(self, ratio) -> None:
+        if ratio is None:
             return
-        r = np.asarray(obs.log_ratio, dtype=np.float64)
-        top = float(r.max())
-        e = self._e
-        np.exp(np.subtract(r, top, out=e), out=e)
-        velocity = np.empty(len(self._owner))
+        e, top, new_place_log_ratio = ratio
+        summed = self._summed is not None
+        velocity = self._summed if summed else np.empty(len(self._owner))
         # the previous frame's likelihood was consumed by the prediction: its buffer is free
         like = self._like_buffer
-        mass = np.empty(len(r))
-        total, like_mean = _likelihood(self._state, e, self.prior_, like, velocity, mass)
+        mass = np.empty(len(e))
+        total, like_mean = _likelihood(self._state, e, self.prior_, like, velocity, mass, summed)
         if total <= 0.0:
             return  # every place impossible: keep the prediction
         self._like, self._velocity = like, velocity
@@ -945,7 +991,7 @@ class GridLocalizer:
         p_new = self.new_place_probability_
         prior = self.new_place_stay * p_new + self.new_place_prior * (1.0 - p_new)
         if prior > 0.0:
-            a_new = math.log(prior) + float(obs.new_place_log_ratio)
+            a_new = math.log(prior) + new_place_log_ratio
             a_map = math.log1p(-prior) + log_map
             t = np.logaddexp(a_new, a_map)
             self._log_new, self._log_map = a_new - t, a_map - t

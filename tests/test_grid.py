@@ -373,7 +373,7 @@ EXACT = dict(rtol=1e-9, atol=1e-15)
 def _float64_state(loc):
     """The fast path with its state kept in float64 (the kernel is the same)."""
     loc._state = loc._state.astype(np.float64)
-    loc._spare = loc._spare.astype(np.float64)
+    loc._spare = np.empty_like(loc._state)  # a buffer the kernel writes before reading
     return loc
 
 
@@ -505,3 +505,38 @@ def test_line_fast_path_in_blocks_with_split_moves_equals_the_general_path(block
         fast.step(row), slow.step(row)
         np.testing.assert_allclose(fast.prior_, slow.prior_, **EXACT)
         np.testing.assert_allclose(fast.state_, slow.state_, **EXACT)
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_velocity_sums_formed_by_the_line_kernel_are_the_posterior_velocity_marginal(precision):
+    """On the line path the update does not read the state again: the velocity sums are
+    formed while the prediction is written. After every step they are the posterior's
+    velocity marginal, ``Σ_j state[b, j] · like[j]`` (recomputed here from the stored
+    state), and the kernel's prediction is the one it writes without them."""
+    import catgraph.grid as grid
+
+    rng = np.random.default_rng(13)
+    n = 70
+    rows = _track_rows(n, 5 + np.arange(40), rng, depth=1.5)
+    rows[20:] = _track_rows(n, 60 - np.arange(20), rng, depth=1.5)  # a jump and a turn
+    loc = GridLocalizer(PlaceGraph.chain(n), _fixed(0.8)).reset()
+    if precision == "float64":
+        _float64_state(loc)
+    for k, row in enumerate(rows):
+        if k > 0:  # the kernel with and without the sums, from the same posterior
+            whole, frac, sign, _ = loc._moves
+            args = (loc._state, loc._like, loc.prior_)
+            rest = (*loc._t_sparse, whole, frac, sign, float(loc.blur), loc.recovery_, loc._jump_velocity(), 16)
+            e = np.exp(rng.standard_normal(n))
+            (out_a, mass_a, v_a), (out_b, mass_b, v_b) = [
+                (np.empty_like(loc._state), np.empty(n), np.empty(len(loc._owner))) for _ in range(2)]
+            grid._line_predict(*args, out_a, mass_a, *rest, e, v_a)
+            grid._line_predict(*args, out_b, mass_b, *rest, np.empty(0), v_b)
+            np.testing.assert_allclose(out_a, out_b, rtol=1e-15, atol=0)
+            np.testing.assert_allclose(mass_a, mass_b, rtol=1e-15, atol=0)
+            np.testing.assert_allclose(v_a, out_a.astype(np.float64) @ e, rtol=1e-12)
+            assert np.all(v_b == 0.0)
+        loc.step(row)
+        want = (loc._state.astype(np.float64) * loc._like).sum(1)
+        np.testing.assert_allclose(loc._velocity, want, rtol=1e-12, atol=1e-300)
+        assert (k > 0) == (loc._summed is not None)
