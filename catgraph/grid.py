@@ -102,10 +102,12 @@ arithmetic plus the blur, computed in one compiled pass over a velocity-major st
 block of places at a time (:data:`_LINE_BLOCK`; a block's state rows and its halo stay
 in cache, and each row's transition is shifted and blurred while it is still there),
 and the update is kept factored (prediction × the frame's likelihood per place, whose
-``exp`` numpy computes), so a step reads the state twice and writes it once: ``O(n_places · n_bins)`` (see
-``benchmarks/results/filter_speed.md``). That path stores the prediction in float32
-(half the memory traffic; every sum, the likelihood and the place masses stay
-float64): it agrees with the float64 path to about 1e-6 relative over tens of steps
+``exp`` numpy computes before the prediction, so that the kernel forms the posterior's
+velocity sums while it writes each row): a step reads the state once and writes it
+once, ``O(n_places · n_bins)`` (see ``benchmarks/results/filter_speed.md``). The result
+is the unfused one's to round-off (the velocity sums are added in another order). That
+path stores the prediction in float32 (half the memory traffic; every sum, the
+likelihood and the place masses stay float64): it agrees with the float64 path to about 1e-6 relative over tens of steps
 (tested to 1e-5), and exactly when given a float64 state. Branching graphs and odometry
 take the general path (:func:`predict`: a walk along the graph's edges, junctions
 included, float64), which is also the slow reference the line path is tested against.
