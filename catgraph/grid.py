@@ -107,10 +107,11 @@ velocity sums while it writes each row): a step reads the state once and writes 
 once, ``O(n_places · n_bins)`` (see ``benchmarks/results/filter_speed.md``). The result
 is the unfused one's to round-off (the velocity sums are added in another order). That
 path stores the prediction in float32 (half the memory traffic; every sum, the
-likelihood and the place masses stay float64): it agrees with the float64 path to about 1e-6 relative over tens of steps
-(tested to 1e-5), and exactly when given a float64 state. Branching graphs and odometry
-take the general path (:func:`predict`: a walk along the graph's edges, junctions
-included, float64), which is also the slow reference the line path is tested against.
+likelihood and the place masses stay float64): it agrees with the float64 path to
+about 1e-6 relative over tens of steps (tested to 1e-5), and exactly when given a
+float64 state. Branching graphs and odometry take the general path (:func:`predict`: a
+walk along the graph's edges, junctions included, float64), which is also the slow
+reference the line path is tested against.
 Memory ``O(n_places · n_bins)``.
 """
 
