@@ -842,8 +842,7 @@ class GridLocalizer:
         """Start afresh: uniform over places and velocity bins, ``P(new) = 0``, model reset."""
         self._validate()
         g = self.graph
-        nb = len(self._v)
-        self._neighbours = route_neighbours(g)
+        neighbours = route_neighbours(g)
         owner, whole, frac, sign, mirror, successor = phase_bins(self._v, self.max_phases)
         nb = len(owner)
         self._owner = owner
@@ -851,10 +850,14 @@ class GridLocalizer:
         self._transition = phase_transition(velocity_transition(self._v, self.velocity_stay, self.reverse_probability),
                                             owner, successor)
         self._moves = (whole, frac, sign, mirror)
-        fwd, bwd, _, _, _, jdst = self._neighbours
+        fwd, bwd, _, _, _, jdst = neighbours
         idx = np.arange(g.n_places)
         self._line = len(jdst) == 0 and bool(np.all(fwd == np.where(idx + 1 < g.n_places, idx + 1, -1))
                                              and np.all(bwd == idx - 1))
+        # the general path's walk along the edges (five arrays of n_places): a line graph
+        # needs it only for a frame with odometry, so there it is rebuilt on that use
+        self._neighbours = None if self._line else neighbours
+        del neighbours, idx
         nz = self._transition.T != 0  # the transition's columns, sparse
         self._t_sparse = (np.concatenate([[0], np.cumsum(nz.sum(1))]).astype(np.int64),
                           np.nonzero(nz)[1].astype(np.int64),
@@ -874,8 +877,9 @@ class GridLocalizer:
         self._spare = np.empty((nb, g.n_places), dtype=dtype)
         # the posterior, factored: the prediction (velocity-major, so that shifts are
         # contiguous) times the latest frame's normalised likelihood per place
-        self._state = np.ascontiguousarray(np.repeat(self._velocity_prior[:, None] / g.n_places, g.n_places, 1),
-                                           dtype=dtype)
+        self._state = np.empty((nb, g.n_places), dtype=dtype)  # filled row by row: no float64 copy
+        for b, p in enumerate(self._velocity_prior / g.n_places):
+            self._state[b] = p
         self._ones = np.ones(g.n_places)  # the likelihood of a prediction not yet updated (never written)
         self._like = self._ones
         self.prior_ = self._state.sum(0, dtype=np.float64)
@@ -962,6 +966,8 @@ class GridLocalizer:
                 if ratio is not None:
                     self._summed = summed
                 return
+            if self._neighbours is None:
+                self._neighbours = route_neighbours(self.graph)
             state = predict(np.ascontiguousarray(self._bin_state()), self._transition, self._v, self._neighbours,
                             self.blur, self.recovery_, jump_velocity, self.junction_probability, odometry, self._moves)
             self._state = np.ascontiguousarray(state.T, dtype=self._spare.dtype if self._line else np.float64)
