@@ -452,6 +452,7 @@ class VelocityMotion(MotionModel):
                                  fwd, bwd, self._reach, window, np.empty(len(v)), moved)
             self._interior[a] = moved
         self._interior_column = np.ascontiguousarray(self._interior.sum(2))
+        self._interior_rows = np.ascontiguousarray(self._interior.transpose(1, 2, 0))  # [o, b, a]
 
     def move(self, particles: ParticleSet, graph, rng: np.random.Generator, odometry: float | None = None) -> None:
         self._check()
@@ -591,7 +592,7 @@ class VelocityMotion(MotionModel):
                                       int(skip[0]), int(skip[1]), float(log_keep), buffer, like, self._transition,
                                       whole, frac, sign, self._blur, fwd, bwd, graph.source, graph.target,
                                       graph.out_ptr, first_in, self._reach, posterior, prior, family_of, members,
-                                      self._interior, self._interior_column))
+                                      self._interior_rows, self._interior_column))
 
 
 # ---------------------------------------------------------------------- the velocity marginalised
@@ -666,9 +667,10 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
     ``prior[j]`` get the families' mixtures before the draw (``Σ W π_c like[c] / K'``
     and ``Σ W π_c / K'``): the Rao–Blackwellised place masses. ``family_of``:
     ``(n_places,)`` int64 of ``-1`` (left so); ``members``: ``(n,)`` int64 scratch.
-    ``interior[a, o, b]``: the prediction of bin ``a`` alone away from the route's ends
-    (``interior_column`` its sum over ``b``); a family there predicts as their mixture,
-    and its bins' split is computed only at the places its members draw."""
+    ``interior[o, b, a]``: the prediction of bin ``a`` alone away from the route's ends
+    (``interior_column[a, o]`` its sum over ``b``); a family there predicts as their
+    mixture, and its bins' split is computed only at the places its members draw (the
+    sum over ``a`` runs along contiguous memory, which the compiler vectorises)."""
     nb = velocity.shape[1]
     width = 2 * reach + 1
     n = edge.shape[0]
@@ -757,11 +759,12 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
         for a in range(nb):
             q[a] = family_velocity[f, a] / weight  # the family's velocity distribution
         if inside:  # away from the route's ends: the mixture of the bins' predictions
-            for o in range(width):
-                c = 0.0
-                for a in range(nb):
-                    c += q[a] * interior_column[a, o]
-                column[o] = c
+            for o in range(width):  # each column[o] summed over a in order, the offsets side by side
+                column[o] = 0.0
+            for a in range(nb):
+                qa = q[a]
+                for o in range(width):
+                    column[o] += qa * interior_column[a, o]
         else:
             p = q.copy()
             for b in range(nb):
@@ -826,7 +829,7 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
                     if inside:
                         share = 0.0
                         for a in range(nb):
-                            share += q[a] * interior[a, pick, b]
+                            share += q[a] * interior[pick, b, a]
                         row[b] = share / column[pick]
                     else:
                         row[b] = moved[pick, b] / column[pick]

@@ -126,7 +126,7 @@ def test_marginal_kernel_matches_a_slow_reference(graph):
     whole, frac, sign = motion._moves
     kept = _marginal_kernel(e, f, lw, v, *skip, log_keep, rng.random(n), like, motion._transition, whole, frac, sign,
                             motion._blur, fwd, bwd, graph.source, graph.target, graph.out_ptr, first_in, motion._reach,
-                            post, prior, family, np.empty(n, dtype=np.int64), motion._interior,
+                            post, prior, family, np.empty(n, dtype=np.int64), motion._interior_rows,
                             motion._interior_column)
     assert np.all(family == -1)  # left as it came
     assert kept == pytest.approx(kept_ref, rel=1e-12)
@@ -164,7 +164,7 @@ def test_a_family_splits_in_proportion_over_its_destinations():
     whole, frac, sign = motion._moves
     _marginal_kernel(e, f, np.zeros(k), spread, 0, 0, 0.0, np.full(k, 0.37), like, motion._transition, whole, frac,
                      sign, motion._blur, fwd, bwd, g.source, g.target, g.out_ptr, first_in, motion._reach, post, prior,
-                     np.full(g.n_places, -1, dtype=np.int64), np.empty(k, dtype=np.int64), motion._interior,
+                     np.full(g.n_places, -1, dtype=np.int64), np.empty(k, dtype=np.int64), motion._interior_rows,
                      motion._interior_column)
     counts = np.bincount(g.source[e], minlength=g.n_places)
     q = post / post.sum()
