@@ -634,6 +634,80 @@ class CombinedObservation:
         return Observation(np.asarray(log_ratio, dtype=np.float64), float(new), True, support)
 
 
+def _kernels():
+    """The compiled passes (:mod:`catgraph._observation_kernels`), imported on first use."""
+    from . import _observation_kernels
+
+    return _observation_kernels
+
+
+class _NearMedian:
+    """``np.median`` of an array that changes little between calls, the same float.
+
+    The previous call's median ``m`` and a width ``w`` make a bracket ``[m − w, m + w]``;
+    one compiled pass (:func:`catgraph._observation_kernels.bracket`) counts the values
+    below it and copies those inside, and where the middle position falls inside, the
+    middle values are selected among those few. Otherwise (a first call, a median that
+    moved out of the bracket) every value is selected as :func:`_median` does, and the
+    bracket widens fourfold; a bracket holding more than a sixteenth of the values
+    narrows by half. The middle order statistics are the same values whichever way they
+    are found, and they are averaged as :func:`_median` averages them.
+
+    Attributes
+    ----------
+    guess : float or None
+        The previous median.
+    width : float
+        The bracket's half-width (0: no bracket yet; the owner sets the first).
+    """
+
+    __slots__ = ("guess", "width")
+
+    def __init__(self) -> None:
+        self.guess: float | None = None
+        self.width = 0.0
+
+    def median(self, values: np.ndarray, work: np.ndarray, centre: float | None = None) -> float:
+        """``np.median(values)``, or with ``centre`` ``np.median(np.abs(values − centre))``.
+
+        Parameters
+        ----------
+        values : ndarray of float64, shape (n,), C-contiguous
+        work : ndarray of float64, shape (n,)
+            Overwritten.
+        centre : float, optional
+        """
+        from ._observation_kernels import absolute_deviations, bracket, largest_below
+
+        n = len(values)
+        k = n // 2
+        absolute = centre is not None
+        centre = 0.0 if centre is None else centre
+        if self.guess is not None and self.width > 0.0:
+            below, inside = bracket(values, centre, absolute, self.guess, self.width, work)
+            if below <= k < below + inside:
+                chosen = work[:inside]
+                j = k - below
+                chosen.partition(j)
+                if n % 2:
+                    value = float(np.mean(chosen[j:j + 1]))
+                else:  # the lower middle value: the largest of the lower part, or of those below
+                    low = chosen[:j].max() if j > 0 else largest_below(values, centre, absolute, self.guess, self.width)
+                    value = float(np.mean(np.array((low, chosen[j]))))
+                if inside > n // 16:
+                    self.width *= 0.5
+                self.guess = value
+                return value
+            self.width *= 4.0
+        if absolute:
+            absolute_deviations(values, centre, work)
+            value = _median(work, work)
+        else:
+            value = _median(values, work)
+        self.guess = value
+        return value
+
+
 def _median(values: np.ndarray, work: np.ndarray) -> float:
     """``np.median(values)``, the same float, from one selection in the work array ``work``.
 
@@ -889,19 +963,41 @@ class TemperedObservation:
         (Wi-Fi fingerprints, the synthetic world) keeps its levels, which there carry
         place information; a map with a run of flat, textureless frames (Nordland's
         tunnels) has its levels removed.
+
+        The median and the MAD are selected near the previous frame's
+        (:class:`_NearMedian`: exact, one pass and a small selection while they move
+        little); the other passes are fused (:mod:`catgraph._observation_kernels`).
         """
         work = self._buffer("_select", len(level))
-        med = _median(level, work)
-        np.subtract(level, med, out=work)
-        np.abs(work, out=work)
-        mad = 1.4826 * _median(work, work)
-        hubs = int(np.count_nonzero(level < med - float(self.hub_threshold) * mad))
+        out = self._buffer("_excess", len(level))
+        if not level.flags.c_contiguous:  # a strided level map: numpy's passes
+            med = _median(level, work)
+            np.subtract(level, med, out=work)
+            np.abs(work, out=work)
+            mad = 1.4826 * _median(work, work)
+            hubs = int(np.count_nonzero(level < med - float(self.hub_threshold) * mad))
+            self.n_hubs_ = hubs
+            self.hub_shrinkage_ = min(1.0, hubs / (0.01 * len(level)))
+            np.subtract(level, level.mean(), out=out)
+            if self.hub_shrinkage_ != 1.0:  # a factor of exactly 1 leaves every value as it is
+                out *= self.hub_shrinkage_
+            return out
+        # the same arithmetic, each step one compiled pass (numpy's floats, numpy's sums)
+        k = _kernels()
+        near = self.__dict__.get("_near")
+        if near is None:
+            near = self._near = (_NearMedian(), _NearMedian())
+        med = near[0].median(level, work)
+        spread = near[1].median(level, work, centre=med)
+        mad = 1.4826 * spread
+        if near[0].width == 0.0 and spread > 0:  # the brackets' first width: a 50th of the spread
+            near[0].width = near[1].width = 0.02 * spread
+        hubs = int(k.count_below(level, med - float(self.hub_threshold) * mad))
         self.n_hubs_ = hubs
         self.hub_shrinkage_ = min(1.0, hubs / (0.01 * len(level)))
-        out = self._buffer("_excess", len(level))
-        np.subtract(level, level.mean(), out=out)
-        if self.hub_shrinkage_ != 1.0:  # a factor of exactly 1 leaves every value as it is
-            out *= self.hub_shrinkage_
+        mean = level.mean()
+        # a factor of exactly 1 leaves every value as it is: no product is formed
+        k.centred_scaled(level, mean, self.hub_shrinkage_, self.hub_shrinkage_ != 1.0, out)
         return out
 
     def _buffer(self, name: str, n: int) -> np.ndarray:
@@ -926,6 +1022,8 @@ class TemperedObservation:
                 base = self._buffer(f"_base{m}", len(row))
                 if h is None or lam == 0.0:
                     np.negative(row, out=base)
+                elif lam == 1.0 and row.flags.c_contiguous:
+                    _kernels().negated_difference(row, h, base)  # the two passes below, fused
                 else:
                     np.subtract(row, h if lam == 1.0 else lam * h, out=base)
                     np.negative(base, out=base)
@@ -941,8 +1039,10 @@ class TemperedObservation:
             self._start(row)
         self._bases = self._base(row)
         i, m = self._pick
-        r = np.multiply(self.temperature_ * self._novelty(row), self._bases[m])
+        scale = self.temperature_ * self._novelty(row)
+        base = self._bases[m]
         self._row = row
+        r = np.multiply(scale, base)
         if not self._new_place:
             return Observation(r, 0.0, True)
         top = float(r.max())

@@ -1,0 +1,101 @@
+"""Compiled passes of the observation models (imported lazily: numba).
+
+The models of :mod:`catgraph.observation` make several passes over the places per frame
+(levels, deviations, hub counts, centring …). These kernels fuse consecutive elementwise
+passes into one, each value going through the same IEEE operations, in the same order,
+as in the numpy formulas they replace, so the floats are the same bit for bit
+(``tests/test_observation_kernels.py``). Sums, maxima and ``exp`` stay numpy's: its
+pairwise, vectorised sums are both faster than a compiled loop here and the reference
+floats.
+
+:func:`bracket` serves the hub statistic's medians: the median of the reference levels
+(and that of their absolute deviations) moves little from one frame to the next, so most
+values lie outside a narrow bracket around the previous frame's median; one pass counts
+them and keeps the few inside, and the order statistic is selected among those
+(:class:`catgraph.observation.NearMedian`). An order statistic is a value of the array,
+so the result is exact whichever way it is selected.
+
+Kernels trust their input: 1-D, C-contiguous float64 of equal lengths, finite.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._jit import njit
+
+
+@njit(nogil=True)
+def bracket(values, centre, absolute, mid, radius, work):  # pragma: no cover - compiled
+    """Split the values ``v`` (``values``, or ``|values − centre|`` where ``absolute``)
+    around the bracket of the ``v`` with ``|v − mid| ≤ radius``, copying the ones inside
+    to ``work[:inside]``.
+
+    ``v − mid`` is rounded monotonically in ``v``, so the bracket is an interval of
+    values: those with ``v − mid < −radius`` lie below it, and ``below`` counts them.
+    Returns ``(below, inside)``. The ``k``-th smallest value (from 0) lies inside
+    exactly when ``below ≤ k < below + inside``, and is then the ``(k − below)``-th
+    smallest of ``work[:inside]``.
+    """
+    # one comparison per value decides the copy: a bracket holds few values, so the
+    # branch is predictable (counting the ones below is branch-free)
+    below = 0
+    inside = 0
+    for i in range(values.shape[0]):
+        v = values[i]
+        if absolute:
+            v = abs(v - centre)
+        d = v - mid
+        below += d < -radius
+        if abs(d) <= radius:
+            work[inside] = v
+            inside += 1
+    return below, inside
+
+
+@njit(nogil=True)
+def largest_below(values, centre, absolute, mid, radius):  # pragma: no cover - compiled
+    """The largest value ``v`` (as in :func:`bracket`) below the bracket (``−inf`` if none)."""
+    top = -np.inf
+    for i in range(values.shape[0]):
+        v = values[i]
+        if absolute:
+            v = abs(v - centre)
+        if v - mid < -radius:
+            top = max(top, v)
+    return top
+
+
+@njit(nogil=True)
+def negated_difference(row, h, out):  # pragma: no cover - compiled
+    """``out = −(row − h)``: numpy's ``np.subtract`` then ``np.negative``, one pass."""
+    for i in range(row.shape[0]):
+        out[i] = -(row[i] - h[i])
+
+
+@njit(nogil=True)
+def absolute_deviations(x, centre, out):  # pragma: no cover - compiled
+    """``out = |x − centre|``: ``np.subtract`` then ``np.abs``, one pass."""
+    for i in range(x.shape[0]):
+        out[i] = abs(x[i] - centre)
+
+
+@njit(nogil=True)
+def count_below(x, threshold):  # pragma: no cover - compiled
+    """``np.count_nonzero(x < threshold)``, without the boolean array."""
+    k = 0
+    for i in range(x.shape[0]):
+        if x[i] < threshold:
+            k += 1
+    return k
+
+
+@njit(nogil=True)
+def centred_scaled(x, mean, factor, scale, out):  # pragma: no cover - compiled
+    """``out = x − mean``, then ``out *= factor`` where ``scale``: numpy's two passes, one."""
+    if scale:
+        for i in range(x.shape[0]):
+            out[i] = (x[i] - mean) * factor
+    else:
+        for i in range(x.shape[0]):
+            out[i] = x[i] - mean

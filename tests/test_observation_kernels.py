@@ -1,0 +1,88 @@
+"""The observation models' compiled passes give numpy's floats, bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from catgraph import _observation_kernels as kernels
+from catgraph.observation import _median, _NearMedian
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 8, 129, 1000, 1001])
+def test_fused_passes_are_the_numpy_formulas(n):
+    rng = np.random.default_rng(n)
+    x, h = rng.standard_normal(n) * 3.0, rng.standard_normal(n)
+    centre, factor = float(rng.standard_normal()), 0.37
+    out = np.empty(n)
+    kernels.negated_difference(x, h, out)
+    assert np.array_equal(out, np.negative(np.subtract(x, h)))
+    kernels.absolute_deviations(x, centre, out)
+    assert np.array_equal(out, np.abs(np.subtract(x, centre)))
+    for threshold in (-1.0, centre, 10.0):
+        assert kernels.count_below(x, threshold) == np.count_nonzero(x < threshold)
+    kernels.centred_scaled(x, x.mean(), factor, True, out)
+    expected = np.subtract(x, x.mean())
+    expected *= factor
+    assert np.array_equal(out, expected)
+    kernels.centred_scaled(x, x.mean(), factor, False, out)
+    assert np.array_equal(out, np.subtract(x, x.mean()))
+
+
+def _brute_bracket(v, mid, radius):
+    d = v - mid
+    return int(np.count_nonzero(d < -radius)), np.sort(v[np.abs(d) <= radius])
+
+
+@pytest.mark.parametrize("absolute", [False, True])
+def test_bracket_splits_the_values_like_a_sort(absolute):
+    rng = np.random.default_rng(3)
+    x = np.round(rng.standard_normal(500), 2)  # ties
+    centre = 0.1
+    v = np.abs(x - centre) if absolute else x
+    work = np.empty_like(x)
+    for mid, radius in ((0.0, 0.1), (0.5, 0.0), (v[7], 0.05), (-5.0, 1.0), (0.0, 100.0)):
+        below, inside = kernels.bracket(x, centre, absolute, mid, radius, work)
+        want_below, want_inside = _brute_bracket(v, mid, radius)
+        assert below == want_below
+        assert np.array_equal(np.sort(work[:inside]), want_inside)
+        lower = v[v - mid < -radius]
+        assert kernels.largest_below(x, centre, absolute, mid, radius) == (lower.max() if len(lower) else -np.inf)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 10, 101, 1000, 1001])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_near_median_is_numpys_median_as_the_values_drift(n, seed):
+    """A slowly moving array (running means, as the hub levels), a jump, ties, exact
+    repeats: every call gives ``np.median``'s float, whether the bracket hits or not."""
+    rng = np.random.default_rng(seed)
+    near, spread = _NearMedian(), _NearMedian()
+    total = np.zeros(n)
+    work = np.empty(n)
+    hits = 0
+    for k in range(1, 40):
+        total += rng.standard_normal(n)
+        level = total / k
+        if k == 20:
+            level = level + 3.0  # the median leaves its bracket
+        if k in (25, 26):
+            level = np.round(level, 1)  # many ties, repeated
+        width = near.width
+        med = near.median(level, work)
+        assert med == float(np.median(level))
+        mad = spread.median(level, work, centre=med)
+        assert mad == float(np.median(np.abs(level - med)))
+        if near.width == 0.0 and mad > 0:
+            near.width = spread.width = 0.02 * mad
+        hits += 0.0 < near.width <= width  # a miss widens the bracket fourfold
+    if n >= 100:
+        assert hits >= 10  # the bracket was used, not only the full selection
+
+
+def test_near_median_takes_the_lower_middle_from_below_the_bracket():
+    """Even length, the bracket starting exactly at the upper middle value: the lower
+    middle value is the largest of those below the bracket."""
+    x = np.array([0.0, 1.0, 2.0, 3.0, 4.0, 5.0])
+    near = _NearMedian()
+    near.guess, near.width = 3.25, 0.25  # holds 3.0 (the upper middle) only
+    assert near.median(x, np.empty(6)) == float(np.median(x)) == _median(x, np.empty(6))
