@@ -26,30 +26,37 @@ from ._jit import njit
 
 
 @njit(nogil=True)
-def bracket(values, centre, absolute, mid, radius, work):  # pragma: no cover - compiled
+def bracket(values, centre, absolute, mid, radius, k, work):  # pragma: no cover - compiled
     """Split the values ``v`` (``values``, or ``|values − centre|`` where ``absolute``)
-    around the bracket of the ``v`` with ``|v − mid| ≤ radius``, copying the ones inside
-    to ``work[:inside]``.
+    around the bracket of the ``v`` with ``|v − mid| ≤ radius``.
 
     ``v − mid`` is rounded monotonically in ``v``, so the bracket is an interval of
-    values: those with ``v − mid < −radius`` lie below it, and ``below`` counts them.
-    Returns ``(below, inside)``. The ``k``-th smallest value (from 0) lies inside
-    exactly when ``below ≤ k < below + inside``, and is then the ``(k − below)``-th
-    smallest of ``work[:inside]``.
+    values: those with ``v − mid < −radius`` lie below it. Returns ``(below, inside)``,
+    how many values lie below and inside. The ``k``-th smallest value (from 0) lies
+    inside exactly when ``below ≤ k < below + inside``; then (only then) the values
+    inside are copied to ``work[:inside]``, and it is their ``(k − below)``-th smallest.
     """
-    # one comparison per value decides the copy: a bracket holds few values, so the
-    # branch is predictable (counting the ones below is branch-free)
+    # first count (a branch-free pass, vectorised), then copy only where it pays
     below = 0
     inside = 0
-    for i in range(values.shape[0]):
+    n = values.shape[0]
+    for i in range(n):
         v = values[i]
         if absolute:
             v = abs(v - centre)
         d = v - mid
         below += d < -radius
-        if abs(d) <= radius:
-            work[inside] = v
-            inside += 1
+        inside += abs(d) <= radius
+    if not (below <= k < below + inside):
+        return below, inside
+    m = 0
+    for i in range(n):
+        v = values[i]
+        if absolute:
+            v = abs(v - centre)
+        if abs(v - mid) <= radius:  # few values: a predictable branch
+            work[m] = v
+            m += 1
     return below, inside
 
 
@@ -99,3 +106,44 @@ def centred_scaled(x, mean, factor, scale, out):  # pragma: no cover - compiled
     else:
         for i in range(x.shape[0]):
             out[i] = x[i] - mean
+
+
+@njit(nogil=True)
+def centred_squared(x, mean, out, square):  # pragma: no cover - compiled
+    """``out = x − mean`` and ``square = out * out``: ``np.subtract`` then ``np.multiply``, one pass."""
+    for i in range(x.shape[0]):
+        d = x[i] - mean
+        out[i] = d
+        square[i] = d * d
+
+
+@njit(nogil=True)
+def centred_count(x, mean, threshold, out):  # pragma: no cover - compiled
+    """``out = x − mean``; returns ``np.count_nonzero(x < threshold)``, one pass."""
+    k = 0
+    for i in range(x.shape[0]):
+        v = x[i]
+        out[i] = v - mean
+        k += v < threshold
+    return k
+
+
+@njit(nogil=True)
+def tempered_ratios(row, h, corrected, scale, base, r):  # pragma: no cover - compiled
+    """``base = −(row − h)`` (``−row`` unless ``corrected``) and ``r = scale · base``, one pass.
+
+    Returns ``(r.max(), np.argmax(base))`` (the first place of the largest ``base``).
+    """
+    top = -np.inf
+    best = 0
+    largest = -np.inf
+    for i in range(row.shape[0]):
+        b = -(row[i] - h[i]) if corrected else -row[i]
+        base[i] = b
+        v = scale * b
+        r[i] = v
+        top = max(top, v)
+        if b > largest:
+            largest = b
+            best = i
+    return top, best

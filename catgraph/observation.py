@@ -684,7 +684,7 @@ class _NearMedian:
         absolute = centre is not None
         centre = 0.0 if centre is None else centre
         if self.guess is not None and self.width > 0.0:
-            below, inside = bracket(values, centre, absolute, self.guess, self.width, work)
+            below, inside = bracket(values, centre, absolute, self.guess, self.width, k, work)
             if below <= k < below + inside:
                 chosen = work[:inside]
                 j = k - below
@@ -737,8 +737,11 @@ def _standardised(s: np.ndarray, out: np.ndarray, work: np.ndarray) -> np.ndarra
     ``tests/test_likelihood.py`` checks the floats against ``s.std()`` and ``s.mean()``.
     """
     mean = s.mean()
-    np.subtract(s, mean, out=out)
-    np.square(out, out=work)
+    if s.flags.c_contiguous:  # centred and squared in one compiled pass (the same floats)
+        _kernels().centred_squared(s, mean, out, work)
+    else:
+        np.subtract(s, mean, out=out)
+        np.square(out, out=work)
     sd = np.sqrt(work.sum() / len(s))
     if not sd > 0:
         out[...] = 0.0
@@ -992,12 +995,12 @@ class TemperedObservation:
         mad = 1.4826 * spread
         if near[0].width == 0.0 and spread > 0:  # the brackets' first width: a 50th of the spread
             near[0].width = near[1].width = 0.02 * spread
-        hubs = int(k.count_below(level, med - float(self.hub_threshold) * mad))
+        # level − mean and the hub count in one pass, then the factor (numpy's two roundings)
+        hubs = int(k.centred_count(level, level.mean(), med - float(self.hub_threshold) * mad, out))
         self.n_hubs_ = hubs
         self.hub_shrinkage_ = min(1.0, hubs / (0.01 * len(level)))
-        mean = level.mean()
-        # a factor of exactly 1 leaves every value as it is: no product is formed
-        k.centred_scaled(level, mean, self.hub_shrinkage_, self.hub_shrinkage_ != 1.0, out)
+        if self.hub_shrinkage_ != 1.0:  # a factor of exactly 1 leaves every value as it is
+            out *= self.hub_shrinkage_
         return out
 
     def _buffer(self, name: str, n: int) -> np.ndarray:
@@ -1037,15 +1040,30 @@ class TemperedObservation:
         row = _check_row(difference_row, getattr(self, "n_reference_", None))
         if not hasattr(self, "n_reference_"):
             self._start(row)
+        self._best = None
+        lam = float(self._lams[0])
+        if self.likelihood == "linear" and len(self._lams) == 1 and row.flags.c_contiguous and lam in (0.0, 1.0):
+            # the single-frame ratios, their tempered product, its maximum and the frame's
+            # own best place in one compiled pass (the same arithmetic as below)
+            h = self._hub()
+            corrected = h is not None and lam != 0.0
+            scale = self.temperature_ * self._novelty(row)
+            base = self._buffer("_base0", len(row))
+            r = np.empty(len(row))
+            top, self._best = _kernels().tempered_ratios(row, h if corrected else row, corrected, scale, base, r)
+            return self._tempered(row, [base], r, float(top))
         self._bases = self._base(row)
         i, m = self._pick
         scale = self.temperature_ * self._novelty(row)
-        base = self._bases[m]
+        r = np.multiply(scale, self._bases[m])
+        return self._tempered(row, self._bases, r, float(r.max()) if self._new_place else 0.0)
+
+    def _tempered(self, row: np.ndarray, bases: list[np.ndarray], r: np.ndarray, top: float) -> Observation:
+        """The observation of ratios ``r`` (maximum ``top``), keeping what :meth:`feedback` reads."""
+        self._bases = bases
         self._row = row
-        r = np.multiply(scale, base)
         if not self._new_place:
             return Observation(r, 0.0, True)
-        top = float(r.max())
         work = self._buffer("_select", len(r))
         np.subtract(r, top, out=work)
         np.exp(work, out=work)
@@ -1067,8 +1085,11 @@ class TemperedObservation:
         a = self._buffer("_centred_a", n)
         square = self._buffer("_square", n)
         mean = row.mean()
-        np.subtract(row, mean, out=a)
-        np.multiply(a, a, out=square)
+        if row.flags.c_contiguous:  # a = row − mean and its square, one compiled pass
+            _kernels().centred_squared(row, mean, a, square)
+        else:
+            np.subtract(row, mean, out=a)
+            np.multiply(a, a, out=square)
         aa = square.sum()
         # the previous row was kept as a contiguous copy, whose mean numpy may sum in
         # another order than a strided row's
@@ -1119,7 +1140,8 @@ class TemperedObservation:
                 self.score_[:, m] += _predictive_scores(b, log_prior, self._taus)
         i, m = np.unravel_index(int(np.argmax(self.score_)), self.score_.shape)
         # agreement: how probable is the frame's own best place, relative to the answer?
-        best = int(np.argmax(self._bases[self._pick[1]]))
+        best = self.__dict__.get("_best")  # found by observe's compiled pass, or:
+        best = int(np.argmax(self._bases[self._pick[1]])) if best is None else int(best)
         post = np.asarray(feedback.posterior)
         top = float(post.max())
         hit = float(post[best]) / top if top > 0 else 0.0

@@ -42,10 +42,13 @@ def test_bracket_splits_the_values_like_a_sort(absolute):
     v = np.abs(x - centre) if absolute else x
     work = np.empty_like(x)
     for mid, radius in ((0.0, 0.1), (0.5, 0.0), (v[7], 0.05), (-5.0, 1.0), (0.0, 100.0)):
-        below, inside = kernels.bracket(x, centre, absolute, mid, radius, work)
         want_below, want_inside = _brute_bracket(v, mid, radius)
-        assert below == want_below
-        assert np.array_equal(np.sort(work[:inside]), want_inside)
+        for k in (0, len(x) // 2, want_below, want_below + len(want_inside) - 1, want_below + len(want_inside)):
+            work[:] = np.nan
+            below, inside = kernels.bracket(x, centre, absolute, mid, radius, k, work)
+            assert (below, inside) == (want_below, len(want_inside))
+            if below <= k < below + inside:  # copied only where the k-th value lies inside
+                assert np.array_equal(np.sort(work[:inside]), want_inside)
         lower = v[v - mid < -radius]
         assert kernels.largest_below(x, centre, absolute, mid, radius) == (lower.max() if len(lower) else -np.inf)
 
