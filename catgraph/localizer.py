@@ -470,6 +470,9 @@ def _check_observation(observation, n_places: int) -> np.ndarray:
 
     if type(observation) is CheckedRow and observation.ndim == 1 and len(observation) == n_places:
         return observation
+    if type(observation) is np.ndarray and observation.dtype == np.float64 and observation.shape == (n_places,) \
+            and np.isfinite(observation).all():  # the usual row: what check_array would accept as it is
+        return observation.view(CheckedRow)
     row = check_array(observation, "observation", ndim=1)
     if len(row) != n_places:
         raise ShapeMismatchError(
