@@ -259,7 +259,8 @@ class MotionModel:
         self.max_hops = max_hops
 
     def _params(self) -> tuple:
-        return tuple(sorted((k, v) for k, v in vars(self).items() if not k.startswith("_")))
+        # the public attributes in the order they were set (checked every step: kept cheap)
+        return tuple(item for item in vars(self).items() if item[0][:1] != "_")
 
     def _check(self) -> bool:
         """Validate the parameters; False when they were already validated unchanged."""
@@ -398,7 +399,7 @@ class VelocityMotion(MotionModel):
 
     def _params(self) -> tuple:
         v = self.velocities
-        rest = tuple(sorted((k, x) for k, x in vars(self).items() if not k.startswith("_") and k != "velocities"))
+        rest = tuple(item for item in vars(self).items() if item[0][:1] != "_" and item[0] != "velocities")
         return rest + (None if v is None else tuple(np.asarray(v, dtype=float).ravel().tolist()),)
 
     def _validate_params(self) -> None:
