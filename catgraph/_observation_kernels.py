@@ -12,7 +12,7 @@ floats.
 (and that of their absolute deviations) moves little from one frame to the next, so most
 values lie outside a narrow bracket around the previous frame's median; one pass counts
 them and keeps the few inside, and the order statistic is selected among those
-(:class:`catgraph.observation.NearMedian`). An order statistic is a value of the array,
+(:class:`catgraph.observation._NearMedian`). An order statistic is a value of the array,
 so the result is exact whichever way it is selected.
 
 Kernels trust their input: 1-D, C-contiguous float64 of equal lengths, finite.
@@ -85,27 +85,6 @@ def absolute_deviations(x, centre, out):  # pragma: no cover - compiled
     """``out = |x − centre|``: ``np.subtract`` then ``np.abs``, one pass."""
     for i in range(x.shape[0]):
         out[i] = abs(x[i] - centre)
-
-
-@njit(nogil=True)
-def count_below(x, threshold):  # pragma: no cover - compiled
-    """``np.count_nonzero(x < threshold)``, without the boolean array."""
-    k = 0
-    for i in range(x.shape[0]):
-        if x[i] < threshold:
-            k += 1
-    return k
-
-
-@njit(nogil=True)
-def centred_scaled(x, mean, factor, scale, out):  # pragma: no cover - compiled
-    """``out = x − mean``, then ``out *= factor`` where ``scale``: numpy's two passes, one."""
-    if scale:
-        for i in range(x.shape[0]):
-            out[i] = (x[i] - mean) * factor
-    else:
-        for i in range(x.shape[0]):
-            out[i] = x[i] - mean
 
 
 @njit(nogil=True)

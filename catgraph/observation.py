@@ -58,11 +58,17 @@ over-confident model so that one frame cannot wipe out the particle cloud.
 
 Per frame, a model makes a handful of passes over the places, and at 10⁵ places and more
 those passes are the model's cost: the arithmetic writes into work arrays kept between
-frames instead of allocating temporaries, the hub statistic's median and MAD take one
-selection each (:func:`_median`), the previous frame's centred row is kept for the novelty
-weight, and what no caller reads is not computed (the recent support is computed for the
-places read, :class:`RecentSupport`). Every sum stays numpy's own, so the floats are those
-of the plain formulas (``tests/test_likelihood.py`` checks them bit for bit;
+frames instead of allocating temporaries; consecutive elementwise passes run as one
+compiled pass (:mod:`catgraph._observation_kernels`: the tempered model's ratios, their
+maximum and the frame's best place together; centring with squaring; the hub count with
+the centred levels); the hub statistic's median and MAD, which move little from frame
+to frame, are selected among the few levels near the previous frame's
+(:class:`_NearMedian`, exact); the previous frame's centred row is kept for the novelty
+weight; and what no caller reads is not computed (the recent support is computed for the
+places read, :class:`RecentSupport`). Every value goes through the same IEEE operations
+as in the plain formulas and every sum, maximum and ``exp`` stays numpy's own, so the
+floats are those of the plain formulas (``tests/test_likelihood.py`` and
+``tests/test_observation_kernels.py`` check them bit for bit;
 ``benchmarks/bench_models.py`` times and checks the models against an earlier version).
 
 Models see the difference row the filter is given — usually the per-query normalised
@@ -692,7 +698,8 @@ class _NearMedian:
                 if n % 2:
                     value = float(np.mean(chosen[j:j + 1]))
                 else:  # the lower middle value: the largest of the lower part, or of those below
-                    low = chosen[:j].max() if j > 0 else largest_below(values, centre, absolute, self.guess, self.width)
+                    low = (chosen[:j].max() if j > 0
+                           else largest_below(values, centre, absolute, self.guess, self.width))
                     value = float(np.mean(np.array((low, chosen[j]))))
                 if inside > n // 16:
                     self.width *= 0.5

@@ -19,14 +19,22 @@ def test_fused_passes_are_the_numpy_formulas(n):
     assert np.array_equal(out, np.negative(np.subtract(x, h)))
     kernels.absolute_deviations(x, centre, out)
     assert np.array_equal(out, np.abs(np.subtract(x, centre)))
+    square = np.empty(n)
+    kernels.centred_squared(x, x.mean(), out, square)
+    centred = np.subtract(x, x.mean())
+    assert np.array_equal(out, centred) and np.array_equal(square, np.multiply(centred, centred))
     for threshold in (-1.0, centre, 10.0):
-        assert kernels.count_below(x, threshold) == np.count_nonzero(x < threshold)
-    kernels.centred_scaled(x, x.mean(), factor, True, out)
-    expected = np.subtract(x, x.mean())
-    expected *= factor
-    assert np.array_equal(out, expected)
-    kernels.centred_scaled(x, x.mean(), factor, False, out)
-    assert np.array_equal(out, np.subtract(x, x.mean()))
+        assert kernels.centred_count(x, x.mean(), threshold, out) == np.count_nonzero(x < threshold)
+        assert np.array_equal(out, centred)
+    base, r = np.empty(n), np.empty(n)
+    for corrected in (True, False):
+        top, best = kernels.tempered_ratios(x, h, corrected, factor, base, r)
+        expected = np.negative(np.subtract(x, h)) if corrected else np.negative(x)
+        assert np.array_equal(base, expected) and np.array_equal(r, np.multiply(factor, expected))
+        assert top == r.max() and best == np.argmax(expected)
+    ties = np.zeros(n)  # the first of equal largest values, as np.argmax
+    ties[1::2] = -1.0
+    assert kernels.tempered_ratios(ties, ties, False, factor, base, r)[1] == np.argmax(-ties) == min(1, n - 1)
 
 
 def _brute_bracket(v, mid, radius):
