@@ -11,6 +11,32 @@ needs_nordland = pytest.mark.skipif(not NORDLAND.exists(), reason="../shared/dat
 needs_uji = pytest.mark.skipif(not UJI.exists(), reason="../shared/data/uji-lib not present")
 
 
+class FixedLogRatio:
+    """An observation model whose log-ratio is ``−τ d`` of each row: the same model for
+    the particle filter and the grid filter it is compared with."""
+
+    def __init__(self, tau):
+        self.tau = tau
+
+    def reset(self):
+        pass
+
+    def observe(self, row):
+        from catgraph.observation import Observation
+
+        return Observation(-self.tau * np.asarray(row, dtype=float), 0.0)
+
+
+def survey_graph(n_points=15, repeats=3):
+    """A metric route sampled several times at each point (zero-length chain edges)."""
+    from catgraph.graph import PlaceGraph
+    from catgraph.traverse import Traverse
+
+    points = np.stack([5.0 * np.arange(n_points), np.zeros(n_points)], 1)
+    ref = Traverse(np.zeros((n_points * repeats, 2)), positions=np.repeat(points, repeats, axis=0))
+    return PlaceGraph.from_traverse(ref)
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(0)

@@ -10,6 +10,9 @@ from catgraph.observation import CombinedObservation, Observation
 from catgraph.particles import log_sum_exp
 from catgraph.traverse import Traverse
 
+from .conftest import FixedLogRatio as _Fixed
+from .conftest import survey_graph as _survey_graph
+
 
 class PeakModel:
     """Stand-in observation model: log-ratio ``-(d / scale)`` of the given row, so a row
@@ -317,26 +320,6 @@ def test_returned_posterior_is_the_mass_behind_each_estimate():
 
 
 # ---------------------------------------------------------------------- towards the grid filter
-class _Fixed:
-    """Log-ratio ``−τ d`` of each row: the same observation model for both filters."""
-
-    def __init__(self, tau):
-        self.tau = tau
-
-    def reset(self):
-        pass
-
-    def observe(self, row):
-        return Observation(-self.tau * np.asarray(row, dtype=float), 0.0)
-
-
-def _survey_graph(n_points=15, repeats=3):
-    """A metric route sampled several times at each point (zero-length chain edges)."""
-    points = np.stack([5.0 * np.arange(n_points), np.zeros(n_points)], 1)
-    ref = Traverse(np.zeros((n_points * repeats, 2)), positions=np.repeat(points, repeats, axis=0))
-    return PlaceGraph.from_traverse(ref)
-
-
 def _drive_with_a_jump(n, rng):
     """A query that drives 1 place per frame, then jumps to the other end of the route."""
     path = list(range(3, 21)) + list(range(n - 18, n - 3))

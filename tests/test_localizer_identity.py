@@ -15,8 +15,9 @@ from catgraph._jit import njit
 from catgraph.graph import PlaceGraph
 from catgraph.localizer import Localizer
 from catgraph.motion import VelocityMotion, _marginal_kernel
-from catgraph.observation import Observation
-from catgraph.traverse import Traverse
+
+from .conftest import FixedLogRatio as _Fixed
+from .conftest import survey_graph as _survey_graph
 
 #: the motion pinned (the defaults may move; the digests must not)
 _MOTION = dict(velocities=(-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0), velocity_stay=0.99,
@@ -213,13 +214,6 @@ def _reference_kernel(edge, fraction, log_weight, velocity, skip_start, skip_sto
     return kept
 
 
-def _survey_graph(n_points=15, repeats=3):
-    """A metric route sampled several times at each point (zero-length chain edges)."""
-    points = np.stack([5.0 * np.arange(n_points), np.zeros(n_points)], 1)
-    ref = Traverse(np.zeros((n_points * repeats, 2)), positions=np.repeat(points, repeats, axis=0))
-    return PlaceGraph.from_traverse(ref)
-
-
 def _state(graph, motion, rng, n, skip):
     """Particles on places, in families of every size, some on the route's ends, some of
     weight 0, with random velocity distributions (one-bin ones among them)."""
@@ -272,19 +266,6 @@ def test_marginal_kernel_is_bit_identical_to_its_reference(graph, velocities):
         assert ours[0] == ref[0] and ours[0] > 0.0
         for a, b in zip(ours[1:], ref[1:]):
             np.testing.assert_array_equal(a, b)
-
-
-class _Fixed:
-    """Log-ratio ``−τ d`` of each row."""
-
-    def __init__(self, tau):
-        self.tau = tau
-
-    def reset(self):
-        pass
-
-    def observe(self, row):
-        return Observation(-self.tau * np.asarray(row, dtype=float), 0.0)
 
 
 def _digest(seed, proposal):

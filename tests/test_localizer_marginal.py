@@ -8,28 +8,10 @@ from catgraph.graph import PlaceGraph
 from catgraph.grid import predict, route_neighbours
 from catgraph.localizer import Localizer
 from catgraph.motion import VelocityMotion, _marginal_kernel
-from catgraph.observation import Observation
 from catgraph.traverse import Traverse
 
-
-class _Fixed:
-    """Log-ratio ``−τ d`` of each row."""
-
-    def __init__(self, tau):
-        self.tau = tau
-
-    def reset(self):
-        pass
-
-    def observe(self, row):
-        return Observation(-self.tau * np.asarray(row, dtype=float), 0.0)
-
-
-def _survey_graph(n_points=12, repeats=3):
-    """A metric route sampled several times at each point (zero-length chain edges)."""
-    points = np.stack([5.0 * np.arange(n_points), np.zeros(n_points)], 1)
-    ref = Traverse(np.zeros((n_points * repeats, 2)), positions=np.repeat(points, repeats, axis=0))
-    return PlaceGraph.from_traverse(ref)
+from .conftest import FixedLogRatio as _Fixed
+from .conftest import survey_graph as _survey_graph
 
 
 def _grid_prediction(graph, motion, place, p):
@@ -42,7 +24,7 @@ def _grid_prediction(graph, motion, place, p):
                    np.full(len(v), 1.0 / len(v)), 0.1)
 
 
-@pytest.mark.parametrize("graph", [PlaceGraph.chain(30), _survey_graph()], ids=["chain", "survey"])
+@pytest.mark.parametrize("graph", [PlaceGraph.chain(30), _survey_graph(12)], ids=["chain", "survey"])
 def test_one_particle_predicts_as_the_grid_predicts_a_point_mass(graph):
     """The marginalised transition of one particle, at every place (route ends
     included) and for a velocity distribution of every kind, is the grid filter's
@@ -94,7 +76,7 @@ def _kernel_reference(graph, motion, places, spread, log_weight, like, log_keep)
     return prior * scale, posterior * scale, evidence, moved, kept, w, scale
 
 
-@pytest.mark.parametrize("graph", [PlaceGraph.chain(25), _survey_graph()], ids=["chain", "survey"])
+@pytest.mark.parametrize("graph", [PlaceGraph.chain(25), _survey_graph(12)], ids=["chain", "survey"])
 def test_marginal_kernel_matches_a_slow_reference(graph):
     """Families (the particles on one place) predict once, as one particle of their
     weight and mean velocity distribution; the masses before the draw, the weights
@@ -212,7 +194,7 @@ def test_marginal_filter_is_closer_to_the_grid_than_the_sampled_one():
 def test_odometry_steps_take_the_sampled_motion_and_back():
     """A frame with odometry moves one sampled bin per particle (drawn from its velocity
     distribution); the next frame without odometry carries on marginalised."""
-    g = _survey_graph()
+    g = _survey_graph(12)
     rows = np.abs(np.arange(g.n_places)[None, :] - 3 * np.arange(6)[:, None]).astype(float)
     loc = Localizer(g, _Fixed(1.0), n_particles=300, motion=VelocityMotion(), seed=0).reset()
     for k, row in enumerate(rows):
