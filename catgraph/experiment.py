@@ -481,7 +481,7 @@ def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
 
     from .distributed import _client, match_adaptive_window, match_fixed_window, shard_reference
     from .hubs import map_hub_offsets
-    from .methods import _WINDOW_ADAPTIVE
+    from .methods import _WINDOW_ADAPTIVE, check_sequence_length, sequence_run_name
     from .io import describe_query
 
     params = _cluster_params(exp)
@@ -492,11 +492,7 @@ def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
     if exp.condition.kind != "in-order":
         query = exp.condition.apply(query)
     adaptive = params["window"] == "adaptive"
-    shortest = int(params["l_min"] if adaptive else params["window"])
-    if shortest > len(query):
-        what = "l_min (the shortest adaptive window)" if adaptive else "window"
-        raise InvalidParameterError(f"{what} = {shortest} frames is longer than the query ({len(query)} frames); "
-                                    f"choose at most {len(query)}.")
+    check_sequence_length(params, len(query))
     q, informative = describe_query(the_map, query)
     start = time.perf_counter()
     client = _client(scheduler)
@@ -512,7 +508,7 @@ def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
     finally:
         if client is not scheduler:  # a client made here from an address is closed here
             client.close()
-    result = RunResult("adaptive" if adaptive else f"sequence-L{params['window']}", dict(params), query.index,
+    result = RunResult(sequence_run_name(params), dict(params), query.index,
                        res.match, res.confidence, extra={"window_length": res.window_length},
                        seconds=time.perf_counter() - start)
     prepared = Prepared(the_map, reference, query, np.empty((len(query), 0)), ground_truth, sources,

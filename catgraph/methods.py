@@ -276,20 +276,28 @@ def _sequence_kwargs(params: dict) -> dict:
     return kwargs
 
 
-def _sequence(params: dict, inputs: "MethodInputs") -> RunResult:
-    from .sequence import match_sequences
-
-    n_query = len(inputs.differences)
+def check_sequence_length(params: dict, n_query: int) -> None:
+    """Refuse a ``sequence`` run whose (shortest) window is longer than the query."""
     shortest = params["window"] if params["window"] != "adaptive" else params.get("l_min", 1)
     if isinstance(shortest, int) and shortest > n_query:
         what = "window" if params["window"] != "adaptive" else "l_min (the shortest adaptive window)"
         raise InvalidParameterError(f"{what} = {shortest} frames is longer than the query ({n_query} frames); "
                                     f"choose at most {n_query}.")
+
+
+def sequence_run_name(params: dict) -> str:
+    """The result name of a ``sequence`` run: ``adaptive`` or ``sequence-L<window>``."""
+    return "adaptive" if params["window"] == "adaptive" else f"sequence-L{params['window']}"
+
+
+def _sequence(params: dict, inputs: "MethodInputs") -> RunResult:
+    from .sequence import match_sequences
+
+    check_sequence_length(params, len(inputs.differences))
     start = time.perf_counter()
     hubs = inputs.hub_offsets() if params["hub_correction"] else None
     res = match_sequences(inputs.differences, radius=params["exclusion"], hub_offsets=hubs, **_sequence_kwargs(params))
-    name = "adaptive" if params["window"] == "adaptive" else f"sequence-L{params['window']}"
-    return RunResult(name, dict(params), inputs.query.index, res.match, res.confidence,
+    return RunResult(sequence_run_name(params), dict(params), inputs.query.index, res.match, res.confidence,
                      extra={"window_length": res.window_length}, seconds=time.perf_counter() - start)
 
 
