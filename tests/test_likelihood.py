@@ -610,9 +610,24 @@ class _SlowTempered:
         self.count += 1
 
 
+def step_both_tempered(fast, slow, row, rng, k):
+    """One frame through the fast tempered model and its plain-formula twin, with the same
+    random posterior fed back to both; their log-ratios must be the same floats."""
+    from catgraph.observation import FilterFeedback
+
+    n = len(row)
+    obs = fast.observe(row)
+    r, new = slow.observe(row)
+    assert np.array_equal(obs.log_ratio, r) and obs.new_place_log_ratio == new, k
+    post = rng.random(n)
+    post /= post.sum()
+    fast.feedback(FilterFeedback(np.full(n, 1 / n), post, slice(0, 3)))
+    slow.feedback(post)
+
+
 @pytest.mark.parametrize("strided", [False, True])
 def test_tempered_is_bit_identical_to_the_plain_formulas(strided):
-    from catgraph.observation import FilterFeedback, TemperedObservation
+    from catgraph.observation import TemperedObservation
 
     rng = np.random.default_rng(11)
     n = 301  # odd: the median is one middle value; the MAD's too
@@ -623,13 +638,7 @@ def test_tempered_is_bit_identical_to_the_plain_formulas(strided):
         wide = rng.standard_normal((n, 2)) + hubs[:, None]
         wide[k % 7] = wide[(k + 1) % 7]  # repeated values, ties in the selections
         row = wide[:, 0] if strided else np.ascontiguousarray(wide[:, 0])
-        obs = fast.observe(row)
-        r, new = slow.observe(row)
-        assert np.array_equal(obs.log_ratio, r) and obs.new_place_log_ratio == new, k
-        post = rng.random(n)
-        post /= post.sum()
-        fast.feedback(FilterFeedback(np.full(n, 1 / n), post, slice(0, 3)))
-        slow.feedback(post)
+        step_both_tempered(fast, slow, row, rng, k)
         assert fast.temperature_ == slow.tau
     assert fast.n_hubs_ >= 12 and fast.hub_shrinkage_ == 1.0
 

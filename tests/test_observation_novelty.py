@@ -4,8 +4,8 @@ measurement, so a query with every frame repeated weighs its frames as the query
 import numpy as np
 import pytest
 
-from catgraph.observation import DUPLICATE_TOLERANCE, FilterFeedback, TemperedObservation
-from tests.test_likelihood import _SlowTempered
+from catgraph.observation import DUPLICATE_TOLERANCE, TemperedObservation
+from tests.test_likelihood import _SlowTempered, step_both_tempered
 
 
 def _weights(rows):
@@ -55,10 +55,4 @@ def test_fast_model_equals_plain_formulas_with_repeated_frames():
     rows = np.repeat(_correlated_rows(rng, 15, n), 2, axis=0)
     rows[0] = rows[1] = rows[2]  # a repeat from the very start
     for k, row in enumerate(rows):
-        obs = fast.observe(row)
-        r, new = slow.observe(row)
-        assert np.array_equal(obs.log_ratio, r) and obs.new_place_log_ratio == new, k
-        post = rng.random(n)
-        post /= post.sum()
-        fast.feedback(FilterFeedback(np.full(n, 1 / n), post, slice(0, 3)))
-        slow.feedback(post)
+        step_both_tempered(fast, slow, row, rng, k)
