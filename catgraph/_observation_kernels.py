@@ -126,3 +126,29 @@ def tempered_ratios(row, h, corrected, scale, base, r):  # pragma: no cover - co
             largest = b
             best = i
     return top, best
+
+
+
+@njit(nogil=True)
+def row_sums(a, prior):  # pragma: no cover - compiled
+    """``(Σ_j a_j, Σ_j a_j prior_j)``, one pass (summed in order)."""
+    s = 0.0
+    t = 0.0
+    for j in range(a.shape[0]):
+        v = a[j]
+        s += v
+        t += v * prior[j]
+    return s, t
+
+
+@njit(nogil=True)
+def product_sums(a, b, prior):  # pragma: no cover - compiled
+    """``(Σ_j a_j b_j, Σ_j a_j b_j prior_j)``, one pass (summed in order): the uniform and
+    the predicted sums of one candidate combination, ``a`` and ``b`` its factors."""
+    s = 0.0
+    t = 0.0
+    for j in range(a.shape[0]):
+        v = a[j] * b[j]
+        s += v
+        t += v * prior[j]
+    return s, t

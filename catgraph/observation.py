@@ -97,6 +97,8 @@ __all__ = [
     "SequenceObservation",
     "CombinedObservation",
     "RecentSupport",
+    "predictive_weight_grid",
+    "DEFAULT_PART_WEIGHTS",
 ]
 
 
@@ -537,45 +539,89 @@ class CombinedObservation:
     ``ρ`` measures agreement with the filter, which equals reliability only when the
     filter is mostly right.
 
+    **Weights learned online** (``weights="predictive"``): prequential model choice
+    among a grid of weight vectors ``w^{(c)}`` (``weight_grid``; by default the first
+    part at 1 and every other part at each of :data:`DEFAULT_PART_WEIGHTS`). After each
+    frame the filter reports the place masses it predicted before seeing the frame
+    (:attr:`FilterFeedback.prior`, ``π``); each candidate is scored by how much better
+    that prediction explains the frame than a uniform guess would, under the candidate's
+    own combination ``r^{(c)} = Σ_m w^{(c)}_m r^{(m)}``:
+
+    ``S_c ← γ S_c + log Σ_j π_j e^{r^{(c)}_j} − log mean_j e^{r^{(c)}_j}``,
+
+    ``γ = 2^{−1/memory}``, and the next frame is combined with the best candidate's
+    weights (:attr:`weights_`; the candidate closest to the plain sum, all weights 1,
+    until the first frame is scored). The score is the log predictive Bayes factor of
+    the filter's prediction against the uniform one — the same score
+    :class:`TemperedObservation` uses for its temperature with
+    ``temperature="predictive"`` — so it needs no ground truth and no threshold: a part
+    whose peaks fall where the filter's own motion expected the place gains weight, a
+    part whose peaks fall elsewhere loses it, and a weight of 0 switches it off.
+
+    Cost: the ``K`` candidates are scored over every place (the prior mixes a uniform
+    recovery share, so it has no smaller support). Each part's candidate weights that
+    are integer multiples ``k δ`` of their smallest (the default grid: ``δ = 0.25``,
+    ``k ∈ {1, 2, 4, 8}``) share one exponential ``e^{δ (r − max r)}``, raised to ``k`` by
+    multiplication of its squares, so the default grid costs two exponentials per place
+    (numpy's), three squarings and one compiled pass per candidate
+    (:func:`catgraph._observation_kernels.product_sums`: both sums at once). The floats agree with the plain formula to round-off
+    (``tests/test_observation_combined.py``: 1e-12); where a candidate's sums fall
+    below ``1e-200`` (its parts' peaks hundreds of nats apart) it is computed by the
+    plain formula instead.
+
     Parameters
     ----------
     models : sequence of ObservationModel
-    weights : sequence of float, optional
-        Exponents ``w_m`` (default all 1).
+    weights : sequence of float, "predictive", optional
+        Exponents ``w_m`` (default all 1), or ``"predictive"``: learned online.
     reliability : {"online", None}
+    weight_grid : array_like of shape (n_candidates, n_models), optional
+        The candidates of ``weights="predictive"`` (non-negative; default
+        :func:`predictive_weight_grid`).
+    memory : float
+        Half-life, in frames, of the candidates' scores.
 
     Attributes
     ----------
     reliability_ : ndarray of float64, shape (n_models,)
         Current ``ρ_m``.
+    weights_ : ndarray of float64, shape (n_models,)
+        The weights the next frame is combined with.
+    weight_scores_ : ndarray of float64, shape (n_candidates,)
+        Discounted predictive scores ``S_c`` (``weights="predictive"``).
+    weight_grid_ : ndarray of float64, shape (n_candidates, n_models)
     """
 
-    def __init__(self, models: Sequence[ObservationModel], weights: Sequence[float] | None = None,
-                 reliability: str | None = "online") -> None:
+    def __init__(self, models: Sequence[ObservationModel], weights: Sequence[float] | str | None = None,
+                 reliability: str | None = "online", weight_grid=None, memory: float = 200.0) -> None:
         self.models = models
         self.weights = weights
         self.reliability = reliability
+        self.weight_grid = weight_grid
+        self.memory = memory
 
     def reset(self) -> None:
         for m in self.models:
             m.reset()
-        for k in ("reliability_", "_hits", "_trials", "_best"):
+        for k in ("reliability_", "_hits", "_trials", "_best", "weights_", "weight_scores_", "weight_grid_",
+                  "_plan", "_ratios", "_factors"):
             self.__dict__.pop(k, None)
 
     def feedback(self, feedback) -> None:
-        """Learn each part's reliability from the filter's answer; pass it on to the parts.
+        """Learn each part's reliability (and the weights) from the filter's answer; pass it on to the parts.
 
         Parameters
         ----------
         feedback : FilterFeedback, or slice / ndarray of bool of shape (n_places,)
             The filter's feedback, or just the places within tolerance of its answer
-            for the latest frame.
+            for the latest frame (enough for the reliability, not for learned weights).
         """
         near = feedback.near if isinstance(feedback, FilterFeedback) else feedback
         if isinstance(feedback, FilterFeedback):
             for m in self.models:
                 if callable(getattr(m, "feedback", None)):
                     m.feedback(feedback)
+            self._learn_weights(feedback.prior)
         best = getattr(self, "_best", None)
         if best is None or self.reliability is None:
             return
@@ -590,28 +636,80 @@ class CombinedObservation:
             self._trials[m] += 1
         self.reliability_ = (self._hits + 1.0) / (self._trials + 2.0)
 
-    def observe(self, difference_row: np.ndarray) -> Observation:
-        if len(self.models) == 0:
-            raise InvalidParameterError("CombinedObservation needs at least one model.")
-        w = [1.0] * len(self.models) if self.weights is None else list(self.weights)
-        if len(w) != len(self.models) or any(not (isinstance(x, (int, float)) and x >= 0) for x in w):
-            raise InvalidParameterError(
-                f"The 'weights' parameter of CombinedObservation must give one non-negative float per model "
-                f"({len(self.models)}). Got {self.weights!r} instead."
-            )
+    def _learn_weights(self, prior) -> None:
+        """Score every candidate on the latest frame against the filter's prediction;
+        choose the best for the next frame."""
+        ratios = self.__dict__.pop("_ratios", None)
+        if ratios is None:
+            return
+        prior = np.asarray(prior, dtype=np.float64)
+        n = len(prior)
+        parts = [np.zeros(n) if r is None else r for r in ratios]
+        if not hasattr(self, "_plan"):
+            self._plan = _WeightPlan(self.weight_grid_)
+        work = self.__dict__.get("_factors")
+        if work is None or work.shape != (self._plan.n_rows + 1, n):
+            work = self._factors = np.empty((self._plan.n_rows + 1, n))
+        scores = _combination_scores(parts, self.weight_grid_, prior, self._plan, work)
+        self.weight_scores_ *= self._decay
+        self.weight_scores_ += scores
+        self.weights_ = self.weight_grid_[int(np.argmax(self.weight_scores_))].copy()
+
+    def _start(self) -> None:
+        owner = type(self).__name__
+        n = len(self.models)
+        if n == 0:
+            raise InvalidParameterError(f"{owner} needs at least one model.")
         if self.reliability not in ("online", None):
             raise InvalidParameterError(
-                f"The 'reliability' parameter of CombinedObservation must be 'online' or None. "
+                f"The 'reliability' parameter of {owner} must be 'online' or None. "
                 f"Got {self.reliability!r} instead."
             )
+        if isinstance(self.weights, str):
+            if self.weights != "predictive":
+                raise InvalidParameterError(
+                    f"The 'weights' parameter of {owner} must be one non-negative float per model ({n}) or "
+                    f"'predictive'. Got {self.weights!r} instead."
+                )
+            check_scalar(self.memory, "memory", owner, float, 1.0)
+            grid = predictive_weight_grid(n) if self.weight_grid is None else self.weight_grid
+            try:
+                grid = np.array(grid, dtype=np.float64, ndmin=2)
+            except (TypeError, ValueError):
+                grid = None
+            if grid is None or grid.ndim != 2 or grid.shape[1] != n or len(grid) == 0 or not np.all(
+                    np.isfinite(grid)) or np.any(grid < 0):
+                raise InvalidParameterError(
+                    f"The 'weight_grid' parameter of {owner} must be a non-empty array of shape "
+                    f"(n_candidates, {n}) of non-negative floats (one weight per model per candidate). "
+                    f"Got {self.weight_grid!r} instead."
+                )
+            self.weight_grid_ = grid
+            self.weight_scores_ = np.zeros(len(grid))
+            self._decay = 0.5 ** (1.0 / float(self.memory))
+            # until the first frame is scored: the candidate closest to the plain sum
+            self.weights_ = grid[int(np.argmin(np.abs(grid - 1.0).sum(1)))].copy()
+        else:
+            w = [1.0] * n if self.weights is None else list(self.weights)
+            if len(w) != n or any(not (isinstance(x, (int, float)) and x >= 0) for x in w):
+                raise InvalidParameterError(
+                    f"The 'weights' parameter of {owner} must give one non-negative float per model "
+                    f"({n}) or be 'predictive'. Got {self.weights!r} instead."
+                )
+            self.weights_ = np.array(w, dtype=np.float64)
+        self._hits, self._trials = np.zeros(n), np.zeros(n)
+        self.reliability_ = np.full(n, 0.5 if self.reliability else 1.0)
+
+    def observe(self, difference_row: np.ndarray) -> Observation:
         if not hasattr(self, "_hits"):
-            n = len(self.models)
-            self._hits, self._trials = np.zeros(n), np.zeros(n)
-            self.reliability_ = np.full(n, 0.5 if self.reliability else 1.0)
+            self._start()
         parts = [m.observe(difference_row) for m in self.models]
         # each part's own best place is read only to learn its reliability
         self._best = ([int(np.argmax(p.log_ratio)) if p.informative else -1 for p in parts]
                       if self.reliability is not None else None)
+        if self.weights == "predictive":  # kept for the feedback's scores
+            self._ratios = [p.log_ratio if p.informative else None for p in parts]
+        w = [float(x) for x in self.weights_]
         rho = self.reliability_ if self.reliability else np.ones(len(parts))
         log_ratio, new, supports = None, 0.0, []
         owned = False  # whether log_ratio is this method's own array (free to add into)
@@ -638,6 +736,158 @@ class CombinedObservation:
         support = None if not supports else (
             supports[0] if len(supports) == 1 else np.maximum.reduce([np.asarray(x) for x in supports]))
         return Observation(np.asarray(log_ratio, dtype=np.float64), float(new), True, support)
+
+
+#: The exponents every part after the first may take under ``weights="predictive"``
+#: (:func:`predictive_weight_grid`): off, a quarter, a half, as is, double.
+DEFAULT_PART_WEIGHTS = (0.0, 0.25, 0.5, 1.0, 2.0)
+
+
+def predictive_weight_grid(n_models: int, part_weights: Sequence[float] = DEFAULT_PART_WEIGHTS) -> np.ndarray:
+    """The default candidates of ``CombinedObservation(weights="predictive")``: the first
+    part at weight 1, every other part at each of ``part_weights`` (all combinations).
+
+    Parameters
+    ----------
+    n_models : int
+    part_weights : sequence of float
+
+    Returns
+    -------
+    ndarray of float64, shape (len(part_weights) ** (n_models − 1), n_models)
+
+    Examples
+    --------
+    >>> predictive_weight_grid(2, (0.0, 1.0)).tolist()
+    [[1.0, 0.0], [1.0, 1.0]]
+    """
+    import itertools
+
+    rows = [(1.0, *rest) for rest in itertools.product([float(x) for x in part_weights], repeat=n_models - 1)]
+    return np.array(rows, dtype=np.float64).reshape(len(rows), n_models)
+
+
+class _WeightPlan:
+    """How a weight grid's candidates are formed from a few exponentials per place.
+
+    Each part's positive candidate weights that are all integer multiples ``k δ`` of the
+    smallest, ``δ``, exactly in floating point and with ``k ≤`` :attr:`MAX_POWER`, share
+    one factor ``x = e^{δ (r − max r)}``; ``x^k`` is a product of its repeated squares
+    ``x, x², x⁴ …``. Otherwise each distinct weight has its own factor ``e^{w (r − max r)}``.
+    A weight of 0 contributes nothing. Every row is at most 1 (no overflow).
+
+    Attributes
+    ----------
+    exponentials : list of (int, int, float)
+        ``(row, part, δ)`` of each exponential row.
+    steps : list of (int, int, int)
+        ``(out, a, b)``: row ``out`` is row ``a`` times row ``b``, in order (the squares
+        and their products, after the exponentials).
+    n_rows : int
+    rows : list of list of int
+        The rows whose product is each candidate's ``e^{Σ_m w_m (r_m − max r_m)}``.
+    """
+
+    MAX_POWER = 16
+
+    def __init__(self, grid: np.ndarray) -> None:
+        exponentials, steps = [], []
+        per_part = []  # for each part: {weight: row}
+        n_rows = 0
+        for m in range(grid.shape[1]):
+            w = grid[:, m]
+            positive = [float(x) for x in np.unique(w[w > 0])]
+            rows: dict[float, int] = {}
+            if positive:
+                step = positive[0]
+                k = [int(round(x / step)) for x in positive]
+                if all(kk * step == x for kk, x in zip(k, positive)) and max(k) <= self.MAX_POWER:
+                    exponentials.append((n_rows, m, step))
+                    squares = [n_rows]
+                    n_rows += 1
+                    while 2 ** len(squares) <= max(k):
+                        steps.append((n_rows, squares[-1], squares[-1]))
+                        squares.append(n_rows)
+                        n_rows += 1
+                    for kk, x in zip(k, positive):
+                        bits = [squares[b] for b in range(len(squares)) if kk >> b & 1]
+                        row = bits[0]
+                        for other in bits[1:]:
+                            steps.append((n_rows, row, other))
+                            row = n_rows
+                            n_rows += 1
+                        rows[x] = row
+                else:
+                    for x in positive:
+                        exponentials.append((n_rows, m, x))
+                        rows[x] = n_rows
+                        n_rows += 1
+            per_part.append(rows)
+        self.exponentials, self.steps, self.n_rows = exponentials, steps, n_rows
+        self.rows = [[per_part[m][float(x)] for m, x in enumerate(candidate) if x > 0] for candidate in grid]
+
+
+def _combination_score(r: np.ndarray, prior: np.ndarray) -> float:
+    """``log Σ_j π_j e^{r_j} − log mean_j e^{r_j}`` of one combination ``r``, the plain
+    formula (``π`` normalised to sum 1; ``+1e-300`` keeps a prior with no mass where
+    ``r`` has any finite)."""
+    t = float(r.max())
+    e = np.exp(r - t)
+    return float(np.log(np.sum(prior * e) + 1e-300) - np.log(np.mean(e)))
+
+
+def _combination_scores(parts: list[np.ndarray], grid: np.ndarray, prior: np.ndarray, plan: _WeightPlan,
+                        work: np.ndarray) -> np.ndarray:
+    """:func:`_combination_score` of every candidate ``Σ_m grid[c, m] parts[m]``.
+
+    Parameters
+    ----------
+    parts : list of ndarray of float64, shape (n_places,)
+    grid : ndarray, shape (n_candidates, n_models)
+    prior : ndarray of float64, shape (n_places,)
+        The filter's predicted place masses (any positive total).
+    plan : _WeightPlan
+        Of ``grid``.
+    work : ndarray of float64, shape (plan.n_rows + 1, n_places)
+        Overwritten.
+    """
+    k = _kernels()
+    n = len(prior)
+    total = float(prior.sum())
+    if not total > 0:
+        prior, total = np.full(n, 1.0 / n), 1.0
+    for f, m, step in plan.exponentials:
+        row = work[f]
+        np.subtract(parts[m], parts[m].max(), out=row)
+        row *= step
+        np.exp(row, out=row)
+    for out, a, b in plan.steps:
+        np.multiply(work[a], work[b], out=work[out])
+    scratch = work[plan.n_rows]
+    num, den = np.empty(len(grid)), np.empty(len(grid))
+    for c, rows in enumerate(plan.rows):
+        if not rows:  # every weight 0: a flat combination
+            den[c], num[c] = float(n), total
+            continue
+        if len(rows) > 2:
+            np.multiply(work[rows[0]], work[rows[1]], out=scratch)
+            for r in rows[2:-1]:
+                scratch *= work[r]
+            rows = [plan.n_rows, rows[-1]]
+        den[c], num[c] = (k.row_sums(work[rows[0]], prior) if len(rows) == 1
+                          else k.product_sums(work[rows[0]], work[rows[1]], prior))
+    # both sums carry the same shift e^{−Σ_m w_m max r_m}: it cancels in the score
+    with np.errstate(divide="ignore"):
+        out = np.log(np.maximum(num, 1e-300) / total) - np.log(den / n)
+    small = np.flatnonzero((den < 1e-200) | (num < 1e-200 * total))
+    if len(small):  # the shift left too little: the plain formula for those candidates
+        p = prior / total
+        for c in small:
+            r = np.zeros(n)
+            for m, part in enumerate(parts):
+                r += float(grid[c, m]) * part
+            out[c] = _combination_score(r, p)
+    return out
 
 
 def _kernels():
