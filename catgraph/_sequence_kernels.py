@@ -692,32 +692,58 @@ def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_it
 
     The ring holds ``R >= max(grid) + 1`` rows, so ``C = R - max(grid)`` new rows fit
     beside the longest window's history: the rows are stored ``C`` at a time, then the
-    velocities are shared round-robin among ``numba.get_num_threads()`` threads (the
+    velocities are handed out one at a time to ``numba.get_num_threads()`` threads (the
     caller's and a pool's; compiled code without the GIL, and a waiting thread sleeps
-    instead of spinning, which matters on a busy machine) over those ``C`` frames. Each
-    velocity reads the shared ring and writes only its own sums and outputs, so the
-    numbers depend neither on ``C`` nor on the thread count.
+    instead of spinning, which matters on a busy machine), each taking the next velocity
+    of those ``C`` frames as soon as it is free — a thread that shares its core with
+    other work takes fewer. Each velocity reads the shared ring and writes only its own
+    sums and outputs, so the numbers depend neither on ``C``, nor on the thread count,
+    nor on which thread ran which velocity.
     """
     import numba
 
     chunk = ring.shape[0] - int(grid[-1])
     v_count = velocities.shape[0]
     threads = max(1, min(v_count, numba.get_num_threads()))
-    groups = [np.arange(k, v_count, threads) for k in range(threads)]
     rest = (velocities, grid, approx, n_iter, em_stride, radius, best_j, best_s, second_s, mean, std, weights,
             locs, scales, sub, s, work, resp)
     run = run_velocities_gaussian if approx == APPROX_GAUSSIAN else run_velocities
+    if threads == 1:
+        every = _velocity_sets(v_count)[-1]
+        for c0 in range(0, d.shape[0], chunk):
+            c1 = min(d.shape[0], c0 + chunk)
+            store_rows(d, c0, c1, start, ring, mring, state)
+            run(every, c0, c1, start, sums, ring, mring, state, *rest)
+        return
+    single = _velocity_sets(v_count)[:-1]
+    pool = _pool(threads)
     for c0 in range(0, d.shape[0], chunk):
         c1 = min(d.shape[0], c0 + chunk)
         store_rows(d, c0, c1, start, ring, mring, state)
-        if threads == 1:
-            run(groups[0], c0, c1, start, sums, ring, mring, state, *rest)
-            continue
-        pool = _pool(threads)
-        jobs = [pool.submit(run, g, c0, c1, start, sums, ring, mring, state, *rest) for g in groups[1:]]
-        run(groups[0], c0, c1, start, sums, ring, mring, state, *rest)
-        for job in jobs:
-            job.result()
+        queue = iter(single)  # shared: each thread takes the next velocity when it is free
+
+        def take(queue=queue, c0=c0, c1=c1):
+            for chosen in queue:
+                run(chosen, c0, c1, start, sums, ring, mring, state, *rest)
+
+        jobs = [pool.submit(take) for _ in range(threads - 1)]
+        try:
+            take()
+        finally:
+            for job in jobs:
+                job.result()
+
+
+_VELOCITY_SETS = {}
+
+
+def _velocity_sets(v_count):
+    """``[array([0]), ..., array([V - 1]), arange(V)]``: the index arrays the
+    per-velocity kernels take (made once per ``V``)."""
+    if v_count not in _VELOCITY_SETS:
+        _VELOCITY_SETS[v_count] = [np.array([k], dtype=np.int64) for k in range(v_count)] + [
+            np.arange(v_count, dtype=np.int64)]
+    return _VELOCITY_SETS[v_count]
 
 
 def matcher_kernel(approx):

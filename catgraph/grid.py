@@ -104,7 +104,11 @@ in cache, and each row's transition is shifted and blurred while it is still the
 and the update is kept factored (prediction × the frame's likelihood per place, whose
 ``exp`` numpy computes before the prediction, so that the kernel forms the posterior's
 velocity sums while it writes each row): a step reads the state once and writes it
-once, ``O(n_places · n_bins)`` (see ``benchmarks/results/filter_speed.md``). The result
+once, ``O(n_places · n_bins)`` (see ``benchmarks/results/filter_speed.md``). On a large
+map (:data:`LINE_WORK_PER_THREAD` state values per thread) the blocks are shared among
+the cores, a run of whole blocks each; every block writes its own places and its own
+velocity sums, added in block order afterwards, so the numbers are those of one thread,
+bit for bit (tested against the one-pass serial kernel). The result
 is the unfused one's to round-off (the velocity sums are added in another order). That
 path stores the prediction in float32 (half the memory traffic; every sum, the
 likelihood and the place masses stay float64): it agrees with the float64 path to
@@ -370,26 +374,12 @@ _LINE_BLOCK = 1024
 
 
 @njit(fastmath=True)
-def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, frac, sign, blur,
-                  recovery, velocity_prior, block, e, velocity):  # pragma: no cover - compiled
-    """:func:`predict` on a line graph (place ``j``'s neighbours are ``j ± 1``, no
-    junctions, no odometry) from the factored posterior ``p[b, j] · like[j]``
-    (velocity-major), in one pass over the state, ``block`` places at a time: for a block
-    (plus a halo of the largest hop and the blur), row by row, the transition of the row
-    times the likelihood (one row buffer, still in cache when it is read back), then its
-    shift by index arithmetic, the blur and the recovery (into ``out[b]``); ``mass`` gets
-    the predicted place masses. A whole move (a whole speed, every phase bin) inside the
-    route reads the shifted row directly; a split move (a fraction beyond
-    ``max_phases``) and the blocks at the route's ends go through the moved-mass buffer.
-    The mass that runs past a route end, needed before the first place is written, is
-    summed first from the few places within reach of the ends. Given the next frame's
-    ``e`` (:func:`_likelihood`; empty: none), ``velocity[b]`` gets ``Σ_j out[b, j] e_j``
-    (the stored prediction, rounded as stored) while the row is written, so that the
-    update need not read the state again."""
+def _line_setup(p, like, prior_mass, t_ptr, t_src, t_val, whole, frac, sign, blur, recovery):  # pragma: no cover
+    """The scalars of :func:`_line_predict` that need the whole state: the mass that
+    runs past a route end (summed from the few places within reach of the ends), and
+    from it the recovery share per place ``share0``, the blur's ``centre`` and ``side``
+    weights and the largest whole hop ``reach``."""
     nb, n = p.shape
-    fuse = len(e) > 0
-    for b in range(nb):
-        velocity[b] = 0.0
     total_in = 0.0
     for j in range(n):
         total_in += prior_mass[j] * like[j]
@@ -418,12 +408,32 @@ def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, fr
     share0 = recovery / n if total > 0 else 1.0 / n
     centre = keep * (1.0 - 2.0 * blur)
     side = keep * blur
+    return share0, centre, side, reach
+
+
+@njit(fastmath=True, nogil=True)
+def _line_blocks(p, like, out, mass, t_ptr, t_src, t_val, whole, frac, sign, share0, centre, side, reach,
+                 velocity_prior, block, e, j_start, j_stop, accs):  # pragma: no cover - compiled
+    """The blocks of places ``j_start, j_start + block, ... < j_stop`` of
+    :func:`_line_predict` (``j_start`` a multiple of ``block``): for a block (plus a halo
+    of the largest hop and the blur), row by row, the transition of the row times the
+    likelihood (one row buffer, still in cache when it is read back), then its shift by
+    index arithmetic, the blur and the recovery (into ``out[b]``); ``mass`` gets the
+    predicted place masses. A whole move (a whole speed, every phase bin) inside the
+    route reads the shifted row directly; a split move (a fraction beyond
+    ``max_phases``) and the blocks at the route's ends go through the moved-mass buffer.
+    Given the next frame's ``e`` (empty: none), ``accs[k, b]`` gets block ``k``'s
+    ``Σ_j out[b, j] e_j`` (the stored prediction, rounded as stored; 0 without ``e``).
+    Writes only its own blocks and releases the GIL: threads run disjoint ranges."""
+    nb, n = p.shape
+    fuse = len(e) > 0
     halo = reach + 2  # a hop of whole + 1 places, then the blur's one
     width = block + 2 * halo
     tb = np.empty(width)  # one row of T·like over [j0 − halo, j1 + halo), zero outside the route
     mv = np.empty(block + 2)  # moved mass over [j0 − 1, j1 + 1)
-    for j0 in range(0, n, block):
+    for j0 in range(j_start, j_stop, block):
         j1 = min(n, j0 + block)
+        kb = j0 // block
         a = max(0, j0 - halo)
         z = min(n, j1 + halo)
         off = a - (j0 - halo)
@@ -438,6 +448,7 @@ def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, fr
             tb[i] = 0.0
         tt = tb[off:off + z - a]
         for b in range(nb):  # each row's transition, then at once its shift and blur (the row in cache)
+            accs[kb, b] = 0.0
             c0, k = t_ptr[b], t_ptr[b + 1] - t_ptr[b]
             if k <= 4:  # velocity_transition's columns: the bin itself, two neighbours, the mirror
                 r0 = p[t_src[c0], a:z]
@@ -482,7 +493,7 @@ def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, fr
                         o[k] = x
                         m[k] += x
                         acc += o[k] * ee[k]
-                    velocity[b] += acc
+                    accs[kb, b] = acc
                 else:
                     for k in range(w):
                         x = centre * ti[k + 1] + side * (ti[k] + ti[k + 2]) + base
@@ -505,7 +516,71 @@ def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, fr
                 acc = 0.0
                 for k in range(w):
                     acc += o[k] * ee[k]
-                velocity[b] += acc
+                accs[kb, b] = acc
+
+
+@njit
+def _line_sums(accs, velocity):  # pragma: no cover - compiled
+    """``velocity[b] = Σ_k accs[k, b]``, added block after block (the order of one pass)."""
+    for b in range(accs.shape[1]):
+        velocity[b] = 0.0
+    for k in range(accs.shape[0]):
+        for b in range(accs.shape[1]):
+            velocity[b] += accs[k, b]
+
+
+#: State values (places × bins) per thread below which the line kernel runs on one
+#: thread (waking a second costs more than it saves on a small map).
+LINE_WORK_PER_THREAD = 1 << 18
+
+_POOL = {}
+
+
+def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, frac, sign, blur,
+                  recovery, velocity_prior, block, e, velocity, threads=None):
+    """:func:`predict` on a line graph (place ``j``'s neighbours are ``j ± 1``, no
+    junctions, no odometry) from the factored posterior ``p[b, j] · like[j]``
+    (velocity-major), in one pass over the state, ``block`` places at a time
+    (:func:`_line_blocks`); ``mass`` gets the predicted place masses. The mass that runs
+    past a route end, needed before the first place is written, is summed first
+    (:func:`_line_setup`). Given the next frame's ``e`` (:func:`_likelihood`; empty:
+    none), ``velocity[b]`` gets ``Σ_j out[b, j] e_j`` (the stored prediction, rounded as
+    stored) while the row is written, so that the update need not read the state again.
+
+    The blocks are shared among ``threads`` threads (default: as many as the work is
+    worth, :data:`LINE_WORK_PER_THREAD`, at most the cores), each a run of whole blocks;
+    every block writes its own places and its own velocity sums, which are added in
+    block order afterwards, so the result is the same, bit for bit, on any number of
+    threads."""
+    nb, n = p.shape
+    share0, centre, side, reach = _line_setup(p, like, prior_mass, t_ptr, t_src, t_val, whole, frac, sign, blur,
+                                              recovery)
+    blocks = -(-n // block)
+    accs = np.empty((blocks, nb))
+    if threads is None:
+        from .differences import _threads_available
+
+        threads = _threads_available()
+        threads = min(threads, (nb * n) // LINE_WORK_PER_THREAD)
+    threads = int(max(1, min(threads, blocks)))
+    args = (p, like, out, mass, t_ptr, t_src, t_val, whole, frac, sign, share0, centre, side, reach,
+            velocity_prior, block, e)
+    if threads == 1:
+        _line_blocks(*args, 0, n, accs)
+    else:
+        edges = [(blocks * t // threads) * block for t in range(threads + 1)]
+        if threads - 1 not in _POOL:
+            from concurrent.futures import ThreadPoolExecutor
+
+            _POOL[threads - 1] = ThreadPoolExecutor(max_workers=threads - 1, thread_name_prefix="catgraph-grid")
+        jobs = [_POOL[threads - 1].submit(_line_blocks, *args, lo, min(hi, n), accs)
+                for lo, hi in zip(edges[1:-1], edges[2:])]
+        try:
+            _line_blocks(*args, 0, edges[1], accs)
+        finally:
+            for job in jobs:
+                job.result()
+    _line_sums(accs, velocity)
 
 
 @njit

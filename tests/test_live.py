@@ -284,3 +284,33 @@ def test_release_free_memory_runs_and_keeps_every_array(world):
     assert done == sys.platform.startswith("linux") or done is False
     assert np.array_equal(live.live_map.reference.descriptors, before)
     assert 0 <= live.step(world.query.frames[0]).place < live.live_map.n_places
+
+
+def _patch_normalise_loop(images, patch):
+    """Patch normalisation one patch at a time (the obviously correct reference)."""
+    x = np.asarray(images, dtype=np.float64)
+    out = np.empty_like(x)
+    for r in range(0, x.shape[1], patch):
+        for c in range(0, x.shape[2], patch):
+            block = x[:, r : r + patch, c : c + patch]
+            mean = block.mean(axis=(1, 2), keepdims=True)
+            std = block.std(axis=(1, 2), keepdims=True)
+            safe = np.where(std > 1e-12 * np.maximum(1.0, np.abs(mean)), std, np.inf)
+            out[:, r : r + patch, c : c + patch] = (block - mean) / safe
+    return out.astype(np.float32)
+
+
+def test_patch_normalise_equals_the_patch_by_patch_loop(rng):
+    """All whole patches at once (a strided view), the edge patches one by one: the
+    floats of the loop over patches, bit for bit — flat patches, uneven edges, one frame
+    and several, values from 1e-5 to 1e5."""
+    from catgraph.frontends import patch_normalise
+
+    for t in range(300):
+        n, h, w = int(rng.integers(1, 4)), int(rng.integers(1, 24)), int(rng.integers(1, 40))
+        patch = int(rng.integers(1, max(h, w) + 1))
+        x = rng.standard_normal((n, h, w)) * 10.0 ** rng.uniform(-5, 5)
+        if t % 3 == 0:
+            x = rng.integers(0, 3, (n, h, w)).astype(np.uint8)  # many flat patches
+        got, want = patch_normalise(x, patch), _patch_normalise_loop(x, patch)
+        assert got.dtype == np.float32 and np.array_equal(got.view(np.uint32), want.view(np.uint32)), (n, h, w, patch)

@@ -325,3 +325,36 @@ def test_exact_ties_keep_the_first_place():
     # the first place whose whole window lies in the stop: 12 along v = 1, 10 along v = -1
     expected = np.where(result.velocity == 1.0, 12, 10)
     np.testing.assert_array_equal(result.match[2:], expected[2:])
+
+
+@pytest.mark.parametrize("approximation", ["gaussian", "robust"])
+def test_streaming_step_on_threads_equals_the_serial_step(approximation):
+    """The velocities taken by whichever thread is free (the streaming step) against one
+    thread taking them in order: every statistic of every window, the running sums and
+    the ring, step by step, bit for bit."""
+    import numba
+
+    d, _ = planted_line(-2.0, n_q=45, n_ref=300, start=250)
+    kwargs = dict(l_min=2, l_max=20, grid=5, approximation=approximation)
+    before = numba.get_num_threads()
+    runs = []
+    for threads in (1, before):
+        numba.set_num_threads(threads)
+        try:
+            m = SequenceMatcher(**kwargs)
+            steps = []
+            for row in d:
+                out = m.step(row, return_curve=True)
+                st = m._stats
+                steps.append((out, [a.copy() for a in (st.best_j, st.best_s, st.second_s, st.mean, st.std,
+                                                       st.weights, st.locs, st.scales, st.sub)]))
+            runs.append((steps, m._sums.copy(), m._ring.copy(), m._mring.copy()))
+        finally:
+            numba.set_num_threads(before)
+    (steps_a, *state_a), (steps_b, *state_b) = runs
+    for (out_a, stats_a), (out_b, stats_b) in zip(steps_a, steps_b):
+        assert (out_a.match, out_a.score, out_a.confidence, out_a.window_length, out_a.velocity) == \
+            (out_b.match, out_b.score, out_b.confidence, out_b.window_length, out_b.velocity)
+        assert np.array_equal(out_a.log_p, out_b.log_p)
+        assert all(np.array_equal(a, b) for a, b in zip(stats_a, stats_b))
+    assert all(np.array_equal(a, b) for a, b in zip(state_a, state_b))
