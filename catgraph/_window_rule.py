@@ -12,7 +12,11 @@ same arithmetic. Rule "predictive" is the one rule with a memory from frame to f
 small loop over the frames of a block, ``O(G)`` per frame, and its state is carried from
 block to block (batch) or from step to step (streaming), so both forms again run the
 same arithmetic. It reads only ``G`` (frame, place) values of each difference row and the
-row's mean and spread.
+row's mean and spread. Rule "decorrelated" keeps the same record, but its horizon is no
+constant: a :class:`_Horizon` measures, frame by frame, how many frames the query's rows
+take to decorrelate (the row's standardised differences at the best places of the row
+``k`` frames back, against those at its own best places, averaged over the recent frames)
+and the record scores each line that many frames ahead.
 """
 
 from __future__ import annotations
@@ -53,9 +57,28 @@ PREDICTION_HORIZON = 10
 #: the past weighted with this half-life in frames
 PREDICTION_HALF_LIFE = 1000.0
 
+#: with rule "decorrelated": the horizon is the first lag ``k`` at which the query's rows have
+#: decorrelated, i.e. at which a row's mean standardised difference at the best places of the
+#: row ``k`` frames back, over its mean at its own best places, has fallen below this level
+#: (averaged over recent frames) ...
+DECORRELATION_LEVEL = 0.4
+
+#: ... with this many best places per row ...
+DECORRELATION_PLACES = 10
+
+#: ... averaged over frames with this half-life ...
+DECORRELATION_HALF_LIFE = 100.0
+
+#: ... and at most this many frames (also the horizon while no lag has decorrelated yet)
+HORIZON_MAX = 48
+
+
+#: the rules that choose the window by a predictive record (no sub-window statistics)
+RECORD_RULES = ("predictive", "decorrelated")
+
 
 def _needs_sub(cfg: _Config) -> bool:
-    return not cfg.fixed and cfg.rule not in ("literal", "predictive") and cfg.grid.shape[0] > 1
+    return not cfg.fixed and cfg.rule not in ("literal",) + RECORD_RULES and cfg.grid.shape[0] > 1
 
 
 def _position(v: float, i) -> np.ndarray:
@@ -64,33 +87,39 @@ def _position(v: float, i) -> np.ndarray:
 
 
 class _Record:
-    """Rule "predictive": the state carried from one frame to the next.
+    """Rules "predictive" and "decorrelated": the state carried from one frame to the next.
 
-    For the last :data:`PREDICTION_HORIZON` frames, the line each candidate length chose
-    (its offset ``c = j* - pos_v(i)`` and the frame's velocity ``v``), and per candidate
-    length the discounted sum of its prediction losses and the discounted count of
-    losses, with the decay of :data:`PREDICTION_HALF_LIFE`. ``O(G K)`` numbers, whatever
-    the number of places.
+    For the last ``capacity`` frames (at least the horizon), the line each candidate length
+    chose (its offset ``c = j* - pos_v(i)`` and the frame's velocity ``v``), and per
+    candidate length the discounted sum of its prediction losses and the discounted count
+    of losses, with the decay of the half-life. ``O(G K)`` numbers, whatever the number of
+    places. With a ``clock`` (a :class:`_Horizon`, rule "decorrelated") the horizon of each
+    frame is the clock's; without, the constant ``horizon``.
     """
 
-    def __init__(self, g_count: int, horizon: int = PREDICTION_HORIZON, half_life: float = PREDICTION_HALF_LIFE):
+    def __init__(self, g_count: int, horizon: int = PREDICTION_HORIZON, half_life: float = PREDICTION_HALF_LIFE,
+                 clock: _Horizon | None = None):
         self.horizon = int(horizon)
+        self.clock = clock
+        capacity = self.horizon if clock is None else clock.capacity
         self.decay = 2.0 ** (-1.0 / float(half_life))
-        self.offsets = np.zeros((self.horizon, g_count), dtype=np.int64)
-        self.velocity = np.zeros(self.horizon)
+        self.offsets = np.zeros((capacity, g_count), dtype=np.int64)
+        self.velocity = np.zeros(capacity)
         self.total = np.zeros(g_count)
         self.weight = 0.0
 
     def loss(self, row: np.ndarray, i: int) -> np.ndarray | None:
         """``(G,)``: the standardised difference of ``row`` (frame ``i``) at the place each
         length's line of frame ``i - K`` predicts, ``0`` (a random place's expectation)
-        where the line has left the reference or the row is flat; ``None`` before frame ``K``."""
-        if i < self.horizon:
+        where the line has left the reference or the row is flat; ``None`` before frame ``K``.
+        With a clock, the clock first reads the row and sets ``K``."""
+        spread = row.std()
+        horizon = self.horizon if self.clock is None else self.clock.update(row, i, spread)
+        if i < horizon:
             return None
-        slot = i % self.horizon
+        slot = (i - horizon) % self.offsets.shape[0]
         places = self.offsets[slot] + _position(self.velocity[slot], i)
         inside = (places >= 0) & (places < row.shape[0])
-        spread = row.std()
         if not spread > 0:
             return np.zeros(places.shape[0])
         return np.where(inside, (row[np.where(inside, places, 0)] - row.mean()) / spread, 0.0)
@@ -107,9 +136,67 @@ class _Record:
 
     def remember(self, i: int, best_j: np.ndarray, velocity: float) -> None:
         """Store frame ``i``'s lines (``best_j``: each length's best place at ``velocity``)."""
-        slot = i % self.horizon
+        slot = i % self.offsets.shape[0]
         self.offsets[slot] = best_j - _position(velocity, i)
         self.velocity[slot] = velocity
+
+
+class _Horizon:
+    """Rule "decorrelated": the horizon from the query's own rows, frame by frame.
+
+    Each row ``i`` standardised, ``z_i = (d_i - mean d_i) / std d_i``, and its
+    :data:`DECORRELATION_PLACES` best (smallest) places ``B_i`` kept for the last
+    :data:`HORIZON_MAX` frames. For every lag ``k`` the ratio
+    ``r_k(i) = mean_{j in B_{i-k}} z_i[j] / mean_{j in B_i} z_i[j]`` (1 while the places that
+    matched frame ``i - k`` still match frame ``i`` as well as its own best; about 0 once they
+    are random places for it) is averaged over the frames with the half-life
+    :data:`DECORRELATION_HALF_LIFE`, and the horizon is the first lag whose average is below
+    :data:`DECORRELATION_LEVEL` (:data:`HORIZON_MAX` while none is). A query shown at half
+    the speed keeps its rows alike twice as long, and so doubles the horizon; a flat row
+    (no spread) adds nothing. ``O(K m)`` numbers of state and ``O(N + K m)`` work per frame.
+    """
+
+    def __init__(self, capacity: int = HORIZON_MAX, places: int = DECORRELATION_PLACES,
+                 half_life: float = DECORRELATION_HALF_LIFE, level: float = DECORRELATION_LEVEL):
+        self.capacity = int(capacity)
+        self.places = int(places)
+        self.level = float(level)
+        self.decay = 2.0 ** (-1.0 / float(half_life))
+        self.best = np.zeros((self.capacity, self.places), dtype=np.int64)
+        self.filled = np.zeros(self.capacity, dtype=bool)
+        self.total = np.zeros(self.capacity)  # lag k at index k - 1
+        self.weight = np.zeros(self.capacity)
+
+    def update(self, row: np.ndarray, i: int, spread: float) -> int:
+        """Read frame ``i``'s row (``spread``: its standard deviation); the horizon ``K >= 1``."""
+        slot = i % self.capacity
+        ratio = np.zeros(self.capacity)
+        seen = np.zeros(self.capacity)
+        if spread > 0:
+            z = (row - row.mean()) / spread
+            m = min(self.places, z.shape[0])
+            best = np.argpartition(z, m - 1)[:m] if m < z.shape[0] else np.arange(m)
+            own = z[best].mean()
+            lags = np.arange(1, min(i, self.capacity) + 1)
+            if own < 0 and lags.size:
+                back = (i - lags) % self.capacity
+                ratio[: lags.size] = z[self.best[back, :m]].mean(axis=1) / own
+                seen[: lags.size] = 1.0
+            self.best[slot, :m] = best
+        self.total = self.decay * self.total + ratio
+        self.weight = self.decay * self.weight + seen
+        with np.errstate(divide="ignore", invalid="ignore"):
+            below = (self.weight > 0) & (self.total / self.weight < self.level)
+        return int(np.argmax(below)) + 1 if below.any() else self.capacity
+
+
+def _new_record(cfg: _Config) -> _Record | None:
+    """The state a rule carries from frame to frame (rules "predictive" and "decorrelated")."""
+    if cfg.fixed or cfg.rule not in RECORD_RULES:
+        return None
+    if cfg.rule == "decorrelated":
+        return _Record(cfg.grid.shape[0], clock=_Horizon())
+    return _Record(cfg.grid.shape[0])
 
 
 def _predictive_choice(st: _Stats, cfg: _Config, frame_index: np.ndarray, rows_d: np.ndarray, v: np.ndarray,
@@ -263,7 +350,7 @@ def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool
         floor = SUSTAINED_FRACTION * masked.min(axis=1, keepdims=True)
         qualified = admissible & (lp <= floor)
         g = g_count - 1 - np.argmax(qualified[:, ::-1], axis=1)
-    elif cfg.rule == "predictive" and not cfg.fixed:
+    elif cfg.rule in RECORD_RULES and not cfg.fixed:
         g = _predictive_choice(st, cfg, frame_index, rows_d, v, record)
     else:
         g = np.argmin(masked, axis=1)

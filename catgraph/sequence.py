@@ -180,6 +180,17 @@ both speeds on Nordland (reversed 0.953, speed 2 0.927) and in every cell of the
 world, but worse on the short shuffles of Nordland and on most UJI shuffles, so it is not
 the default.
 
+``rule="decorrelated"`` keeps the record of "predictive" but reads its horizon from the
+query itself: the first lag ``k`` at which the rows have decorrelated, i.e. at which a row's
+mean standardised difference at the ``DECORRELATION_PLACES = 10`` best places of the row
+``k`` frames back, over the same at its own best places, averaged over recent frames
+(half-life ``DECORRELATION_HALF_LIFE = 100``), falls below ``DECORRELATION_LEVEL = 0.4``
+(at most ``HORIZON_MAX = 48`` frames). Long enough to outlast the likeness of consecutive
+rows (which favours short windows), as short as the data allow: on Nordland about 20
+frames, twice that at half the speed; on the synthetic world 1–2; on UJI's shortest
+shuffles about 5 (``docs/sequence.md``). ``O(K m)`` more numbers of state and
+``O(N + K m)`` more work per frame.
+
 Hub references (flat, textureless frames close to every query) are corrected before
 matching when ``hub_offsets`` (from :func:`catgraph.hubs.hub_offsets`, computed from the
 reference map alone) are given: each row has the offsets subtracted and is normalised
@@ -260,7 +271,7 @@ from typing import Sequence
 import numpy as np
 
 from ._validation import check_array, check_scalar
-from ._window_rule import SUSTAINED_FRACTION, _decide, _needs_sub, _Record, _Stats
+from ._window_rule import SUSTAINED_FRACTION, _decide, _needs_sub, _new_record, _Record, _Stats
 from .exceptions import InvalidParameterError, NotFittedError, ShapeMismatchError
 
 __all__ = [
@@ -277,7 +288,7 @@ __all__ = [
 ]
 
 APPROXIMATIONS = ("gaussian", "robust", "gmm2", "gmm3")
-RULES = ("unrivalled", "evident", "consistent", "sustained", "literal", "predictive")
+RULES = ("unrivalled", "evident", "consistent", "sustained", "literal", "predictive", "decorrelated")
 CONFIDENCES = ("posterior", "support", "gap", "neglogp", "z")
 #: reference places per query frame searched by default: driven backwards or forwards, 0.5x to 3x
 DEFAULT_VELOCITIES = (-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0)
@@ -504,8 +515,8 @@ def _state(cfg: _Config, n: int, chunk: int = 1):
 
 
 def _record(cfg: _Config) -> _Record | None:
-    """Rule "predictive" carries each length's predictive record from frame to frame."""
-    return _Record(cfg.grid.shape[0]) if cfg.rule == "predictive" and not cfg.fixed else None
+    """Rules "predictive" and "decorrelated" carry each length's predictive record from frame to frame."""
+    return _new_record(cfg)
 
 
 def _em_stride(n: int) -> int:
@@ -556,7 +567,7 @@ def match_sequences(
         A fixed window length, or ``"adaptive"`` to choose one per frame.
     approximation : {"gaussian", "robust", "gmm2", "gmm3"}
         Approximation of the score distribution used for ``p_i(L)``.
-    rule : {"unrivalled", "evident", "consistent", "sustained", "literal", "predictive"}
+    rule : {"unrivalled", "evident", "consistent", "sustained", "literal", "predictive", "decorrelated"}
         Window choice, see the module docstring.
     confidence : {"posterior", "support", "gap", "neglogp", "z"}
         Confidence given to each match (see the module docstring).
