@@ -132,6 +132,24 @@ def _floor_numpy_codes_ms(n: int, repeats: int = 15) -> float:
     return _median_ms(codes.sum, repeats)[0]
 
 
+def _step_floor_ms(live, matcher, repeats: int = 15) -> dict:
+    """Plain memory passes over what one live step must touch, one thread each (numpy,
+    streaming; no arithmetic worth the name), measured in the same process: the map
+    as the kernels read it (viewed as uint64 and summed) and the matcher's running
+    sums (``V × G × N`` integers, read and written once: ``sums += 0`` in place; their
+    values do not change). Their sum is the least the step's two memory-bound parts
+    can cost on one thread; a second core helps only as far as memory bandwidth does."""
+    codes = live.live_map.reference.descriptors
+    flat = codes.reshape(-1)
+    flat = flat[: flat.size - flat.size % (8 // flat.itemsize)].view(np.uint64)
+    flat.sum()
+    sums = matcher._sums
+    np.add(sums, 0, out=sums)
+    read_ms = _median_ms(flat.sum, repeats)[0]
+    sums_ms = _median_ms(lambda: np.add(sums, 0, out=sums), repeats)[0]
+    return {"floor_map_read_ms": read_ms, "floor_sums_rw_ms": sums_ms, "floor_step_ms": read_ms + sums_ms}
+
+
 def _median_ms(fn, repeats: int) -> tuple[float, float]:
     times = []
     for _ in range(repeats):
@@ -258,6 +276,17 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
             return result
 
         matcher.step = timed_step  # the matcher's share of the model time
+        model = live.localizer_.model
+        inner_observe = model.observe
+        observe_seconds = []
+
+        def timed_observe(row):
+            t = time.perf_counter()
+            result = inner_observe(row)
+            observe_seconds.append(time.perf_counter() - t)
+            return result
+
+        model.observe = timed_observe  # the observation model's share (the matcher inside it)
         parts = {"frontend": [], "difference": [], "model": []}
         times = []
         for k in range(frames):
@@ -269,6 +298,7 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
         ms = 1000.0 * np.asarray(times)
         out["streaming_peak_rss_mb"] = _status_mb("VmHWM")
         del matcher.step
+        del model.observe
         # what the step holds, by component (array bytes reachable from each)
         seen: set = set()
         ring = sum(a.nbytes for name, a in vars(matcher).items() if isinstance(a, np.ndarray) and "ring" in name)
@@ -285,10 +315,14 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
                    matcher_ms=1000.0 * float(np.median(matcher_seconds)),
                    **{f"{k}_ms": 1000.0 * float(np.median(v)) for k, v in parts.items()})
         out["model_rest_ms"] = 1000.0 * float(np.median(np.asarray(parts["model"]) - np.asarray(matcher_seconds)))
+        out["row_matcher_ms"] = 1000.0 * float(np.median(np.asarray(parts["difference"]) + np.asarray(matcher_seconds)))
+        out["observe_rest_ms"] = 1000.0 * float(np.median(np.asarray(observe_seconds) - np.asarray(matcher_seconds)))
+        out["filter_ms"] = 1000.0 * float(np.median(np.asarray(parts["model"]) - np.asarray(observe_seconds)))
         # floors last (their scratch arrays must not count in the streaming peak)
         if case == "live-u8":
             out["floor_u8_ms"] = _floor_codes_ms(n)
             out["floor_np_u8_ms"] = _floor_numpy_codes_ms(n)
+        out.update(_step_floor_ms(live, matcher))
         out["peak_rss_mb"] = max(out["prepare_peak_rss_mb"], _peak_rss_mb())
     else:
         raise SystemExit(f"unknown case {case!r}")
@@ -511,7 +545,8 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
                 text += f" (p99 {_fmt(r['p99_ms'])})"
             if ratio and np.isfinite(r.get(floor, float("nan"))):
                 text += f", ×{r[key] / r[floor]:.1f} floor" + {"floor_u8_ms": " (uint8)",
-                                                                "floor_np_u8_ms": " (numpy read)"}.get(floor, "")
+                                                                "floor_np_u8_ms": " (numpy read)",
+                                                                "floor_step_ms": " (step)"}.get(floor, "")
             cells.append(text)
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
 
@@ -542,7 +577,18 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
     row("… of which models + filter", "live-u8", "model_ms", ratio=False)
     row("… … of which the sequence matcher (`SequenceMatcher.step`)", "live-u8", "matcher_ms", ratio=False)
     row("… … of which the rest (whole-image model, combination, filter)", "live-u8", "model_rest_ms", ratio=False)
+    row("… … … of which the whole-image model and the combination (observation less matcher)", "live-u8",
+        "observe_rest_ms", ratio=False)
+    row("… … … of which the filter (predict, update, estimate, the model's feedback)", "live-u8", "filter_ms",
+        ratio=False)
     row("full live step on the compact map, against the plain memory read", "live-u8", floor="floor_np_u8_ms")
+    floor_row("live-u8", "floor_map_read_ms", "floor: plain read of the map as the kernels read it (numpy, one thread)")
+    floor_row("live-u8", "floor_sums_rw_ms", "floor: plain read + write of the matcher's running sums "
+              "(V × G × N int32; numpy, one thread)")
+    floor_row("live-u8", "floor_step_ms", "floor of the step: the two together")
+    row("full live step on the compact map, against the floor of the step", "live-u8", floor="floor_step_ms")
+    row("… of which difference row + matcher, against the same floor", "live-u8", "row_matcher_ms",
+        floor="floor_step_ms")
     lines += ["", "Peak RSS of each process (reference, buffers, models; Python and numba ≈ 150–200 MB):", "",
               "| process | " + " | ".join(f"N = {n:,}" for n in sizes) + " |", "|---|" + "---|" * len(sizes)]
     for label, case in (("difference rows (SAD)", "row"), ("difference rows, compact layout (the peak includes the float map while it is coded; the codes are N × 512 B)", "row-u8"),

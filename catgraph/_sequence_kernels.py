@@ -659,6 +659,10 @@ def run_velocities_gaussian(chosen, c0, c1, start, sums, ring, mring, state, vel
                                      weights[t, vi], locs[t, vi], scales[t, vi], sub[t, vi], s[vi])
 
 
+#: Window sums updated per thread below which the velocities run on the calling thread
+#: alone (a small map: handing work to a second thread costs more than it saves).
+WORK_PER_THREAD = 1 << 18
+
 _POOL = {}
 
 
@@ -692,7 +696,8 @@ def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_it
 
     The ring holds ``R >= max(grid) + 1`` rows, so ``C = R - max(grid)`` new rows fit
     beside the longest window's history: the rows are stored ``C`` at a time, then the
-    velocities are handed out one at a time to ``numba.get_num_threads()`` threads (the
+    velocities are handed out one at a time to ``numba.get_num_threads()`` threads (fewer
+    below :data:`WORK_PER_THREAD` window sums per thread; the
     caller's and a pool's; compiled code without the GIL, and a waiting thread sleeps
     instead of spinning, which matters on a busy machine), each taking the next velocity
     of those ``C`` frames as soon as it is free — a thread that shares its core with
@@ -704,7 +709,8 @@ def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_it
 
     chunk = ring.shape[0] - int(grid[-1])
     v_count = velocities.shape[0]
-    threads = max(1, min(v_count, numba.get_num_threads()))
+    updates = min(chunk, d.shape[0]) * sums.shape[2] * grid.shape[0] * v_count  # window sums per kernel round
+    threads = max(1, min(v_count, numba.get_num_threads(), updates // WORK_PER_THREAD))
     rest = (velocities, grid, approx, n_iter, em_stride, radius, best_j, best_s, second_s, mean, std, weights,
             locs, scales, sub, s, work, resp)
     run = run_velocities_gaussian if approx == APPROX_GAUSSIAN else run_velocities

@@ -285,8 +285,12 @@ def test_wide_reference_across_chunks_is_exact_and_streams_as_batch():
     np.testing.assert_array_equal(batch.log_p, np.array([s.log_p for s in steps]))
 
 
-def test_results_do_not_depend_on_the_thread_count():
+def test_results_do_not_depend_on_the_thread_count(monkeypatch):
     import numba
+
+    from catgraph import _sequence_kernels
+
+    monkeypatch.setattr(_sequence_kernels, "WORK_PER_THREAD", 1)  # threads even for this small matrix
 
     d, _ = planted_line(2.0, n_q=70, n_ref=90, start=3)
     kwargs = dict(l_min=2, l_max=30, grid=7, return_curves=True)
@@ -328,11 +332,15 @@ def test_exact_ties_keep_the_first_place():
 
 
 @pytest.mark.parametrize("approximation", ["gaussian", "robust"])
-def test_streaming_step_on_threads_equals_the_serial_step(approximation):
+def test_streaming_step_on_threads_equals_the_serial_step(approximation, monkeypatch):
     """The velocities taken by whichever thread is free (the streaming step) against one
     thread taking them in order: every statistic of every window, the running sums and
     the ring, step by step, bit for bit."""
     import numba
+
+    from catgraph import _sequence_kernels
+
+    monkeypatch.setattr(_sequence_kernels, "WORK_PER_THREAD", 1)  # threads even for this small map
 
     d, _ = planted_line(-2.0, n_q=45, n_ref=300, start=250)
     kwargs = dict(l_min=2, l_max=20, grid=5, approximation=approximation)
