@@ -24,6 +24,9 @@ matrix, of any block of it, and of any shard of the reference on another machine
     partial sums for the same result (:mod:`catgraph.distributed`). These passes are
     serial: they cost a few ms at a million places, less than waking the threads on
     a busy machine.
+:func:`normalise_row`
+    The same passes for one row in one call (the live step's row: no Python between
+    the passes), the same floats.
 
 One signature each (float32 descriptors or uint8 codes, float64 output, C-contiguous),
 compiled on first use and cached on disk (:func:`catgraph._jit.njit`: a writable cache
@@ -232,3 +235,40 @@ def scale_rows(d, mean, std, out):  # pragma: no cover - compiled
         else:
             for j in range(lo, hi):
                 out[i, j] = 0.0
+
+
+@njit
+def normalise_row(d, out):  # pragma: no cover - compiled
+    """One row's ``(d − μ) / σ`` into ``out`` (may be ``d``) in one call: the arithmetic of
+    :func:`chunk_sums` (both powers), the chunk totals added in chunk order, the zero
+    spread test and :func:`scale_rows`, so the same floats as the three passes run one
+    by one (:func:`catgraph.differences.normalise_rows`) without their calls per frame.
+    Returns ``(mean, std)`` (``std = 0`` for a row with no spread: it becomes zeros)."""
+    n = d.shape[0]
+    n_chunks = (n + SUM_CHUNK - 1) // SUM_CHUNK
+    mu = 0.0
+    total = 0.0
+    for c in range(n_chunks):
+        s = 0.0
+        for j in range(c * SUM_CHUNK, min(n, c * SUM_CHUNK + SUM_CHUNK)):
+            s += d[j] - mu
+        total += s
+    mean = total / n
+    total = 0.0
+    for c in range(n_chunks):
+        s = 0.0
+        for j in range(c * SUM_CHUNK, min(n, c * SUM_CHUNK + SUM_CHUNK)):
+            v = d[j] - mean
+            s += v * v
+        total += s
+    std = np.sqrt(total / n)
+    size = abs(mean)
+    if not (std > 1e-12 * (size if size > 1.0 else 1.0)) or mean != mean:
+        std = 0.0
+    if std > 0.0:
+        for j in range(n):
+            out[j] = (d[j] - mean) / std
+    else:
+        for j in range(n):
+            out[j] = 0.0
+    return mean, std

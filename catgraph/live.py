@@ -433,6 +433,18 @@ class LiveMap:
         """The frame's (normalised, as the map's front-end says) difference to every place."""
         return self.reference.row(self.describe(frame), normalise=self.frontend.normalise, out=out)
 
+    def _row_into(self, descriptor: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """A described frame's row into ``out`` (C-contiguous float64 ``(N,)``):
+        :meth:`PreparedReference.row` with the normalisation's passes in one compiled
+        call (:func:`catgraph._diff_kernels.normalise_row`; the same floats, tested)."""
+        from ._diff_kernels import normalise_row
+
+        reference = self.reference
+        reference._raw(reference.prepare_query(descriptor, single=True), out.reshape(1, -1))
+        if self.frontend.normalise:
+            normalise_row(out, out)
+        return out
+
     def bootstrap(self, gap: int | None = None, max_different: int = 100_000, seed=0,
                   anchor_rows: int | None = 4096):
         """A fitted ``HistogramLikelihood`` whose ``¬L`` histogram comes from the map
@@ -612,7 +624,7 @@ class LiveLocalizer:
         t0 = time.perf_counter()
         descriptor = self.live_map.describe(frame)
         t1 = time.perf_counter()
-        row = self.live_map.reference.row(descriptor, normalise=self.live_map.frontend.normalise, out=self._row)
+        row = self.live_map._row_into(descriptor, self._row)
         t2 = time.perf_counter()
         if self.localizer_ is None:
             m = self.matcher_.step(row)

@@ -375,3 +375,26 @@ def test_reference_columns_are_the_map_against_its_own_rows(metric, layout, rng)
         next(iter_reference_columns(ref, np.array([5000])))
     with pytest.raises(InvalidParameterError, match="PreparedReference"):
         iter_reference_columns(r, places)
+
+
+@pytest.mark.parametrize("metric, layout", [("sad", "float32"), ("sad", "uint8"), ("ssd", "uint8"),
+                                            ("cosine", "float32")])
+def test_live_row_with_fused_normalisation_equals_the_prepared_row(metric, layout, rng):
+    """The live step's row (the normalisation's passes in one compiled call) against
+    :meth:`PreparedReference.row`: bit for bit, over whole and partial sum chunks, for a
+    flat frame (no spread: zeros) and without normalisation."""
+    from catgraph.graph import PlaceGraph
+    from catgraph.io import CatgraphMap
+    from catgraph.live import LiveMap
+
+    for n in (3, 4096, 9000):
+        reference = rng.standard_normal((n, 24)).astype(np.float32)
+        for normalise in (True, False):
+            the_map = CatgraphMap(reference, metric, {"size": None, "patch": 0, "metric": metric,
+                                                      "normalise": normalise},
+                                  PlaceGraph.chain(n), meta={"kind": "descriptors"})
+            live_map = LiveMap(the_map, layout=layout)
+            for q in (rng.standard_normal(24).astype(np.float32), reference[n // 2], np.ones(24, np.float32)):
+                want = live_map.reference.row(q, normalise=normalise)
+                got = live_map._row_into(q, np.full(n, np.nan))
+                assert np.array_equal(got.view(np.int64), want.view(np.int64))
