@@ -91,7 +91,20 @@ Feedback. After each step the filter tells the model what it predicted and what 
 concluded (:class:`~catgraph.observation.FilterFeedback`: the place masses before and
 after the frame and the answer's neighbourhood) through ``ObservationModel.feedback``,
 its own named step: the tempered whole-image model chooses its temperature and learns
-``P(d|L)`` from it, the combined model its parts' reliability.
+``P(d|L)`` from it, the combined model its parts' reliability. The posterior it is
+handed is smoothed over the confidence neighbourhoods (``smooth_feedback``, the
+default): place ``j`` gets the mean mass of the places an answer at ``j`` would count
+(:func:`neighbourhood_means`), rescaled to the same total. The tempered model's
+agreement reads the posterior at the frame's own best place against its maximum, two
+single places; a particle cloud resolves the posterior to a place or two only up to
+where its particles happened to land, and that noise, fed back into the temperature,
+re-rolled whole runs from seed to seed. Over a neighbourhood the particles' sums vary
+far less (``tests/test_localizer_feedback.py``). The smoothed posterior is the limit of
+the grid filter's posterior smoothed the same way, not of the grid's own feedback: the
+agreement then asks whether the frame's best place lies within the neighbourhood the
+filter would answer with, a coarser question whose answer the particles can give;
+what it does to accuracy and seed spread is measured per condition in
+``benchmarks/results/particles.md``.
 
 The velocity marginalised (``marginal_velocity``, the default where it applies: a
 :class:`~catgraph.motion.VelocityMotion` on a route without junctions, frames without
@@ -137,7 +150,8 @@ from .motion import FrameMotion, MotionModel, OdometryMotion, VelocityMotion
 from .observation import Observation, ObservationModel
 from .particles import ParticleSet, _first_in_edge, get_resampler, normalise_in_place
 
-__all__ = ["Estimate", "LocalizationResult", "Localizer", "check_odometry", "confidence_log_odds"]
+__all__ = ["Estimate", "LocalizationResult", "Localizer", "check_odometry", "confidence_log_odds",
+           "neighbourhood_means"]
 
 #: Floor on the mass outside the answer's neighbourhood when taking log-odds: keeps them
 #: finite (and ordered) where the confidence is exactly 1.
@@ -463,6 +477,57 @@ def _top_k(values, k):  # pragma: no cover - compiled
     return best_i
 
 
+@njit
+def _window_means(values, lo, hi, out):  # pragma: no cover - compiled
+    """``out[j] = mean(values[lo[j]:hi[j]])``; returns ``Σ out``."""
+    total = 0.0
+    for j in range(values.shape[0]):
+        acc = 0.0
+        for k in range(lo[j], hi[j]):
+            acc += values[k]
+        out[j] = acc / (hi[j] - lo[j])
+        total += out[j]
+    return total
+
+
+@njit
+def _list_means(values, ptr, index, out):  # pragma: no cover - compiled
+    """``out[j] = mean(values[index[ptr[j]:ptr[j + 1]]])``; returns ``Σ out``."""
+    total = 0.0
+    for j in range(values.shape[0]):
+        acc = 0.0
+        for t in range(ptr[j], ptr[j + 1]):
+            acc += values[index[t]]
+        out[j] = acc / max(ptr[j + 1] - ptr[j], 1)
+        total += out[j]
+    return total
+
+
+def neighbourhood_means(mass: np.ndarray, first: np.ndarray, second: np.ndarray, is_list) -> np.ndarray:
+    """Each place's mean mass over its neighbourhood, rescaled to the total of ``mass``.
+
+    Parameters
+    ----------
+    mass : ndarray of float64, shape (n_places,)
+    first, second : ndarray of int64
+        ``lo, hi`` (place ``j``'s neighbourhood is ``lo[j] .. hi[j] − 1``) or, with
+        ``is_list``, ``ptr, index`` (a CSR list: ``index[ptr[j]:ptr[j + 1]]``).
+    is_list : bool or None
+
+    Returns
+    -------
+    ndarray of float64, shape (n_places,)
+        ``m̃_j = c · mean_{k ∈ N(j)} m_k``, ``c`` such that ``Σ m̃ = Σ m``.
+    """
+    values = np.ascontiguousarray(mass, dtype=np.float64)
+    out = np.empty_like(values)
+    total = (_list_means if is_list else _window_means)(values, first, second, out)
+    want = float(values.sum())
+    if total > 0.0 and want > 0.0:
+        out *= want / total
+    return out
+
+
 def _check_observation(observation, n_places: int) -> np.ndarray:
     """Check a row once per step (1-D, real, finite, one value per place); return it as
     a :class:`~catgraph.observation.CheckedRow`, which models do not scan again."""
@@ -622,6 +687,12 @@ class Localizer:
         frame's evidence (:meth:`~catgraph.motion.VelocityMotion.move_marginal`); the
         place masses are the particles' mixtures before their draw. ``False``, junction
         graphs and odometry: one sampled velocity bin per particle.
+    smooth_feedback : bool
+        Hand the observation model (``FilterFeedback.posterior``) each place's mean
+        posterior mass over its confidence neighbourhood (``confidence_radius`` or
+        ``confidence_radius_m``; :func:`neighbourhood_means`) instead of the mass at the
+        place alone: far less Monte Carlo noise in what the model learns from (see the
+        module docstring). ``Localizer.place_posterior_`` and the estimates are unchanged.
     seed : int, Generator or None
 
     Attributes
@@ -643,7 +714,7 @@ class Localizer:
                  proposal_top_k: int = 10, proposal_power: float = 8.0, proposal_uniform: float = 0.5,
                  new_place_prior: float | None = None, new_place_stay: float = 0.8,
                  confidence_radius: int = 2, confidence_radius_m: float | None = None,
-                 confidence_score: str = "joint", marginal_velocity: bool = True,
+                 confidence_score: str = "joint", marginal_velocity: bool = True, smooth_feedback: bool = True,
                  seed: int | np.random.Generator | None = 0) -> None:
         self.graph = graph
         self.model = model
@@ -665,6 +736,7 @@ class Localizer:
         self.confidence_radius_m = confidence_radius_m
         self.confidence_score = confidence_score
         self.marginal_velocity = marginal_velocity
+        self.smooth_feedback = smooth_feedback
         self.seed = seed
 
     # ------------------------------------------------------------------ setup
@@ -679,7 +751,7 @@ class Localizer:
         check_scalar(self.n_particles, "n_particles", owner, int, 1)
         check_scalar(self.ess_threshold, "ess_threshold", owner, float, 0.0, 1.0)
         check_scalar(self.recovery, "recovery", owner, float, 0.0, 1.0, True, False)
-        for flag in ("learn_recovery", "marginal_velocity"):
+        for flag in ("learn_recovery", "marginal_velocity", "smooth_feedback"):
             if not isinstance(getattr(self, flag), (bool, np.bool_)):
                 raise InvalidParameterError(f"The '{flag}' parameter of {owner} must be a bool. "
                                             f"Got {getattr(self, flag)!r} instead.")
@@ -774,7 +846,33 @@ class Localizer:
             from scipy.spatial import cKDTree
 
             self._tree = cKDTree(self.graph.positions)
+        self._neighbourhoods = self._feedback_neighbourhoods() if self._has_feedback and self.smooth_feedback \
+            else None
         return self
+
+    def _feedback_neighbourhoods(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
+        """Each place's confidence neighbourhood, the one :meth:`_summarise` counts around
+        an answer at that place: ``(lo, hi, None)``, places ``lo[j] .. hi[j]`` (along the
+        route, or by index), or ``(ptr, index, True)``, a CSR list (a metric radius).
+        ``None`` where every neighbourhood is the place alone (nothing to smooth)."""
+        g = self.graph
+        j = np.arange(g.n_places)
+        if self.confidence_radius_m is not None:
+            lists = self._tree.query_ball_point(g.positions, self.confidence_radius_m)
+            ptr = np.zeros(g.n_places + 1, dtype=np.int64)
+            ptr[1:] = np.cumsum([len(x) for x in lists])
+            index = np.concatenate([np.asarray(x, dtype=np.int64) for x in lists]) if g.n_places else ptr[:0]
+            return ptr, index, True
+        if self._route is not None:
+            rd = self._route
+            lo = np.searchsorted(rd, rd - self._route_radius, "left").astype(np.int64)
+            hi = np.searchsorted(rd, rd + self._route_radius, "right").astype(np.int64)
+        else:
+            lo = np.maximum(j - self.confidence_radius, 0)
+            hi = np.minimum(j + self.confidence_radius + 1, g.n_places)
+        if np.all(hi - lo == 1):
+            return None
+        return lo, hi, None
 
     def _generation(self, step: int) -> tuple[int, int]:
         """Slots of the young generation ``step mod recovery_frames``."""
@@ -830,11 +928,15 @@ class Localizer:
         return self._prior
 
     def _feedback(self, prior, near) -> None:
-        """Tell the model the filter's prediction and answer (``ObservationModel.feedback``)."""
+        """Tell the model the filter's prediction and answer (``ObservationModel.feedback``);
+        the posterior smoothed over the confidence neighbourhoods (``smooth_feedback``)."""
         if self._has_feedback:
             from .observation import FilterFeedback
 
-            self.model.feedback(FilterFeedback(prior.copy(), self.place_posterior_, near))
+            posterior = self.place_posterior_
+            if self._neighbourhoods is not None:
+                posterior = neighbourhood_means(posterior, *self._neighbourhoods)
+            self.model.feedback(FilterFeedback(prior.copy(), posterior, near))
 
     def _evidence(self, obs: Observation) -> None:
         """The frame's log-ratios, their cumulative ``e^{r − max r}`` (the likelihood
