@@ -26,6 +26,10 @@ Writes ``benchmarks/results/particles.md`` and ``particles.json``. From the repo
 (``Localizer(marginal_velocity=False)``, the filter before its velocity was
 Rao–Blackwellised), for a before/after measured in one code state.
 
+``--unsmoothed-feedback``: the particle filter handing its observation model the posterior
+at single places (``Localizer(smooth_feedback=False)``, the filter before its feedback was
+smoothed over the confidence neighbourhoods), for a before/after in one code state.
+
 ``--diagnose``: where the seeds differ on Nordland, shuffled 0.5–3 % (seed 4): the share of
 frames answered correctly by frames since the last jump, per filter seed, and the frames
 each seed takes to the first correct answer of a segment (printed, nothing written).
@@ -210,9 +214,9 @@ def _markdown(rows, times, conv, params, seeds, quick) -> str:
     return "".join(parts)
 
 
-def _sampled_velocity() -> None:
-    """Make every ``Localizer`` built from here on default to ``marginal_velocity=False``
-    (the registry does not expose it)."""
+def _localizer_default(name: str, value) -> None:
+    """Make every ``Localizer`` built from here on default to ``name=value`` (for the
+    parameters the registry does not expose)."""
     import functools
 
     from catgraph import localizer
@@ -220,11 +224,11 @@ def _sampled_velocity() -> None:
     init = localizer.Localizer.__init__
 
     @functools.wraps(init)
-    def sampled(self, *args, **kwargs):
-        kwargs.setdefault("marginal_velocity", False)
+    def changed(self, *args, **kwargs):
+        kwargs.setdefault(name, value)
         init(self, *args, **kwargs)
 
-    localizer.Localizer.__init__ = sampled
+    localizer.Localizer.__init__ = changed
 
 
 def main(argv=None) -> None:
@@ -239,9 +243,14 @@ def main(argv=None) -> None:
     ap.add_argument("--sampled-velocity", action="store_true",
                     help="the particle filter as before its velocity was marginalised (Localizer(marginal_velocity="
                          "False): one sampled velocity bin per particle), for a before/after in one code state")
+    ap.add_argument("--unsmoothed-feedback", action="store_true",
+                    help="the particle filter as before its feedback was smoothed (Localizer(smooth_feedback=False): "
+                         "the posterior at single places), for a before/after in one code state")
     args = ap.parse_args(argv)
     if args.sampled_velocity:
-        _sampled_velocity()
+        _localizer_default("marginal_velocity", False)
+    if args.unsmoothed_feedback:
+        _localizer_default("smooth_feedback", False)
     params = json.loads(args.params)
     seeds = [int(s) for s in args.seeds.split(",")]
     if args.diagnose:

@@ -479,14 +479,32 @@ def _top_k(values, k):  # pragma: no cover - compiled
 
 @njit
 def _window_means(values, lo, hi, out):  # pragma: no cover - compiled
-    """``out[j] = mean(values[lo[j]:hi[j]])``; returns ``Σ out``."""
+    """``out[j] = mean(values[lo[j]:hi[j]])`` for windows whose ends never move back
+    (``lo``, ``hi`` non-decreasing): a running sum, recomputed from scratch every 64
+    places so that round-off cannot build up; returns ``Σ out``."""
     total = 0.0
+    acc = 0.0
+    a = 0
+    b = 0
     for j in range(values.shape[0]):
-        acc = 0.0
-        for k in range(lo[j], hi[j]):
-            acc += values[k]
-        out[j] = acc / (hi[j] - lo[j])
-        total += out[j]
+        if j % 64 == 0:
+            acc = 0.0
+            for k in range(lo[j], hi[j]):
+                acc += values[k]
+            a = lo[j]
+            b = hi[j]
+        else:
+            while b < hi[j]:
+                acc += values[b]
+                b += 1
+            while a < lo[j]:
+                acc -= values[a]
+                a += 1
+        v = acc / (hi[j] - lo[j])
+        if v < 0.0:  # round-off where a large mass has just left the window
+            v = 0.0
+        out[j] = v
+        total += v
     return total
 
 
@@ -510,7 +528,8 @@ def neighbourhood_means(mass: np.ndarray, first: np.ndarray, second: np.ndarray,
     ----------
     mass : ndarray of float64, shape (n_places,)
     first, second : ndarray of int64
-        ``lo, hi`` (place ``j``'s neighbourhood is ``lo[j] .. hi[j] − 1``) or, with
+        ``lo, hi`` (place ``j``'s neighbourhood is ``lo[j] .. hi[j] − 1``, both
+        non-decreasing in ``j``) or, with
         ``is_list``, ``ptr, index`` (a CSR list: ``index[ptr[j]:ptr[j + 1]]``).
     is_list : bool or None
 
@@ -852,8 +871,8 @@ class Localizer:
 
     def _feedback_neighbourhoods(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
         """Each place's confidence neighbourhood, the one :meth:`_summarise` counts around
-        an answer at that place: ``(lo, hi, None)``, places ``lo[j] .. hi[j]`` (along the
-        route, or by index), or ``(ptr, index, True)``, a CSR list (a metric radius).
+        an answer at that place: ``(lo, hi, None)``, places ``lo[j] .. hi[j] − 1`` (along
+        the route, or by index; both ends non-decreasing in ``j``), or ``(ptr, index, True)``, a CSR list (a metric radius).
         ``None`` where every neighbourhood is the place alone (nothing to smooth)."""
         g = self.graph
         j = np.arange(g.n_places)
