@@ -106,10 +106,11 @@ and the update is kept factored (prediction × the frame's likelihood per place,
 velocity sums while it writes each row): a step reads the state once and writes it
 once, ``O(n_places · n_bins)`` (see ``benchmarks/results/filter_speed.md``). On a large
 map (:data:`LINE_WORK_PER_THREAD` state values per thread) the blocks are shared among
-the cores, a run of whole blocks each; every block writes its own places and its own
-velocity sums, added in block order afterwards, so the numbers are those of one thread,
-bit for bit (tested against the one-pass serial kernel). The result
-is the unfused one's to round-off (the velocity sums are added in another order). That
+the cores in runs of whole blocks, each taken by whichever thread is free; every block
+writes its own places and its own velocity sums, added in block order afterwards, so
+the numbers are those of one thread, bit for bit (tested against the one-pass serial
+kernel). The result is the unfused one's to round-off (the velocity sums are added in
+another order). That
 path stores the prediction in float32 (half the memory traffic; every sum, the
 likelihood and the place masses stay float64): it agrees with the float64 path to
 about 1e-6 relative over tens of steps (tested to 1e-5), and exactly when given a
@@ -532,6 +533,8 @@ def _line_sums(accs, velocity):  # pragma: no cover - compiled
 #: State values (places × bins) per thread below which the line kernel runs on one
 #: thread (waking a second costs more than it saves on a small map).
 LINE_WORK_PER_THREAD = 1 << 18
+#: Runs of whole blocks per thread the line kernel's places are cut into.
+LINE_PIECES_PER_THREAD = 4
 
 _POOL = {}
 
@@ -548,7 +551,8 @@ def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, fr
     stored) while the row is written, so that the update need not read the state again.
 
     The blocks are shared among ``threads`` threads (default: as many as the work is
-    worth, :data:`LINE_WORK_PER_THREAD`, at most the cores), each a run of whole blocks;
+    worth, :data:`LINE_WORK_PER_THREAD`, at most the cores) in runs of whole blocks
+    (:data:`LINE_PIECES_PER_THREAD` per thread), each taken by whichever thread is free;
     every block writes its own places and its own velocity sums, which are added in
     block order afterwards, so the result is the same, bit for bit, on any number of
     threads."""
@@ -568,15 +572,23 @@ def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, fr
     if threads == 1:
         _line_blocks(*args, 0, n, accs)
     else:
-        edges = [(blocks * t // threads) * block for t in range(threads + 1)]
+        # a few runs of whole blocks per thread, each taken by whichever thread is free
+        # (a thread that shares its core with other work takes fewer)
+        pieces = min(blocks, LINE_PIECES_PER_THREAD * threads)
+        edges = [(blocks * t // pieces) * block for t in range(pieces + 1)]
+        queue = iter(list(zip(edges[:-1], edges[1:])))
         if threads - 1 not in _POOL:
             from concurrent.futures import ThreadPoolExecutor
 
             _POOL[threads - 1] = ThreadPoolExecutor(max_workers=threads - 1, thread_name_prefix="catgraph-grid")
-        jobs = [_POOL[threads - 1].submit(_line_blocks, *args, lo, min(hi, n), accs)
-                for lo, hi in zip(edges[1:-1], edges[2:])]
+
+        def take():
+            for lo, hi in queue:
+                _line_blocks(*args, lo, min(hi, n), accs)
+
+        jobs = [_POOL[threads - 1].submit(take) for _ in range(threads - 1)]
         try:
-            _line_blocks(*args, 0, edges[1], accs)
+            take()
         finally:
             for job in jobs:
                 job.result()
