@@ -21,6 +21,10 @@ Cases (per N):
                prepared map calls it (validates and recomputes norms every call)
 ``cosine``     the prepared cosine row
 ``matcher``    :meth:`SequenceMatcher.step`, adaptive, ``l_max`` 500, on normalised rows
+``matcher-1t`` the same on one thread
+``grid``       :meth:`GridLocalizer.step` alone on a line graph (a precomputed observation, as
+               ``bench_filter.py speed``), beside one read + write of its state; ``grid-1t``:
+               one thread
 ``live``       :meth:`LiveLocalizer.step`, combined model, 2000 particles: front-end +
                difference + matcher + filter, the full per-frame path
 ``live-u8``    the same on a ``LiveMap(..., layout="uint8")``
@@ -132,6 +136,21 @@ def _floor_numpy_codes_ms(n: int, repeats: int = 15) -> float:
     return _median_ms(codes.sum, repeats)[0]
 
 
+class _FixedModel:
+    """An observation model that returns the same log-ratio every step (the filter alone)."""
+
+    def __init__(self, log_ratio):
+        from catgraph.observation import Observation
+
+        self._obs = Observation(log_ratio, -1.0, True)
+
+    def reset(self):
+        pass
+
+    def observe(self, row):
+        return self._obs
+
+
 def _step_floor_ms(live, matcher, repeats: int = 15) -> dict:
     """Plain memory passes over what one live step must touch, one thread each (numpy,
     streaming; no arithmetic worth the name), measured in the same process: the map
@@ -190,8 +209,33 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
 
     out: dict = {"case": case, "n": n, "frames": frames, "commit": _commit()}
     rng = np.random.default_rng(1)
-    if case == "matcher":
+    if case in ("grid", "grid-1t"):  # the grid filter's step alone (a fixed observation), all cores or one
+        from catgraph import grid
+        from catgraph.graph import PlaceGraph
+
+        if case == "grid-1t":
+            grid.LINE_WORK_PER_THREAD = 1 << 62
+        rows = rng.standard_normal((8, n))
+        loc = grid.GridLocalizer(PlaceGraph.chain(n), _FixedModel(-rows[0])).reset()
+        for k in range(5):
+            loc.step(rows[k % 8])
+        times = []
+        for k in range(frames):
+            start = time.perf_counter()
+            loc.step(rows[k % 8])
+            times.append(time.perf_counter() - start)
+        ms = 1000.0 * np.asarray(times)
+        state = loc._state
+        out.update(median_ms=float(np.median(ms)), p99_ms=float(np.percentile(ms, 99)),
+                   floor_ms=_median_ms(lambda: np.add(state, 0, out=state), 15)[0], peak_rss_mb=_peak_rss_mb())
+        return out
+    if case in ("matcher", "matcher-1t"):
         from catgraph.sequence import SequenceMatcher
+
+        if case == "matcher-1t":
+            import numba
+
+            numba.set_num_threads(1)
 
         rows = rng.standard_normal((8, n))
         matcher = SequenceMatcher(window="adaptive", l_max=l_max)
@@ -565,6 +609,10 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
     row("`difference_row`, cosine, raw reference (validates every call)", "cosine-raw")
     row("prepared cosine row + normalisation", "cosine")
     row("`SequenceMatcher.step` (adaptive, l_max 500, as it is)", "matcher", ratio=False)
+    row("the same, one thread", "matcher-1t", ratio=False)
+    row("grid filter step alone (line graph, 8 velocities in 10 bins, a precomputed observation), all cores, "
+        "against one read + write of its state (numpy)", "grid")
+    row("the same, one thread", "grid-1t")
     row("full live step, combined model, 2000 particles", "live")
     row("… of which front-end", "live", "frontend_ms", ratio=False)
     row("… of which difference row", "live", "difference_ms", ratio=False)
