@@ -584,6 +584,9 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
             if r is None:
                 cells.append("not run")
                 continue
+            if key not in r:  # a row measured before this figure was recorded
+                cells.append("not recorded")
+                continue
             text = f"{_fmt(r[key])} ms"
             if key == "median_ms":
                 text += f" (p99 {_fmt(r['p99_ms'])})"
