@@ -152,8 +152,10 @@ class _Horizon:
     are random places for it) is averaged over the frames with the half-life
     :data:`DECORRELATION_HALF_LIFE`, and the horizon is the first lag whose average is below
     :data:`DECORRELATION_LEVEL` (:data:`HORIZON_MAX` while none is). A query shown at half
-    the speed keeps its rows alike twice as long, and so doubles the horizon; a flat row
-    (no spread) adds nothing. ``O(K m)`` numbers of state and ``O(N + K m)`` work per frame.
+    the speed keeps its rows alike twice as long, and so doubles the horizon. A flat row (no
+    spread, e.g. a frame without information) has no best places: it adds no ratio, and
+    later frames add none at its lag. ``O(K m)`` numbers of state and ``O(N + K m)`` work
+    per frame.
     """
 
     def __init__(self, capacity: int = HORIZON_MAX, places: int = DECORRELATION_PLACES,
@@ -180,9 +182,11 @@ class _Horizon:
             lags = np.arange(1, min(i, self.capacity) + 1)
             if own < 0 and lags.size:
                 back = (i - lags) % self.capacity
-                ratio[: lags.size] = z[self.best[back, :m]].mean(axis=1) / own
-                seen[: lags.size] = 1.0
+                known = self.filled[back]
+                ratio[: lags.size] = np.where(known, z[self.best[back, :m]].mean(axis=1) / own, 0.0)
+                seen[: lags.size] = known
             self.best[slot, :m] = best
+        self.filled[slot] = spread > 0
         self.total = self.decay * self.total + ratio
         self.weight = self.decay * self.weight + seen
         with np.errstate(divide="ignore", invalid="ignore"):

@@ -156,3 +156,20 @@ def test_decorrelated_rule_recovers_after_a_jump(jump_route):
     res = match_sequences(d, rule="decorrelated", l_min=5, l_max=100, grid=16, velocities=V1)
     assert np.mean(res.match[120:] == truth[120:]) >= 0.75
     assert np.mean(res.match[:100] == truth[:100]) >= 0.9
+
+
+def test_flat_rows_add_nothing_to_the_horizon():
+    """A flat row (a frame without information) has no best places: neither its own frame
+    nor any later frame whose lag reaches back to it adds a ratio, and the matcher stays finite."""
+    flat = smooth_route(80, 60, 6, 5, 0.0)
+    flat[30] = 0.0
+    clock = _Horizon()
+    for i, row in enumerate(flat):
+        clock.update(row, i, row.std())
+    assert np.all(np.isfinite(clock.total))
+    n = len(flat)
+    for k in (1, 5, 20):  # the discounted count of frames that added a ratio at lag k
+        frames = [s for s in range(k, n) if s != 30 and s - k != 30]
+        assert clock.weight[k - 1] == pytest.approx(sum(clock.decay ** (n - 1 - s) for s in frames), rel=1e-12)
+    res = match_sequences(flat, rule="decorrelated", l_min=3, l_max=30, grid=6, velocities=V1)
+    assert np.all(np.isfinite(res.confidence))
