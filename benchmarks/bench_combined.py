@@ -220,7 +220,8 @@ def markdown(rows, conditions, quick) -> str:
             best = cell.get("best")
             learned = next((r for r in rows if r["dataset"] == ds and r["condition"] == c.label
                             and "weight_share" in r), None)
-            share = "—" if learned is None else ", ".join(f"{w}: {s:.2f}" for w, s in learned["weight_share"].items())
+            share = "—" if learned is None else ", ".join(
+                f"{w}: {s:.3f}" for w, s in sorted(learned["weight_share"].items(), key=lambda x: -x[1]) if s >= 5e-4)
             cells += [_cell(cell.get("default")), "—" if best is None else f"{_cell(best[1])} ({best[0]})", share]
             parts.append(f"| {c.label} | " + " | ".join(cells) + " |\n")
         for rng, name in (((0.02, 0.2), "shuffled 2–20 %"), ((0.005, 0.03), "shuffled 0.5–3 %")):
@@ -243,7 +244,11 @@ def markdown(rows, conditions, quick) -> str:
         for v in variants:
             aucs = [r["auc"] for r in rows if r["dataset"] == ds and r["variant"] == v]
             means.append(f"{np.mean(aucs):.3f}" if aucs else "—")
-        parts.append(f"| **mean AUC of the {len(conditions)} conditions** | " + " | ".join(means) + " | | | |\n")
+        d = [ref.get((ds, c.label), {}).get("default") for c in conditions]
+        b = [ref.get((ds, c.label), {}).get("best") for c in conditions]
+        parts.append(f"| **mean AUC of the {len(conditions)} conditions** | " + " | ".join(means)
+                     + f" | {np.mean([x['auc'] for x in d]):.3f} | " if all(d) else " | — | ")
+        parts[-1] += (f"{np.mean([x[1]['auc'] for x in b]):.3f} (best per cell) | |\n" if all(b) else "— | |\n")
     return "".join(parts)
 
 

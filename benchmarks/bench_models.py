@@ -14,7 +14,11 @@ Nordland's normalised difference rows.
 Models: ``GridLocalizer(PlaceGraph.chain(N), TemperedObservation())`` and the registry's
 ``combined`` model (:func:`catgraph.methods.observation_model`) on the same chain; the
 identity checks also run both under the particle filter (500 particles, seed 0), whose
-confidence score reads the combined model's recent support.
+confidence score reads the combined model's recent support. A model's time is its
+``observe`` and its ``feedback`` together (the filter calls both every frame). A second
+table times the combined model with its weights learned online
+(``CombinedObservation(weights="predictive")``, whose candidates are scored in
+``feedback``) against the plain sum, both the working tree's.
 
 Writes ``benchmarks/results/models.md`` (``--out``). Run from the repository root::
 
@@ -90,7 +94,31 @@ def make_model(kind: str, module, n: int):
     if kind == "tempered":
         return module.TemperedObservation()
     with observation_module(module):
-        return observation_model(resolve_params("filter", {"model": "combined"}), n, None)
+        model = observation_model(resolve_params("filter", {"model": "combined"}), n, None)
+    if kind == "combined, weights learned":
+        model.weights = "predictive"
+    return model
+
+
+def weights_cost(n: int, steps: int, warm: int, seed: int) -> dict[str, float]:
+    """Median ms per frame of the registry's combined model (``observe`` + ``feedback``)
+    with the plain sum and with ``weights="predictive"``, both the working tree's, on the
+    same random rows under the grid filter, stepped alternately."""
+    rng = np.random.default_rng(seed)
+    rows = rng.standard_normal((warm + steps, n))
+    graph = PlaceGraph.chain(n)
+    runs = {}
+    for kind in ("combined", "combined, weights learned"):
+        timer = Timer(make_model(kind, current, n))
+        runs[kind] = (timer, GridLocalizer(graph, timer))
+    times = {kind: [] for kind in runs}
+    for k, row in enumerate(rows):
+        for kind in (list(runs) if k % 2 == 0 else list(runs)[::-1]):
+            timer, loc = runs[kind]
+            loc.step(row)
+            if k >= warm:
+                times[kind].append(timer.last)
+    return {kind: 1e3 * float(np.median(v)) for kind, v in times.items()}
 
 
 class Recorder:
@@ -113,13 +141,18 @@ class Recorder:
 
 
 class Timer(Recorder):
-    """Wraps a model, timing its ``observe``."""
+    """Wraps a model, timing its ``observe`` and its ``feedback`` (``last``: both, of the latest frame)."""
 
     def observe(self, row):
         t = time.perf_counter()
         obs = self.model.observe(row)
         self.last = time.perf_counter() - t
         return obs
+
+    def feedback(self, feedback) -> None:
+        t = time.perf_counter()
+        self.model.feedback(feedback)
+        self.last += time.perf_counter() - t
 
 
 def check_identical(kind: str, before, rows: np.ndarray, particles: bool = False) -> list[str]:
@@ -278,6 +311,8 @@ def main(argv=None) -> None:
             print(kind, n, table[(kind, n)], flush=True)
     parts = {n: tempered_parts(before, n, args.steps, args.warm, 0) for n in sizes}
     print(parts, flush=True)
+    learned = {n: weights_cost(n, args.steps, args.warm, 0) for n in sizes}
+    print(learned, flush=True)
     profiles = {}
     if args.profile:  # a separate run: the profiler's overhead stays out of the medians
         for kind in ("tempered", "combined"):
@@ -293,7 +328,7 @@ def main(argv=None) -> None:
         f"grid filter on `PlaceGraph.chain(N)`; {platform.machine()}, Python {platform.python_version()}, "
         "2 cores shared with other work (compare the two columns of a row, not rows across runs).",
         "",
-        "| model | N | model's `observe`, before | after | × | whole grid step, before | after | × |",
+        "| model | N | model's `observe` + `feedback`, before | after | × | whole grid step, before | after | × |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for (kind, n), t in table.items():
@@ -301,6 +336,13 @@ def main(argv=None) -> None:
         lines.append(f"| {kind} | {n:,} | {b['observe']:.2f} ms | {a['observe']:.2f} ms | "
                      f"{b['observe'] / a['observe']:.2f} | {b['step']:.2f} ms | {a['step']:.2f} ms | "
                      f"{b['step'] / a['step']:.2f} |")
+    lines += ["", "The combined model with its weights learned online (`CombinedObservation(weights=\"predictive\")`, "
+              "five candidates) against the plain sum, both the working tree's, same rows, stepped alternately; "
+              "the model's own time per frame (`observe` + `feedback`, where the candidates are scored), medians:",
+              "", "| N | combined, sum | combined, weights learned | × |", "|---|---|---|---|"]
+    for n, t in learned.items():
+        a, b = t["combined"], t["combined, weights learned"]
+        lines.append(f"| {n:,} | {a:.2f} ms | {b:.2f} ms | {b / a:.2f} |")
     lines += ["", "The tempered model's parts, called one after another on a model warmed up under the grid "
               "filter (medians over the same steps, both versions interleaved; `_base` includes `_hub`, "
               "`observe` includes all):", "",

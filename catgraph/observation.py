@@ -558,6 +558,16 @@ class CombinedObservation:
     whose peaks fall where the filter's own motion expected the place gains weight, a
     part whose peaks fall elsewhere loses it, and a weight of 0 switches it off.
 
+    Measured with the grid filter on the whole condition table
+    (``benchmarks/results/combined.md``), the score prefers the largest sequence weight
+    (2) on almost every frame of every traverse, and the filter is then worse than with
+    the plain sum where the sequence part hurts (Nordland in order, speed 2, speed 0.5,
+    UJI's short shuffles): the filter's prediction already holds the evidence of the
+    frames the sequence part's window shares with the previous windows, so the part
+    explains the frame well whether or not it is right, and a sharper weighting of a
+    part that agrees with the prediction always scores higher. The option stays
+    available; the registry's ``combined`` model uses the plain sum.
+
     Cost: the ``K`` candidates are scored over every place (the prior mixes a uniform
     recovery share, so it has no smaller support). Each part's candidate weights that
     are integer multiples ``k δ`` of their smallest (the default grid: ``δ = 0.25``,
