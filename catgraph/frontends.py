@@ -68,6 +68,10 @@ def resize_images(images: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return out
 
 
+#: Images normalised at once by :func:`patch_normalise` (its temporaries are this many images).
+_PATCH_IMAGES = 1024
+
+
 def patch_normalise(images: np.ndarray, patch: int = 4) -> np.ndarray:
     """Normalise each non-overlapping ``patch × patch`` block to zero mean, unit std.
 
@@ -102,7 +106,8 @@ def patch_normalise(images: np.ndarray, patch: int = 4) -> np.ndarray:
         blocks = np.lib.stride_tricks.as_strided(x, (x.shape[0], hf // patch, wf // patch, patch, patch),
                                                  (s0, patch * s1, patch * s2, s1, s2), writeable=False)
         target = np.lib.stride_tricks.as_strided(out, blocks.shape, (s0, patch * s1, patch * s2, s1, s2))
-        _normalise_blocks(blocks, (3, 4), target)
+        for i in range(0, x.shape[0], _PATCH_IMAGES):  # bounded temporaries on a long traverse
+            _normalise_blocks(blocks[i : i + _PATCH_IMAGES], (3, 4), target[i : i + _PATCH_IMAGES])
     for r in range(0, h, patch):  # the smaller patches at the right and bottom edges
         for c in range(wf if r < hf else 0, w, patch):
             _normalise_blocks(x[:, r : r + patch, c : c + patch], (1, 2), out[:, r : r + patch, c : c + patch])

@@ -300,14 +300,17 @@ def _patch_normalise_loop(images, patch):
     return out.astype(np.float32)
 
 
-def test_patch_normalise_equals_the_patch_by_patch_loop(rng):
-    """All whole patches at once (a strided view), the edge patches one by one: the
-    floats of the loop over patches, bit for bit — flat patches, uneven edges, one frame
-    and several, values from 1e-5 to 1e5."""
+def test_patch_normalise_equals_the_patch_by_patch_loop(rng, monkeypatch):
+    """All whole patches at once (a strided view, a few images at a time), the edge
+    patches one by one: the floats of the loop over patches, bit for bit — flat patches,
+    uneven edges, one frame and several, values from 1e-5 to 1e5."""
+    from catgraph import frontends
     from catgraph.frontends import patch_normalise
 
+    monkeypatch.setattr(frontends, "_PATCH_IMAGES", 2)  # several groups of images
+
     for t in range(300):
-        n, h, w = int(rng.integers(1, 4)), int(rng.integers(1, 24)), int(rng.integers(1, 40))
+        n, h, w = int(rng.integers(1, 6)), int(rng.integers(1, 24)), int(rng.integers(1, 40))
         patch = int(rng.integers(1, max(h, w) + 1))
         x = rng.standard_normal((n, h, w)) * 10.0 ** rng.uniform(-5, 5)
         if t % 3 == 0:
