@@ -127,7 +127,7 @@ import numpy as np
 from ._jit import njit
 from ._sequence_kernels import _NONE, encode, position, unit_of
 from ._validation import check_scalar
-from ._window_rule import _decide, _needs_sub, _Stats
+from ._window_rule import _decide, _log_p, _needs_sub, _new_record, _position, _Record, _Stats
 from .differences import LAYOUTS, METRICS, PreparedReference, _combine, _zero_spread, code_scale
 from .exceptions import InvalidParameterError, MissingDependencyError
 from .sequence import DEFAULT_GRID, DEFAULT_VELOCITIES, _config, _velocity_set
@@ -136,9 +136,14 @@ from .sequence import DEFAULT_GRID, DEFAULT_VELOCITIES, _config, _velocity_set
 #: a window may not be longer (its sums' squares then stay exact in int64).
 SHARD_UNIT = 4096
 
-#: Window rules that :func:`match_adaptive_window` runs exactly: each decides a frame from
-#: that frame's window statistics (and its own row) alone.
-EXACT_RULES = ("unrivalled", "evident", "consistent", "sustained", "literal")
+#: Window rules that :func:`match_adaptive_window` runs exactly. The first five decide a
+#: frame from that frame's window statistics (and its own row) alone; "predictive" also
+#: reads, per frame, the row's mean and spread and its values at the ``G`` places the
+#: lines of ``K`` frames back predict (served by the shards, see step 7 of the module
+#: notes). "decorrelated" is not among them: its horizon averages the row's values at the
+#: row's own ``m`` best places in the order :func:`numpy.argpartition` returns them over
+#: the whole row, which no reduction of shard summaries reproduces (step 7).
+EXACT_RULES = ("unrivalled", "evident", "consistent", "sustained", "literal", "predictive")
 
 __all__ = ["ShardedReference", "ShardedMatches", "shard_reference", "difference_matrix", "window_scores",
            "match_fixed_window", "match_adaptive_window"]
@@ -629,12 +634,15 @@ def _halo(velocities: np.ndarray, first: int, stop: int, window: int) -> tuple[i
 def _line_blocks(ref: ShardedReference, q: np.ndarray, start: int, stop: int, windows: np.ndarray,
                  velocities: np.ndarray, unit: float | None, radius: int, want_sums: bool = False,
                  blank: np.ndarray | None = None, want_sub: bool = False,
-                 keep_rows: bool = False, hubs: list | None = None) -> tuple[list, float, list | None]:
+                 keep_rows: bool = False, hubs: list | None = None,
+                 at_best: bool | None = None) -> tuple[list, float, list | None]:
     """Futures of each shard's window sums and summaries (:func:`_shard_lines`) for query
     rows ``[start, stop)``, every velocity and every length in ``windows``; the quantum
     (fixed by the first block when ``unit`` is ``None``); with ``keep_rows``, the futures
-    of the shards' normalised rows (else ``None``)."""
+    of the shards' normalised rows (else ``None``); with ``at_best`` (default: ``keep_rows``),
+    each shard's row values at its best places come back with the summaries."""
     c = ref.client
+    at_best = keep_rows if at_best is None else at_best
     longest = int(windows[-1])
     first = max(0, start - longest)
     blocks = _normalised_blocks(ref, q[first:stop], True, None if blank is None else blank[first:stop], hubs)
@@ -655,7 +663,7 @@ def _line_blocks(ref: ShardedReference, q: np.ndarray, start: int, stop: int, wi
                           for t, (t_lo, t_hi) in enumerate(ref.bounds) if t_lo < b and a < t_hi])
         out.append(ref.submit(s, _shard_lines, coded[s], parts[0], parts[1], first, start - first, windows,
                               velocities, mean_codes, lo, ref.n_places, radius, want_sums, want_sub,
-                              blocks[s] if keep_rows else None))
+                              blocks[s] if at_best else None))
     rows = [ref.submit(s, _rows_from, b, start - first) for s, b in enumerate(blocks)] if keep_rows else None
     return out, unit, rows
 
@@ -833,23 +841,52 @@ def _pairwise_sum(tree, sums: list, parts: list) -> np.ndarray:
     return _pairwise_sum(tree[1], sums, parts) + _pairwise_sum(tree[2], sums, parts)
 
 
-def _row_moments(ref: ShardedReference, rows: list) -> tuple[np.ndarray, np.ndarray]:
+def _parts_and_values(rows: np.ndarray, whole: list, pieces: list, at_row: np.ndarray,
+                      at_col: np.ndarray) -> tuple[list, list, np.ndarray]:
+    """:func:`_pairwise_parts` of the rows, and the rows' values at the (row, shard column)
+    pairs ``at_row``, ``at_col`` (the places a window rule reads, served in the same round)."""
+    sums, parts = _pairwise_parts(rows, whole, pieces, None)
+    return sums, parts, rows[at_row, at_col]
+
+
+def _row_moments(ref: ShardedReference, rows: list, asks: np.ndarray | None = None):
     """Each row's ``row.mean()`` and ``row.std()`` as numpy computes them on the whole
-    row (two rounds: the sums, then the squared deviations from the mean)."""
+    row (two rounds: the sums, then the squared deviations from the mean).
+
+    With ``asks`` (``(rows, k)`` places, ``-1`` for none), also each row's values at those
+    places, read in the first round by the shard that holds each place (``(rows, k)``;
+    ``nan`` where none was asked): the lookups of rule "predictive", at no extra round.
+    """
     tree, whole, pieces = _pairwise_plan(ref.n_places, ref.bounds)
     c = ref.client
-    parts = c.gather([ref.submit(s, _pairwise_parts, r, whole[s], pieces[s], None) for s, r in enumerate(rows)])
+    if asks is None:
+        parts = c.gather([ref.submit(s, _pairwise_parts, r, whole[s], pieces[s], None) for s, r in enumerate(rows)])
+    else:
+        futs, where = [], []
+        for s, r in enumerate(rows):
+            lo, hi = ref.bounds[s]
+            at_row, at_k = np.nonzero((asks >= lo) & (asks < hi))
+            where.append((at_row, at_k))
+            futs.append(ref.submit(s, _parts_and_values, r, whole[s], pieces[s], at_row.astype(np.int32),
+                                   (asks[at_row, at_k] - lo).astype(np.int32)))
+        parts = c.gather(futs)
+        looked = np.full(asks.shape, np.nan)
+        for (at_row, at_k), part in zip(where, parts):
+            looked[at_row, at_k] = part[2]
     mean = _pairwise_sum(tree, parts, parts) / ref.n_places
-    parts = c.gather([ref.submit(s, _pairwise_parts, r, whole[s], pieces[s], mean) for s, r in enumerate(rows)])
-    return mean, np.sqrt(_pairwise_sum(tree, parts, parts) / ref.n_places)
+    parts2 = c.gather([ref.submit(s, _pairwise_parts, r, whole[s], pieces[s], mean) for s, r in enumerate(rows)])
+    std = np.sqrt(_pairwise_sum(tree, parts2, parts2) / ref.n_places)
+    return (mean, std) if asks is None else (mean, std, looked)
 
 
 class _Row:
-    """One difference row as the window rule reads it (:func:`catgraph._window_rule._current_z`):
-    its mean, its spread and its values at the candidate places."""
+    """One difference row as the window rule reads it (:func:`catgraph._window_rule._current_z`,
+    :meth:`catgraph._window_rule._Record.loss`): its width, its mean, its spread and its
+    values at the places served for it."""
 
-    def __init__(self, mean: np.float64, std: np.float64, values: dict):
+    def __init__(self, mean: np.float64, std: np.float64, values: dict, n: int = 0):
         self._mean, self._std, self._values = mean, std, values
+        self.shape = (n,)
 
     def mean(self) -> np.float64:
         return self._mean
@@ -857,21 +894,55 @@ class _Row:
     def std(self) -> np.float64:
         return self._std
 
-    def __getitem__(self, place) -> np.float64:
-        return self._values[int(place)]
+    def __getitem__(self, place):
+        if np.ndim(place) == 0:
+            return self._values[int(place)]
+        places = np.asarray(place)
+        return np.array([self._values[int(j)] for j in places.ravel()], dtype=np.float64).reshape(places.shape)
 
 
 class _Rows:
     """The block of difference rows the window rule is handed: their shape, and each row
-    as a :class:`_Row` (the rows themselves stay on the shards)."""
+    as a :class:`_Row` (the rows themselves stay on the shards). ``places`` and
+    ``values`` (each ``(rows, ...)``) are the values served for each row; a place below
+    0 marks an unused slot."""
 
     def __init__(self, n: int, mean=None, std=None, places=None, values=None, rows: int = 0):
         self.shape = (rows if mean is None else mean.shape[0], n)
         self._mean, self._std, self._places, self._values = mean, std, places, values
 
     def __getitem__(self, t: int) -> _Row:
-        values = dict(zip(self._places[t].ravel().tolist(), self._values[t].ravel()))
-        return _Row(self._mean[t], self._std[t], values)
+        places, values = self._places[t].ravel(), self._values[t].ravel()
+        used = places >= 0
+        return _Row(self._mean[t], self._std[t], dict(zip(places[used].tolist(), values[used])), self.shape[1])
+
+
+def _predicted_places(st: _Stats, cfg, record: _Record, start: int, n: int) -> np.ndarray:
+    """``(rows, G)``: for every frame of the block, the places rule "predictive" reads in
+    its row (:meth:`catgraph._window_rule._Record.loss`: each length's line of frame
+    ``i - K`` carried on to frame ``i``, place 0 where it has left the reference), ``-1``
+    for frames before ``K``. The lines are those :func:`catgraph._window_rule._decide`
+    will remember: each length's best place at the frame's velocity, which the window
+    statistics fix before the rule runs; lines of frames before the block come from the
+    record as the previous block left it (it holds the last ``K`` frames)."""
+    rows, _, g_count = st.best_j.shape
+    v = np.argmin(_log_p(st).sum(axis=2), axis=1)  # _decide's velocity
+    k = record.horizon
+    out = np.full((rows, g_count), -1, dtype=np.int64)
+    for t in range(rows):
+        i = start + t
+        if i < k:
+            continue
+        s = i - k
+        if s >= start:
+            velocity = float(cfg.velocities[v[s - start]])
+            offsets = st.best_j[s - start, v[s - start]] - _position(velocity, s)
+        else:
+            slot = s % record.offsets.shape[0]
+            velocity, offsets = record.velocity[slot], record.offsets[slot]
+        places = offsets + _position(velocity, i)
+        out[t] = np.where((places >= 0) & (places < n), places, 0)
+    return out
 
 
 # ---------------------------------------------------------------------------------------
@@ -895,6 +966,11 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
     with_sub = _needs_sub(cfg)
     # the current frame's term of the confidence ("posterior", "support" with an adaptive window)
     current = not cfg.fixed and cfg.confidence in ("posterior", "support")
+    # rule "predictive": a record carried from block to block, and G lookups per row
+    record = _new_record(cfg)
+    if record is not None and record.clock is not None:
+        raise InvalidParameterError(f"{owner} cannot run rule 'decorrelated' exactly; run match_sequences on "
+                                    "one machine for it.")
     windows = cfg.grid
     match, score, conf = np.empty(n_q, dtype=np.int64), np.empty(n_q), np.empty(n_q)
     velocity, length = np.empty(n_q), np.empty(n_q, dtype=np.int64)
@@ -902,7 +978,8 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
     for start in range(0, n_q, block_rows):
         stop = min(n_q, start + block_rows)
         futs, unit, rows = _line_blocks(ref, q, start, stop, windows, cfg.velocities, unit, cfg.radius, blank=blank,
-                                        want_sub=with_sub, keep_rows=current, hubs=hubs)
+                                        want_sub=with_sub, keep_rows=current or record is not None, hubs=hubs,
+                                        at_best=current)
         parts = c.gather([ref.submit(s, _summaries_only, f) for s, f in enumerate(futs)])
         values = np.stack([p["low"] for p in parts])
         pick = np.argmin(values, axis=0)[None]  # the first shard holding the minimum: the lowest place, as locally
@@ -922,13 +999,22 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
         if with_sub:
             sub = np.take_along_axis(np.stack([p["sub"] for p in parts]), pick[..., None], axis=0)[0]
             st.sub[...] = sub.astype(np.float64) * unit / eff[:, :, None, :]
-        if current:
-            at_best = np.take_along_axis(np.stack([p["at_best"] for p in parts]), pick, axis=0)[0]
-            row_mean, row_std = _row_moments(ref, rows)
-            rows_d = _Rows(n, row_mean, row_std, best_j, at_best)
+        if current or record is not None:
+            places, values = np.empty((stop - start, 0), dtype=np.int64), np.empty((stop - start, 0))
+            if record is not None:  # the places the record reads, in the first moments round
+                asks = _predicted_places(st, cfg, record, start, n)
+                row_mean, row_std, looked = _row_moments(ref, rows, asks)
+                places, values = asks, looked
+            else:
+                row_mean, row_std = _row_moments(ref, rows)
+            if current:
+                at_best = np.take_along_axis(np.stack([p["at_best"] for p in parts]), pick, axis=0)[0]
+                places = np.concatenate([best_j.reshape(stop - start, -1), places], axis=1)
+                values = np.concatenate([at_best.reshape(stop - start, -1), values], axis=1)
+            rows_d = _Rows(n, row_mean, row_std, places, values)
         else:  # the rule reads the rows' width only
             rows_d = _Rows(n, rows=stop - start)
-        m, s, k, w, v, _ = _decide(st, cfg, np.arange(start, stop), False, rows_d)
+        m, s, k, w, v, _ = _decide(st, cfg, np.arange(start, stop), False, rows_d, record)
         match[start:stop], score[start:stop], conf[start:stop], length[start:stop], velocity[start:stop] = m, s, k, w, v
     return ShardedMatches(match, score, conf, velocity, length)
 
@@ -1024,8 +1110,8 @@ def match_adaptive_window(query, ref: ShardedReference, rule: str = "unrivalled"
             f"window in one place). Got {approximation!r} instead; run match_sequences on one machine for it.")
     if rule not in EXACT_RULES:
         raise InvalidParameterError(
-            f"The 'rule' parameter of {owner} must be one of {EXACT_RULES} (the rules decided from the window "
-            f"statistics alone). Got {rule!r} instead; run match_sequences on one machine for it.")
+            f"The 'rule' parameter of {owner} must be one of {EXACT_RULES} (the rules the cluster reproduces "
+            f"exactly). Got {rule!r} instead; run match_sequences on one machine for it.")
     check_scalar(l_max, "l_max", owner, int, 1, SHARD_UNIT)
     cfg = _config(owner, "adaptive", approximation, rule, confidence, l_min, l_max, grid, radius, recent_fraction,
                   velocities, None)

@@ -1,0 +1,137 @@
+"""The window rules that read the difference rows, on the cluster, equal the local run (LocalCluster)."""
+
+import numpy as np
+import pytest
+
+from catgraph.conditions import Condition
+from catgraph.differences import difference_matrix
+from catgraph.exceptions import InvalidParameterError
+from catgraph.sequence import match_sequences
+
+distributed = pytest.importorskip("distributed")
+from catgraph import distributed as dd  # noqa: E402
+from catgraph import _window_rule as wr  # noqa: E402
+
+FIELDS = ("match", "score", "velocity", "window_length", "confidence")
+
+
+@pytest.fixture(scope="module")
+def client():
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None)
+    c = distributed.Client(cluster)
+    yield c
+    c.close()
+    cluster.close()
+
+
+@pytest.fixture(scope="module")
+def route():
+    """A route that crosses the shard edge at 4096, jumps, and runs off the end of the map
+    (shards of 4096, 4096 and 8 places)."""
+    rng = np.random.default_rng(11)
+    r = rng.normal(size=(8200, 16)).astype(np.float32)
+    places = np.concatenate([np.arange(4000, 4130), np.arange(2000, 2040), np.arange(8150, 8200)])
+    return r[places] + 0.5 * rng.normal(size=(places.size, 16)).astype(np.float32), r
+
+
+@pytest.fixture(scope="module")
+def sharded(client, route):
+    return dd.shard_reference(route[1], "sad", client, shard_places=4096)
+
+
+@pytest.mark.parametrize("condition", [Condition("in-order"), Condition("reverse"),
+                                       Condition("shuffle", seed=1, segment_range=(0.05, 0.2)),
+                                       Condition("speed", factor=2.0)])
+def test_predictive_rule_equals_the_local_matcher(sharded, route, condition):
+    q, r = route
+    q = q[condition.order(len(q))]
+    local = difference_matrix(q, r, "sad", normalise=True)
+    params = {"rule": "predictive", "l_max": 48, "grid": 5}
+    # blocks shorter than the horizon's reach, so that the record crosses block edges
+    res = dd.match_adaptive_window(q, sharded, block_rows=37, **params)
+    out = match_sequences(local, **params)
+    for name in FIELDS:
+        assert np.array_equal(getattr(res, name), getattr(out, name)), name
+
+
+def test_predictive_rule_reads_the_rows(sharded, route):
+    # not trivial: the record chooses several lengths, and its choices are not those of the
+    # same statistics read without the rows' values (all losses zero: always the longest)
+    q, r = route
+    local = difference_matrix(q, r, "sad", normalise=True)
+    params = {"rule": "predictive", "l_max": 48, "grid": 5, "confidence": "gap", "velocities": (-1.0, 1.0, 2.0)}
+    res = dd.match_adaptive_window(q, sharded, block_rows=64, **params)
+    out = match_sequences(local, **params)
+    for name in FIELDS:
+        assert np.array_equal(getattr(res, name), getattr(out, name)), name
+    assert len(np.unique(out.window_length[60:])) > 1
+    assert np.any(out.window_length[wr.PREDICTION_HORIZON:] < 48)
+
+
+def test_predicted_places_match_a_direct_replay(route):
+    # the lookups planned before the rule runs equal, frame by frame, the places
+    # _Record.loss reads when it is replayed on whole rows
+    q, r = route
+    d = difference_matrix(q, r, "sad", normalise=True)
+    rng = np.random.default_rng(0)
+    n_q, n = d.shape
+    st = wr._Stats(n_q, 2, 3, 1, with_sub=False)
+    st.best_j[...] = rng.integers(0, n, size=st.best_j.shape)
+    st.best_j[::3] = rng.integers(0, 15, size=st.best_j[::3].shape)  # lines that leave the map's start ...
+    st.best_j[1::3] = rng.integers(n - 15, n, size=st.best_j[1::3].shape)  # ... and its end
+    st.best_s[...] = rng.normal(size=st.best_s.shape)
+    st.mean[...], st.std[...] = 0.0, 1.0
+    st.weights[...], st.locs[...], st.scales[...] = 1.0, 0.0, 1.0
+    cfg = type("Cfg", (), {"velocities": np.array([-1.0, 2.0]), "grid": np.array([5, 10, 20])})()
+    velocity = np.argmin(wr._log_p(st).sum(axis=2), axis=1)
+    planned, record = [], wr._Record(3)
+    for start in range(0, n_q, 23):  # blocks, the record carried over as _match carries it
+        stop = min(n_q, start + 23)
+        sub = wr._Stats(stop - start, 2, 3, 1, with_sub=False)
+        for name in ("best_j", "best_s", "mean", "std", "weights", "locs", "scales"):
+            getattr(sub, name)[...] = getattr(st, name)[start:stop]
+        planned.append(dd._predicted_places(sub, cfg, record, start, n))
+        for t in range(stop - start):
+            i = start + t
+            record.remember(i, st.best_j[i, velocity[i]], float(cfg.velocities[velocity[i]]))
+    planned = np.concatenate(planned)
+    replay = wr._Record(3)
+    for i in range(n_q):
+        if i >= replay.horizon:
+            slot = (i - replay.horizon) % replay.horizon
+            places = replay.offsets[slot] + wr._position(replay.velocity[slot], i)
+            expected = np.where((places >= 0) & (places < n), places, 0)
+            assert np.array_equal(planned[i], expected), i
+        else:
+            assert np.all(planned[i] == -1)
+        replay.remember(i, st.best_j[i, velocity[i]], float(cfg.velocities[velocity[i]]))
+    assert np.any(planned[replay.horizon:] == 0)  # some lines left the map
+
+
+def test_predictive_with_hubs_and_frames_without_information(client):
+    # flat frames (hubs) in every shard, blank query frames: the rows the rule reads are
+    # corrected and normalised again on the shards, as locally
+    from catgraph.hubs import hub_offsets
+
+    rng = np.random.default_rng(5)
+    r = rng.normal(size=(8200, 16)).astype(np.float32)
+    r[[100, 5000, 8195]] *= 0.05
+    places = np.concatenate([np.arange(3990, 4120), np.arange(8150, 8200)])
+    q = r[places] + 0.4 * rng.normal(size=(places.size, 16)).astype(np.float32)
+    blank = np.zeros(len(q), dtype=bool)
+    blank[[0, 15, 100]] = True
+    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
+    local = difference_matrix(q, r, "sad", normalise=True)
+    local[blank] = 0.0
+    offsets = hub_offsets(difference_matrix(r[::7], r, "sad", normalise=True), rows=np.arange(0, 8200, 7))
+    params = {"rule": "predictive", "l_max": 30, "grid": 4}
+    res = dd.match_adaptive_window(q, ref, block_rows=50, no_information=blank, hub_offsets=offsets, **params)
+    out = match_sequences(local, hub_offsets=offsets, **params)
+    for name in FIELDS:
+        assert np.array_equal(getattr(res, name), getattr(out, name)), name
+
+
+def test_decorrelated_rule_is_refused_with_the_way_out(sharded, route):
+    assert "decorrelated" not in dd.EXACT_RULES and "predictive" in dd.EXACT_RULES
+    with pytest.raises(InvalidParameterError, match="rule.*one machine"):
+        dd.match_adaptive_window(route[0], sharded, rule="decorrelated")
