@@ -13,6 +13,10 @@ map on a cluster"): per shard, the time and the bytes per query frame do not dep
 how many other shards there are, except for the client's reductions.
 
     python benchmarks/bench_distributed.py [--shard-places 65536] [--repeats 3] [--adaptive-query 640]
+
+With ``--rules`` it times the adaptive window's rules that read the difference rows
+("predictive", "decorrelated") against the default rule "unrivalled", alternated in the
+same rounds, and writes that table as a section of ``distributed.md``.
 """
 
 from __future__ import annotations
@@ -69,7 +73,7 @@ def measure(shard_places: int, n_shards: int, settings: list[dict], repeats: int
         query = query if frames is None else query[:frames]
         if setting["window"] == "adaptive":
             return dd.match_adaptive_window(query, ref, velocities=setting["velocities"],
-                                            block_rows=setting["block_rows"])
+                                            block_rows=setting["block_rows"], rule=setting.get("rule", "unrivalled"))
         return dd.match_fixed_window(query, ref, setting["window"], velocities=setting["velocities"],
                                      block_rows=setting["block_rows"])
 
@@ -106,7 +110,11 @@ def measure(shard_places: int, n_shards: int, settings: list[dict], repeats: int
     out = []
     for k, setting in enumerate(settings):
         r = runs[k]
-        ref_k = [j for j, o in enumerate(settings) if o["window"] == setting["window"] and o["velocities"] == (1.0,)]
+        if setting.get("rule"):  # the rules: each against the default rule, same rounds
+            ref_k = [j for j, o in enumerate(settings) if o.get("rule") == "unrivalled"]
+        else:
+            ref_k = [j for j, o in enumerate(settings)
+                     if o["window"] == setting["window"] and o["velocities"] == (1.0,)]
         base = runs[ref_k[0]] if ref_k else None  # the one-velocity run of this window, same rounds
         out.append({**{key: (list(v) if key == "velocities" else v) for key, v in setting.items()},
                     "shard_places": shard_places, "n_shards": n_shards,
@@ -192,6 +200,34 @@ def write(results: list[dict], path: Path, commit: str) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
+RULES_HEADING = "## Window rules that read the rows"
+
+
+def write_rules(results: list[dict], path: Path, commit: str) -> None:
+    """The rules' table as a section of ``path`` (replacing the section if present)."""
+    s = results[0]
+    lines = [RULES_HEADING, "",
+             f"`benchmarks/bench_distributed.py --rules` at commit {commit}: the adaptive window (13 lengths, 5–500, "
+             f"every velocity, confidence \"posterior\") with each window rule, on a `LocalCluster` of "
+             f"{s['n_shards']} one-thread worker processes, one shard each of {s['shard_places']:,} places × {DIM} "
+             f"float32, {s['n_query']} query frames in blocks of {s['block_rows']}; rules alternated, {s['runs']} "
+             "rounds; time: median over the rounds, and the median of each round's ratio to rule \"unrivalled\" in "
+             "that round. Bytes: what each worker served per frame (halos, summaries and lookups to the client, "
+             "and for \"decorrelated\" the rows each worker sends to the worker of shard 0, which keeps the "
+             "horizon).", "",
+             "| rule | runs | ms per frame | × unrivalled | bytes served per frame and worker | matches within ±1 |",
+             "|---|---|---|---|---|---|"]
+    for r in results:
+        ratio = "—" if r["ratio_to_one_velocity"] is None else f"{r['ratio_to_one_velocity']:.2f}"
+        lines.append(f"| {r['rule']} | {r['runs']} | {r['ms_per_frame']:.1f} | {ratio} | "
+                     + " / ".join(f"{b / 1000:.1f} KB" for b in r["bytes_out_per_frame"])
+                     + f" | {r['correct_after']:.2f} after frame 100 |")
+    text = path.read_text() if path.exists() else ""
+    if RULES_HEADING in text:
+        text = text[:text.index(RULES_HEADING)].rstrip("\n") + "\n"
+    path.write_text((text + "\n" if text else "") + "\n".join(lines) + "\n")
+
+
 def main() -> None:
     from catgraph.sequence import DEFAULT_VELOCITIES
 
@@ -205,7 +241,23 @@ def main() -> None:
     parser.add_argument("--identity", nargs="*", metavar="CONDITION",
                         help="only compare cluster and local runs on the real data under these conditions "
                              "(e.g. in-order reverse speed:2)")
+    parser.add_argument("--rules", nargs="*", metavar="RULE",
+                        help="only time the adaptive window's rules against \"unrivalled\" (default: "
+                             "predictive decorrelated), the section of distributed.md")
     args = parser.parse_args()
+    if args.rules is not None:
+        rules = ["unrivalled"] + [r for r in (args.rules or ["predictive", "decorrelated"]) if r != "unrivalled"]
+        block = max(1, args.adaptive_query // 2)
+        settings = [{"window": "adaptive", "velocities": DEFAULT_VELOCITIES, "block_rows": block,
+                     "n_query": args.adaptive_query, "rule": rule} for rule in rules]
+        results = measure(args.shard_places, args.shards, settings, args.repeats)
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                                cwd=Path(__file__).parent).stdout.strip()
+        RESULTS.mkdir(exist_ok=True)
+        (RESULTS / "distributed_rules.json").write_text(json.dumps({"commit": commit, "results": results}, indent=1))
+        write_rules(results, RESULTS / f"{args.out}.md", commit)
+        print((RESULTS / f"{args.out}.md").read_text())
+        return
     if args.identity is not None:
         rows = identity(args.identity or ["in-order", "reverse", "speed:2"])
         lines = ["# Dask path against the local run on the real data", "",

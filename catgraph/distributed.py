@@ -95,6 +95,38 @@ block are computed *where the shards live*, and only per-frame summaries travel 
    bit for bit (tested: every rule, every confidence, in order, reversed, at speed 2,
    frames without information), within the ``2^53`` bound of step 5.
 
+7. **Rules that read the rows** ("predictive", "decorrelated"; :mod:`catgraph._window_rule`).
+   Both keep a record from frame to frame: at frame ``i`` each length's line of frame
+   ``i - K`` (its best place at the frame's velocity, both fixed by the window statistics
+   before the rule runs) predicts a place, and the rule reads the row's standardised
+   value there. The client plans these ``G`` places per frame from the statistics and
+   the record the previous block left (:func:`_predicted_places`), and the shard that
+   holds each place returns its value in the first round of the row moments (6), so the
+   lookups add no round: ``16 G`` bytes per frame (an int32 row and column out, a
+   float64 back; 208 bytes for the default 13 lengths), and the rows stay where they
+   were computed. Rule "predictive" (``K`` = :data:`~catgraph._window_rule.PREDICTION_HORIZON`)
+   needs nothing more; with a confidence other than "posterior"/"support" it adds the two
+   moment rounds. Rule "decorrelated" also needs each frame's horizon ``K_t``
+   (:class:`catgraph._window_rule._Horizon`), which averages the row's standardised values
+   at its ``m`` best places *in the order* :func:`numpy.argpartition` *returns them over the
+   whole row* (and, where the ``m``-th value is tied, in the set it picks). That order is
+   the outcome of a comparison-based selection over every value of the row (and of the
+   CPU's sorting kernels); no merge of per-shard best places reproduces it, and a float64
+   sum of ``m`` values depends on its order. So the whole row meets in one place: per
+   chunk of :data:`HORIZON_ROWS` frames each shard's columns go to the worker of shard 0,
+   which runs the local ``_Horizon.update`` on each whole row (the same contiguous
+   float64 values) in a chain of tasks that carries the horizon from chunk to chunk; the
+   client gathers only ``K_t`` (8 bytes per frame), with the summaries, in the same round.
+   Cost per frame: ``8 (N - N_0)`` bytes between workers (``N_0`` the places of shard 0),
+   never through the client, and the local rule's own ``O(N)`` work on that worker. The
+   record then reads its ``G`` lookups as "predictive" does. Matches, scores, velocities,
+   window lengths and confidences equal the local run bit for bit (tested: in order,
+   reversed, shuffled, at speed 2, hub-corrected, frames without information, blocks
+   and horizon chunks cut mid-record). A rule that averaged its best places in a
+   canonical order (by value, then place) would need only per-shard best places
+   (``16 m`` bytes per frame and shard) and ``HORIZON_MAX m`` lookups per frame; that is
+   a change of the local rule, not made here.
+
 Per block, only ``O(rows V G (radius + G + 8))`` numbers per shard return to the client
 (``G`` candidate lengths, 1 for a fixed window): four client rounds for a fixed window
 (two for the normalisation, one for the mean codes, one for the summaries; one more per
@@ -136,14 +168,15 @@ from .sequence import DEFAULT_GRID, DEFAULT_VELOCITIES, _config, _velocity_set
 #: a window may not be longer (its sums' squares then stay exact in int64).
 SHARD_UNIT = 4096
 
-#: Window rules that :func:`match_adaptive_window` runs exactly. The first five decide a
-#: frame from that frame's window statistics (and its own row) alone; "predictive" also
-#: reads, per frame, the row's mean and spread and its values at the ``G`` places the
-#: lines of ``K`` frames back predict (served by the shards, see step 7 of the module
-#: notes). "decorrelated" is not among them: its horizon averages the row's values at the
-#: row's own ``m`` best places in the order :func:`numpy.argpartition` returns them over
-#: the whole row, which no reduction of shard summaries reproduces (step 7).
-EXACT_RULES = ("unrivalled", "evident", "consistent", "sustained", "literal", "predictive")
+#: Window rules that :func:`match_adaptive_window` runs exactly (every rule of
+#: :data:`catgraph.sequence.RULES`). The first five decide a frame from that frame's
+#: window statistics (and its own row) alone. "predictive" also reads, per frame, the
+#: row's mean and spread and its values at the ``G`` places the lines of ``K`` frames back
+#: predict: ``16 G`` bytes per frame, no extra round with the default confidence (two
+#: rounds per block otherwise). "decorrelated" reads the same and its horizon ``K_t``,
+#: which needs each whole row in one place: ``8 N`` bytes per frame between workers
+#: (never through the client), no extra client round (step 7 of the module notes).
+EXACT_RULES = ("unrivalled", "evident", "consistent", "sustained", "literal", "predictive", "decorrelated")
 
 __all__ = ["ShardedReference", "ShardedMatches", "shard_reference", "difference_matrix", "window_scores",
            "match_fixed_window", "match_adaptive_window"]
@@ -917,20 +950,23 @@ class _Rows:
         return _Row(self._mean[t], self._std[t], dict(zip(places[used].tolist(), values[used])), self.shape[1])
 
 
-def _predicted_places(st: _Stats, cfg, record: _Record, start: int, n: int) -> np.ndarray:
-    """``(rows, G)``: for every frame of the block, the places rule "predictive" reads in
+def _predicted_places(st: _Stats, cfg, record: _Record, start: int, n: int,
+                      horizons: np.ndarray | None = None) -> np.ndarray:
+    """``(rows, G)``: for every frame of the block, the places the record rules read in
     its row (:meth:`catgraph._window_rule._Record.loss`: each length's line of frame
     ``i - K`` carried on to frame ``i``, place 0 where it has left the reference), ``-1``
-    for frames before ``K``. The lines are those :func:`catgraph._window_rule._decide`
-    will remember: each length's best place at the frame's velocity, which the window
-    statistics fix before the rule runs; lines of frames before the block come from the
-    record as the previous block left it (it holds the last ``K`` frames)."""
+    for frames before ``K``. ``K`` is the record's constant horizon (rule "predictive"),
+    or each frame's in ``horizons`` (rule "decorrelated"). The lines are those
+    :func:`catgraph._window_rule._decide` will remember: each length's best place at the
+    frame's velocity, which the window statistics fix before the rule runs; lines of
+    frames before the block come from the record as the previous block left it (it
+    holds the last ``K`` frames, or :data:`catgraph._window_rule.HORIZON_MAX`)."""
     rows, _, g_count = st.best_j.shape
     v = np.argmin(_log_p(st).sum(axis=2), axis=1)  # _decide's velocity
-    k = record.horizon
     out = np.full((rows, g_count), -1, dtype=np.int64)
     for t in range(rows):
         i = start + t
+        k = record.horizon if horizons is None else int(horizons[t])
         if i < k:
             continue
         s = i - k
@@ -943,6 +979,51 @@ def _predicted_places(st: _Stats, cfg, record: _Record, start: int, n: int) -> n
         places = offsets + _position(velocity, i)
         out[t] = np.where((places >= 0) & (places < n), places, 0)
     return out
+
+
+#: rule "decorrelated": query rows per horizon task (bounds the gathered rows' memory on
+#: the worker that keeps the horizon to ``HORIZON_ROWS × N`` float64)
+HORIZON_ROWS = 64
+
+
+def _row_slice(block: np.ndarray, a: int, b: int) -> np.ndarray:
+    return block[a:b]
+
+
+def _horizon_steps(state, first_frame: int, *parts: np.ndarray) -> tuple:
+    """Rule "decorrelated" on the worker that keeps its horizon: the whole rows of frames
+    ``first_frame …`` put together from the shards' columns (the same float64 values, one
+    contiguous row each, as locally), each read by the local
+    :meth:`catgraph._window_rule._Horizon.update` with the row's own ``std()``, as
+    :meth:`catgraph._window_rule._Record.loss` calls it. ``state``: the horizon as the
+    previous task left it (or a fresh one), copied, never changed. Returns the horizon
+    after these frames and each frame's ``K``."""
+    import copy
+
+    clock = copy.deepcopy(state[0] if isinstance(state, tuple) else state)
+    rows = np.concatenate(parts, axis=1) if len(parts) > 1 else np.ascontiguousarray(parts[0])
+    ks = np.empty(rows.shape[0], dtype=np.int64)
+    for r in range(rows.shape[0]):
+        row = rows[r]
+        ks[r] = clock.update(row, first_frame + r, row.std())
+    return clock, ks
+
+
+def _horizons_of(state: tuple) -> np.ndarray:
+    return state[1]
+
+
+class _Replayed:
+    """The record's clock on the client (rule "decorrelated"): the horizons the worker
+    computed from the whole rows, handed to :meth:`catgraph._window_rule._Record.loss`
+    frame by frame."""
+
+    def __init__(self, capacity: int):
+        self.capacity = capacity
+        self.start, self.ks = 0, np.empty(0, dtype=np.int64)
+
+    def update(self, row, i: int, spread) -> int:
+        return int(self.ks[i - self.start])
 
 
 # ---------------------------------------------------------------------------------------
@@ -968,9 +1049,10 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
     current = not cfg.fixed and cfg.confidence in ("posterior", "support")
     # rule "predictive": a record carried from block to block, and G lookups per row
     record = _new_record(cfg)
-    if record is not None and record.clock is not None:
-        raise InvalidParameterError(f"{owner} cannot run rule 'decorrelated' exactly; run match_sequences on "
-                                    "one machine for it.")
+    clock = replay = None
+    if record is not None and record.clock is not None:  # rule "decorrelated": the horizon on a worker
+        clock, replay = record.clock, _Replayed(record.clock.capacity)
+        record.clock = replay
     windows = cfg.grid
     match, score, conf = np.empty(n_q, dtype=np.int64), np.empty(n_q), np.empty(n_q)
     velocity, length = np.empty(n_q), np.empty(n_q, dtype=np.int64)
@@ -980,7 +1062,19 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
         futs, unit, rows = _line_blocks(ref, q, start, stop, windows, cfg.velocities, unit, cfg.radius, blank=blank,
                                         want_sub=with_sub, keep_rows=current or record is not None, hubs=hubs,
                                         at_best=current)
-        parts = c.gather([ref.submit(s, _summaries_only, f) for s, f in enumerate(futs)])
+        summaries = [ref.submit(s, _summaries_only, f) for s, f in enumerate(futs)]
+        if clock is not None:  # chained on one worker, gathered with the summaries
+            ends = []
+            for a in range(0, stop - start, HORIZON_ROWS):
+                b = min(stop - start, a + HORIZON_ROWS)
+                slices = [ref.submit(s, _row_slice, r, a, b) for s, r in enumerate(rows)]
+                clock = ref.submit(0, _horizon_steps, clock, start + a, *slices)
+                ends.append(ref.submit(0, _horizons_of, clock))
+            got = c.gather(summaries + ends)
+            parts = got[:len(summaries)]
+            replay.start, replay.ks = start, np.concatenate(got[len(summaries):])
+        else:
+            parts = c.gather(summaries)
         values = np.stack([p["low"] for p in parts])
         pick = np.argmin(values, axis=0)[None]  # the first shard holding the minimum: the lowest place, as locally
         best = np.take_along_axis(values, pick, axis=0)[0]
@@ -1002,7 +1096,7 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
         if current or record is not None:
             places, values = np.empty((stop - start, 0), dtype=np.int64), np.empty((stop - start, 0))
             if record is not None:  # the places the record reads, in the first moments round
-                asks = _predicted_places(st, cfg, record, start, n)
+                asks = _predicted_places(st, cfg, record, start, n, None if replay is None else replay.ks)
                 row_mean, row_std, looked = _row_moments(ref, rows, asks)
                 places, values = asks, looked
             else:
@@ -1085,6 +1179,9 @@ def match_adaptive_window(query, ref: ShardedReference, rule: str = "unrivalled"
     also read the current frame's mean and spread over the whole row, which the client
     reduces in numpy's own pairwise order from the shards' subtree sums
     (:func:`_row_moments`, two more rounds), and the frame's difference at the match.
+    Rules "predictive" and "decorrelated" read ``G`` more values of each row, served in
+    the first of those rounds; "decorrelated" also puts each whole row together on one
+    worker for its horizon (``8 N`` bytes per frame between workers; module notes, step 7).
     Matches, scores, velocities, window lengths and confidences are then identical, bit
     for bit, within the bound of :func:`match_fixed_window` (tested). The block carries
     ``l_max`` earlier rows, so ``block_rows`` well above ``l_max`` keeps that overhead
@@ -1096,7 +1193,7 @@ def match_adaptive_window(query, ref: ShardedReference, rule: str = "unrivalled"
     ref : ShardedReference
     rule, confidence, l_min, l_max, grid, radius, recent_fraction, velocities, approximation
         As :func:`catgraph.sequence.match_sequences` (``rule`` one of
-        :data:`EXACT_RULES`; ``l_max`` at most :data:`SHARD_UNIT`; ``approximation``
+        :data:`EXACT_RULES`, i.e. any; ``l_max`` at most :data:`SHARD_UNIT`; ``approximation``
         "gaussian" only).
     block_rows : int
         Query rows per round.

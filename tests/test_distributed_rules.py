@@ -39,14 +39,17 @@ def sharded(client, route):
     return dd.shard_reference(route[1], "sad", client, shard_places=4096)
 
 
-@pytest.mark.parametrize("condition", [Condition("in-order"), Condition("reverse"),
-                                       Condition("shuffle", seed=1, segment_range=(0.05, 0.2)),
-                                       Condition("speed", factor=2.0)])
-def test_predictive_rule_equals_the_local_matcher(sharded, route, condition):
+CONDITIONS = [Condition("in-order"), Condition("reverse"), Condition("shuffle", seed=1, segment_range=(0.05, 0.2)),
+              Condition("speed", factor=2.0)]
+
+
+@pytest.mark.parametrize("rule", ["predictive", "decorrelated"])
+@pytest.mark.parametrize("condition", CONDITIONS)
+def test_record_rules_equal_the_local_matcher(sharded, route, condition, rule):
     q, r = route
     q = q[condition.order(len(q))]
     local = difference_matrix(q, r, "sad", normalise=True)
-    params = {"rule": "predictive", "l_max": 48, "grid": 5}
+    params = {"rule": rule, "l_max": 48, "grid": 5}
     # blocks shorter than the horizon's reach, so that the record crosses block edges
     res = dd.match_adaptive_window(q, sharded, block_rows=37, **params)
     out = match_sequences(local, **params)
@@ -108,7 +111,8 @@ def test_predicted_places_match_a_direct_replay(route):
     assert np.any(planned[replay.horizon:] == 0)  # some lines left the map
 
 
-def test_predictive_with_hubs_and_frames_without_information(client):
+@pytest.mark.parametrize("rule", ["predictive", "decorrelated"])
+def test_record_rules_with_hubs_and_frames_without_information(client, rule):
     # flat frames (hubs) in every shard, blank query frames: the rows the rule reads are
     # corrected and normalised again on the shards, as locally
     from catgraph.hubs import hub_offsets
@@ -124,14 +128,40 @@ def test_predictive_with_hubs_and_frames_without_information(client):
     local = difference_matrix(q, r, "sad", normalise=True)
     local[blank] = 0.0
     offsets = hub_offsets(difference_matrix(r[::7], r, "sad", normalise=True), rows=np.arange(0, 8200, 7))
-    params = {"rule": "predictive", "l_max": 30, "grid": 4}
+    params = {"rule": rule, "l_max": 30, "grid": 4}
     res = dd.match_adaptive_window(q, ref, block_rows=50, no_information=blank, hub_offsets=offsets, **params)
     out = match_sequences(local, hub_offsets=offsets, **params)
     for name in FIELDS:
         assert np.array_equal(getattr(res, name), getattr(out, name)), name
 
 
-def test_decorrelated_rule_is_refused_with_the_way_out(sharded, route):
-    assert "decorrelated" not in dd.EXACT_RULES and "predictive" in dd.EXACT_RULES
+def test_decorrelated_horizon_moves_and_crosses_blocks(client):
+    # the horizon is not constant on this route (so the lookups follow it), the horizon
+    # tasks are chained across blocks and across HORIZON_ROWS chunks within a block, and
+    # the shards are three (rows put together from three workers' columns)
+    # a map whose neighbouring places look alike (each descriptor averaged over 9 places):
+    # the query's rows take several frames to decorrelate
+    rng = np.random.default_rng(7)
+    base = rng.normal(size=(8200, 16))
+    r = np.stack([np.convolve(base[:, c], np.ones(9) / 9, mode="same") for c in range(16)], 1).astype(np.float32)
+    places = np.concatenate([np.arange(4000, 4130), np.arange(2000, 2040), np.arange(8150, 8200)])
+    q = r[places] + (0.3 * r.std()) * rng.normal(size=(places.size, 16)).astype(np.float32)
+    local = difference_matrix(q, r, "sad", normalise=True)
+    clock = wr._Horizon()
+    ks = np.array([clock.update(row, i, row.std()) for i, row in enumerate(local)])
+    assert len(np.unique(ks)) > 2 and ks.min() < wr.HORIZON_MAX
+    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
+    assert len(ref.bounds) == 3
+    params = {"rule": "decorrelated", "l_max": 30, "grid": 4, "confidence": "gap", "velocities": (-1.0, 1.0, 2.0)}
+    res = dd.match_adaptive_window(q, ref, block_rows=dd.HORIZON_ROWS + 29, **params)
+    out = match_sequences(local, **params)
+    for name in FIELDS:
+        assert np.array_equal(getattr(res, name), getattr(out, name)), name
+
+
+def test_every_rule_is_exact_on_the_cluster(sharded, route):
+    from catgraph.sequence import RULES
+
+    assert set(dd.EXACT_RULES) == set(RULES)
     with pytest.raises(InvalidParameterError, match="rule.*one machine"):
-        dd.match_adaptive_window(route[0], sharded, rule="decorrelated")
+        dd.match_adaptive_window(route[0], sharded, rule="longest")
