@@ -129,11 +129,12 @@ def measure(shard_places: int, n_shards: int, settings: list[dict], repeats: int
     return out
 
 
-def identity(conditions: list[str]) -> list[dict]:
+def identity(conditions: list[str], rule: str | None = None) -> list[dict]:
     """The cluster run against the local run on the real data (experiment layer: the
     registry's ``sequence`` method with its defaults, a fixed window of 50, and with the
     adaptive window; every velocity and the hub correction), per dataset and condition:
-    the frames whose match, confidence and window length are identical."""
+    the frames whose match, confidence and window length are identical. With ``rule``,
+    only the adaptive window, with that window rule."""
     import warnings
 
     import distributed
@@ -157,7 +158,8 @@ def identity(conditions: list[str]) -> list[dict]:
                                   dashboard_address=None) as cluster, \
             distributed.Client(cluster) as client:
         for name, inputs in cases:
-            for text, params in [(t, p) for p in ({}, {"window": "adaptive"}) for t in conditions]:
+            variants = ({}, {"window": "adaptive"}) if rule is None else ({"window": "adaptive", "rule": rule},)
+            for text, params in [(t, p) for p in variants for t in conditions]:
                 exp = Experiment(method="sequence", params=params, condition=Condition.parse(text), **inputs)
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
@@ -244,6 +246,9 @@ def main() -> None:
     parser.add_argument("--rules", nargs="*", metavar="RULE",
                         help="only time the adaptive window's rules against \"unrivalled\" (default: "
                              "predictive decorrelated), the section of distributed.md")
+    parser.add_argument("--identity-rule", metavar="RULE",
+                        help="with --identity: only the adaptive window with this rule "
+                             "(writes distributed_identity_RULE.md)")
     args = parser.parse_args()
     if args.rules is not None:
         rules = ["unrivalled"] + [r for r in (args.rules or ["predictive", "decorrelated"]) if r != "unrivalled"]
@@ -259,11 +264,14 @@ def main() -> None:
         print((RESULTS / f"{args.out}.md").read_text())
         return
     if args.identity is not None:
-        rows = identity(args.identity or ["in-order", "reverse", "speed:2"])
-        lines = ["# Dask path against the local run on the real data", "",
-                 "`benchmarks/bench_distributed.py --identity`: the registry's `sequence` method with its defaults "
-                 "(window 50, every velocity, hub correction) and with `window = adaptive`, `run` against "
-                 "`run_on_cluster` "
+        rows = identity(args.identity or ["in-order", "reverse", "speed:2"], args.identity_rule)
+        title = "" if args.identity_rule is None else f" (adaptive window, rule \"{args.identity_rule}\")"
+        what = ("the registry's `sequence` method with its defaults (window 50, every velocity, hub correction) "
+                "and with `window = adaptive`" if args.identity_rule is None else
+                f"the registry's `sequence` method with `window = adaptive`, `rule = {args.identity_rule}` (every "
+                "velocity, hub correction)")
+        lines = [f"# Dask path against the local run on the real data{title}", "",
+                 f"`benchmarks/bench_distributed.py --identity`: {what}, `run` against `run_on_cluster` "
                  "(one shard: these maps are smaller than 4096 places). Frames whose match, confidence and window "
                  "length are identical (bit for bit):", "",
                  "| dataset | window | condition | identical frames | AUC local | AUC cluster |",
@@ -272,7 +280,8 @@ def main() -> None:
                   f"{r['auc_local']:.4f} "
                   f"| {r['auc_cluster']:.4f} |" for r in rows]
         RESULTS.mkdir(exist_ok=True)
-        (RESULTS / "distributed_identity.md").write_text("\n".join(lines) + "\n")
+        name = "distributed_identity" + ("" if args.identity_rule is None else f"_{args.identity_rule}")
+        (RESULTS / f"{name}.md").write_text("\n".join(lines) + "\n")
         print("\n".join(lines))
         return
     fixed = {"block_rows": 64, "n_query": args.query}

@@ -165,3 +165,31 @@ def test_every_rule_is_exact_on_the_cluster(sharded, route):
     assert set(dd.EXACT_RULES) == set(RULES)
     with pytest.raises(InvalidParameterError, match="rule.*one machine"):
         dd.match_adaptive_window(route[0], sharded, rule="longest")
+
+
+def test_cluster_experiment_with_rule_decorrelated_equals_the_local_run(client):
+    # the registry's adaptive method through run_on_cluster: the rule, hub correction and a
+    # frame without information, as the experiment layer hands them to the matcher
+    import warnings
+
+    from catgraph.conditions import Condition
+    from catgraph.experiment import Experiment, run, run_on_cluster
+    from catgraph.traverse import Traverse
+
+    rng = np.random.default_rng(7)
+    base = rng.normal(size=(8200, 16))
+    r = np.stack([np.convolve(base[:, c], np.ones(9) / 9, mode="same") for c in range(16)], 1).astype(np.float32)
+    places = np.concatenate([np.arange(4040, 4160), np.arange(600, 660)])
+    q = r[places] + (0.3 * r.std()) * rng.normal(size=(places.size, 16)).astype(np.float32)
+    q[30] = 1.0  # a constant frame: no information
+    params = {"window": "adaptive", "rule": "decorrelated", "l_max": 40, "grid": 4, "hub_correction": True}
+    exp = Experiment(query=Traverse(q, meta={"kind": "descriptors"}, name="query"),
+                     reference=Traverse(r, meta={"kind": "descriptors"}, name="ref"), method="sequence",
+                     params=params, frontend={"metric": "sad"}, condition=Condition("reverse"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        local, _, _ = run(exp)
+        remote, _, _ = run_on_cluster(exp, client, shard_places=4096, block_rows=45)
+    assert np.array_equal(remote.match, local.match)
+    assert np.array_equal(remote.confidence, local.confidence)
+    assert np.array_equal(remote.extra["window_length"], local.extra["window_length"])
