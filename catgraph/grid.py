@@ -835,6 +835,16 @@ class GridLocalizer:
         1 …), so that the motion alone keeps a track sharp (:func:`phase_bins`; default
         4; 1: every speed one bin, a fractional one splitting its mass between the two
         bracketing places each frame).
+    smooth_feedback : bool
+        Hand the observation model (``FilterFeedback.posterior``) each place's mean
+        posterior mass over its confidence neighbourhood
+        (:func:`~catgraph.localizer.neighbourhood_means`, the neighbourhood the answer's
+        confidence counts) instead of the mass at the place alone (default True, as the
+        particle filter). The tempered model's agreement then asks whether the frame's own
+        best place lies *within the answer's neighbourhood*, not on its exact place: on
+        a map whose neighbouring places look alike (Wi-Fi scans a metre apart) the exact
+        place is a coin toss that read as disagreement and kept the temperature low.
+        The answers and ``place_posterior_`` are unchanged.
 
     Attributes
     ----------
@@ -857,7 +867,7 @@ class GridLocalizer:
                  junction_probability: float = 0.1, new_place_prior: float = 0.05, new_place_stay: float = 0.8,
                  confidence_radius: int = 2, confidence_radius_m: float | None = None,
                  learn_recovery: bool = True, converged_log_odds: float = 1.0, converged_frames: int = 8,
-                 unconverged_penalty: float = 1.0, max_phases: int = 4) -> None:
+                 unconverged_penalty: float = 1.0, max_phases: int = 4, smooth_feedback: bool = True) -> None:
         self.graph = graph
         self.model = model
         self.velocities = velocities
@@ -874,6 +884,7 @@ class GridLocalizer:
         self.converged_log_odds = converged_log_odds
         self.converged_frames = converged_frames
         self.unconverged_penalty = unconverged_penalty
+        self.smooth_feedback = smooth_feedback
         self.max_phases = max_phases
 
     @property
@@ -915,6 +926,9 @@ class GridLocalizer:
         check_scalar(self.converged_log_odds, "converged_log_odds", owner, float)
         check_scalar(self.converged_frames, "converged_frames", owner, int, 0)
         check_scalar(self.unconverged_penalty, "unconverged_penalty", owner, float, 0.0)
+        if not isinstance(self.smooth_feedback, (bool, np.bool_)):
+            raise InvalidParameterError(f"The 'smooth_feedback' parameter of {owner} must be a bool. "
+                                        f"Got {self.smooth_feedback!r} instead.")
         check_scalar(self.max_phases, "max_phases", owner, int, 1, 64)
         if not isinstance(self.learn_recovery, (bool, np.bool_)):
             raise InvalidParameterError(f"The 'learn_recovery' parameter of {owner} must be a bool. "
@@ -987,6 +1001,13 @@ class GridLocalizer:
             from scipy.spatial import cKDTree
 
             self._tree = cKDTree(g.positions)
+        self._neighbourhoods = None
+        if self.smooth_feedback and callable(getattr(type(self.model), "feedback", None)):
+            from .localizer import confidence_neighbourhoods
+
+            self._neighbourhoods = confidence_neighbourhoods(g, self.confidence_radius, self.confidence_radius_m,
+                                                             getattr(self, "_tree", None), self._route,
+                                                             self._route_radius)
         return self
 
     # ------------------------------------------------------------------ one step
@@ -1138,7 +1159,12 @@ class GridLocalizer:
 
         feedback = getattr(type(self.model), "feedback", None)
         if feedback is not None:
-            self.model.feedback(FilterFeedback(self.prior_, self.place_posterior_, near))
+            posterior = self.place_posterior_
+            if self._neighbourhoods is not None:
+                from .localizer import neighbourhood_means
+
+                posterior = neighbourhood_means(posterior, *self._neighbourhoods)
+            self.model.feedback(FilterFeedback(self.prior_, posterior, near))
 
     # ------------------------------------------------------------------ batch
     def run(self, observations, odometry: np.ndarray | None = None, query_index: np.ndarray | None = None,

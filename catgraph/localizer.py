@@ -524,6 +524,50 @@ def _list_means(values, ptr, index, out):  # pragma: no cover - compiled
     return total
 
 
+def confidence_neighbourhoods(graph, confidence_radius: int, confidence_radius_m: float | None, tree, route,
+                               route_radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
+    """Each place's confidence neighbourhood, the one a filter counts around an answer at
+    that place (:class:`Localizer` and :class:`~catgraph.grid.GridLocalizer` alike).
+
+    Parameters
+    ----------
+    graph : PlaceGraph
+    confidence_radius : int
+        Places either side (by index, where ``route`` is None).
+    confidence_radius_m : float or None
+        Metres around the place (needs ``tree``, a ``cKDTree`` of the positions).
+    tree : scipy.spatial.cKDTree or None
+    route : ndarray of float64 or None
+        The places' route distances where they are non-decreasing.
+    route_radius : float
+        Route distance either side (with ``route``).
+
+    Returns
+    -------
+    tuple or None
+        ``(lo, hi, None)``: places ``lo[j] .. hi[j] − 1`` (both ends non-decreasing in
+        ``j``), or ``(ptr, index, True)``, a CSR list (a metric radius); ``None`` where
+        every neighbourhood is the place alone (nothing to smooth).
+    """
+    n = graph.n_places
+    j = np.arange(n)
+    if confidence_radius_m is not None:
+        lists = tree.query_ball_point(graph.positions, confidence_radius_m)
+        ptr = np.zeros(n + 1, dtype=np.int64)
+        ptr[1:] = np.cumsum([len(x) for x in lists])
+        index = np.concatenate([np.asarray(x, dtype=np.int64) for x in lists]) if n else ptr[:0]
+        return ptr, index, True
+    if route is not None:
+        lo = np.searchsorted(route, route - route_radius, "left").astype(np.int64)
+        hi = np.searchsorted(route, route + route_radius, "right").astype(np.int64)
+    else:
+        lo = np.maximum(j - confidence_radius, 0)
+        hi = np.minimum(j + confidence_radius + 1, n)
+    if np.all(hi - lo == 1):
+        return None
+    return lo, hi, None
+
+
 def neighbourhood_means(mass: np.ndarray, first: np.ndarray, second: np.ndarray, is_list) -> np.ndarray:
     """Each place's mean mass over its neighbourhood, rescaled to the total of ``mass``.
 
@@ -873,28 +917,9 @@ class Localizer:
         return self
 
     def _feedback_neighbourhoods(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
-        """Each place's confidence neighbourhood, the one :meth:`_summarise` counts around
-        an answer at that place: ``(lo, hi, None)``, places ``lo[j] .. hi[j] − 1`` (along
-        the route, or by index; both ends non-decreasing in ``j``), or ``(ptr, index, True)``, a CSR list (a metric radius).
-        ``None`` where every neighbourhood is the place alone (nothing to smooth)."""
-        g = self.graph
-        j = np.arange(g.n_places)
-        if self.confidence_radius_m is not None:
-            lists = self._tree.query_ball_point(g.positions, self.confidence_radius_m)
-            ptr = np.zeros(g.n_places + 1, dtype=np.int64)
-            ptr[1:] = np.cumsum([len(x) for x in lists])
-            index = np.concatenate([np.asarray(x, dtype=np.int64) for x in lists]) if g.n_places else ptr[:0]
-            return ptr, index, True
-        if self._route is not None:
-            rd = self._route
-            lo = np.searchsorted(rd, rd - self._route_radius, "left").astype(np.int64)
-            hi = np.searchsorted(rd, rd + self._route_radius, "right").astype(np.int64)
-        else:
-            lo = np.maximum(j - self.confidence_radius, 0)
-            hi = np.minimum(j + self.confidence_radius + 1, g.n_places)
-        if np.all(hi - lo == 1):
-            return None
-        return lo, hi, None
+        """Each place's confidence neighbourhood (:func:`confidence_neighbourhoods`)."""
+        return confidence_neighbourhoods(self.graph, self.confidence_radius, self.confidence_radius_m,
+                                         getattr(self, "_tree", None), self._route, self._route_radius)
 
     def _generation(self, step: int) -> tuple[int, int]:
         """Slots of the young generation ``step mod recovery_frames``."""

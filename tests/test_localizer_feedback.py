@@ -140,3 +140,53 @@ def test_smoothed_feedback_varies_less_over_seeds():
         return float(np.var(np.array(hits), axis=0).mean())
 
     assert agreement_variance(True) < 0.7 * agreement_variance(False)
+
+
+@pytest.mark.parametrize("kind", ["chain", "survey", "metric"])
+def test_grid_filter_feeds_back_its_posterior_smoothed_the_same_way(kind):
+    """The grid filter hands its model the posterior smoothed over the neighbourhoods its
+    own summary counts (checked per frame against the slow one-hot reference), and the
+    plain posterior with ``smooth_feedback=False``; the answers do not change."""
+    from catgraph.grid import GridLocalizer
+
+    graph = PlaceGraph.chain(40) if kind == "chain" else _survey_graph(12)
+    kw = {"confidence_radius_m": 7.0} if kind == "metric" else {"confidence_radius": 2}
+    rows = _query(graph)
+    runs = {}
+    for smooth in (True, False):
+        model = _Recorder()
+        grid = GridLocalizer(graph, model, recovery=0.05, smooth_feedback=smooth, **kw).reset()
+        posteriors, match = [], []
+        for row in rows:
+            match.append(grid.step(row).place)
+            posteriors.append(grid.place_posterior_.copy())
+        runs[smooth] = (np.array(model.seen), np.array(posteriors), np.array(match))
+    seen, posterior, match = runs[True]
+    plain_seen, plain_posterior, plain_match = runs[False]
+    np.testing.assert_array_equal(match, plain_match)
+    np.testing.assert_array_equal(posterior, plain_posterior)
+    np.testing.assert_array_equal(plain_seen, plain_posterior)
+    loc = GridLocalizer(graph, _Recorder(), recovery=0.05, **kw).reset()
+
+    def slow(mass):
+        n = graph.n_places
+        out = np.empty(n)
+        for j in range(n):
+            one_hot = np.zeros(n)
+            one_hot[j] = 1.0
+            loc._mass = one_hot
+            out[j] = mass[loc._summarise()[1]].mean()
+        return out * mass.sum() / out.sum()
+
+    for got, post in zip(seen, posterior):
+        ref = slow(post)
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-13 * max(ref.max(), 1e-300))
+    assert not np.allclose(seen, posterior)  # the smoothing did something
+
+
+def test_grid_filter_checks_smooth_feedback():
+    from catgraph.exceptions import InvalidParameterError
+    from catgraph.grid import GridLocalizer
+
+    with pytest.raises(InvalidParameterError, match="smooth_feedback"):
+        GridLocalizer(PlaceGraph.chain(5), _Recorder(), smooth_feedback="yes").reset()
