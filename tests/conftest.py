@@ -37,6 +37,17 @@ def survey_graph(n_points=15, repeats=3):
     return PlaceGraph.from_traverse(ref)
 
 
+@pytest.fixture(scope="module")
+def client():
+    """A Dask client on a two-worker in-process cluster (skips without dask.distributed)."""
+    distributed = pytest.importorskip("distributed")
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None)
+    c = distributed.Client(cluster)
+    yield c
+    c.close()
+    cluster.close()
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(0)

@@ -67,15 +67,6 @@ def assert_same_as_local(res, d, window, radius, velocities=(1.0,), confidence="
 
 
 @pytest.fixture(scope="module")
-def client():
-    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None)
-    c = distributed.Client(cluster)
-    yield c
-    c.close()
-    cluster.close()
-
-
-@pytest.fixture(scope="module")
 def data():
     rng = np.random.default_rng(3)
     r = rng.normal(size=(9000, 16)).astype(np.float32)

@@ -16,15 +16,6 @@ FIELDS = ("match", "score", "velocity", "window_length", "confidence")
 
 
 @pytest.fixture(scope="module")
-def client():
-    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None)
-    c = distributed.Client(cluster)
-    yield c
-    c.close()
-    cluster.close()
-
-
-@pytest.fixture(scope="module")
 def route():
     """A route that crosses the shard edge at 4096, jumps, and runs off the end of the map
     (shards of 4096, 4096 and 8 places)."""

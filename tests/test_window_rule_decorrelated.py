@@ -16,11 +16,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import catgraph.sequence as sequence
 from catgraph._window_rule import (DECORRELATION_HALF_LIFE, DECORRELATION_LEVEL, DECORRELATION_PLACES, HORIZON_MAX,
                                    PREDICTION_HALF_LIFE, _Horizon)
-from catgraph.sequence import SequenceMatcher, match_sequences, window_grid
+from catgraph.sequence import match_sequences, window_grid
 from tests.test_window_rule import V1, on_grid, slow_scores
+from tests.test_window_rule_predictive import assert_streaming_equals_batch
 
 
 def slow_horizons(d: np.ndarray, places: int = DECORRELATION_PLACES, level: float = DECORRELATION_LEVEL,
@@ -134,19 +134,7 @@ def test_decorrelated_streaming_equals_batch(confidence, monkeypatch):
     the horizon's state travel from block to block)."""
     d = smooth_route(60, 50, 4, 4, 3.0, jump_at=30)
     kwargs = dict(rule="decorrelated", l_min=3, l_max=30, grid=6, confidence=confidence)
-    whole = match_sequences(d, **kwargs)
-    monkeypatch.setattr(sequence, "_BLOCK_VALUES", 7 * 8 * 6 * 6)
-    blocks = match_sequences(d, **kwargs)
-    matcher = SequenceMatcher(**kwargs)
-    steps = [matcher.step(row) for row in d]
-    for batch in (whole, blocks):
-        np.testing.assert_array_equal(batch.match, [s.match for s in steps])
-        np.testing.assert_array_equal(batch.window_length, [s.window_length for s in steps])
-        np.testing.assert_array_equal(batch.velocity, [s.velocity for s in steps])
-        np.testing.assert_array_equal(batch.confidence, [s.confidence for s in steps])
-    matcher.reset()
-    again = [matcher.step(row) for row in d]
-    np.testing.assert_array_equal([s.match for s in again], [s.match for s in steps])
+    assert_streaming_equals_batch(d, kwargs, monkeypatch)
 
 
 def test_decorrelated_rule_recovers_after_a_jump(jump_route):

@@ -66,12 +66,9 @@ def test_predictive_rule_is_not_trivial():
     assert len(np.unique(length[PREDICTION_HORIZON + 24:])) > 1
 
 
-@pytest.mark.parametrize("confidence", ["posterior", "gap", "support"])
-def test_predictive_streaming_equals_batch(confidence, monkeypatch):
-    """Same numbers step by step, and in a batch cut into blocks of 7 frames (the record
-    travels from block to block)."""
-    d = planted(60, 50, 4, jump_at=30, strength=2.5, echo=1.5)
-    kwargs = dict(rule="predictive", l_min=3, l_max=30, grid=6, confidence=confidence)
+def assert_streaming_equals_batch(d, kwargs, monkeypatch):
+    """The batch run, the batch cut into blocks of 7 frames, and the streaming matcher
+    (also after a reset) give the same matches, windows, velocities and confidences."""
     whole = match_sequences(d, **kwargs)
     monkeypatch.setattr(sequence, "_BLOCK_VALUES", 7 * 8 * 6 * 6)
     blocks = match_sequences(d, **kwargs)
@@ -85,6 +82,15 @@ def test_predictive_streaming_equals_batch(confidence, monkeypatch):
     matcher.reset()
     again = [matcher.step(row) for row in d]
     np.testing.assert_array_equal([s.match for s in again], [s.match for s in steps])
+
+
+@pytest.mark.parametrize("confidence", ["posterior", "gap", "support"])
+def test_predictive_streaming_equals_batch(confidence, monkeypatch):
+    """Same numbers step by step, and in a batch cut into blocks of 7 frames (the record
+    travels from block to block)."""
+    d = planted(60, 50, 4, jump_at=30, strength=2.5, echo=1.5)
+    kwargs = dict(rule="predictive", l_min=3, l_max=30, grid=6, confidence=confidence)
+    assert_streaming_equals_batch(d, kwargs, monkeypatch)
 
 
 def test_predictive_rule_drops_the_old_alignment_after_a_jump(jump_route):
