@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 from catgraph._window_rule import (DECORRELATION_HALF_LIFE, DECORRELATION_LEVEL, DECORRELATION_PLACES, HORIZON_MAX,
-                                   PREDICTION_HALF_LIFE, _Horizon)
+                                   _Horizon)
 from catgraph.sequence import match_sequences, window_grid
-from tests.test_window_rule import V1, on_grid, slow_scores
-from tests.test_window_rule_predictive import assert_streaming_equals_batch
+from tests.test_window_rule import V1, on_grid
+from tests.test_window_rule_predictive import assert_streaming_equals_batch, slow_predictive
 
 
 def slow_horizons(d: np.ndarray, places: int = DECORRELATION_PLACES, level: float = DECORRELATION_LEVEL,
@@ -48,31 +48,7 @@ def slow_horizons(d: np.ndarray, places: int = DECORRELATION_PLACES, level: floa
 def slow_decorrelated(d: np.ndarray, grid: np.ndarray, **horizon_kwargs):
     """Per frame (forward diagonal only): the match, the effective window and the horizon."""
     horizons = slow_horizons(d, **horizon_kwargs)
-    scores = {int(L): slow_scores(d, int(L)) for L in grid}
-    n_q, n = d.shape
-    decay = 2.0 ** (-1.0 / PREDICTION_HALF_LIFE)
-    best = np.array([[int(np.argmin(scores[int(L)][i])) for L in grid] for i in range(n_q)])
-    total, weight = np.zeros(len(grid)), 0.0
-    match = np.empty(n_q, dtype=int)
-    length = np.empty(n_q, dtype=int)
-    for i in range(n_q):
-        k = horizons[i]
-        if i >= k:
-            row = d[i]
-            loss = np.zeros(len(grid))
-            for g in range(len(grid)):
-                place = best[i - k, g] + k  # the line one place further per frame
-                if 0 <= place < n:
-                    loss[g] = (row[place] - row.mean()) / row.std()
-            total = decay * total + loss
-            weight = decay * weight + 1.0
-        if weight == 0.0:
-            g = len(grid) - 1
-        else:
-            record = total / weight
-            g = max(range(len(grid)), key=lambda h: (-record[h], h))  # best record, then the longer
-        match[i] = best[i, g]
-        length[i] = min(int(grid[g]), i + 1)
+    match, length = slow_predictive(d, grid, horizons)
     return match, length, horizons
 
 

@@ -19,16 +19,21 @@ from catgraph.sequence import SequenceMatcher, match_sequences, window_grid
 from tests.test_window_rule import V1, on_grid, planted, slow_scores
 
 
-def slow_predictive(d: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per frame (forward diagonal only): the match and the effective window of rule "predictive"."""
+def slow_predictive(d: np.ndarray, grid: np.ndarray, horizons=None) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame (forward diagonal only): the match and the effective window of rule
+    "predictive" (horizon ``PREDICTION_HORIZON``), or of its record at the per-frame
+    ``horizons`` (rule "decorrelated")."""
     scores = {int(L): slow_scores(d, int(L)) for L in grid}
     n_q, n = d.shape
-    k, decay = PREDICTION_HORIZON, 2.0 ** (-1.0 / PREDICTION_HALF_LIFE)
+    decay = 2.0 ** (-1.0 / PREDICTION_HALF_LIFE)
+    if horizons is None:
+        horizons = np.full(n_q, PREDICTION_HORIZON)
     best = np.array([[int(np.argmin(scores[int(L)][i])) for L in grid] for i in range(n_q)])
     total, weight = np.zeros(len(grid)), 0.0
     match = np.empty(n_q, dtype=int)
     length = np.empty(n_q, dtype=int)
     for i in range(n_q):
+        k = horizons[i]
         if i >= k:
             row = d[i]
             loss = np.zeros(len(grid))
