@@ -169,6 +169,18 @@ def _step_floor_ms(live, matcher, repeats: int = 15) -> dict:
     return {"floor_map_read_ms": read_ms, "floor_sums_rw_ms": sums_ms, "floor_step_ms": read_ms + sums_ms}
 
 
+def _timed(fn, seconds: list):
+    """``fn`` that appends the seconds of every call to ``seconds``."""
+
+    def timed(*args):
+        t = time.perf_counter()
+        result = fn(*args)
+        seconds.append(time.perf_counter() - t)
+        return result
+
+    return timed
+
+
 def _median_ms(fn, repeats: int) -> tuple[float, float]:
     times = []
     for _ in range(repeats):
@@ -310,27 +322,10 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
         for k in range(l_max):
             matcher.step(rng.standard_normal(out=fill))
         del fill
-        inner = matcher.step
-        matcher_seconds = []
-
-        def timed_step(row):
-            t = time.perf_counter()
-            result = inner(row)
-            matcher_seconds.append(time.perf_counter() - t)
-            return result
-
-        matcher.step = timed_step  # the matcher's share of the model time
+        matcher_seconds, observe_seconds = [], []
+        matcher.step = _timed(matcher.step, matcher_seconds)  # the matcher's share of the model time
         model = live.localizer_.model
-        inner_observe = model.observe
-        observe_seconds = []
-
-        def timed_observe(row):
-            t = time.perf_counter()
-            result = inner_observe(row)
-            observe_seconds.append(time.perf_counter() - t)
-            return result
-
-        model.observe = timed_observe  # the observation model's share (the matcher inside it)
+        model.observe = _timed(model.observe, observe_seconds)  # the observation model's share (matcher inside)
         parts = {"frontend": [], "difference": [], "model": []}
         times = []
         for k in range(frames):

@@ -37,6 +37,16 @@ def survey_graph(n_points=15, repeats=3):
     return PlaceGraph.from_traverse(ref)
 
 
+def hub_map(places):
+    """8200 random 16-d references with flat frames (hubs) at 100, 5000 and 8195 (one in
+    every shard of 4096), and a noisy query of ``places``."""
+    rng = np.random.default_rng(5)
+    r = rng.normal(size=(8200, 16)).astype(np.float32)
+    r[[100, 5000, 8195]] *= 0.05
+    q = r[places] + 0.4 * rng.normal(size=(places.size, 16)).astype(np.float32)
+    return r, q
+
+
 @pytest.fixture(scope="module")
 def client():
     """A Dask client on a two-worker in-process cluster (skips without dask.distributed)."""

@@ -7,6 +7,7 @@ from catgraph.conditions import Condition
 from catgraph.differences import difference_matrix
 from catgraph.exceptions import InvalidParameterError
 from catgraph.sequence import DEFAULT_VELOCITIES, fixed_window_scores, match_sequences
+from .conftest import hub_map
 
 distributed = pytest.importorskip("distributed")
 from catgraph import distributed as dd  # noqa: E402
@@ -223,11 +224,7 @@ def test_hub_correction_equals_local(client, window):
     # its frames); rows corrected and normalised again as apply_hub_offsets does it
     from catgraph.hubs import hub_offsets
 
-    rng = np.random.default_rng(5)
-    r = rng.normal(size=(8200, 16)).astype(np.float32)
-    r[[100, 5000, 8195]] *= 0.05
-    places = np.concatenate([np.arange(3990, 4190), np.arange(8120, 8200)])
-    q = r[places] + 0.4 * rng.normal(size=(places.size, 16)).astype(np.float32)
+    r, q = hub_map(np.concatenate([np.arange(3990, 4190), np.arange(8120, 8200)]))
     ref = dd.shard_reference(r, "sad", client, shard_places=4096)
     local = difference_matrix(q, r, "sad", normalise=True)
     offsets = hub_offsets(difference_matrix(r[::7], r, "sad", normalise=True), rows=np.arange(0, 8200, 7))

@@ -7,6 +7,7 @@ from catgraph.conditions import Condition
 from catgraph.differences import difference_matrix
 from catgraph.exceptions import InvalidParameterError
 from catgraph.sequence import match_sequences
+from .conftest import hub_map
 
 distributed = pytest.importorskip("distributed")
 from catgraph import distributed as dd  # noqa: E402
@@ -108,11 +109,7 @@ def test_record_rules_with_hubs_and_frames_without_information(client, rule):
     # corrected and normalised again on the shards, as locally
     from catgraph.hubs import hub_offsets
 
-    rng = np.random.default_rng(5)
-    r = rng.normal(size=(8200, 16)).astype(np.float32)
-    r[[100, 5000, 8195]] *= 0.05
-    places = np.concatenate([np.arange(3990, 4120), np.arange(8150, 8200)])
-    q = r[places] + 0.4 * rng.normal(size=(places.size, 16)).astype(np.float32)
+    r, q = hub_map(np.concatenate([np.arange(3990, 4120), np.arange(8150, 8200)]))
     blank = np.zeros(len(q), dtype=bool)
     blank[[0, 15, 100]] = True
     ref = dd.shard_reference(r, "sad", client, shard_places=4096)
