@@ -152,3 +152,225 @@ def product_sums(a, b, prior):  # pragma: no cover - compiled
         s += v
         t += v * prior[j]
     return s, t
+
+
+# ---------------------------------------------------------------------------------------
+# numpy's pairwise sum, for passes that fuse a sum with other work
+#
+# ``np.sum`` of a contiguous float64 array (and so ``mean``, ``var``, ``std``) adds the
+# values pairwise: the array is halved (the first half cut to a multiple of 8) down to
+# blocks of at most 128 values; a block of 8 or more is summed in eight interleaved
+# accumulators, combined as ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7)), then its
+# last ``n mod 8`` values added in order; a shorter block is added in order; the
+# result is then added to the reduction's identity 0.0. The kernels below replay that
+# tree on values they compute on the fly (a block at a time, through a small buffer),
+# so a fused pass returns the very float numpy's sum of the materialised values would
+# (``tests/test_observation_kernels.py`` checks them against numpy on every length up
+# to a few hundred and on long arrays).
+
+_BLOCK = 128
+
+
+@njit(nogil=True)
+def _block_sum(a, n):  # pragma: no cover - compiled
+    """numpy's sum of one block ``a[:n]`` (``n ≤ 128``)."""
+    if n < 8:
+        res = -0.0
+        for i in range(n):
+            res += a[i]
+        return res
+    r0, r1, r2, r3 = a[0], a[1], a[2], a[3]
+    r4, r5, r6, r7 = a[4], a[5], a[6], a[7]
+    m = n - n % 8
+    for i in range(8, m, 8):
+        r0 += a[i]
+        r1 += a[i + 1]
+        r2 += a[i + 2]
+        r3 += a[i + 3]
+        r4 += a[i + 4]
+        r5 += a[i + 5]
+        r6 += a[i + 6]
+        r7 += a[i + 7]
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    for i in range(m, n):
+        res += a[i]
+    return res
+
+
+def _half(n):
+    """The first half of numpy's split of ``n > 128`` values (a multiple of 8)."""
+    h = n // 2
+    return h - h % 8
+
+
+_half = njit(nogil=True, inline="always")(_half)
+
+
+@njit(nogil=True)
+def block_starts(n):  # pragma: no cover - compiled
+    """The starts of numpy's blocks over ``n`` values, in order, with ``n`` appended
+    (the tree walked depth first, left half first; no recursion: numba's on-disk cache
+    does not keep recursive kernels)."""
+    starts = np.empty(n // 64 + 3, dtype=np.int64)
+    lo_stack = np.empty(64, dtype=np.int64)
+    n_stack = np.empty(64, dtype=np.int64)
+    lo_stack[0], n_stack[0] = 0, n
+    top = 1
+    k = 0
+    while top > 0:
+        top -= 1
+        lo, m = lo_stack[top], n_stack[top]
+        if m <= _BLOCK:
+            starts[k] = lo
+            k += 1
+            continue
+        h = _half(m)
+        lo_stack[top], n_stack[top] = lo + h, m - h  # the right half, after
+        lo_stack[top + 1], n_stack[top + 1] = lo, h  # the left half, first
+        top += 2
+    starts[k] = n
+    return starts[:k + 1]
+
+
+@njit(nogil=True)
+def _combine(sums, n):  # pragma: no cover - compiled
+    """The blocks' sums (in :func:`block_starts` order) added along numpy's tree over
+    ``n`` values, each node its left half's sum plus its right half's."""
+    size = np.empty(64, dtype=np.int64)  # the path from the root to the current node
+    left = np.empty(64)  # a node's left sum, once its right half is being summed
+    stage = np.zeros(64, dtype=np.int64)  # 0: in its left half, 1: in its right half
+    depth = 0
+    size[0] = n
+    k = 0
+    while True:
+        m = size[depth]
+        if m > _BLOCK:  # descend into the left half
+            stage[depth] = 0
+            depth += 1
+            size[depth] = _half(m)
+            continue
+        v = sums[k]
+        k += 1
+        while True:  # hand the sum up until a node still has its right half to do
+            if depth == 0:
+                return v
+            depth -= 1
+            if stage[depth] == 0:
+                left[depth] = v
+                stage[depth] = 1
+                depth += 1
+                size[depth] = size[depth - 1] - _half(size[depth - 1])
+                break
+            v = left[depth] + v
+
+
+@njit(nogil=True)
+def pairwise_sum(a):  # pragma: no cover - compiled
+    """``np.sum(a)`` of a contiguous float64 array, the same float (the reference of the
+    fused passes: the same tree, the blocks read in place)."""
+    n = a.shape[0]
+    starts = block_starts(n)
+    sums = np.empty(len(starts) - 1)
+    for b in range(len(starts) - 1):
+        sums[b] = _block_sum(a[starts[b]:starts[b + 1]], starts[b + 1] - starts[b])
+    return 0.0 + _combine(sums, n)
+
+
+@njit(nogil=True)
+def centred_sums(x, mean, other, out):  # pragma: no cover - compiled
+    """``out = x − mean`` and numpy's ``(out * out).sum()`` and, where ``other`` is not
+    empty, ``(out * other).sum()`` (0 otherwise), in one pass.
+
+    The centring, squares and products of ``np.subtract`` / ``np.multiply`` then
+    ``np.sum``, without the squares or products stored: for the novelty weight's
+    correlation and the standardised window scores."""
+    n = x.shape[0]
+    both = other.shape[0] > 0
+    starts = block_starts(n)
+    nb = len(starts) - 1
+    s2, sp = np.empty(nb), np.empty(nb)
+    b2, bp = np.empty(_BLOCK), np.empty(_BLOCK)
+    for b in range(nb):
+        lo = starts[b]
+        w = starts[b + 1] - lo
+        xs, os = x[lo:lo + w], out[lo:lo + w]  # views: indices from 0, no wraparound checks
+        for t in range(w):
+            d = xs[t] - mean
+            os[t] = d
+            b2[t] = d * d
+        s2[b] = _block_sum(b2, w)
+        if both:
+            ot = other[lo:lo + w]
+            for t in range(w):
+                bp[t] = os[t] * ot[t]
+            sp[b] = _block_sum(bp, w)
+    squares = 0.0 + _combine(s2, n)
+    products = 0.0 + _combine(sp, n) if both else 0.0
+    return squares, products
+
+
+@njit(nogil=True)
+def mean_std(x):  # pragma: no cover - compiled
+    """``(x.mean(), x.std())`` as numpy computes them (its sums, its order), in two
+    passes and no temporary: the mean, then the centred squares summed as they are
+    formed."""
+    n = x.shape[0]
+    mean = pairwise_sum(x) / n
+    starts = block_starts(n)
+    nb = len(starts) - 1
+    sums = np.empty(nb)
+    buf = np.empty(_BLOCK)
+    for b in range(nb):
+        lo = starts[b]
+        w = starts[b + 1] - lo
+        xs = x[lo:lo + w]
+        for t in range(w):
+            d = xs[t] - mean
+            buf[t] = d * d
+        sums[b] = _block_sum(buf, w)
+    return mean, np.sqrt((0.0 + _combine(sums, n)) / n)
+
+
+@njit(nogil=True)
+def standardised_ratios(centred, sd, scale, tau, z, r):  # pragma: no cover - compiled
+    """The standardised scores and their tempered ratios in one pass: ``z = centred /
+    sd`` (``_standardised``'s division), ``r = (scale · −z) · tau`` (the tempered model's
+    ratio ``scale · base``, ``base = −z``, then the sequence part's window temperature).
+
+    Returns ``(r.max(), np.argmax(−z), finite)``, ``finite`` whether every ``z`` is."""
+    top = -np.inf
+    best = 0
+    largest = -np.inf
+    finite = True
+    for i in range(centred.shape[0]):
+        v = centred[i] / sd
+        z[i] = v
+        finite &= np.isfinite(v)
+        b = -v
+        w = (scale * b) * tau
+        r[i] = w
+        top = max(top, w)
+        if b > largest:
+            largest = b
+            best = i
+    return top, best, finite
+
+
+@njit(nogil=True)
+def sum_max(a, b, out):  # pragma: no cover - compiled
+    """``out = a + b`` (``np.add``); returns ``out.max()``."""
+    top = -np.inf
+    for i in range(a.shape[0]):
+        v = a[i] + b[i]
+        out[i] = v
+        top = max(top, v)
+    return top
+
+
+@njit(nogil=True)
+def all_finite(x):  # pragma: no cover - compiled
+    """``np.isfinite(x).all()``, without the boolean temporary."""
+    ok = True
+    for i in range(x.shape[0]):
+        ok &= np.isfinite(x[i])
+    return ok

@@ -1049,7 +1049,8 @@ class GridLocalizer:
         if not obs.informative:
             return None
         r = np.asarray(obs.log_ratio, dtype=np.float64)
-        top = float(r.max())
+        # the maximum where the model found it while forming the ratios (the same value)
+        top = float(r.max()) if obs.log_ratio_max is None else float(obs.log_ratio_max)
         e = self._e
         np.exp(np.subtract(r, top, out=e), out=e)
         return e, top, float(obs.new_place_log_ratio)
@@ -1159,12 +1160,12 @@ class GridLocalizer:
 
         feedback = getattr(type(self.model), "feedback", None)
         if feedback is not None:
-            posterior = self.place_posterior_
+            posterior, top = self.place_posterior_, None
             if self._neighbourhoods is not None:
-                from .localizer import neighbourhood_means
+                from .localizer import _smoothed
 
-                posterior = neighbourhood_means(posterior, *self._neighbourhoods)
-            self.model.feedback(FilterFeedback(self.prior_, posterior, near))
+                posterior, top = _smoothed(posterior, *self._neighbourhoods)
+            self.model.feedback(FilterFeedback(self.prior_, posterior, near, top))
 
     # ------------------------------------------------------------------ batch
     def run(self, observations, odometry: np.ndarray | None = None, query_index: np.ndarray | None = None,

@@ -145,6 +145,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._jit import njit
+from ._observation_kernels import _block_sum, _combine, all_finite, block_starts
 from ._validation import as_generator, check_array, check_scalar
 from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .graph import PlaceGraph
@@ -216,12 +217,15 @@ def _sharpened_cumulative(log_ratio, r_max, power, uniform_share, out):  # pragm
 
 
 @njit
-def _likelihood_cumulative(log_ratio, out):  # pragma: no cover - compiled
-    """``out[j] = Σ_{i ≤ j} e^{r_i − max r}``; returns ``max r``."""
-    r_max = -np.inf
-    for j in range(log_ratio.shape[0]):
-        if log_ratio[j] > r_max:
-            r_max = log_ratio[j]
+def _likelihood_cumulative(log_ratio, out, known_max):  # pragma: no cover - compiled
+    """``out[j] = Σ_{i ≤ j} e^{r_i − max r}``; returns ``max r``. ``known_max``: ``max r``
+    where the observation found it (the same value), NaN: not known (a pass finds it)."""
+    r_max = known_max
+    if not r_max == r_max:
+        r_max = -np.inf
+        for j in range(log_ratio.shape[0]):
+            if log_ratio[j] > r_max:
+                r_max = log_ratio[j]
     acc = 0.0
     for j in range(log_ratio.shape[0]):
         acc += np.exp(log_ratio[j] - r_max)
@@ -390,12 +394,20 @@ def _reweight_kernel(edge, fraction, log_weight, source, target, log_ratio, star
         if (i < start or i >= stop) and not marginal:
             e = edge[i]
             mass[source[e] if fraction[i] < 0.5 else target[e]] += w
-    if marginal:
-        scale = np.exp(log_scale - log_map)
+    # the marginal masses, then the recovery share's, added place by place in one pass
+    scale = np.exp(log_scale - log_map) if marginal else 0.0
+    recover = np.isfinite(log_recovery)
+    share = np.exp(log_recovery - log_map) / like[like.shape[0] - 1] if recover else 0.0
+    if marginal and recover:
+        below = 0.0
         for j in range(mass.shape[0]):
             mass[j] += marginal_mass[j] * scale
-    if np.isfinite(log_recovery):
-        share = np.exp(log_recovery - log_map) / like[like.shape[0] - 1]
+            mass[j] += share * (like[j] - below)
+            below = like[j]
+    elif marginal:
+        for j in range(mass.shape[0]):
+            mass[j] += marginal_mass[j] * scale
+    elif recover:
         below = 0.0
         for j in range(like.shape[0]):
             mass[j] += share * (like[j] - below)
@@ -484,12 +496,21 @@ def _top_k(values, k):  # pragma: no cover - compiled
 def _window_means(values, lo, hi, out):  # pragma: no cover - compiled
     """``out[j] = mean(values[lo[j]:hi[j]])`` for windows whose ends never move back
     (``lo``, ``hi`` non-decreasing): a running sum, recomputed from scratch every 64
-    places so that round-off cannot build up; returns ``Σ out``."""
+    places so that round-off cannot build up; returns ``(Σ out, values.sum(), out.max())``,
+    ``values.sum()`` numpy's (its pairwise order, each block summed while in cache)."""
     total = 0.0
+    top = -np.inf
     acc = 0.0
     a = 0
     b = 0
-    for j in range(values.shape[0]):
+    n = values.shape[0]
+    starts = block_starts(n)
+    sums = np.empty(len(starts) - 1)
+    block = 0
+    for j in range(n):
+        if j == starts[block + 1]:  # a block of numpy's sum is complete
+            sums[block] = _block_sum(values[starts[block]:j], j - starts[block])
+            block += 1
         if j % 64 == 0:
             acc = 0.0
             for k in range(lo[j], hi[j]):
@@ -508,7 +529,9 @@ def _window_means(values, lo, hi, out):  # pragma: no cover - compiled
             v = 0.0
         out[j] = v
         total += v
-    return total
+        top = max(top, v)
+    sums[block] = _block_sum(values[starts[block]:n], n - starts[block])
+    return total, 0.0 + _combine(sums, n), top
 
 
 @njit
@@ -585,13 +608,29 @@ def neighbourhood_means(mass: np.ndarray, first: np.ndarray, second: np.ndarray,
     ndarray of float64, shape (n_places,)
         ``m̃_j = c · mean_{k ∈ N(j)} m_k``, ``c`` such that ``Σ m̃ = Σ m``.
     """
+    return _smoothed(mass, first, second, is_list)[0]
+
+
+def _smoothed(mass: np.ndarray, first: np.ndarray, second: np.ndarray, is_list) -> tuple[np.ndarray, float]:
+    """:func:`neighbourhood_means` and its maximum (found in the same pass: the scale
+    factor ``c > 0`` rounds monotonically, so ``max_j fl(c m_j) = fl(c max_j m_j)``)."""
     values = np.ascontiguousarray(mass, dtype=np.float64)
     out = np.empty_like(values)
-    total = (_list_means if is_list else _window_means)(values, first, second, out)
-    want = float(values.sum())
+    if is_list:
+        total = _list_means(values, first, second, out)
+        want, top = float(values.sum()), float(out.max()) if len(out) else -math.inf
+    else:
+        total, want, top = _window_means(values, first, second, out)
     if total > 0.0 and want > 0.0:
-        out *= want / total
-    return out
+        factor = want / total
+        out *= factor
+        top = top * factor
+    return out, float(top)
+
+
+def _all_finite(x: np.ndarray) -> bool:
+    """``np.isfinite(x).all()`` of a contiguous float64 row."""
+    return bool(all_finite(x))
 
 
 def _check_observation(observation, n_places: int) -> np.ndarray:
@@ -602,7 +641,8 @@ def _check_observation(observation, n_places: int) -> np.ndarray:
     if type(observation) is CheckedRow and observation.ndim == 1 and len(observation) == n_places:
         return observation
     if type(observation) is np.ndarray and observation.dtype == np.float64 and observation.shape == (n_places,) \
-            and np.isfinite(observation).all():  # the usual row: what check_array would accept as it is
+            and observation.flags.c_contiguous and _all_finite(observation):
+        # the usual row: what check_array would accept as it is (one compiled pass, no temporary)
         return observation.view(CheckedRow)
     row = check_array(observation, "observation", ndim=1)
     if len(row) != n_places:
@@ -876,7 +916,6 @@ class Localizer:
         self._proposal = np.empty(g.n_places)
         self._like = np.empty(g.n_places)
         self._mass = np.empty(g.n_places)
-        self._prior = np.empty(g.n_places)
         self._first_in = _first_in_edge(g)
         self._top = np.full(min(self.proposal_top_k, g.n_places), -1, dtype=np.int64)
         self._newborn = (0, 0)
@@ -962,17 +1001,17 @@ class Localizer:
     def _predicted_mass(self) -> np.ndarray:
         """The prediction's place masses, ``(1 − ε) · particles + ε / n_places`` (the
         grid's ``prior_``): the particles', plus the recovery share exactly."""
+        # a fresh array every frame: the feedback hands it to the model as it is
         g = self.graph
-        if self._marginal_step:
-            self._prior[:] = self._marginal_prior
-            if self._newborn[1] > self._newborn[0]:
-                self._prior += self.recovery_ / g.n_places
-            return self._prior
+        born = self._newborn[1] > self._newborn[0]
+        if self._marginal_step:  # the copy and the recovery share in one pass
+            return np.add(self._marginal_prior, self.recovery_ / g.n_places) if born else self._marginal_prior.copy()
         np.exp(self._log_weight, out=self._weight)
-        _place_mass_kernel(self._edge, self._fraction, self._weight, g.source, g.target, self._prior, *self._newborn)
-        if self._newborn[1] > self._newborn[0]:
-            self._prior += self.recovery_ / g.n_places
-        return self._prior
+        prior = np.empty(g.n_places)
+        _place_mass_kernel(self._edge, self._fraction, self._weight, g.source, g.target, prior, *self._newborn)
+        if born:
+            prior += self.recovery_ / g.n_places
+        return prior
 
     def _feedback(self, prior, near) -> None:
         """Tell the model the filter's prediction and answer (``ObservationModel.feedback``);
@@ -980,10 +1019,10 @@ class Localizer:
         if self._has_feedback:
             from .observation import FilterFeedback
 
-            posterior = self.place_posterior_
+            posterior, top = self.place_posterior_, None
             if self._neighbourhoods is not None:
-                posterior = neighbourhood_means(posterior, *self._neighbourhoods)
-            self.model.feedback(FilterFeedback(prior.copy(), posterior, near))
+                posterior, top = _smoothed(posterior, *self._neighbourhoods)
+            self.model.feedback(FilterFeedback(prior, posterior, near, top))  # prior: fresh every frame
 
     def _evidence(self, obs: Observation) -> None:
         """The frame's log-ratios, their cumulative ``e^{r − max r}`` (the likelihood
@@ -991,7 +1030,8 @@ class Localizer:
         g = self.graph
         log_ratio = obs.log_ratio if obs.informative else self._no_ratio
         self._log_ratio = log_ratio = np.ascontiguousarray(log_ratio, dtype=np.float64)
-        self._r_max = r_max = _likelihood_cumulative(log_ratio, self._like)
+        known = obs.log_ratio_max if obs.informative and obs.log_ratio_max is not None else math.nan
+        self._r_max = r_max = _likelihood_cumulative(log_ratio, self._like, float(known))
         self._log_like_mean = r_max + math.log(self._like[-1] / g.n_places)  # log mean_j e^{r_j}
         born = self._births > 0 and self.n_steps_ > 0
         self._newborn = self._generation(self.n_steps_ - 1) if born else (0, 0)

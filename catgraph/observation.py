@@ -121,12 +121,16 @@ class Observation:
         which computes the places read: ``support[near]``; ``np.asarray(support)`` gives
         all). The filter's confidence is the smaller of its posterior log-odds and this
         (:mod:`catgraph.localizer`). ``None``: the model has no such measure.
+    log_ratio_max : float or None
+        ``log_ratio.max()`` where the model found it in a pass it made anyway (the
+        filters then skip their own pass for it); ``None``: not known.
     """
 
     log_ratio: np.ndarray
     new_place_log_ratio: float
     informative: bool = True
     support: np.ndarray | None = None
+    log_ratio_max: float | None = None
 
 
 @dataclass(frozen=True)
@@ -141,11 +145,15 @@ class FilterFeedback:
         Place masses after the frame (the map's share, ``1 − P(new)`` in all).
     near : slice or ndarray of bool, shape (n_places,)
         The places counted in the answer's confidence.
+    posterior_max : float or None
+        ``posterior.max()`` where the filter found it while forming the posterior;
+        ``None``: not known.
     """
 
     prior: np.ndarray
     posterior: np.ndarray
     near: slice | np.ndarray
+    posterior_max: float | None = None
 
 
 @runtime_checkable
@@ -420,17 +428,29 @@ class SequenceObservation:
         row = _check_row(difference_row, getattr(self.matcher_, "n_reference_", None))
         self.last_match_ = self.matcher_.step(row)
         s = self.window_scores()
-        z = _standardised(s, self._work("_z", len(s)), self._work("_square", len(s)))
         tau = (1.0 / max(int(self.last_match_.window_length), 1) if self.temperature == "window"
                else float(self.temperature))
-        if self._tempered is not None:
+        z = self._work("_z", len(s))
+        fused = self._tempered is not None and self._tempered._takes_standardised(s)
+        if fused:  # z = s − mean for now; the division comes with the ratios
+            sd = _centred_spread(s, z, self._work("_square", len(s)))
+            fused = sd > 0
+            if not fused:  # every score equal: the standardised scores are all 0
+                z[...] = 0.0
+        else:
+            z = _standardised(s, z, self._work("_square", len(s)))
+        if fused:
+            # z = (s − mean) / sd, the tempered ratios and the window temperature in one pass
+            r, top = self._tempered._observe_standardised(z, sd, tau)
+        elif self._tempered is not None:
             r = self._tempered.observe(z).log_ratio
             r *= tau  # the tempered model's array is fresh every frame
             top = float(r.max())
+        if self._tempered is not None:
             work = self._work("_exp", len(r))
             np.subtract(r, top, out=work)
             np.exp(work, out=work)
-            return Observation(r, top + math.log(float(np.mean(work))), True, self._recent_support())
+            return Observation(r, top + math.log(float(np.mean(work))), True, self._recent_support(), top)
         rec = self.recogniser_
         informative = not rec.initialising
         rec.update(z)
@@ -489,8 +509,13 @@ class RecentSupport:
         from scipy.special import log_ndtr
 
         if self._moments is None:
-            sd = self._scores.std()
-            self._moments = (self._scores.mean(), sd)
+            scores = self._scores
+            if _plain_row(scores) and len(scores) > 0:  # numpy's mean and std (its sums), two passes
+                mean, sd = _kernels().mean_std(scores)
+                self._moments = (np.float64(mean), np.float64(sd))
+            else:
+                sd = scores.std()
+                self._moments = (scores.mean(), sd)
         mean, sd = self._moments
         if not sd > 0:
             return -log_ndtr(-np.zeros_like(s))
@@ -723,29 +748,37 @@ class CombinedObservation:
         rho = self.reliability_ if self.reliability else np.ones(len(parts))
         log_ratio, new, supports = None, 0.0, []
         owned = False  # whether log_ratio is this method's own array (free to add into)
+        terms = []
         for wi, p, r in zip(w, parts, rho):
             if not p.informative:
                 continue
             lr, nr = p.log_ratio, p.new_place_log_ratio
             nr = r * nr
             # a factor of exactly 1 leaves every value as it is: no product is formed
-            term = lr if r == 1.0 and wi == 1.0 else wi * (r * lr)
+            terms.append((lr if r == 1.0 and wi == 1.0 else wi * (r * lr), lr))
+            new += wi * nr
+            if wi > 0 and p.support is not None:
+                supports.append(p.support)
+        top = None
+        if len(terms) == 2 and all(_plain_row(t) for t, _ in terms) and len(terms[0][0]) == len(terms[1][0]):
+            # the sum and its maximum in one compiled pass (np.add's floats)
+            log_ratio = np.empty(len(terms[0][0]))
+            top = float(_kernels().sum_max(terms[0][0], terms[1][0], log_ratio))
+            owned = True
+        for term, lr in terms if top is None else ():
             if log_ratio is None:
                 log_ratio, owned = term, term is not lr
             elif owned:
                 log_ratio += term
             else:
                 log_ratio, owned = log_ratio + term, True
-            new += wi * nr
-            if wi > 0 and p.support is not None:
-                supports.append(p.support)
         if log_ratio is None:
             return Observation(np.zeros(len(parts[0].log_ratio)), 0.0, False)
         if not owned:  # a single part's own array: hand out a copy, as the sum would be
             log_ratio = np.array(log_ratio, dtype=np.float64)
         support = None if not supports else (
             supports[0] if len(supports) == 1 else np.maximum.reduce([np.asarray(x) for x in supports]))
-        return Observation(np.asarray(log_ratio, dtype=np.float64), float(new), True, support)
+        return Observation(np.asarray(log_ratio, dtype=np.float64), float(new), True, support, top)
 
 
 #: The exponents every part after the first may take under ``weights="predictive"``
@@ -900,6 +933,11 @@ def _combination_scores(parts: list[np.ndarray], grid: np.ndarray, prior: np.nda
     return out
 
 
+def _plain_row(x) -> bool:
+    """A 1-D, C-contiguous float64 array (what the compiled passes take)."""
+    return type(x) is np.ndarray and x.dtype == np.float64 and x.ndim == 1 and x.flags.c_contiguous
+
+
 def _kernels():
     """The compiled passes (:mod:`catgraph._observation_kernels`), imported on first use."""
     from . import _observation_kernels
@@ -995,21 +1033,35 @@ def _median(values: np.ndarray, work: np.ndarray) -> float:
     return float(np.mean(np.array((work[:k].max(), work[k]))))
 
 
-def _standardised(s: np.ndarray, out: np.ndarray, work: np.ndarray) -> np.ndarray:
-    """``(s − s.mean()) / s.std()`` into ``out`` (zeros where ``s.std()`` is 0), the same floats.
+def _centred_spread(s: np.ndarray, out: np.ndarray, work: np.ndarray) -> float:
+    """``s − s.mean()`` into ``out``; returns ``s.std()``, the same floats.
 
     ``np.std`` of a 1-D float64 array is ``sqrt(sum((s − m)²) / n)`` with ``m`` the
     array's mean (numpy's own sums, in numpy's order); the centred values it squares are
-    those the standardisation divides, so they are formed once, in ``out``.
-    ``tests/test_likelihood.py`` checks the floats against ``s.std()`` and ``s.mean()``.
+    those the standardisation divides, so they are formed once, in ``out``, and (for a
+    contiguous ``s``) squared and summed in the same compiled pass, in numpy's pairwise
+    order (:func:`catgraph._observation_kernels.centred_sums`). ``work``: scratch of
+    the length of ``s`` (a strided ``s`` only).
     """
     mean = s.mean()
-    if s.flags.c_contiguous:  # centred and squared in one compiled pass (the same floats)
-        _kernels().centred_squared(s, mean, out, work)
-    else:
-        np.subtract(s, mean, out=out)
-        np.square(out, out=work)
-    sd = np.sqrt(work.sum() / len(s))
+    if s.flags.c_contiguous and out.flags.c_contiguous:
+        squares, _ = _kernels().centred_sums(s, mean, _NOTHING, out)
+        return np.sqrt(squares / len(s))
+    np.subtract(s, mean, out=out)
+    np.square(out, out=work)
+    return np.sqrt(work.sum() / len(s))
+
+
+#: An empty float64 array: "no second factor" for the compiled sums.
+_NOTHING = np.empty(0)
+
+
+def _standardised(s: np.ndarray, out: np.ndarray, work: np.ndarray) -> np.ndarray:
+    """``(s − s.mean()) / s.std()`` into ``out`` (zeros where ``s.std()`` is 0), the same floats
+    (:func:`_centred_spread`, then the division).
+    ``tests/test_likelihood.py`` checks the floats against ``s.std()`` and ``s.mean()``.
+    """
+    sd = _centred_spread(s, out, work)
     if not sd > 0:
         out[...] = 0.0
         return out
@@ -1325,6 +1377,35 @@ class TemperedObservation:
         r = np.multiply(scale, self._bases[m])
         return self._tempered(row, self._bases, r, float(r.max()) if self._new_place else 0.0)
 
+    def _takes_standardised(self, s: np.ndarray) -> bool:
+        """Whether :meth:`_observe_standardised` may stand for :meth:`observe`: a started
+        model of the plain ratio ``−z`` (linear, no hub, no novelty weight, one hub weight,
+        a temperature not chosen by the predictive score, no new-place ratio), ``s``
+        contiguous and of the model's length."""
+        return (getattr(self, "n_reference_", None) == len(s) and s.flags.c_contiguous and not self._new_place
+                and self.likelihood == "linear" and self.hub is None and not self.novelty and len(self._lams) == 1
+                and self.temperature != "predictive")
+
+    def _observe_standardised(self, centred: np.ndarray, sd: float, tau: float) -> tuple[np.ndarray, float]:
+        """``observe(centred / sd).log_ratio * tau`` and its maximum, in one compiled pass
+        (:func:`catgraph._observation_kernels.standardised_ratios`: the division, the
+        ratios ``temperature_ · −z``, the factor ``tau``, the maximum and the best place;
+        the same floats as the separate passes). ``centred`` becomes ``z``. Only where
+        :meth:`_takes_standardised`; a ``z`` that is not finite goes through
+        :meth:`observe` (which refuses it)."""
+        n = len(centred)
+        r = np.empty(n)
+        scale = self.temperature_ * self._novelty(centred)  # 1: no novelty weight
+        top, best, finite = _kernels().standardised_ratios(centred, sd, scale, tau, centred, r)
+        if not finite:
+            r = self.observe(centred).log_ratio
+            r *= tau
+            return r, float(r.max())
+        self._best = best
+        self._bases = None  # read by feedback only for a predictive temperature or several hub weights
+        self._row = centred
+        return r, float(top)
+
     def _tempered(self, row: np.ndarray, bases: list[np.ndarray], r: np.ndarray, top: float) -> Observation:
         """The observation of ratios ``r`` (maximum ``top``), keeping what :meth:`feedback` reads."""
         self._bases = bases
@@ -1335,7 +1416,7 @@ class TemperedObservation:
         np.subtract(r, top, out=work)
         np.exp(work, out=work)
         new = top + math.log(float(np.mean(work)))
-        return Observation(r, new, True)
+        return Observation(r, new, True, None, top)
 
     def _novelty(self, row: np.ndarray) -> float:
         """How much of this frame is new: ``(1 − ρ_k) / (1 − ρ̄)``, clipped to
@@ -1350,14 +1431,19 @@ class TemperedObservation:
         first = self._kept is None
         n = len(row)
         a = self._buffer("_centred_a", n)
-        square = self._buffer("_square", n)
         mean = row.mean()
-        if row.flags.c_contiguous:  # a = row − mean and its square, one compiled pass
-            _kernels().centred_squared(row, mean, a, square)
+        ab = None
+        if row.flags.c_contiguous:
+            # a = row − mean, numpy's Σ a² and (with the previous centred row b) Σ a b, in
+            # one compiled pass, summed in numpy's pairwise order (the same floats)
+            other = _NOTHING if first else self._kept[0]
+            aa, ab = _kernels().centred_sums(row, mean, other, a)
+            aa = np.float64(aa)
         else:
+            square = self._buffer("_square", n)
             np.subtract(row, mean, out=a)
             np.multiply(a, a, out=square)
-        aa = square.sum()
+            aa = square.sum()
         # the previous row was kept as a contiguous copy, whose mean numpy may sum in
         # another order than a strided row's
         kept = self._centred_b_next(row, a, aa)
@@ -1368,8 +1454,11 @@ class TemperedObservation:
             return 1.0
         b, bb = self._kept
         den = float(np.sqrt(aa * bb))
-        np.multiply(a, b, out=square)
-        rho = float(square.sum()) / den if den > 0 else 1.0
+        if ab is None:
+            square = self._buffer("_square", n)
+            np.multiply(a, b, out=square)
+            ab = square.sum()
+        rho = float(ab) / den if den > 0 else 1.0
         self._kept = kept
         if kept[0] is a:
             # the next frame centres into the previous row's buffer, free from now on
@@ -1410,7 +1499,7 @@ class TemperedObservation:
         best = self.__dict__.get("_best")  # found by observe's compiled pass, or:
         best = int(np.argmax(self._bases[self._pick[1]])) if best is None else int(best)
         post = np.asarray(feedback.posterior)
-        top = float(post.max())
+        top = float(post.max()) if feedback.posterior_max is None else float(feedback.posterior_max)
         hit = float(post[best]) / top if top > 0 else 0.0
         self._hits = self._decay * self._hits + hit
         self._trials = self._decay * self._trials + 1.0

@@ -97,3 +97,72 @@ def test_near_median_takes_the_lower_middle_from_below_the_bracket():
     near = _NearMedian()
     near.guess, near.width = 3.25, 0.25  # holds 3.0 (the upper middle) only
     assert near.median(x, np.empty(6)) == float(np.median(x)) == _median(x, np.empty(6))
+
+
+def _same(a, b) -> bool:
+    """The same float64 bits (``-0.0`` is not ``0.0``)."""
+    return np.float64(a).tobytes() == np.float64(b).tobytes()
+
+
+def _lengths():
+    """Every length through a few of numpy's tree levels, and long ones with odd tails."""
+    return [*range(0, 300), 1023, 1024, 1025, 4097, 65_543, 200_003]
+
+
+def test_pairwise_sum_is_numpys_sum_on_every_length():
+    """The replayed tree gives ``np.sum``'s float: values of very different sizes (so
+    that the order of the additions shows), signed zeros, and every length up to a few
+    hundred (every shape of block) and long arrays."""
+    rng = np.random.default_rng(11)
+    for n in _lengths():
+        x = rng.standard_normal(n) * 10.0 ** rng.uniform(-6, 6, n)
+        assert _same(kernels.pairwise_sum(x), x.sum()), n
+        starts = kernels.block_starts(n)
+        assert starts[0] == 0 and starts[-1] == n and np.all(np.diff(starts) <= 128)
+    for zeros in (np.full(3, -0.0), np.full(200, -0.0), np.zeros(0)):
+        assert _same(kernels.pairwise_sum(zeros), zeros.sum())
+
+
+def test_fused_sums_are_the_numpy_formulas_they_replace():
+    """centred_sums: ``x − m`` with numpy's ``((x − m)²).sum()`` and ``((x − m) · o).sum()``;
+    mean_std: ``(x.mean(), x.std())``: every bit, on every length."""
+    rng = np.random.default_rng(12)
+    nothing = np.empty(0)
+    for n in _lengths()[1:]:
+        x = rng.standard_normal(n) * 10.0 ** rng.uniform(-3, 3, n) + 5.0
+        other = rng.standard_normal(n)
+        mean = x.mean()
+        out = np.empty(n)
+        squares, products = kernels.centred_sums(x, mean, other, out)
+        centred = np.subtract(x, mean)
+        assert np.array_equal(out, centred)
+        assert _same(squares, np.multiply(centred, centred).sum()) and _same(products, np.multiply(centred, other).sum())
+        assert kernels.centred_sums(x, mean, nothing, out) == (squares, 0.0)
+        m, sd = kernels.mean_std(x)
+        assert _same(m, x.mean()) and _same(sd, x.std()), n
+
+
+@pytest.mark.parametrize("n", [2, 7, 8, 129, 1000, 1001])
+def test_standardised_ratios_sum_max_and_all_finite_are_the_numpy_passes(n):
+    rng = np.random.default_rng(n)
+    s = rng.standard_normal(n) * 4.0
+    centred = s - s.mean()
+    sd, scale, tau = float(s.std()), 0.83, 1.0 / 7.0
+    z, r = np.empty(n), np.empty(n)
+    top, best, finite = kernels.standardised_ratios(centred, sd, scale, tau, z, r)
+    want_z = centred / sd
+    want_r = np.multiply(np.multiply(scale, np.negative(want_z)), tau)  # ratio, then the window's factor
+    assert finite and np.array_equal(z, want_z) and np.array_equal(r, want_r)
+    assert top == want_r.max() and best == np.argmax(np.negative(want_z))
+    inplace = centred.copy()  # the model divides its centred buffer in place
+    kernels.standardised_ratios(inplace, sd, scale, tau, inplace, r)
+    assert np.array_equal(inplace, want_z)
+    bad = centred.copy()
+    bad[n // 2] = np.inf
+    assert not kernels.standardised_ratios(bad, sd, scale, tau, z, r)[2]
+    a, b, out = rng.standard_normal(n), rng.standard_normal(n), np.empty(n)
+    assert kernels.sum_max(a, b, out) == np.add(a, b).max() and np.array_equal(out, np.add(a, b))
+    assert kernels.all_finite(a)
+    for value in (np.nan, np.inf, -np.inf):
+        a[-1] = value
+        assert not kernels.all_finite(a)

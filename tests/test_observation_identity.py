@@ -1,0 +1,96 @@
+"""The combined model's filters give the same bits after the live step's passes were fused.
+
+Whole runs of the registry's default model (``combined``: the tempered whole-image model
+and the sequence part) through the grid filter and the particle filter, on a difference
+matrix with a route, a jump backwards and (optionally) a run of hubs that the hub
+correction partly removes, are reduced to digests of every estimate, the models' learned
+scalars and every posterior. The digests were recorded with the code before its passes
+were fused (separate numpy passes for the sums, maxima, centring, ratios, feedback
+smoothing and predicted masses); the fused code must reproduce them bit for bit. Some
+filter kernels are compiled with ``fastmath``, so the digests hold for the processor they
+were recorded on; elsewhere the comparison is skipped (the kernels' own tests, against
+the numpy formulas, still apply).
+"""
+
+import hashlib
+
+import numpy as np
+import pytest
+
+from catgraph.graph import PlaceGraph
+from catgraph.localizer import _smoothed, neighbourhood_means
+from catgraph.methods import make_filter, observation_model, resolve_params
+
+#: the processor the digests were recorded on (llvmlite's host CPU name)
+RECORDED_ON = "cascadelake"
+
+DIGESTS = {
+    ("grid", False): "6e7a5aa2951a2cb855057bd41c6c8faa99474a9309d3cbe31af437bde6a0d406",
+    ("grid", True): "e3af9c646e697dab64266b121463694402542904e09e52c0185f14612475ac1d",
+    ("particles", False): "47b7acf4bc783ec3d89ad6513e4d6c002d2f9c826495c155e030a860237476ae",
+    ("particles", True): "1c1a158958f1647d009beaa4573daeb2cd46056a9e620c3e63a289dfcbb5f220",
+}
+
+
+def _matrix(n_places: int, n_frames: int, seed: int, hubs: bool) -> np.ndarray:
+    """A normalised difference matrix: a route forwards, then a jump and a route backwards;
+    with ``hubs``, 15 places (half a percent) look like every frame."""
+    rng = np.random.default_rng(seed)
+    half = n_frames // 2
+    truth = np.concatenate([np.arange(40, 40 + half),
+                            np.arange(n_places // 2, n_places // 2 + n_frames - half)[::-1]])
+    d = rng.normal(size=(n_frames, n_places))
+    d[np.arange(n_frames), truth] -= 3.0
+    d[np.arange(n_frames), np.minimum(truth + 1, n_places - 1)] -= 1.5
+    if hubs:
+        d[:, 200:215] -= 2.5
+    return (d - d.mean(1, keepdims=True)) / d.std(1, keepdims=True)
+
+
+def _digest(mode: str, hubs: bool, seed: int = 0, n_places: int = 3000, n_frames: int = 120) -> str:
+    d = _matrix(n_places, n_frames, seed, hubs)
+    extra = {"n_particles": 400, "seed": seed} if mode == "particles" else {}
+    p = resolve_params("filter", {"model": "combined", "mode": mode, **extra})
+    obs = observation_model(p, n_places, None)
+    loc = make_filter(p, PlaceGraph.chain(n_places), obs)
+    loc.reset()
+    h = hashlib.sha256()
+    tempered = obs.models[0]
+    for k in range(n_frames):
+        e = loc.step(d[k])
+        h.update(repr((int(e.place), float(e.confidence).hex(), float(e.new_place_probability).hex(),
+                       float(e.log_odds).hex(), float(e.score).hex(), float(tempered.temperature_).hex(),
+                       float(tempered.novelty_).hex(), float(getattr(tempered, "hub_shrinkage_", 0.0)).hex())).encode())
+        h.update(np.ascontiguousarray(loc.place_posterior_).tobytes())
+    return h.hexdigest()
+
+
+@pytest.mark.parametrize("mode, hubs", sorted(DIGESTS))
+def test_combined_filter_runs_are_the_bits_recorded_before_the_fusion(mode, hubs):
+    import llvmlite.binding
+
+    if llvmlite.binding.get_host_cpu_name() != RECORDED_ON:
+        pytest.skip("the digests were recorded on another processor (fastmath kernels round per machine)")
+    assert _digest(mode, hubs) == DIGESTS[(mode, hubs)]
+
+
+@pytest.mark.parametrize("radius", [1, 2, 7])
+def test_smoothed_feedback_and_its_maximum_are_the_numpy_formula(radius):
+    """The window means with numpy's total and the maximum found in the same pass: the
+    plain formula (``mean`` per window, ``values.sum()``, the rescaling, ``.max()``)."""
+    rng = np.random.default_rng(radius)
+    for n in (1, 5, 129, 1000, 4099):
+        mass = rng.random(n) ** 8
+        mass[rng.random(n) < 0.3] = 0.0
+        j = np.arange(n)
+        lo, hi = np.maximum(j - radius, 0), np.minimum(j + radius + 1, n)
+        out, top = _smoothed(mass, lo, hi, None)
+        assert np.array_equal(out, neighbourhood_means(mass, lo, hi, None))
+        assert top == out.max()
+        plain = np.array([mass[a:b].mean() for a, b in zip(lo, hi)])
+        want = plain * (mass.sum() / plain.sum()) if plain.sum() > 0 and mass.sum() > 0 else plain
+        np.testing.assert_allclose(out, want, rtol=0, atol=1e-13 * want.max())  # the running sums round
+        ptr = np.concatenate([[0], np.cumsum(hi - lo)])
+        index = np.concatenate([np.arange(a, b) for a, b in zip(lo, hi)])
+        listed, listed_top = _smoothed(mass, ptr, index, True)
+        assert listed_top == listed.max()
