@@ -145,7 +145,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._jit import njit
-from ._observation_kernels import _block_sum, _combine, all_finite, block_starts
+from ._observation_kernels import all_finite
 from ._validation import as_generator, check_array, check_scalar
 from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .graph import PlaceGraph
@@ -496,21 +496,12 @@ def _top_k(values, k):  # pragma: no cover - compiled
 def _window_means(values, lo, hi, out):  # pragma: no cover - compiled
     """``out[j] = mean(values[lo[j]:hi[j]])`` for windows whose ends never move back
     (``lo``, ``hi`` non-decreasing): a running sum, recomputed from scratch every 64
-    places so that round-off cannot build up; returns ``(Σ out, values.sum(), out.max())``,
-    ``values.sum()`` numpy's (its pairwise order, each block summed while in cache)."""
+    places so that round-off cannot build up; returns ``Σ out``."""
     total = 0.0
-    top = -np.inf
     acc = 0.0
     a = 0
     b = 0
-    n = values.shape[0]
-    starts = block_starts(n)
-    sums = np.empty(len(starts) - 1)
-    block = 0
-    for j in range(n):
-        if j == starts[block + 1]:  # a block of numpy's sum is complete
-            sums[block] = _block_sum(values[starts[block]:j], j - starts[block])
-            block += 1
+    for j in range(values.shape[0]):
         if j % 64 == 0:
             acc = 0.0
             for k in range(lo[j], hi[j]):
@@ -529,9 +520,7 @@ def _window_means(values, lo, hi, out):  # pragma: no cover - compiled
             v = 0.0
         out[j] = v
         total += v
-        top = max(top, v)
-    sums[block] = _block_sum(values[starts[block]:n], n - starts[block])
-    return total, 0.0 + _combine(sums, n), top
+    return total
 
 
 @njit
@@ -612,20 +601,16 @@ def neighbourhood_means(mass: np.ndarray, first: np.ndarray, second: np.ndarray,
 
 
 def _smoothed(mass: np.ndarray, first: np.ndarray, second: np.ndarray, is_list) -> tuple[np.ndarray, float]:
-    """:func:`neighbourhood_means` and its maximum (found in the same pass: the scale
-    factor ``c > 0`` rounds monotonically, so ``max_j fl(c m_j) = fl(c max_j m_j)``)."""
+    """:func:`neighbourhood_means` and its maximum, taken once for every reader of the
+    feedback (a maximum tracked inside the compiled window pass was measured to slow
+    that latency-bound loop by more than a numpy pass costs)."""
     values = np.ascontiguousarray(mass, dtype=np.float64)
     out = np.empty_like(values)
-    if is_list:
-        total = _list_means(values, first, second, out)
-        want, top = float(values.sum()), float(out.max()) if len(out) else -math.inf
-    else:
-        total, want, top = _window_means(values, first, second, out)
+    total = (_list_means if is_list else _window_means)(values, first, second, out)
+    want = float(values.sum())
     if total > 0.0 and want > 0.0:
-        factor = want / total
-        out *= factor
-        top = top * factor
-    return out, float(top)
+        out *= want / total
+    return out, float(out.max())
 
 
 def _all_finite(x: np.ndarray) -> bool:
