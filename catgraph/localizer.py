@@ -151,7 +151,7 @@ from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .graph import PlaceGraph
 from .grid import learn_jump_rate
 from .motion import FrameMotion, MotionModel, OdometryMotion, VelocityMotion
-from .observation import Observation, ObservationModel
+from .observation import Observation, ObservationModel, feedback_reads_prior
 from .particles import ParticleSet, _first_in_edge, get_resampler, normalise_in_place
 
 __all__ = ["Estimate", "LocalizationResult", "Localizer", "check_odometry", "confidence_log_odds",
@@ -973,7 +973,8 @@ class Localizer:
         self._evidence(obs)
         self._move(odometry)
         self._inject()
-        prior = self._predicted_mass() if self._has_feedback else None
+        # the prediction's place masses, where the model's feedback reads them
+        prior = self._predicted_mass() if self._has_feedback and feedback_reads_prior(self.model) else None
         ess = self._reweight(obs)
         self._support = obs.support if obs.informative else None
         mass = self._mass
@@ -1007,7 +1008,8 @@ class Localizer:
             posterior, top = self.place_posterior_, None
             if self._neighbourhoods is not None:
                 posterior, top = _smoothed(posterior, *self._neighbourhoods)
-            self.model.feedback(FilterFeedback(prior, posterior, near, top))  # prior: fresh every frame
+            # prior: fresh every frame (None where the model does not read it)
+            self.model.feedback(FilterFeedback(prior, posterior, near, top))
 
     def _evidence(self, obs: Observation) -> None:
         """The frame's log-ratios, their cumulative ``e^{r − max r}`` (the likelihood

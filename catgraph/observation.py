@@ -98,6 +98,7 @@ __all__ = [
     "CombinedObservation",
     "RecentSupport",
     "predictive_weight_grid",
+    "feedback_reads_prior",
     "DEFAULT_PART_WEIGHTS",
 ]
 
@@ -139,8 +140,10 @@ class FilterFeedback:
 
     Attributes
     ----------
-    prior : ndarray of float64, shape (n_places,)
-        Predicted place masses before the frame (given the map; sums to 1).
+    prior : ndarray of float64, shape (n_places,), or None
+        Predicted place masses before the frame (given the map; sums to 1). A filter
+        may leave it ``None`` for a model whose ``_reads_prior()`` says it does not read
+        it (:func:`feedback_reads_prior`; the particle filter then skips forming it).
     posterior : ndarray of float64, shape (n_places,)
         Place masses after the frame (the map's share, ``1 − P(new)`` in all).
     near : slice or ndarray of bool, shape (n_places,)
@@ -183,6 +186,14 @@ class CheckedRow(np.ndarray):
     as this view; a model's own check then only compares its length. Any other array
     is checked in full.
     """
+
+
+def feedback_reads_prior(model) -> bool:
+    """Whether ``model.feedback`` reads :attr:`FilterFeedback.prior`: the model's own
+    ``_reads_prior()`` where it has one, else True (a model that does not say is
+    given the prior)."""
+    says = getattr(model, "_reads_prior", None)
+    return True if says is None else bool(says())
 
 
 def _check_row(row, n_expected: int | None) -> np.ndarray:
@@ -288,6 +299,9 @@ class HistogramObservation:
     def feedback(self, feedback: FilterFeedback) -> None:
         """Paper 2's model learns from the frames alone: nothing to do."""
 
+    def _reads_prior(self) -> bool:
+        return False
+
     def _start(self) -> None:
         from .likelihood import HistogramLikelihood, HistogramPlaceRecogniser
 
@@ -389,6 +403,11 @@ class SequenceObservation:
         tempered = getattr(self, "_tempered", None)
         if tempered is not None:
             tempered.feedback(feedback)
+
+    def _reads_prior(self) -> bool:
+        # the agreement calibration's tempered model has the default, agreement temperature
+        tempered = getattr(self, "_tempered", None)
+        return False if tempered is None else tempered._reads_prior()
 
     def _start(self) -> None:
         from .likelihood import HistogramPlaceRecogniser
@@ -670,6 +689,10 @@ class CombinedObservation:
             self._hits[m] += hit
             self._trials[m] += 1
         self.reliability_ = (self._hits + 1.0) / (self._trials + 2.0)
+
+    def _reads_prior(self) -> bool:
+        return self.weights == "predictive" or any(feedback_reads_prior(m) for m in self.models
+                                                   if callable(getattr(m, "feedback", None)))
 
     def _learn_weights(self, prior) -> None:
         """Score every candidate on the latest frame against the filter's prediction;
@@ -1517,6 +1540,11 @@ class TemperedObservation:
             self._hub_sum += row
             self._hub_count += 1
         self._row = None
+
+    def _reads_prior(self) -> bool:
+        """Only a predictive temperature or several hub weights score the prediction."""
+        weights = self.hub_weights if self.hub is not None else (0.0,)
+        return self.temperature == "predictive" or len(weights) > 1
 
     def _learn(self, row: np.ndarray, posterior: np.ndarray, near) -> None:
         h = self._hub()

@@ -94,3 +94,42 @@ def test_smoothed_feedback_and_its_maximum_are_the_numpy_formula(radius):
         index = np.concatenate([np.arange(a, b) for a, b in zip(lo, hi)])
         listed, listed_top = _smoothed(mass, ptr, index, True)
         assert listed_top == listed.max()
+
+
+def test_the_particle_filter_forms_the_prior_only_for_models_that_read_it():
+    """``feedback_reads_prior``: the default models do not read the predicted masses (the
+    particle filter skips them); a predictive temperature, predictive weights and a model
+    that does not say are given them, the same masses either way."""
+    from catgraph.localizer import Localizer
+    from catgraph.observation import (CombinedObservation, SequenceObservation, TemperedObservation,
+                                      feedback_reads_prior)
+
+    assert not feedback_reads_prior(TemperedObservation())
+    assert feedback_reads_prior(TemperedObservation(temperature="predictive"))
+    assert feedback_reads_prior(TemperedObservation(hub_weights=(0.5, 1.0)))
+    assert not feedback_reads_prior(TemperedObservation(hub=None, hub_weights=(0.5, 1.0)))
+    part = SequenceObservation(window=5, calibration="agreement")
+    assert not feedback_reads_prior(CombinedObservation([TemperedObservation(), part]))
+    assert feedback_reads_prior(CombinedObservation([TemperedObservation(), part], weights="predictive"))
+
+    class Recording(TemperedObservation):  # its reset keeps only its parameters: record outside
+        priors: list = []
+
+        def feedback(self, feedback):
+            self.priors.append(None if feedback.prior is None else feedback.prior.copy())
+            super().feedback(feedback)
+
+    class Silent(Recording):  # no say: treated as reading the prior
+        priors: list = []
+        _reads_prior = None
+
+    d = _matrix(400, 30, 3, True)
+    runs = {}
+    for says, kind in ((False, Recording), (True, Silent)):
+        model = kind()
+        loc = Localizer(PlaceGraph.chain(400), model, 300, seed=1)
+        runs[says] = [loc.step(r).score for r in d], kind.priors
+    assert runs[False][0] == runs[True][0]  # the same answers
+    assert all(p is None for p in runs[False][1])
+    given = runs[True][1]
+    assert all(p is not None and p.shape == (400,) and np.isclose(p.sum(), 1.0) for p in given[1:])
