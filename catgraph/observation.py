@@ -393,7 +393,8 @@ class SequenceObservation:
         self.agreement_scale = agreement_scale
 
     def reset(self) -> None:
-        for k in ("matcher_", "recogniser_", "last_match_", "_scores", "_tempered", "_z", "_exp", "_square"):
+        for k in ("matcher_", "recogniser_", "last_match_", "_scores", "_tempered", "_z", "_exp", "_square",
+                  "_support"):
             self.__dict__.pop(k, None)
 
     def feedback(self, feedback: FilterFeedback) -> None:
@@ -445,6 +446,7 @@ class SequenceObservation:
         if not hasattr(self, "matcher_"):
             self._start()
         row = _check_row(difference_row, getattr(self.matcher_, "n_reference_", None))
+        self._settle_support()
         self.last_match_ = self.matcher_.step(row)
         s = self.window_scores()
         tau = (1.0 / max(int(self.last_match_.window_length), 1) if self.temperature == "window"
@@ -481,8 +483,34 @@ class SequenceObservation:
 
     def _recent_support(self) -> "RecentSupport":
         """``−log Φ(−z_j)``, ``z_j = (mean − s_kj(l)) / std`` at the shortest window ``l``
-        of the matcher's grid (the most recent frames only), computed where it is read."""
-        return RecentSupport(self.window_scores(int(self.matcher_.window_grid_[0])))
+        of the matcher's grid (the most recent frames only), computed where it is read.
+
+        The window scores themselves (a pass over the places) are formed on the first
+        read: a filter that never reads the support (the grid filter) never pays for
+        them. Before the matcher takes the next frame, a support still held by someone
+        forms them (:meth:`_settle_support`), so it keeps this frame's values."""
+        m, length, velocity = self.matcher_, int(self.matcher_.window_grid_[0]), float(self.last_match_.velocity)
+        steps = m.n_steps_
+
+        def scores() -> np.ndarray:
+            if m.n_steps_ != steps:
+                raise NotFittedError("this recent support belongs to an earlier frame of the matcher, which has "
+                                     "moved on; read an observation's support before stepping its matcher directly.")
+            return m.window_scores(length, velocity)
+
+        support = RecentSupport(None, scores)
+        self._support = support
+        return support
+
+    def _settle_support(self) -> None:
+        """Form the latest support's scores now if anyone besides this model still holds
+        it (the matcher is about to move on); drop it otherwise."""
+        import sys
+
+        support = self.__dict__.pop("_support", None)
+        # references: this local name and getrefcount's argument
+        if support is not None and sys.getrefcount(support) > 2:
+            support._values()
 
     def _work(self, name: str, n: int) -> np.ndarray:
         """A float64 work array of length ``n`` kept between frames."""
@@ -506,29 +534,37 @@ class RecentSupport:
 
     Parameters
     ----------
-    scores : ndarray of float64, shape (n_places,)
+    scores : ndarray of float64, shape (n_places,), or None
         The window scores, owned by this object from now on.
+    source : callable, optional
+        With ``scores=None``: returns the scores, called once, on the first read.
     """
 
-    __slots__ = ("_scores", "_moments", "_all")
+    __slots__ = ("_scores", "_moments", "_all", "_source")
 
-    def __init__(self, scores: np.ndarray) -> None:
+    def __init__(self, scores: np.ndarray | None, source=None) -> None:
         self._scores = scores
+        self._source = source
         self._moments = None
         self._all = None
 
+    def _values(self) -> np.ndarray:
+        if self._scores is None:
+            self._scores, self._source = self._source(), None
+        return self._scores
+
     @property
     def shape(self) -> tuple[int, ...]:
-        return self._scores.shape
+        return self._values().shape
 
     def __len__(self) -> int:
-        return len(self._scores)
+        return len(self._values())
 
     def _support(self, s: np.ndarray) -> np.ndarray:
         from scipy.special import log_ndtr
 
         if self._moments is None:
-            scores = self._scores
+            scores = self._values()
             if _plain_row(scores) and len(scores) > 0:  # numpy's mean and std (its sums), two passes
                 mean, sd = _kernels().mean_std(scores)
                 self._moments = (np.float64(mean), np.float64(sd))
@@ -548,11 +584,11 @@ class RecentSupport:
     def __getitem__(self, key) -> np.ndarray:
         if self._all is not None:
             return self._all[key]
-        return self._support(np.atleast_1d(self._scores[key]))
+        return self._support(np.atleast_1d(self._values()[key]))
 
     def __array__(self, dtype=None, copy=None) -> np.ndarray:
         if self._all is None:
-            self._all = self._support(self._scores)
+            self._all = self._support(self._values())
         if dtype is not None:
             return self._all.astype(dtype)
         return self._all.copy() if copy else self._all

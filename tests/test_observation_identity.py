@@ -133,3 +133,38 @@ def test_the_particle_filter_forms_the_prior_only_for_models_that_read_it():
     assert all(p is None for p in runs[False][1])
     given = runs[True][1]
     assert all(p is not None and p.shape == (400,) and np.isclose(p.sum(), 1.0) for p in given[1:])
+
+
+def test_recent_support_is_formed_on_first_read_and_keeps_its_frame():
+    """The sequence part's recent support forms its window scores only when read: a grid
+    filter, which never reads it, never pays for them; a support still held when the next
+    frame comes keeps its own frame's values; one read after its matcher was stepped
+    directly is refused."""
+    from catgraph.exceptions import NotFittedError
+    from catgraph.observation import RecentSupport, SequenceObservation
+
+    d = _matrix(500, 12, 4, False)
+    model = SequenceObservation(window="adaptive", matcher_params={"l_max": 8, "l_min": 2},
+                                calibration="agreement", temperature="window", agreement_scale=1.0)
+    calls = []
+    held = []
+    chosen_shortest = 0  # frames whose own window is the shortest (observe reads those scores itself)
+    for k, row in enumerate(d):
+        obs = model.observe(row)
+        if k == 0:
+            m = model.matcher_
+            plain = m.window_scores
+            m.window_scores = lambda length, velocity=None: calls.append(length) or plain(length, velocity)
+        shortest = int(m.window_grid_[0])
+        chosen_shortest += k > 0 and int(model.last_match_.window_length) == shortest
+        eager = RecentSupport(plain(shortest, float(model.last_match_.velocity)))
+        if k % 3 == 0:
+            held.append((obs.support, np.asarray(eager).copy()))
+        del obs
+    assert calls.count(shortest) == chosen_shortest + len(held)  # formed only for the supports still held
+    for support, want in held:
+        assert np.array_equal(np.asarray(support), want)
+    obs = model.observe(d[0])
+    model.matcher_.step(d[1])  # stepped directly: the support's frame is gone
+    with pytest.raises(NotFittedError, match="earlier frame"):
+        obs.support[0]
