@@ -26,6 +26,9 @@ applied. Methods:
   with the default and the best fixed window in a table of its own;
 * the adaptive matcher with rule "decorrelated" (the same record, scored at the query's own
   decorrelation time instead of a constant horizon), in a table of its own too;
+* the adaptive matcher with rule "spanning" (the tests of the default, with the velocity
+  re-chosen at the chosen window and a rival test that only lines spanning the query's
+  decorrelation time may make), in a table of its own too;
 * for reference, the previous default (rule "sustained", forward diagonal only, L in
   [10, 500] on 32 lengths, sub-windows from L/8, no hub offsets).
 
@@ -94,6 +97,7 @@ CONSISTENT = "adaptive, rule consistent"
 EVIDENT = "adaptive, rule evident"
 PREDICTIVE = "adaptive, rule predictive"
 DECORRELATED = "adaptive, rule decorrelated"
+SPANNING = "adaptive, rule spanning"
 PREVIOUS = "previous default"
 SINGLE = "single frame"
 PREVIOUS_KWARGS = dict(rule="sustained", velocities=(1.0,), l_min=10, l_max=500, grid=32, recent_fraction=0.125,
@@ -102,6 +106,7 @@ CONSISTENT_KWARGS = dict(rule="consistent", recent_fraction=0.0)
 EVIDENT_KWARGS = dict(rule="evident")
 PREDICTIVE_KWARGS = dict(rule="predictive")
 DECORRELATED_KWARGS = dict(rule="decorrelated")
+SPANNING_KWARGS = dict(rule="spanning")
 GROUPS = ("in order", "shuffled 2–20 %", "shuffled 0.5–3 %", "reversed", "speed 2", "speed 0.5")
 
 
@@ -120,6 +125,7 @@ def _methods(quick: bool):
     yield ADAPTIVE, {}, True
     yield PREDICTIVE, PREDICTIVE_KWARGS, True
     yield DECORRELATED, DECORRELATED_KWARGS, True
+    yield SPANNING, SPANNING_KWARGS, True
     if not quick:
         yield SUPPORT, dict(confidence="support"), True
         yield EVIDENT, EVIDENT_KWARGS, True
@@ -279,7 +285,7 @@ def markdown(table: dict, timing_: dict | None, quick: bool) -> str:
             lines.append(f"| {row['label']} | {c['best_fixed']} ({c['best_auc']:.3f}) | {a['auc']:.3f} | "
                          f"{c['auc_margin']:+.3f} | {c['best_mtl']:.1f} | {a['mtl']:.1f} | {ok.strip()} |")
         lines.append("")
-        for method, rule in ((PREDICTIVE, "predictive"), (DECORRELATED, "decorrelated")):
+        for method, rule in ((PREDICTIVE, "predictive"), (DECORRELATED, "decorrelated"), (SPANNING, "spanning")):
             if method in rows[0]["methods"]:
                 lines += _predictive_lines(rows, wifi, method, rule)
     if timing_:

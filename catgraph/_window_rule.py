@@ -16,7 +16,10 @@ row's mean and spread. Rule "decorrelated" keeps the same record, but its horizo
 constant: a :class:`_Horizon` measures, frame by frame, how many frames the query's rows
 take to decorrelate (the row's standardised differences at the best places of the row
 ``k`` frames back, against those at its own best places, averaged over the recent frames)
-and the record scores each line that many frames ahead.
+and the record scores each line that many frames ahead. Rule "spanning" keeps the tests of
+"unrivalled" and reads the same clock: a line shorter than the query's decorrelation time is
+about one observation, so only lines that span it may re-choose the velocity at the chosen
+window or count as rivals of a longer window.
 """
 
 from __future__ import annotations
@@ -42,6 +45,13 @@ RIVAL_FRACTION = 0.2
 #: chance: ``log p < -ln N - RIVAL_MARGIN`` (``N`` reference places; ``-ln N`` is about the
 #: log probability of the best of ``N`` random places)
 RIVAL_MARGIN = 10.0
+
+
+#: with rule "spanning": a recent sub-window's best line that spans the query's decorrelation
+#: time counts as a rival when it is significant beyond chance by this many nats
+#: (``log p < -ln N - SPANNING_MARGIN``; the sub-windows tested are those of the midpoint
+#: test, from ``recent_fraction`` of the window on, and :data:`RIVAL_SPREADS` applies)
+SPANNING_MARGIN = 6.0
 
 
 #: with confidence "posterior": prior odds that the query jumped away from the chosen line at
@@ -195,10 +205,11 @@ class _Horizon:
 
 
 def _new_record(cfg: _Config) -> _Record | None:
-    """The state a rule carries from frame to frame (rules "predictive" and "decorrelated")."""
-    if cfg.fixed or cfg.rule not in RECORD_RULES:
+    """The state a rule carries from frame to frame (rules "predictive" and "decorrelated";
+    rule "spanning" reads only the record's clock)."""
+    if cfg.fixed or cfg.rule not in RECORD_RULES + ("spanning",):
         return None
-    if cfg.rule == "decorrelated":
+    if cfg.rule in ("decorrelated", "spanning"):
         return _Record(cfg.grid.shape[0], clock=_Horizon())
     return _Record(cfg.grid.shape[0])
 
@@ -257,7 +268,21 @@ def _log_p(st: _Stats) -> np.ndarray:
     return (top + np.log(np.exp(terms - top).sum(axis=-1, keepdims=True)))[..., 0]
 
 
-def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_places: int = 1) -> np.ndarray:
+def _horizons(cfg: _Config, frame_index: np.ndarray, rows_d, record: _Record | None) -> np.ndarray | None:
+    """``(n,)``: rule "spanning"'s decorrelation horizon of each frame, in order, from the
+    record's clock (:class:`_Horizon`, the one of rule "decorrelated"); ``None`` for the
+    other rules."""
+    if cfg.fixed or cfg.rule != "spanning":
+        return None
+    out = np.empty(frame_index.shape[0], dtype=np.int64)
+    for t, i in enumerate(frame_index):
+        row = rows_d[t]
+        out[t] = record.clock.update(row, int(i), row.std())
+    return out
+
+
+def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_places: int = 1,
+                horizon: np.ndarray | None = None) -> np.ndarray:
     """``(n, V, G)``: windows whose best hypothesis is supported by its own recent frames.
 
     Rules "consistent", "sustained" and "evident": every shorter sub-window of the window's
@@ -273,7 +298,12 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
     ``-ln n_places - RIVAL_MARGIN``). A long line that drifts off a route driven at a varying
     speed, or that runs along repeated scenery, is then rejected as soon as a clearly
     significant shorter line explains its recent frames better; a weak stretch where no
-    short line is significant (most of Nordland's) leaves it alone.
+    short line is significant (most of Nordland's) leaves it alone. Rule "spanning" tests the
+    rival on the sub-windows of the midpoint test (from ``recent_fraction * L`` on), at the
+    smaller margin :data:`SPANNING_MARGIN`, and counts a rival only when its length is at least
+    the frame's decorrelation ``horizon`` (``(n,)``): a shorter line is about one observation,
+    whose Gaussian significance says little (on Nordland, whose rows stay alike for about 20
+    frames, the best 5-frame line of a hard stretch looks significant by chance).
     """
     n, v_count, g_count = st.best_s.shape
     if not _needs_sub(cfg):
@@ -285,7 +315,7 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
     # the window's own score than to the mean of random places at that length
     mid = 0.5 * (st.best_s[..., None] + st.mean[:, :, None, :])  # (n, V, G, H)
     ok = (st.sub <= mid) | ~recent
-    if cfg.rule in ("evident", "unrivalled"):
+    if cfg.rule in ("evident", "unrivalled", "spanning"):
         # and every shorter sub-window must stand out from random places at its length: at
         # least EVIDENT_SPREADS common spreads (the widest over the velocities) below their mean
         common = _common_std(st)[:, :, None, :]  # (n, 1, 1, H)
@@ -298,6 +328,12 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
         rival = log_p < -np.log(n_places) - RIVAL_MARGIN  # (n, V, H)
         beaten = st.sub > st.best_s[:, :, None, :] + RIVAL_SPREADS * common  # (n, V, G, H)
         ok &= ~(beaten & rival[:, :, None, :]) | ~tested
+    if cfg.rule == "spanning":
+        # a rival: a significant line of a recent sub-window's length that spans the horizon
+        common = _common_std(st)[:, :, None, :]  # (n, 1, 1, H)
+        rival = (log_p < -np.log(n_places) - SPANNING_MARGIN) & (lengths[None, None, :] >= horizon[:, None, None])
+        beaten = st.sub > st.best_s[:, :, None, :] + RIVAL_SPREADS * common  # (n, V, G, H)
+        ok &= ~(beaten & rival[:, :, None, :]) | ~recent
     admissible = np.all(ok, axis=3)
     admissible[:, :, 0] = True
     return admissible
@@ -346,7 +382,9 @@ def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool
     # the velocity: the one whose windows are the most significant summed over every length
     v = np.argmin(log_p.sum(axis=2), axis=1)
     lp = log_p[rows, v]  # (n, G)
-    admissible = _admissible(st, cfg, log_p, rows_d.shape[1])[rows, v]
+    horizon = _horizons(cfg, frame_index, rows_d, record)
+    every = _admissible(st, cfg, log_p, rows_d.shape[1], horizon)  # (n, V, G)
+    admissible = every[rows, v]
     masked = np.where(admissible, lp, np.inf)
     if cfg.rule == "sustained" and not cfg.fixed:
         # the longest admitted window at least SUSTAINED_FRACTION as significant (in log p)
@@ -358,6 +396,13 @@ def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool
         g = _predictive_choice(st, cfg, frame_index, rows_d, v, record)
     else:
         g = np.argmin(masked, axis=1)
+    if horizon is not None:
+        # rule "spanning": a chosen window that spans the decorrelation time identifies its own
+        # velocity; the velocity is re-chosen at that length (the window stays admitted)
+        v = np.where(cfg.grid[g] >= horizon, np.argmin(log_p[rows, :, g], axis=1), v)
+        lp = log_p[rows, v]
+        admissible = every[rows, v]
+        admissible[rows, g] = True
     best = st.best_s[rows, v, g]
     std = _common_std(st)[rows, 0, g]
     match = st.best_j[rows, v, g]

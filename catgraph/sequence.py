@@ -293,7 +293,7 @@ __all__ = [
 ]
 
 APPROXIMATIONS = ("gaussian", "robust", "gmm2", "gmm3")
-RULES = ("unrivalled", "evident", "consistent", "sustained", "literal", "predictive", "decorrelated")
+RULES = ("unrivalled", "evident", "consistent", "sustained", "literal", "predictive", "decorrelated", "spanning")
 CONFIDENCES = ("posterior", "support", "gap", "neglogp", "z")
 #: reference places per query frame searched by default: driven backwards or forwards, 0.5x to 3x
 DEFAULT_VELOCITIES = (-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0)
@@ -572,7 +572,7 @@ def match_sequences(
         A fixed window length, or ``"adaptive"`` to choose one per frame.
     approximation : {"gaussian", "robust", "gmm2", "gmm3"}
         Approximation of the score distribution used for ``p_i(L)``.
-    rule : {"unrivalled", "evident", "consistent", "sustained", "literal", "predictive", "decorrelated"}
+    rule : {"unrivalled", "evident", "consistent", "sustained", "literal", "predictive", "decorrelated", "spanning"}
         Window choice, see the module docstring.
     confidence : {"posterior", "support", "gap", "neglogp", "z"}
         Confidence given to each match (see the module docstring).
