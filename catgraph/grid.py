@@ -969,6 +969,9 @@ class GridLocalizer:
         self.recovery_ = float(self.recovery)
         self._jumps, self._frames = 0.0, 0.0
         self._e = np.empty(g.n_places)
+        from .observation import FramePool
+
+        self._pool = FramePool(6)  # the per-frame masses and posteriors handed out
         self._no_e = np.empty(0)  # the line kernel without an update to form sums for
         self._summed = None
         self._like_buffer = np.empty(g.n_places)
@@ -1062,7 +1065,7 @@ class GridLocalizer:
             if self._line and odometry is None:
                 out = self._spare
                 whole, frac, sign, _ = self._moves
-                mass = np.empty(self.graph.n_places)
+                mass = self._pool.take(self.graph.n_places)
                 # the next frame's velocity sums formed while the prediction is written
                 summed = np.empty(len(self._owner))
                 _line_predict(self._state, self._like, self.prior_, out, mass, *self._t_sparse, whole,
@@ -1097,7 +1100,7 @@ class GridLocalizer:
         velocity = self._summed if summed else np.empty(len(self._owner))
         # the previous frame's likelihood was consumed by the prediction: its buffer is free
         like = self._like_buffer
-        mass = np.empty(len(e))
+        mass = self._pool.take(len(e))
         total, like_mean = _likelihood(self._state, e, self.prior_, like, velocity, mass, summed)
         if total <= 0.0:
             return  # every place impossible: keep the prediction
@@ -1129,7 +1132,8 @@ class GridLocalizer:
 
         g = self.graph
         mass = self._mass
-        self.place_posterior_ = mass * (1.0 - self.new_place_probability_)
+        self.__dict__.pop("place_posterior_", None)  # the previous frame's: reusable if no one else holds it
+        self.place_posterior_ = np.multiply(mass, 1.0 - self.new_place_probability_, out=self._pool.take(len(mass)))
         best = int(np.argmax(mass))
         if self.confidence_radius_m is not None:
             near = np.zeros(g.n_places, dtype=bool)
@@ -1164,7 +1168,7 @@ class GridLocalizer:
             if self._neighbourhoods is not None:
                 from .localizer import _smoothed
 
-                posterior, top = _smoothed(posterior, *self._neighbourhoods)
+                posterior, top = _smoothed(posterior, *self._neighbourhoods, out=self._pool.take(len(posterior)))
             self.model.feedback(FilterFeedback(self.prior_, posterior, near, top))
 
     # ------------------------------------------------------------------ batch

@@ -151,7 +151,7 @@ from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .graph import PlaceGraph
 from .grid import learn_jump_rate
 from .motion import FrameMotion, MotionModel, OdometryMotion, VelocityMotion
-from .observation import Observation, ObservationModel, feedback_reads_prior
+from .observation import FramePool, Observation, ObservationModel, feedback_reads_prior
 from .particles import ParticleSet, _first_in_edge, get_resampler, normalise_in_place
 
 __all__ = ["Estimate", "LocalizationResult", "Localizer", "check_odometry", "confidence_log_odds",
@@ -600,12 +600,14 @@ def neighbourhood_means(mass: np.ndarray, first: np.ndarray, second: np.ndarray,
     return _smoothed(mass, first, second, is_list)[0]
 
 
-def _smoothed(mass: np.ndarray, first: np.ndarray, second: np.ndarray, is_list) -> tuple[np.ndarray, float]:
-    """:func:`neighbourhood_means` and its maximum, taken once for every reader of the
-    feedback (a maximum tracked inside the compiled window pass was measured to slow
-    that latency-bound loop by more than a numpy pass costs)."""
+def _smoothed(mass: np.ndarray, first: np.ndarray, second: np.ndarray, is_list,
+              out: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+    """:func:`neighbourhood_means` (into ``out``, float64 of the length of ``mass``, if
+    given) and its maximum, taken once for every reader of the feedback (a maximum
+    tracked inside the compiled window pass was measured to slow that latency-bound loop
+    by more than a numpy pass costs)."""
     values = np.ascontiguousarray(mass, dtype=np.float64)
-    out = np.empty_like(values)
+    out = np.empty_like(values) if out is None else out
     total = (_list_means if is_list else _window_means)(values, first, second, out)
     want = float(values.sum())
     if total > 0.0 and want > 0.0:
@@ -922,6 +924,7 @@ class Localizer:
         self._velocity_prior = np.full(nb, 1.0 / max(nb, 1))
         self._velocity_marginal = self._velocity_prior.copy()
         self._e = np.empty(g.n_places)
+        self._pool = FramePool(6)  # the per-frame posteriors and predicted masses handed out
         self._marginal_mass = np.empty(g.n_places)
         self._marginal_prior = np.empty(g.n_places)
         self._marginal_step = False
@@ -969,6 +972,7 @@ class Localizer:
             self.reset()
         row = _check_observation(observation, self.graph.n_places)
         odometry = check_odometry(odometry)
+        self._log_ratio = None  # the previous frame's ratios: the model may reuse their array now
         obs = self.model.observe(row)
         self._evidence(obs)
         self._move(odometry)
@@ -990,10 +994,13 @@ class Localizer:
         # a fresh array every frame: the feedback hands it to the model as it is
         g = self.graph
         born = self._newborn[1] > self._newborn[0]
+        prior = self._pool.take(g.n_places)
         if self._marginal_step:  # the copy and the recovery share in one pass
-            return np.add(self._marginal_prior, self.recovery_ / g.n_places) if born else self._marginal_prior.copy()
+            if born:
+                return np.add(self._marginal_prior, self.recovery_ / g.n_places, out=prior)
+            prior[:] = self._marginal_prior
+            return prior
         np.exp(self._log_weight, out=self._weight)
-        prior = np.empty(g.n_places)
         _place_mass_kernel(self._edge, self._fraction, self._weight, g.source, g.target, prior, *self._newborn)
         if born:
             prior += self.recovery_ / g.n_places
@@ -1007,7 +1014,7 @@ class Localizer:
 
             posterior, top = self.place_posterior_, None
             if self._neighbourhoods is not None:
-                posterior, top = _smoothed(posterior, *self._neighbourhoods)
+                posterior, top = _smoothed(posterior, *self._neighbourhoods, out=self._pool.take(len(posterior)))
             # prior: fresh every frame (None where the model does not read it)
             self.model.feedback(FilterFeedback(prior, posterior, near, top))
 
@@ -1171,7 +1178,8 @@ class Localizer:
 
     def _summarise(self, mass: np.ndarray, ess: float, resampled: bool) -> tuple[Estimate, slice | np.ndarray]:
         g = self.graph
-        self.place_posterior_ = mass * (1.0 - self.new_place_probability_)
+        self.__dict__.pop("place_posterior_", None)  # the previous frame's: reusable if no one else holds it
+        self.place_posterior_ = np.multiply(mass, 1.0 - self.new_place_probability_, out=self._pool.take(len(mass)))
         best = int(np.argmax(mass))
         if self.confidence_radius_m is not None:
             near = np.zeros(g.n_places, dtype=bool)

@@ -168,3 +168,48 @@ def test_recent_support_is_formed_on_first_read_and_keeps_its_frame():
     model.matcher_.step(d[1])  # stepped directly: the support's frame is gone
     with pytest.raises(NotFittedError, match="earlier frame"):
         obs.support[0]
+
+
+def test_frame_pool_never_hands_out_an_array_someone_holds():
+    from catgraph.observation import FramePool
+
+    pool = FramePool(3)
+    a = pool.take(10)
+    a_id = id(a)
+    del a
+    b = pool.take(10)
+    assert id(b) == a_id  # released: taken again
+    c = pool.take(10)
+    assert c is not b  # b is still held
+    view = c[2:5]
+    del c
+    d = pool.take(10)
+    assert d.base is None and d is not view.base and d is not b  # a view holds its base
+    assert pool.take(7).shape == (7,)  # another length: its own array
+
+
+@pytest.mark.parametrize("mode", ["grid", "particles"])
+def test_kept_posteriors_are_never_overwritten(mode):
+    """A caller that keeps every frame's posterior (and the ratios of a model it calls
+    directly) holds arrays the filter never writes again: the same values as the run's
+    own, frame by frame."""
+    d = _matrix(600, 25, 5, True)
+    extra = {"n_particles": 300, "seed": 2} if mode == "particles" else {}
+    p = resolve_params("filter", {"model": "combined", "mode": mode, **extra})
+
+    def run(keep: bool):
+        obs = observation_model(p, 600, None)
+        loc = make_filter(p, PlaceGraph.chain(600), obs)
+        loc.reset()
+        kept, copies = [], []
+        for row in d:
+            loc.step(row)
+            copies.append(loc.place_posterior_.copy())
+            if keep:
+                kept.append(loc.place_posterior_)
+        return kept, copies
+
+    kept, copies = run(True)
+    assert len({id(x) for x in kept}) == len(kept)
+    assert all(np.array_equal(k, c) for k, c in zip(kept, copies))
+    assert all(np.array_equal(a, b) for a, b in zip(copies, run(False)[1]))
