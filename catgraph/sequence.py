@@ -196,6 +196,15 @@ every synthetic cell and every held-out world, worse on Nordland's 0.5–3 % shu
 most of UJI's 2–20 % shuffles. Not the default: the cluster matcher
 (:mod:`catgraph.distributed`) decides only the rules that need window statistics alone.
 
+``rule="spanning"`` keeps the tests of "unrivalled" and reads the horizon of "decorrelated":
+a line shorter than the query's decorrelation time is about one observation, so only a line
+that spans it re-chooses the velocity (where the chosen window spans the frame's horizon, the
+velocity is the most significant at that length) or counts as a rival (over the sub-windows
+from ``recent_fraction * L`` on, significant beyond chance by ``SPANNING_MARGIN = 6`` nats).
+Measured (``docs/sequence.md``): mean AUC margin to the best fixed window over the 42 cells
+−0.058 (the default −0.094), on the held-out worlds of ``bench_generalisation.py`` −0.040
+(−0.159); Nordland −0.043 (−0.035). Not run by the cluster matcher (refused there).
+
 Hub references (flat, textureless frames close to every query) are corrected before
 matching when ``hub_offsets`` (from :func:`catgraph.hubs.hub_offsets`, computed from the
 reference map alone) are given: each row has the offsets subtracted and is normalised
