@@ -186,6 +186,13 @@ ROUNDS = {
     },
 }
 
+ROUNDS["6: around rule 'spanning' (m = 6)"] = {
+    "R + horizon chance rival m=6 f=0": rule(velocity="rechosen", vgate="horizon", rival_horizon=True, margin=6,
+                                             fraction=0.0),
+    **{f"per-length velocity from the horizon + horizon chance rival m={m:g} f=0.05": rule(
+        velocity="perlength-horizon", rival_horizon=True, margin=m, fraction=0.05) for m in (6, 8)},
+}
+
 #: the parts of rule "spanning" alone (its margin, :data:`catgraph._window_rule.SPANNING_MARGIN`)
 ABLATIONS = {
     "spanning without the rival (velocity re-chosen only)": rule(velocity="rechosen", vgate="horizon"),
