@@ -162,7 +162,7 @@ from ._validation import check_scalar
 from ._window_rule import _decide, _log_p, _needs_sub, _new_record, _position, _Record, _Stats
 from .differences import LAYOUTS, METRICS, PreparedReference, _combine, _zero_spread, code_scale
 from .exceptions import InvalidParameterError, MissingDependencyError
-from .sequence import DEFAULT_GRID, DEFAULT_VELOCITIES, _config, _velocity_set
+from .sequence import DEFAULT_GRID, DEFAULT_RULE, DEFAULT_VELOCITIES, _config, _velocity_set
 
 #: Shards hold a whole multiple of this many places (the normalisation's sum chunk);
 #: a window may not be longer (its sums' squares then stay exact in int64).
@@ -1160,7 +1160,7 @@ def match_fixed_window(query, ref: ShardedReference, window: int, radius: int = 
     return _match(query, ref, cfg, block_rows, no_information, "match_fixed_window", hub_offsets)
 
 
-def match_adaptive_window(query, ref: ShardedReference, rule: str = "unrivalled", confidence: str = "posterior",
+def match_adaptive_window(query, ref: ShardedReference, rule: str = DEFAULT_RULE, confidence: str = "posterior",
                           l_min: int = 5, l_max: int = 500, grid=DEFAULT_GRID, radius: int = 10,
                           recent_fraction: float = 0.05, velocities=DEFAULT_VELOCITIES,
                           approximation: str = "gaussian", block_rows: int = 512,

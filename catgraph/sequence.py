@@ -299,10 +299,14 @@ __all__ = [
     "RULES",
     "CONFIDENCES",
     "DEFAULT_VELOCITIES",
+    "DEFAULT_RULE",
 ]
 
 APPROXIMATIONS = ("gaussian", "robust", "gmm2", "gmm3")
 RULES = ("unrivalled", "evident", "consistent", "sustained", "literal", "predictive", "decorrelated", "spanning")
+#: the window rule of the adaptive window when none is named (the one owner: the matcher, the
+#: registry and the cluster read it from here)
+DEFAULT_RULE = "unrivalled"
 CONFIDENCES = ("posterior", "support", "gap", "neglogp", "z")
 #: reference places per query frame searched by default: driven backwards or forwards, 0.5x to 3x
 DEFAULT_VELOCITIES = (-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0)
@@ -559,7 +563,7 @@ def match_sequences(
     differences: np.ndarray,
     window: int | str = "adaptive",
     approximation: str = "gaussian",
-    rule: str = "unrivalled",
+    rule: str = DEFAULT_RULE,
     confidence: str = "posterior",
     l_min: int = 5,
     l_max: int = 500,
@@ -685,7 +689,7 @@ class SequenceMatcher:
         self,
         window: int | str = "adaptive",
         approximation: str = "gaussian",
-        rule: str = "unrivalled",
+        rule: str = DEFAULT_RULE,
         confidence: str = "posterior",
         l_min: int = 5,
         l_max: int = 500,
