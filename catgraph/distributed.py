@@ -127,6 +127,30 @@ block are computed *where the shards live*, and only per-frame summaries travel 
    (``16 m`` bytes per frame and shard) and ``HORIZON_MAX m`` lookups per frame; that is
    a change of the local rule, not made here.
 
+8. **Rule "spanning"** (:mod:`catgraph._window_rule`). It keeps the tests of "unrivalled"
+   and reads the clock of "decorrelated": a sub-window's best line counts as a rival only
+   where its length spans the frame's horizon ``K_t``, and where the chosen window spans
+   ``K_t`` the velocity is re-chosen at that length. Beyond what "unrivalled" already
+   reads, the rule reads (a) ``K_t``; (b) the admissibility of the chosen length at
+   *every* velocity (the rival test on each velocity's sub-window sums, and ``log p`` of
+   every velocity at the chosen length); (c) with the confidences "posterior" and
+   "support", the current frame's difference at the re-chosen velocity's match. (b) and
+   (c) are already on the client: the summaries carry every velocity's statistics and
+   sub-window sums at every length (step 6), and each shard returns its row's value at
+   its best place of every velocity and length (``8 V G`` bytes per frame and shard, sent
+   for those confidences whatever the rule). Only (a) is new, and it is served as for
+   "decorrelated": the whole rows meet on shard 0's worker, which runs the local
+   ``_Horizon.update`` in the chain of tasks of step 7, and ``K_t`` (8 bytes per frame)
+   comes back in the summaries' round: ``8 (N - N_0)`` bytes per frame between workers,
+   no new client round. The rule keeps no record of lines, so none of the ``G`` lookups
+   of step 7 is planned, and with a confidence other than "posterior"/"support" the row
+   moments are not reduced at all (the rule hands each row only to the replayed clock).
+   Matches, scores, velocities, window lengths and confidences equal the local run bit
+   for bit (tested: in order, reversed, shuffled, at speed 2, on a route driven at a
+   varying speed across shard edges where a wrong horizon changes the answers,
+   hub-corrected, frames without information; and on the real data,
+   ``benchmarks/results/distributed_identity_spanning.md``).
+
 Per block, only ``O(rows V G (radius + G + 8))`` numbers per shard return to the client
 (``G`` candidate lengths, 1 for a fixed window): four client rounds for a fixed window
 (two for the normalisation, one for the mean codes, one for the summaries; one more per
@@ -159,7 +183,7 @@ import numpy as np
 from ._jit import njit
 from ._sequence_kernels import _NONE, encode, position, unit_of
 from ._validation import check_scalar
-from ._window_rule import _decide, _log_p, _needs_sub, _new_record, _position, _Record, _Stats
+from ._window_rule import RECORD_RULES, _decide, _log_p, _needs_sub, _new_record, _position, _Record, _Stats
 from .differences import LAYOUTS, METRICS, PreparedReference, _combine, _zero_spread, code_scale
 from .exceptions import InvalidParameterError, MissingDependencyError
 from .sequence import DEFAULT_GRID, DEFAULT_RULE, DEFAULT_VELOCITIES, _config, _velocity_set
@@ -176,7 +200,10 @@ SHARD_UNIT = 4096
 #: rounds per block otherwise). "decorrelated" reads the same and its horizon ``K_t``,
 #: which needs each whole row in one place: ``8 N`` bytes per frame between workers
 #: (never through the client), no extra client round (step 7 of the module notes).
-EXACT_RULES = ("unrivalled", "evident", "consistent", "sustained", "literal", "predictive", "decorrelated")
+#: "spanning" reads that horizon and, beyond it, only statistics the summaries already
+#: carry: the same ``8 N`` bytes between workers, no lookups, no extra round (step 8).
+EXACT_RULES = ("unrivalled", "evident", "consistent", "sustained", "literal", "predictive", "decorrelated",
+               "spanning")
 
 __all__ = ["ShardedReference", "ShardedMatches", "shard_reference", "difference_matrix", "window_scores",
            "match_fixed_window", "match_adaptive_window"]
@@ -938,13 +965,17 @@ class _Rows:
     """The block of difference rows the window rule is handed: their shape, and each row
     as a :class:`_Row` (the rows themselves stay on the shards). ``places`` and
     ``values`` (each ``(rows, ...)``) are the values served for each row; a place below
-    0 marks an unused slot."""
+    0 marks an unused slot. Without ``mean`` nothing is served: each row's mean and
+    spread are ``nan`` (the rule then reads only the rows' width, and rule "spanning"
+    hands each row to the replayed clock, which does not read it)."""
 
     def __init__(self, n: int, mean=None, std=None, places=None, values=None, rows: int = 0):
         self.shape = (rows if mean is None else mean.shape[0], n)
         self._mean, self._std, self._places, self._values = mean, std, places, values
 
     def __getitem__(self, t: int) -> _Row:
+        if self._mean is None:  # nothing served: only the replayed clock is handed the row, and ignores it
+            return _Row(np.float64(np.nan), np.float64(np.nan), {}, self.shape[1])
         places, values = self._places[t].ravel(), self._values[t].ravel()
         used = places >= 0
         return _Row(self._mean[t], self._std[t], dict(zip(places[used].tolist(), values[used])), self.shape[1])
@@ -1014,9 +1045,11 @@ def _horizons_of(state: tuple) -> np.ndarray:
 
 
 class _Replayed:
-    """The record's clock on the client (rule "decorrelated"): the horizons the worker
-    computed from the whole rows, handed to :meth:`catgraph._window_rule._Record.loss`
-    frame by frame."""
+    """The record's clock on the client (rules "decorrelated" and "spanning"): the
+    horizons the worker computed from the whole rows, handed to
+    :meth:`catgraph._window_rule._Record.loss` (or, rule "spanning",
+    :func:`catgraph._window_rule._horizons`) frame by frame; the row and spread it is
+    handed are not read."""
 
     def __init__(self, capacity: int):
         self.capacity = capacity
@@ -1047,10 +1080,12 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
     with_sub = _needs_sub(cfg)
     # the current frame's term of the confidence ("posterior", "support" with an adaptive window)
     current = not cfg.fixed and cfg.confidence in ("posterior", "support")
-    # rule "predictive": a record carried from block to block, and G lookups per row
+    # rules "predictive" and "decorrelated": a record carried from block to block, and G
+    # lookups per row; rule "spanning" reads only the record's clock (no lookups)
     record = _new_record(cfg)
+    lookups = record is not None and cfg.rule in RECORD_RULES
     clock = replay = None
-    if record is not None and record.clock is not None:  # rule "decorrelated": the horizon on a worker
+    if record is not None and record.clock is not None:  # "decorrelated", "spanning": the horizon on a worker
         clock, replay = record.clock, _Replayed(record.clock.capacity)
         record.clock = replay
     windows = cfg.grid
@@ -1093,9 +1128,9 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
         if with_sub:
             sub = np.take_along_axis(np.stack([p["sub"] for p in parts]), pick[..., None], axis=0)[0]
             st.sub[...] = sub.astype(np.float64) * unit / eff[:, :, None, :]
-        if current or record is not None:
+        if current or lookups:
             places, values = np.empty((stop - start, 0), dtype=np.int64), np.empty((stop - start, 0))
-            if record is not None:  # the places the record reads, in the first moments round
+            if lookups:  # the places the record reads, in the first moments round
                 asks = _predicted_places(st, cfg, record, start, n, None if replay is None else replay.ks)
                 row_mean, row_std, looked = _row_moments(ref, rows, asks)
                 places, values = asks, looked
@@ -1106,7 +1141,7 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
                 places = np.concatenate([best_j.reshape(stop - start, -1), places], axis=1)
                 values = np.concatenate([at_best.reshape(stop - start, -1), values], axis=1)
             rows_d = _Rows(n, row_mean, row_std, places, values)
-        else:  # the rule reads the rows' width only
+        else:  # the rule reads the rows' width only (and, rule "spanning", hands them to the replayed clock)
             rows_d = _Rows(n, rows=stop - start)
         m, s, k, w, v, _ = _decide(st, cfg, np.arange(start, stop), False, rows_d, record)
         match[start:stop], score[start:stop], conf[start:stop], length[start:stop], velocity[start:stop] = m, s, k, w, v
@@ -1180,8 +1215,9 @@ def match_adaptive_window(query, ref: ShardedReference, rule: str = DEFAULT_RULE
     reduces in numpy's own pairwise order from the shards' subtree sums
     (:func:`_row_moments`, two more rounds), and the frame's difference at the match.
     Rules "predictive" and "decorrelated" read ``G`` more values of each row, served in
-    the first of those rounds; "decorrelated" also puts each whole row together on one
-    worker for its horizon (``8 N`` bytes per frame between workers; module notes, step 7).
+    the first of those rounds; "decorrelated" and "spanning" put each whole row together
+    on one worker for its horizon (``8 N`` bytes per frame between workers, the horizon
+    back with the summaries; module notes, steps 7 and 8).
     Matches, scores, velocities, window lengths and confidences are then identical, bit
     for bit, within the bound of :func:`match_fixed_window` (tested). The block carries
     ``l_max`` earlier rows, so ``block_rows`` well above ``l_max`` keeps that overhead

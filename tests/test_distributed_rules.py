@@ -103,7 +103,7 @@ def test_predicted_places_match_a_direct_replay(route):
     assert np.any(planned[replay.horizon:] == 0)  # some lines left the map
 
 
-@pytest.mark.parametrize("rule", ["predictive", "decorrelated"])
+@pytest.mark.parametrize("rule", ["predictive", "decorrelated", "spanning"])
 def test_record_rules_with_hubs_and_frames_without_information(client, rule):
     # flat frames (hubs) in every shard, blank query frames: the rows the rule reads are
     # corrected and normalised again on the shards, as locally
@@ -182,3 +182,119 @@ def test_cluster_experiment_with_rule_decorrelated_equals_the_local_run(client):
     assert np.array_equal(remote.match, local.match)
     assert np.array_equal(remote.confidence, local.confidence)
     assert np.array_equal(remote.extra["window_length"], local.extra["window_length"])
+
+
+@pytest.fixture(scope="module")
+def alike():
+    """A map whose neighbouring places look alike (each descriptor averaged over 15
+    places), so that the query's rows take several frames to decorrelate, and a query
+    driven at a varying speed (1, 2, 1/2, backwards) that crosses the shard edges at
+    4096 and 8192, jumps, and runs off the end of the map (three shards)."""
+    rng = np.random.default_rng(7)
+    base = rng.normal(size=(8200, 16))
+    r = np.stack([np.convolve(base[:, c], np.ones(15) / 15, mode="same") for c in range(16)], 1).astype(np.float32)
+    places = np.concatenate([np.arange(4000, 4090), np.arange(4090, 4190, 2), np.repeat(np.arange(1000, 1040), 2),
+                             np.arange(2040, 2000, -1), np.arange(8150, 8200)])
+    q = r[places] + (0.6 * r.std()) * rng.normal(size=(places.size, 16)).astype(np.float32)
+    return q, r
+
+
+SPANNING = {"rule": "spanning", "l_max": 30, "grid": 4, "velocities": (-1.0, 1.0, 2.0)}
+
+
+def _run_with_clock(local, params, k):
+    """The local run with the horizon held at ``k`` on every frame (a wrong clock)."""
+    original = wr._Horizon.update
+    wr._Horizon.update = lambda self, row, i, spread: k
+    try:
+        return match_sequences(local, **params)
+    finally:
+        wr._Horizon.update = original
+
+
+@pytest.mark.parametrize("condition, confidence, wrong_clocks", [
+    (Condition("in-order"), "posterior", (1, wr.HORIZON_MAX)),
+    (Condition("reverse"), "gap", (1, wr.HORIZON_MAX)),
+    (Condition("shuffle", seed=1, segment_range=(0.05, 0.2)), "posterior", (1, wr.HORIZON_MAX)),
+    (Condition("speed", factor=2.0), "gap", (wr.HORIZON_MAX,)),
+])
+def test_spanning_rule_reads_the_horizon_and_equals_the_local_matcher(client, alike, condition, confidence,
+                                                                      wrong_clocks):
+    # on this route the horizon decides: a clock that says every line spans it (1), or
+    # that none does (HORIZON_MAX, longer than every window), gives other answers; the
+    # cluster's horizon, computed on shard 0's worker from whole rows in chunks that
+    # cross blocks, gives the local ones. With confidence "gap" the rule reads no row
+    # moments at all (no moment rounds): only the horizon.
+    q, r = alike
+    q = q[condition.order(len(q))]
+    local = difference_matrix(q, r, "sad", normalise=True)
+    params = dict(SPANNING, confidence=confidence)
+    out = match_sequences(local, **params)
+    for k in wrong_clocks:
+        wrong = _run_with_clock(local, params, k)
+        assert any(not np.array_equal(getattr(wrong, name), getattr(out, name)) for name in FIELDS), k
+    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
+    res = dd.match_adaptive_window(q, ref, block_rows=dd.HORIZON_ROWS + 29, **params)
+    for name in FIELDS:
+        assert np.array_equal(getattr(res, name), getattr(out, name)), name
+
+
+def test_spanning_rule_asks_no_lookups(client, alike, monkeypatch):
+    # rule "spanning" reads only the record's clock: the G lookups of the record rules are
+    # never planned, and with confidence "gap" no row moments are reduced
+    q, r = alike
+    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
+    calls = {"places": 0, "moments": 0}
+    planned, moments = dd._predicted_places, dd._row_moments
+
+    def count(name, fn):
+        def wrapped(*args, **kwargs):
+            calls[name] += 1
+            return fn(*args, **kwargs)
+        return wrapped
+
+    monkeypatch.setattr(dd, "_predicted_places", count("places", planned))
+    monkeypatch.setattr(dd, "_row_moments", count("moments", moments))
+    dd.match_adaptive_window(q[:80], ref, confidence="gap", block_rows=40, **{**SPANNING, "velocities": (1.0,)})
+    assert calls == {"places": 0, "moments": 0}
+    dd.match_adaptive_window(q[:80], ref, block_rows=40, **{**SPANNING, "velocities": (1.0,)})
+    assert calls == {"places": 0, "moments": 2}  # the default confidence's rounds, one per block
+
+
+def _with_rule_default(monkeypatch, fn, rule):
+    """``fn`` with its ``rule`` parameter's default set to ``rule``."""
+    import inspect
+
+    names = [p.name for p in inspect.signature(fn).parameters.values() if p.default is not inspect.Parameter.empty]
+    defaults = list(fn.__defaults__)
+    defaults[names.index("rule")] = rule
+    monkeypatch.setattr(fn, "__defaults__", tuple(defaults))
+
+
+def test_default_rule_is_the_local_default_and_runs_exactly(client, alike):
+    import inspect
+
+    from catgraph import sequence
+
+    rule = inspect.signature(dd.match_adaptive_window).parameters["rule"].default
+    assert rule == sequence.DEFAULT_RULE == inspect.signature(match_sequences).parameters["rule"].default
+    assert rule in dd.EXACT_RULES
+
+
+@pytest.mark.parametrize("rule", ["spanning", "unrivalled"])
+def test_default_call_equals_the_local_default_call(client, alike, monkeypatch, rule):
+    # whichever rule is the library's default (sequence.DEFAULT_RULE, read by both
+    # functions' defaults), the cluster's default call gives the local default call's answers
+    from catgraph import sequence
+
+    _with_rule_default(monkeypatch, match_sequences, rule)
+    _with_rule_default(monkeypatch, dd.match_adaptive_window, rule)
+    monkeypatch.setattr(sequence, "DEFAULT_RULE", rule)
+    q, r = alike
+    local = difference_matrix(q, r, "sad", normalise=True)
+    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
+    out = match_sequences(local, l_max=30, grid=4)
+    assert np.array_equal(out.window_length, match_sequences(local, l_max=30, grid=4, rule=rule).window_length)
+    res = dd.match_adaptive_window(q, ref, l_max=30, grid=4, block_rows=100)
+    for name in FIELDS:
+        assert np.array_equal(getattr(res, name), getattr(out, name)), name
