@@ -4,9 +4,10 @@ The models of :mod:`catgraph.observation` make several passes over the places pe
 (levels, deviations, hub counts, centring …). These kernels fuse consecutive elementwise
 passes into one, each value going through the same IEEE operations, in the same order,
 as in the numpy formulas they replace, so the floats are the same bit for bit
-(``tests/test_observation_kernels.py``). Sums, maxima and ``exp`` stay numpy's: its
-pairwise, vectorised sums are both faster than a compiled loop here and the reference
-floats.
+(``tests/test_observation_kernels.py``). ``exp`` stays numpy's (numba's differs in the
+last bit on a few per cent of values). A sum fused into a pass replays numpy's own
+pairwise summation (below: :func:`block_starts`, :func:`pairwise_sum`), so it is the
+float ``np.sum`` of the materialised values would give; a maximum is exact in any order.
 
 :func:`bracket` serves the hub statistic's medians: the median of the reference levels
 (and that of their absolute deviations) moves little from one frame to the next, so most

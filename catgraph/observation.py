@@ -65,11 +65,18 @@ the centred levels); the hub statistic's median and MAD, which move little from 
 to frame, are selected among the few levels near the previous frame's
 (:class:`_NearMedian`, exact); the previous frame's centred row is kept for the novelty
 weight; and what no caller reads is not computed (the recent support is computed for the
-places read, :class:`RecentSupport`). Every value goes through the same IEEE operations
-as in the plain formulas and every sum, maximum and ``exp`` stays numpy's own, so the
-floats are those of the plain formulas (``tests/test_likelihood.py`` and
-``tests/test_observation_kernels.py`` check them bit for bit;
-``benchmarks/bench_models.py`` times and checks the models against an earlier version).
+places read, its window scores on the first read, :class:`RecentSupport`; the filter
+forms the predicted masses only for a model whose feedback reads them,
+:func:`feedback_reads_prior`). Sums fused into a compiled pass (the novelty weight's
+``Σ a²`` and ``Σ a b``, the window scores' spread, the support's mean and spread) replay
+numpy's pairwise order; a maximum found in a pass is handed on (``Observation.log_ratio_max``,
+``FilterFeedback.posterior_max``) rather than taken again; the per-place arrays handed
+out every frame come from a :class:`FramePool` instead of fresh pages. Every value goes
+through the same IEEE operations as in the plain formulas and every sum is numpy's
+float, so the floats are those of the plain formulas (``tests/test_likelihood.py``,
+``tests/test_observation_kernels.py`` and ``tests/test_observation_identity.py`` check
+them bit for bit; ``benchmarks/bench_models.py`` times and checks the models against an
+earlier version).
 
 Models see the difference row the filter is given — usually the per-query normalised
 row (:func:`catgraph.differences.normalise_rows`), which makes histogram ranges
@@ -99,6 +106,7 @@ __all__ = [
     "RecentSupport",
     "predictive_weight_grid",
     "feedback_reads_prior",
+    "FramePool",
     "DEFAULT_PART_WEIGHTS",
 ]
 
