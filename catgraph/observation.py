@@ -196,6 +196,24 @@ class CheckedRow(np.ndarray):
     """
 
 
+def _reference_counts() -> tuple[int, int]:
+    """What ``sys.getrefcount`` reports on this interpreter for an object that only a
+    list holds (read as ``getrefcount(items[k])``) and for one that only a local name
+    holds (interpreters differ in the references a call adds, so the counts are
+    measured, not assumed)."""
+    import sys
+
+    items = [np.empty(0)]
+    in_list = sys.getrefcount(items[0])
+    holder = {"x": np.empty(0)}
+    alone = holder.pop("x")
+    return in_list, sys.getrefcount(alone)
+
+
+#: ``sys.getrefcount`` of an object held only by a list, and only by a local name
+_ONLY_LISTED, _ONLY_LOCAL = _reference_counts()
+
+
 class FramePool:
     """Float64 arrays handed out once per frame, reused once nobody else holds them.
 
@@ -226,8 +244,8 @@ class FramePool:
 
         arrays = self._arrays
         for k in range(len(arrays)):
-            # the list's reference and getrefcount's argument: nobody else's
-            if arrays[k].shape == (n,) and sys.getrefcount(arrays[k]) == 2:
+            # the list's reference (and the call's): nobody else's
+            if arrays[k].shape == (n,) and sys.getrefcount(arrays[k]) <= _ONLY_LISTED:
                 return arrays[k]
         out = np.empty(n)
         if len(arrays) < self._size:
@@ -563,8 +581,8 @@ class SequenceObservation:
         import sys
 
         support = self.__dict__.pop("_support", None)
-        # references: this local name and getrefcount's argument
-        if support is not None and sys.getrefcount(support) > 2:
+        # more references than this local name's (and the call's): someone holds it
+        if support is not None and sys.getrefcount(support) > _ONLY_LOCAL:
             support._values()
 
     def _work(self, name: str, n: int) -> np.ndarray:
