@@ -270,8 +270,11 @@ def main() -> None:
                 "and with `window = adaptive`" if args.identity_rule is None else
                 f"the registry's `sequence` method with `window = adaptive`, `rule = {args.identity_rule}` (every "
                 "velocity, hub correction)")
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                                cwd=Path(__file__).parent).stdout.strip()
         lines = [f"# Dask path against the local run on the real data{title}", "",
-                 f"`benchmarks/bench_distributed.py --identity`: {what}, `run` against `run_on_cluster` "
+                 f"`benchmarks/bench_distributed.py --identity` at commit {commit}: {what}, `run` against "
+                 "`run_on_cluster` "
                  "(one shard: these maps are smaller than 4096 places). Frames whose match, confidence and window "
                  "length are identical (bit for bit):", "",
                  "| dataset | window | condition | identical frames | AUC local | AUC cluster |",
