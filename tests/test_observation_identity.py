@@ -213,3 +213,35 @@ def test_kept_posteriors_are_never_overwritten(mode):
     assert len({id(x) for x in kept}) == len(kept)
     assert all(np.array_equal(k, c) for k, c in zip(kept, copies))
     assert all(np.array_equal(a, b) for a, b in zip(copies, run(False)[1]))
+
+
+def test_handed_on_maxima_are_the_arrays_maxima():
+    """``Observation.log_ratio_max`` and ``FilterFeedback.posterior_max`` are exactly the
+    maxima of the arrays they come with (the filters and models use them instead of a
+    pass of their own)."""
+    from catgraph.observation import FilterFeedback, TemperedObservation
+
+    d = _matrix(700, 20, 6, True)
+    seen = []
+
+    class Watching(TemperedObservation):
+        def feedback(self, feedback: FilterFeedback) -> None:
+            seen.append(feedback.posterior_max == np.asarray(feedback.posterior).max())
+            super().feedback(feedback)
+
+    for mode in ("grid", "particles"):
+        extra = {"n_particles": 300} if mode == "particles" else {}
+        p = resolve_params("filter", {"model": "combined", "mode": mode, **extra})
+        obs = observation_model(p, 700, None)
+        obs.models[0].__class__ = Watching
+        loc = make_filter(p, PlaceGraph.chain(700), obs)
+        loc.reset()
+        for row in d:
+            loc.step(row)
+            o = obs.observe(row)  # a direct call: the combined ratios and their maximum
+            assert o.log_ratio_max == o.log_ratio.max()
+        single = TemperedObservation()
+        for row in d[:5]:
+            o = single.observe(row)
+            assert o.log_ratio_max == o.log_ratio.max()
+    assert len(seen) > 30 and all(seen)
