@@ -15,8 +15,11 @@ how many other shards there are, except for the client's reductions.
     python benchmarks/bench_distributed.py [--shard-places 65536] [--repeats 3] [--adaptive-query 640]
 
 With ``--rules`` it times the adaptive window's rules that read the difference rows
-("predictive", "decorrelated") against the default rule "unrivalled", alternated in the
-same rounds, and writes that table as a section of ``distributed.md``.
+("predictive", "decorrelated", "spanning") against rule "unrivalled", alternated in the
+same rounds, and writes that table as a section of ``distributed.md``. With
+``--identity`` it compares the cluster with the local run on the real data (one shard),
+and with ``--identity ... --identity-rule RULE --sharded`` on the real data padded to two
+shards, the shard edge in the route's middle.
 """
 
 from __future__ import annotations
@@ -175,6 +178,88 @@ def identity(conditions: list[str], rule: str | None = None) -> list[dict]:
     return out
 
 
+def identity_sharded(conditions: list[str], rule: str, filler_seed: int = 0) -> list[dict]:
+    """The adaptive window with ``rule`` on the real data across a shard edge: each map
+    (after its front-end) is padded in front with filler places so that it holds two
+    shards of 4096 places and the edge at place 4096 falls in the middle of the route.
+    A filler place is a map descriptor picked at random with its values permuted at
+    random (seeded: the same values, no place of the route). The cluster
+    (:func:`catgraph.distributed.match_adaptive_window` on a ``LocalCluster`` of two
+    workers, every default, the hub correction from the padded map, frames without
+    information flagged) against :func:`catgraph.sequence.match_sequences` on the whole
+    normalised matrix with the same offsets: per dataset and condition, the frames whose
+    match, score, velocity, window length and confidence are identical."""
+    import types
+    import warnings
+
+    import distributed
+
+    from catgraph import distributed as dd
+    from catgraph.conditions import Condition
+    from catgraph.differences import difference_matrix
+    from catgraph.experiment import Experiment, _inputs
+    from catgraph.hubs import map_hub_offsets
+    from catgraph.io import describe_query
+    from catgraph.sequence import match_sequences
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from datasets import DATA, NORDLAND_FRAMES, WIFI_METRES
+
+    cases = []
+    if (DATA / "nordland").is_dir():
+        d = DATA / "nordland" / "32x16"
+        cases.append(("Nordland", {"query": d / "winter", "reference": d / "summer", "tolerance": NORDLAND_FRAMES}))
+    if (DATA / "uji-lib").is_dir():
+        db = DATA / "uji-lib" / "db"
+        cases.append(("UJI 02", {"query": db / "02" / "tst01", "reference": db / "01" / "trn01",
+                                 "tolerance_m": WIFI_METRES}))
+    fields = ("match", "score", "velocity", "window_length", "confidence")
+    out = []
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        for name, inputs in cases:
+            exp = Experiment(method="sequence", params={"window": "adaptive", "rule": rule}, **inputs)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                the_map, _, _, _, query, _ = _inputs(exp)
+            ref = np.asarray(the_map.descriptors)
+            n = ref.shape[0]
+            filler_places = dd.SHARD_UNIT - n // 2  # the edge at SHARD_UNIT: the route's middle
+            rng = np.random.default_rng(filler_seed)
+            picks = rng.integers(0, n, size=filler_places)
+            filler = np.stack([ref[j][rng.permutation(ref.shape[1])] for j in picks])
+            padded = np.ascontiguousarray(np.concatenate([filler, ref]))
+            padded_map = types.SimpleNamespace(descriptors=padded, n_places=padded.shape[0], metric=the_map.metric,
+                                               frontend=the_map.frontend)
+            offsets = map_hub_offsets(padded_map)
+            sharded = dd.shard_reference(padded, the_map.metric, client, shard_places=dd.SHARD_UNIT)
+            for text in conditions:
+                condition = Condition.parse(text)
+                q_trav = query if condition.kind == "in-order" else condition.apply(query)
+                q, informative = describe_query(the_map, q_trav)
+                local = difference_matrix(q, padded, the_map.metric, normalise=True)
+                local[~informative] = 0.0
+                t0 = time.perf_counter()
+                expected = match_sequences(local, rule=rule, hub_offsets=offsets)
+                t_local = time.perf_counter() - t0
+                t0 = time.perf_counter()
+                got = dd.match_adaptive_window(q, sharded, rule=rule, no_information=~informative,
+                                               hub_offsets=offsets, block_rows=512)
+                t_cluster = time.perf_counter() - t0
+                same = np.ones(len(q), dtype=bool)
+                for f in fields:
+                    same &= getattr(got, f) == getattr(expected, f)
+                out.append({"dataset": name, "condition": text, "frames": int(same.size),
+                            "identical": int(same.sum()), "places": int(padded.shape[0]),
+                            "filler": int(filler_places), "shards": len(sharded.bounds),
+                            "in_shard_1": int(np.sum(expected.match >= dd.SHARD_UNIT)),
+                            "in_filler": int(np.sum(expected.match < filler_places)),
+                            "seconds_local": t_local, "seconds_cluster": t_cluster})
+                print(out[-1], flush=True)
+    return out
+
+
 def write(results: list[dict], path: Path, commit: str) -> None:
     s = results[0]
     lines = ["# Dask path: per-shard figures", "",
@@ -204,6 +289,8 @@ def write(results: list[dict], path: Path, commit: str) -> None:
 
 RULES_HEADING = "## Window rules that read the rows"
 
+SHARDED_HEADING = "## Across a shard edge"
+
 
 def write_rules(results: list[dict], path: Path, commit: str) -> None:
     """The rules' table as a section of ``path`` (replacing the section if present)."""
@@ -215,8 +302,8 @@ def write_rules(results: list[dict], path: Path, commit: str) -> None:
              f"float32, {s['n_query']} query frames in blocks of {s['block_rows']}; rules alternated, {s['runs']} "
              "rounds; time: median over the rounds, and the median of each round's ratio to rule \"unrivalled\" in "
              "that round. Bytes: what each worker served per frame (halos, summaries and lookups to the client, "
-             "and for \"decorrelated\" the rows each worker sends to the worker of shard 0, which keeps the "
-             "horizon).", "",
+             "and for \"decorrelated\" and \"spanning\" the rows each worker sends to the worker of shard 0, which "
+             "keeps the horizon).", "",
              "| rule | runs | ms per frame | × unrivalled | bytes served per frame and worker | matches within ±1 |",
              "|---|---|---|---|---|---|"]
     for r in results:
@@ -245,13 +332,50 @@ def main() -> None:
                              "(e.g. in-order reverse speed:2)")
     parser.add_argument("--rules", nargs="*", metavar="RULE",
                         help="only time the adaptive window's rules against \"unrivalled\" (default: "
-                             "predictive decorrelated), the section of distributed.md")
+                             "predictive decorrelated spanning), the section of distributed.md")
     parser.add_argument("--identity-rule", metavar="RULE",
                         help="with --identity: only the adaptive window with this rule "
                              "(writes distributed_identity_RULE.md)")
+    parser.add_argument("--sharded", action="store_true",
+                        help="with --identity and --identity-rule: the maps padded to two shards, the edge in the "
+                             "route's middle (appends a section to distributed_identity_RULE.md)")
     args = parser.parse_args()
+    if args.sharded:
+        if args.identity is None or args.identity_rule is None:
+            parser.error("--sharded needs --identity and --identity-rule")
+        conditions = args.identity or ["in-order", "reverse", "speed:2"]
+        rows = identity_sharded(conditions, args.identity_rule)
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                                cwd=Path(__file__).parent).stdout.strip()
+        lines = [SHARDED_HEADING, "",
+                 f"`benchmarks/bench_distributed.py --identity {' '.join(conditions)} --identity-rule "
+                 f"{args.identity_rule} --sharded` at commit {commit}: each map (after its front-end) padded in front "
+                 "with filler places (a map descriptor picked at random, its values permuted at random; seed 0) "
+                 "so that it holds two shards of 4096 places and the shard edge falls in the middle of the route; "
+                 "`catgraph.distributed.match_adaptive_window` (every default, rule "
+                 f"\"{args.identity_rule}\", the hub offsets of the padded map, frames without information flagged) "
+                 "on a `LocalCluster` of two workers against `catgraph.sequence.match_sequences` on the whole "
+                 "normalised matrix with the same offsets. The horizon is computed from rows put together from "
+                 "both workers' columns. Frames whose match, score, velocity, window length and confidence are "
+                 "identical (bit for bit):", "",
+                 "| dataset | condition | places (filler) | identical frames | matches in shard 1 | "
+                 "matches in the filler | seconds local / cluster |",
+                 "|---|---|---|---|---|---|---|"]
+        lines += [f"| {r['dataset']} | {r['condition']} | {r['places']} ({r['filler']}) | {r['identical']} / "
+                  f"{r['frames']} | {r['in_shard_1']} | {r['in_filler']} | {r['seconds_local']:.1f} / "
+                  f"{r['seconds_cluster']:.1f} |" for r in rows]
+        RESULTS.mkdir(exist_ok=True)
+        path = RESULTS / f"distributed_identity_{args.identity_rule}.md"
+        text = path.read_text() if path.exists() else ""
+        if SHARDED_HEADING in text:
+            text = text[:text.index(SHARDED_HEADING)].rstrip("\n") + "\n"
+        path.write_text((text + "\n" if text else "") + "\n".join(lines) + "\n")
+        (RESULTS / f"distributed_identity_{args.identity_rule}_sharded.json").write_text(
+            json.dumps({"commit": commit, "results": rows}, indent=1))
+        print("\n".join(lines))
+        return
     if args.rules is not None:
-        rules = ["unrivalled"] + [r for r in (args.rules or ["predictive", "decorrelated"]) if r != "unrivalled"]
+        rules = ["unrivalled"] + [r for r in (args.rules or ["predictive", "decorrelated", "spanning"]) if r != "unrivalled"]
         block = max(1, args.adaptive_query // 2)
         settings = [{"window": "adaptive", "velocities": DEFAULT_VELOCITIES, "block_rows": block,
                      "n_query": args.adaptive_query, "rule": rule} for rule in rules]
