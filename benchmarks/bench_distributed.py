@@ -260,6 +260,39 @@ def identity_sharded(conditions: list[str], rule: str, filler_seed: int = 0) -> 
     return out
 
 
+def write_sharded(rows: list[dict], conditions: list[str], rule: str, commit: str) -> list[str]:
+    """The across-a-shard-edge table as a section of ``distributed_identity_RULE.md`` (replacing
+    the section if present), the rows in ``distributed_identity_RULE_sharded.json``."""
+    lines = [SHARDED_HEADING, "",
+             f"`benchmarks/bench_distributed.py --identity {' '.join(conditions)} --identity-rule "
+             f"{rule} --sharded` at commit {commit}: each map (after its front-end) padded in front "
+             "with filler places (a map descriptor picked at random, its values permuted at random; seed 0) "
+             "so that it holds two shards of 4096 places and the shard edge falls in the middle of the route; "
+             "`catgraph.distributed.match_adaptive_window` (every default, rule "
+             f"\"{rule}\", the hub offsets of the padded map, frames without information flagged) "
+             "on a `LocalCluster` of two workers against `catgraph.sequence.match_sequences` on the whole "
+             "normalised matrix with the same offsets. The horizon is computed from rows put together from "
+             "both workers' columns. Frames whose match, score, velocity, window length and confidence are "
+             "identical (bit for bit). Seconds: one run each on this shared 2-core machine, the local matcher on "
+             "the precomputed matrix, the cluster (two threads of one process) computing the differences too: "
+             "not a speed comparison.", "",
+             "| dataset | condition | places (filler) | identical frames | matches in shard 1 | "
+             "matches in the filler | seconds local / cluster |",
+             "|---|---|---|---|---|---|---|"]
+    lines += [f"| {r['dataset']} | {r['condition']} | {r['places']} ({r['filler']}) | {r['identical']} / "
+              f"{r['frames']} | {r['in_shard_1']} | {r['in_filler']} | {r['seconds_local']:.1f} / "
+              f"{r['seconds_cluster']:.1f} |" for r in rows]
+    RESULTS.mkdir(exist_ok=True)
+    path = RESULTS / f"distributed_identity_{rule}.md"
+    text = path.read_text() if path.exists() else ""
+    if SHARDED_HEADING in text:
+        text = text[:text.index(SHARDED_HEADING)].rstrip("\n") + "\n"
+    path.write_text((text + "\n" if text else "") + "\n".join(lines) + "\n")
+    (RESULTS / f"distributed_identity_{rule}_sharded.json").write_text(
+        json.dumps({"commit": commit, "results": rows}, indent=1))
+    return lines
+
+
 def write(results: list[dict], path: Path, commit: str) -> None:
     s = results[0]
     lines = ["# Dask path: per-shard figures", "",
@@ -347,35 +380,12 @@ def main() -> None:
         rows = identity_sharded(conditions, args.identity_rule)
         commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
                                 cwd=Path(__file__).parent).stdout.strip()
-        lines = [SHARDED_HEADING, "",
-                 f"`benchmarks/bench_distributed.py --identity {' '.join(conditions)} --identity-rule "
-                 f"{args.identity_rule} --sharded` at commit {commit}: each map (after its front-end) padded in front "
-                 "with filler places (a map descriptor picked at random, its values permuted at random; seed 0) "
-                 "so that it holds two shards of 4096 places and the shard edge falls in the middle of the route; "
-                 "`catgraph.distributed.match_adaptive_window` (every default, rule "
-                 f"\"{args.identity_rule}\", the hub offsets of the padded map, frames without information flagged) "
-                 "on a `LocalCluster` of two workers against `catgraph.sequence.match_sequences` on the whole "
-                 "normalised matrix with the same offsets. The horizon is computed from rows put together from "
-                 "both workers' columns. Frames whose match, score, velocity, window length and confidence are "
-                 "identical (bit for bit):", "",
-                 "| dataset | condition | places (filler) | identical frames | matches in shard 1 | "
-                 "matches in the filler | seconds local / cluster |",
-                 "|---|---|---|---|---|---|---|"]
-        lines += [f"| {r['dataset']} | {r['condition']} | {r['places']} ({r['filler']}) | {r['identical']} / "
-                  f"{r['frames']} | {r['in_shard_1']} | {r['in_filler']} | {r['seconds_local']:.1f} / "
-                  f"{r['seconds_cluster']:.1f} |" for r in rows]
-        RESULTS.mkdir(exist_ok=True)
-        path = RESULTS / f"distributed_identity_{args.identity_rule}.md"
-        text = path.read_text() if path.exists() else ""
-        if SHARDED_HEADING in text:
-            text = text[:text.index(SHARDED_HEADING)].rstrip("\n") + "\n"
-        path.write_text((text + "\n" if text else "") + "\n".join(lines) + "\n")
-        (RESULTS / f"distributed_identity_{args.identity_rule}_sharded.json").write_text(
-            json.dumps({"commit": commit, "results": rows}, indent=1))
+        lines = write_sharded(rows, conditions, args.identity_rule, commit)
         print("\n".join(lines))
         return
     if args.rules is not None:
-        rules = ["unrivalled"] + [r for r in (args.rules or ["predictive", "decorrelated", "spanning"]) if r != "unrivalled"]
+        asked = args.rules or ["predictive", "decorrelated", "spanning"]
+        rules = ["unrivalled"] + [r for r in asked if r != "unrivalled"]
         block = max(1, args.adaptive_query // 2)
         settings = [{"window": "adaptive", "velocities": DEFAULT_VELOCITIES, "block_rows": block,
                      "n_query": args.adaptive_query, "rule": rule} for rule in rules]

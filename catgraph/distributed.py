@@ -149,7 +149,8 @@ block are computed *where the shards live*, and only per-frame summaries travel 
    for bit (tested: in order, reversed, shuffled, at speed 2, on a route driven at a
    varying speed across shard edges where a wrong horizon changes the answers,
    hub-corrected, frames without information; and on the real data,
-   ``benchmarks/results/distributed_identity_spanning.md``).
+   ``benchmarks/results/distributed_identity_spanning.md``: Nordland and UJI, one shard
+   and padded to two shards with the edge in the route's middle, every frame identical).
 
 Per block, only ``O(rows V G (radius + G + 8))`` numbers per shard return to the client
 (``G`` candidate lengths, 1 for a fixed window): four client rounds for a fixed window
