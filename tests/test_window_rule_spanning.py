@@ -151,35 +151,3 @@ def test_spanning_streaming_equals_batch(confidence, monkeypatch):
     d = varying_route(3, n_q=60)
     kwargs = dict(rule="spanning", l_min=3, l_max=30, grid=6, confidence=confidence, velocities=VELOCITIES)
     assert_streaming_equals_batch(d, kwargs, monkeypatch)
-
-
-def test_spanning_rule_refused_on_the_cluster():
-    """The cluster matcher reproduces only the rules it lists; this one is refused with an
-    error that names the rule and the way out."""
-    from catgraph import distributed
-    from catgraph.exceptions import InvalidParameterError
-
-    if "spanning" in distributed.EXACT_RULES:
-        pytest.skip("the cluster runs rule 'spanning'")
-    with pytest.raises(InvalidParameterError, match="spanning.*match_sequences"):
-        distributed.match_adaptive_window(np.zeros((3, 4)), None, rule="spanning")
-
-
-def test_spanning_rule_would_be_exact_on_the_cluster(client, monkeypatch):
-    """The rule reads the statistics of rule "unrivalled" and the clock of rule "decorrelated",
-    which the cluster matcher already computes (the horizon from whole rows on a worker); listed
-    among its exact rules, it equals the local run on a route that crosses a shard edge and jumps."""
-    from catgraph import distributed as dd
-    from catgraph.differences import difference_matrix
-
-    rng = np.random.default_rng(11)
-    r = rng.normal(size=(8200, 16)).astype(np.float32)
-    places = np.concatenate([np.arange(4000, 4130), np.arange(2000, 2040), np.arange(8150, 8200)])
-    q = r[places] + 0.5 * rng.normal(size=(places.size, 16)).astype(np.float32)
-    monkeypatch.setattr(dd, "EXACT_RULES", dd.EXACT_RULES + ("spanning",))
-    sharded = dd.shard_reference(r, "sad", client, shard_places=4096)
-    params = {"rule": "spanning", "l_max": 48, "grid": 5, "velocities": (-1.0, 1.0, 2.0)}
-    res = dd.match_adaptive_window(q, sharded, block_rows=37, **params)
-    out = match_sequences(difference_matrix(q, r, "sad", normalise=True), **params)
-    for name in ("match", "score", "velocity", "window_length", "confidence"):
-        assert np.array_equal(getattr(res, name), getattr(out, name)), name
