@@ -291,7 +291,7 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
     *every* shorter sub-window to lie at least :data:`EVIDENT_SPREADS` common spreads below
     that mean: a recent stretch that is not clearly better than a random place is no
     evidence that the line still holds, however weak the window's own average is. Rule
-    "unrivalled" (the default) adds a third test: over every recent sub-window from
+    "unrivalled" adds a third test: over every recent sub-window from
     :data:`RIVAL_FRACTION` of the window on, the window's best line may trail the best line
     of that length (same velocity) by at most :data:`RIVAL_SPREADS` common spreads, unless
     that best line is no more significant than chance (``log_p`` at that length not below
