@@ -309,7 +309,8 @@ def write(results: list[dict], path: Path, commit: str) -> None:
              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         v = "1" if r["velocities"] == [1.0] else f"{len(r['velocities'])} (±0.5, ±1, ±2, ±3)"
-        w = "adaptive (13 lengths, 5–500)" if r["window"] == "adaptive" else f"L = {r['window']}"
+        w = (f"adaptive (13 lengths, 5–500, rule \"{r.get('rule', 'unrivalled')}\")" if r["window"] == "adaptive"
+             else f"L = {r['window']}")
         ratio = "—" if r["ratio_to_one_velocity"] is None else f"{r['ratio_to_one_velocity']:.2f}"
         settle = 100 if r["window"] == "adaptive" else r["window"]
         lines.append(f"| {w} | {v} | {r['n_query']} ({r['block_rows']}) | {r['runs']} | {r['ms_per_frame']:.1f} | "
