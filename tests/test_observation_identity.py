@@ -50,7 +50,8 @@ def _matrix(n_places: int, n_frames: int, seed: int, hubs: bool) -> np.ndarray:
 def _digest(mode: str, hubs: bool, seed: int = 0, n_places: int = 3000, n_frames: int = 120) -> str:
     d = _matrix(n_places, n_frames, seed, hubs)
     extra = {"n_particles": 400, "seed": seed} if mode == "particles" else {}
-    p = resolve_params("filter", {"model": "combined", "mode": mode, **extra})
+    # the sequence part with the window rule the digests were recorded with (the default then)
+    p = resolve_params("filter", {"model": "combined", "mode": mode, "rule": "unrivalled", **extra})
     obs = observation_model(p, n_places, None)
     loc = make_filter(p, PlaceGraph.chain(n_places), obs)
     loc.reset()
