@@ -21,29 +21,9 @@ from scipy.special import log_ndtr
 from catgraph._window_rule import EVIDENT_SPREADS, JUMP_ODDS, RIVAL_SPREADS, SPANNING_MARGIN
 from catgraph.sequence import match_sequences, window_grid
 from tests.test_window_rule import on_grid
+from tests.test_sequence_velocity import slow_line_scores
 from tests.test_window_rule_decorrelated import slow_horizons
 from tests.test_window_rule_predictive import assert_streaming_equals_batch
-
-
-def slow_line_scores(d: np.ndarray, length: int, v: float) -> np.ndarray:
-    """``s_ij(L, v)`` by a double loop: the mean over the ``min(L, i + 1)`` frames of the line
-    through ``(i, j)``, at place ``j - (pos(i) - pos(i - t))`` with ``pos(i) = floor(v i + 1/2)``;
-    a place off the reference contributes its row's mean."""
-    n_q, n = d.shape
-
-    def pos(i):
-        return int(np.floor(v * i + 0.5))
-
-    out = np.empty((n_q, n))
-    for i in range(n_q):
-        eff = min(length, i + 1)
-        for j in range(n):
-            total = 0.0
-            for t in range(eff):
-                place = j - (pos(i) - pos(i - t))
-                total += d[i - t, place] if 0 <= place < n else d[i - t].mean()
-            out[i, j] = total / eff
-    return out
 
 
 def slow_spanning(d: np.ndarray, grid: np.ndarray, velocities, fraction: float = 0.05, radius: int = 10):
