@@ -132,6 +132,23 @@ def measure(shard_places: int, n_shards: int, settings: list[dict], repeats: int
     return out
 
 
+def _real_cases() -> list[tuple[str, dict]]:
+    """The real traverses of the identity checks (Nordland; UJI month 02 against 01), as
+    experiment inputs; those whose data are absent are left out."""
+    sys.path.insert(0, str(Path(__file__).parent))
+    from datasets import DATA, NORDLAND_FRAMES, WIFI_METRES
+
+    cases = []
+    if (DATA / "nordland").is_dir():
+        d = DATA / "nordland" / "32x16"
+        cases.append(("Nordland", {"query": d / "winter", "reference": d / "summer", "tolerance": NORDLAND_FRAMES}))
+    if (DATA / "uji-lib").is_dir():
+        db = DATA / "uji-lib" / "db"
+        cases.append(("UJI 02", {"query": db / "02" / "tst01", "reference": db / "01" / "trn01",
+                                 "tolerance_m": WIFI_METRES}))
+    return cases
+
+
 def identity(conditions: list[str], rule: str | None = None) -> list[dict]:
     """The cluster run against the local run on the real data (experiment layer: the
     registry's ``sequence`` method with its defaults, a fixed window of 50, and with the
@@ -145,17 +162,7 @@ def identity(conditions: list[str], rule: str | None = None) -> list[dict]:
     from catgraph.conditions import Condition
     from catgraph.experiment import Experiment, run, run_on_cluster
 
-    sys.path.insert(0, str(Path(__file__).parent))
-    from datasets import DATA, NORDLAND_FRAMES, WIFI_METRES
-
-    cases = []
-    if (DATA / "nordland").is_dir():
-        d = DATA / "nordland" / "32x16"
-        cases.append(("Nordland", {"query": d / "winter", "reference": d / "summer", "tolerance": NORDLAND_FRAMES}))
-    if (DATA / "uji-lib").is_dir():
-        db = DATA / "uji-lib" / "db"
-        cases.append(("UJI 02", {"query": db / "02" / "tst01", "reference": db / "01" / "trn01",
-                                 "tolerance_m": WIFI_METRES}))
+    cases = _real_cases()
     out = []
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
                                   dashboard_address=None) as cluster, \
@@ -202,17 +209,7 @@ def identity_sharded(conditions: list[str], rule: str, filler_seed: int = 0) -> 
     from catgraph.io import describe_query
     from catgraph.sequence import match_sequences
 
-    sys.path.insert(0, str(Path(__file__).parent))
-    from datasets import DATA, NORDLAND_FRAMES, WIFI_METRES
-
-    cases = []
-    if (DATA / "nordland").is_dir():
-        d = DATA / "nordland" / "32x16"
-        cases.append(("Nordland", {"query": d / "winter", "reference": d / "summer", "tolerance": NORDLAND_FRAMES}))
-    if (DATA / "uji-lib").is_dir():
-        db = DATA / "uji-lib" / "db"
-        cases.append(("UJI 02", {"query": db / "02" / "tst01", "reference": db / "01" / "trn01",
-                                 "tolerance_m": WIFI_METRES}))
+    cases = _real_cases()
     fields = ("match", "score", "velocity", "window_length", "confidence")
     out = []
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
