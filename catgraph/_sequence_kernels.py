@@ -773,3 +773,31 @@ def fixed_scores(d, length, v):
         _update_stats(sums, ring, mring, i, v, length, np.int64(0), bmin)
         scores_from_sums(sums, i, v, length, state[0], out[i])
     return out
+
+
+@njit(nogil=True)
+def smallest_places(row, idx, val):  # pragma: no cover - compiled
+    """The ``k = idx.shape[0]`` smallest values of ``row`` (``k <= row.shape[0]``) and
+    their places, in ascending (value, place) order, into ``val`` and ``idx``: one pass
+    over the row, each value compared with the ``k``-th smallest so far and, when below
+    it, inserted into the short sorted list (a value equal to a kept one goes after it,
+    its place being larger). The decorrelation horizon's best places
+    (:class:`catgraph._window_rule._Horizon`) without standardising the row or
+    partitioning it."""
+    k = idx.shape[0]
+    filled = 0
+    for j in range(row.shape[0]):
+        v = row[j]
+        if filled == k:
+            if not v < val[k - 1]:
+                continue
+            p = k - 1
+        else:
+            p = filled
+            filled += 1
+        while p > 0 and val[p - 1] > v:
+            val[p] = val[p - 1]
+            idx[p] = idx[p - 1]
+            p -= 1
+        val[p] = v
+        idx[p] = j

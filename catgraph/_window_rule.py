@@ -166,6 +166,17 @@ class _Horizon:
     spread, e.g. a frame without information) has no best places: it adds no ratio, and
     later frames add none at its lag. ``O(K m)`` numbers of state and ``O(N + K m)`` work
     per frame.
+
+    The row is never standardised as a whole: ``z`` rises with ``d`` (``std > 0``), so the
+    ``m`` best places are the row's ``m`` smallest values, found in one compiled pass
+    (:func:`catgraph._sequence_kernels.smallest_places`, ascending by value, then place),
+    and ``z`` is formed only at the ``(K + 1) m`` places read, with the same floats as the
+    whole standardised row. Where the ``m``-th and ``(m + 1)``-th smallest tie in ``z`` the
+    set is not unique, and the places are those of ``np.argpartition`` of the standardised
+    row, as a whole. Either way the set is that of ``np.argpartition``; its order, in
+    which the ``m`` values are summed, may differ from the partition's own (which depends
+    on the processor's vector instructions), so the averages may differ in their last
+    bits (``tests/test_live_horizon.py`` keeps the partition as the reference).
     """
 
     def __init__(self, capacity: int = HORIZON_MAX, places: int = DECORRELATION_PLACES,
@@ -185,15 +196,16 @@ class _Horizon:
         ratio = np.zeros(self.capacity)
         seen = np.zeros(self.capacity)
         if spread > 0:
-            z = (row - row.mean()) / spread
-            m = min(self.places, z.shape[0])
-            best = np.argpartition(z, m - 1)[:m] if m < z.shape[0] else np.arange(m)
-            own = z[best].mean()
+            centre = row.mean()
+            best = self._best_places(row, centre, spread)
+            m = best.shape[0]
+            own = ((row[best] - centre) / spread).mean()
             lags = np.arange(1, min(i, self.capacity) + 1)
             if own < 0 and lags.size:
                 back = (i - lags) % self.capacity
                 known = self.filled[back]
-                ratio[: lags.size] = np.where(known, z[self.best[back, :m]].mean(axis=1) / own, 0.0)
+                past = (row[self.best[back, :m]] - centre) / spread
+                ratio[: lags.size] = np.where(known, past.mean(axis=1) / own, 0.0)
                 seen[: lags.size] = known
             self.best[slot, :m] = best
         self.filled[slot] = spread > 0
@@ -202,6 +214,23 @@ class _Horizon:
         with np.errstate(divide="ignore", invalid="ignore"):
             below = (self.weight > 0) & (self.total / self.weight < self.level)
         return int(np.argmax(below)) + 1 if below.any() else self.capacity
+
+    def _best_places(self, row: np.ndarray, centre: float, spread: float) -> np.ndarray:
+        """The row's :attr:`places` best places (``spread > 0``), as the set of
+        ``np.argpartition`` of the standardised row."""
+        n = row.shape[0]
+        m = min(self.places, n)
+        if m >= n:
+            return np.arange(m)
+        if row.dtype == np.float64 and row.flags.c_contiguous:
+            from ._sequence_kernels import smallest_places
+
+            idx, val = np.empty(m + 1, dtype=np.int64), np.empty(m + 1)
+            smallest_places(row, idx, val)
+            edge = (row[idx[m - 1:]] - centre) / spread
+            if edge[0] < edge[1]:  # the m-th best strictly below every other place: one set
+                return idx[:m]
+        return np.argpartition((row - centre) / spread, m - 1)[:m]
 
 
 def _new_record(cfg: _Config) -> _Record | None:
