@@ -28,8 +28,6 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-import scipy.sparse
-from scipy.spatial import cKDTree
 
 from ._validation import as_generator, check_array, check_scalar
 from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
@@ -269,6 +267,8 @@ class MetricTolerance(GroundTruth):
         use_floors = query_floors is not None and reference_floors is not None
         self.query_floors = np.asarray(query_floors, dtype=np.int64) if use_floors else None
         self.reference_floors = np.asarray(reference_floors, dtype=np.int64) if use_floors else None
+        from scipy.spatial import cKDTree
+
         self._tree = cKDTree(self.reference_positions)
         self._has = np.zeros(len(self.query_positions), dtype=bool)
         for i, neighbours in enumerate(self._tree.query_ball_point(self.query_positions, self.metres)):
@@ -329,6 +329,8 @@ class ExplicitGroundTruth(GroundTruth):
     """
 
     def __init__(self, matrix, threshold: float | None = None) -> None:
+        import scipy.sparse
+
         m = scipy.sparse.csr_array(matrix)
         if m.ndim != 2:
             raise DataError(f"a ground-truth matrix must be 2-D (n_query, n_reference); got shape {m.shape}.")
@@ -352,6 +354,8 @@ class ExplicitGroundTruth(GroundTruth):
         p = p.astype(np.int64)
         if p.size and (p[:, 0].min() < 0 or p[:, 0].max() >= n_query or p[:, 1].min() < 0 or p[:, 1].max() >= n_reference):
             raise DataError(f"ground-truth pairs index outside a {n_query} × {n_reference} query × reference grid.")
+        import scipy.sparse
+
         m = scipy.sparse.coo_array((np.ones(len(p)), (p[:, 0], p[:, 1])), shape=(n_query, n_reference))
         return cls(m)
 
