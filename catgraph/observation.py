@@ -427,11 +427,22 @@ class SequenceObservation:
         Frames of online initialisation of the score histograms (ratios 0 meanwhile).
     exclusion_radius : int
         Places ``best ± r`` excluded when choosing the ``¬L`` sample.
-    temperature : float or "window"
+    temperature : float, "window" or "longest"
         Multiplies every log-ratio. ``"window"``: ``1 / L_k``, the frame's window length:
         consecutive frames' window scores share ``L − 1`` of their ``L`` frames, so a
         filter that multiplies them frame after frame counts each frame's evidence
-        about ``L`` times; ``1 / L_k`` counts it about once.
+        about ``L`` times; ``1 / L_k`` counts it about once while the window keeps its
+        length. Where the adaptive window changes length it does not: frame ``i`` is
+        counted ``Σ_{k : i ∈ W_k} 1 / L_k`` times, up to ``Σ_{d < L_max} 1 / (d + 1)
+        ≈ ln L_max + 0.58`` (6.8 for windows up to 500 frames) when each window is
+        just long enough to reach it, and the short windows the matcher picks on a
+        hard stretch weigh up to 30 times more per frame than the long ones around them.
+        ``"longest"``: ``1 / M_k``, ``M_k = max_{k' ≤ k} L_{k'}`` the longest window
+        the matcher has chosen so far. A frame lies in at most ``M`` windows while the
+        longest stays ``M``, so it is counted at most once (``1 + ln(M_end / M_i)`` at
+        most over a traverse whose longest window grows from ``M_i`` to ``M_end``),
+        whatever lengths the matcher picks meanwhile (``docs/particle_filter.md``,
+        "the combined model counts each frame at most once").
     calibration : {"online", "agreement"}
         How standardised scores ``z`` become log-ratios. ``"online"`` (default): paper 2's
         online histograms, ``P(z|L)`` learned from each frame's best ``z``. On a shuffled
@@ -467,7 +478,7 @@ class SequenceObservation:
 
     def reset(self) -> None:
         for k in ("matcher_", "recogniser_", "last_match_", "_scores", "_tempered", "_z", "_exp", "_square",
-                  "_support"):
+                  "_support", "_longest"):
             self.__dict__.pop(k, None)
 
     def feedback(self, feedback: FilterFeedback) -> None:
@@ -488,8 +499,9 @@ class SequenceObservation:
         from .sequence import SequenceMatcher
 
         owner = type(self).__name__
-        if self.temperature != "window":
+        if self.temperature not in ("window", "longest"):
             check_scalar(self.temperature, "temperature", owner, float, 0.0, low_inclusive=False)
+        self._longest = 1  # the longest window chosen so far (temperature "longest")
         if self.calibration not in ("online", "agreement"):
             raise InvalidParameterError(f"The 'calibration' parameter of {owner} must be 'online' or 'agreement'. "
                                         f"Got {self.calibration!r} instead.")
@@ -522,8 +534,13 @@ class SequenceObservation:
         self._settle_support()
         self.last_match_ = self.matcher_.step(row)
         s = self.window_scores()
-        tau = (1.0 / max(int(self.last_match_.window_length), 1) if self.temperature == "window"
-               else float(self.temperature))
+        if self.temperature == "window":
+            tau = 1.0 / max(int(self.last_match_.window_length), 1)
+        elif self.temperature == "longest":
+            self._longest = max(self._longest, int(self.last_match_.window_length))
+            tau = 1.0 / self._longest
+        else:
+            tau = float(self.temperature)
         z = self._work("_z", len(s))
         fused = self._tempered is not None and self._tempered._takes_standardised(s)
         if fused:  # z = s − mean for now; the division comes with the ratios
