@@ -411,9 +411,9 @@ def observation_model(params: dict, n_places: int, bootstrap_samples: Callable[[
     if model == "histogram-combined":
         return CombinedObservation([histogram(True), sequence("adaptive")])
     # "combined": the whole-image evidence of the default model and the sequence part, its
-    # ratios tempered by how often the filter confirms its best place and counted once per
-    # frame of its window (docs/particle_filter.md, "the combined model")
-    part = sequence("adaptive", calibration="agreement", temperature="window", agreement_scale=1.0)
+    # ratios tempered by how often the filter confirms its best place and each frame counted at
+    # most once, by the longest window so far (docs/particle_filter.md, "the combined model")
+    part = sequence("adaptive", calibration="agreement", temperature="longest", agreement_scale=1.0)
     return CombinedObservation([TemperedObservation(), part], reliability=None)
 
 

@@ -53,6 +53,7 @@ def _digest(mode: str, hubs: bool, seed: int = 0, n_places: int = 3000, n_frames
     # the sequence part with the window rule the digests were recorded with (the default then)
     p = resolve_params("filter", {"model": "combined", "mode": mode, "rule": "unrivalled", **extra})
     obs = observation_model(p, n_places, None)
+    obs.models[1].temperature = "window"  # the sequence part's temperature then (the default is now "longest")
     loc = make_filter(p, PlaceGraph.chain(n_places), obs)
     loc.reset()
     h = hashlib.sha256()
