@@ -17,7 +17,7 @@ partitions it with ``np.argpartition``.
 ``identity``  Nordland (summer -> winter), UJI months 02-06 (against 01) and the synthetic
               world (seed 0), under each of the 14 conditions of
               :func:`catgraph.conditions.condition_table`, each query's rows as they are
-              and hub-corrected (as the registry's methods see them): both clocks read the
+              and hub-corrected (with the map's own hub offsets): both clocks read the
               same rows; every frame's horizon and set of best places are compared, and the
               largest relative difference of the clocks' averaged ratios is reported.
 
