@@ -203,3 +203,280 @@ ABLATIONS = {
 }
 
 CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}
+
+
+# ------------------------------------------------------------------------------------------
+# round 7: the sub-window tests and the velocity re-choice read against the horizon
+# (docs/sequence.md, section "0.2: the adaptive window on reversed and re-timed routes")
+
+def admissible_spanning(st, cfg, log_p, n_places, horizon, spread_from="all", mid_from="recent",
+                        margin=None, evidence=None, since_break=None, beaten_by=None):
+    """``(n, V, G)``: the tests of rule "spanning" with the midpoint and spread tests optionally
+    read only on sub-windows that span the frame's decorrelation horizon.
+
+    ``spread_from``: "all" (the library: every shorter sub-window), "horizon" (those of
+    ``l >= K_i``), "half" (``l >= K_i / 2``); ``mid_from``: "recent" (the library: from
+    ``recent_fraction * L``), "horizon" (and ``l >= K_i``), "half", "every" (every shorter
+    sub-window). With ``evidence`` (nats)
+    a gated test still reads a shorter sub-window where the best line of that length (same
+    velocity) is significant beyond chance, ``log p < -ln N - evidence``: the recent frames
+    then say where the query is, so a window that does not follow them is rejected at once.
+    With ``since_break`` (``(n,)`` frames since the query's rows last broke, :func:`breaks`) a
+    gated test also reads every shorter sub-window that holds that break (``s_i < l``): its
+    frames are then more than one observation. With ``beaten_by`` (common spreads) a gated test
+    also reads a shorter sub-window where the best line of that length beats the window's own
+    line over those frames by more than that."""
+    margin = wr.SPANNING_MARGIN if margin is None else margin
+    lengths = cfg.grid.astype(np.float64)
+    shorter = lengths[None, :] < lengths[:, None]  # (G, H)
+    recent = shorter & (lengths[None, :] >= cfg.recent_fraction * lengths[:, None])
+    k = horizon.astype(np.float64)[:, None, None, None]
+    l4 = lengths[None, None, None, :]
+
+    seen = None if evidence is None else (log_p < -np.log(n_places) - evidence)[:, :, None, :]  # (n, V, 1, H)
+
+    def gate(base, how):
+        base = base[None, None]
+        if how == "horizon":
+            spans = l4 >= k
+        elif how == "half":
+            spans = l4 >= 0.5 * k
+        else:
+            return base
+        if since_break is not None:
+            spans = spans | (since_break.astype(np.float64)[:, None, None, None] < l4)
+        return base & (spans if seen is None else (spans | seen))
+
+    common = wr._common_std(st)[:, :, None, :]
+    if beaten_by is not None:
+        outdone = st.sub > st.best_s[:, :, None, :] + beaten_by * common  # (n, V, G, H)
+        seen = outdone if seen is None else (seen | outdone)
+    mid = 0.5 * (st.best_s[..., None] + st.mean[:, :, None, :])
+    ok = (st.sub <= mid) | ~(gate(shorter, "all") if mid_from == "every" else gate(recent, mid_from))
+    common = wr._common_std(st)[:, :, None, :]
+    ok &= (st.sub <= st.mean[:, :, None, :] - wr.EVIDENT_SPREADS * common) | ~gate(shorter, spread_from)
+    rival = (log_p < -np.log(n_places) - margin) & (lengths[None, None, :] >= horizon[:, None, None])
+    beaten = st.sub > st.best_s[:, :, None, :] + wr.RIVAL_SPREADS * common
+    ok &= ~(beaten & rival[:, :, None, :]) | ~recent
+    adm = np.all(ok, axis=3)
+    adm[:, :, 0] = True
+    return adm
+
+
+_RATIOS = {}
+
+
+def lag_ratios(rows, lag=1, places=wr.DECORRELATION_PLACES):
+    """``(n,)``: each row's ratio at lag ``lag`` of :class:`catgraph._window_rule._Horizon`, per
+    frame: the row's mean standardised difference at the best places of the row ``lag`` frames
+    back over its mean at its own best places (1 while those rows agree on where the query is,
+    about 0 when the earlier row's best places are random places for this one); 1 on the first
+    frames and beside flat rows."""
+    key = (hashlib.sha1(np.ascontiguousarray(rows).tobytes()).hexdigest(), lag)
+    if key not in _RATIOS:
+        out = np.ones(rows.shape[0])
+        best = [None] * rows.shape[0]
+        for i, row in enumerate(rows):
+            spread = row.std()
+            if not spread > 0:
+                continue
+            z = (row - row.mean()) / spread
+            m = min(places, z.shape[0])
+            best[i] = np.argpartition(z, m - 1)[:m]
+            own = z[best[i]].mean()
+            if i >= lag and best[i - lag] is not None and own < 0:
+                out[i] = z[best[i - lag]].mean() / own
+        _RATIOS[key] = out
+    return _RATIOS[key]
+
+
+def since_breaks(rows, level, lags=1):
+    """``(n,)``: frames since the last break of the query's rows (a frame whose ratios at every
+    lag ``1 .. lags``, :func:`lag_ratios`, are below ``level``: it has decorrelated from each of
+    the frames before it); a large number before the first break."""
+    broke = np.ones(rows.shape[0], dtype=bool)
+    for lag in range(1, lags + 1):
+        broke &= lag_ratios(rows, lag) < level
+    n = rows.shape[0]
+    idx = np.where(broke, np.arange(n), -(10 ** 6))
+    last = np.maximum.accumulate(idx)
+    return np.arange(n) - last
+
+
+def decide_spanning(st, rows, cfg, rechoose="horizon", spread_from="all", mid_from="recent", margin=None,
+                    evidence=None, break_level=None, break_lags=1, beaten_by=None, confidence="posterior", **_):
+    """Rule "spanning" with the variants of :func:`admissible_spanning` and of the velocity re-choice.
+
+    ``rechoose``: "horizon" (the library: re-chosen at the chosen length where it spans
+    ``K_i``), "never", "parted" (where, in addition, the re-chosen line and the summed
+    velocity's line part by at least the decorrelation length in places over the window,
+    ``|v' - v| L >= K_i |v|``: two slopes are told apart only once their lines stop seeing the
+    same-looking places), "twice" (the chosen length spans ``2 K_i``)."""
+    n = st.best_s.shape[0]
+    r = np.arange(n)
+    log_p = wr._log_p(st)
+    v = np.argmin(log_p.sum(axis=2), axis=1)
+    horizon = horizons(rows)
+    since = None if break_level is None else since_breaks(rows, break_level, break_lags)
+    every = admissible_spanning(st, cfg, log_p, rows.shape[1], horizon, spread_from, mid_from, margin, evidence,
+                                since, beaten_by)
+    adm = every[r, v]
+    g = np.argmin(np.where(adm, log_p[r, v], np.inf), axis=1)
+    lengths = cfg.grid[g].astype(np.float64)
+    if rechoose != "never":
+        v2 = np.argmin(log_p[r, :, g], axis=1)
+        if rechoose == "horizon":
+            keep = lengths >= horizon
+        elif rechoose == "twice":
+            keep = lengths >= 2 * horizon
+        elif rechoose == "parted":
+            vel = cfg.velocities
+            keep = (lengths >= horizon) & (np.abs(vel[v2] - vel[v]) * lengths >= horizon * np.abs(vel[v]))
+        else:
+            raise ValueError(rechoose)
+        v = np.where(keep, v2, v)
+        adm = every[r, v]
+        adm[r, g] = True
+    best = st.best_s[r, v, g]
+    match = st.best_j[r, v, g]
+    stds = wr._common_std(st)[:, 0, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gaps = np.where(stds > 0, (st.second_s[r, v] - st.best_s[r, v]) / stds, 0.0)
+    gaps = np.where(np.isfinite(gaps), gaps, 0.0)
+    agree = adm & (np.abs(st.best_j[r, v] - match[:, None]) <= cfg.radius)
+    support = np.where(agree, gaps, 0.0).sum(axis=1)
+    if confidence == "posterior":
+        conf = support * wr._on_line(*wr._current_z(rows, match, best))
+    else:  # ("changepoint", span, odds): the line held over its recent frames, not the current one alone
+        _, span, odds = confidence
+        conf = support * on_line_since(rows, match, best, cfg.velocities[v], cfg.grid[g], span, odds)
+    return match, conf, g, v
+
+
+def on_line_since(rows, match, score, velocity, length, span="window", odds=wr.JUMP_ODDS, cap=64):
+    """``(n,)``: the posterior probability that the query has not jumped off the chosen line
+    within its last ``T`` frames (``T``: the window's length, ``span="window"``, or the
+    constant ``span``; at most ``cap``).
+
+    The confidence "posterior" weighs the current frame alone: "on the line" (its standardised
+    difference at the match a unit normal around the line's mean ``mu``) against "a random
+    place" (a standard normal), at prior odds ``odds`` of a jump. Here every jump time
+    ``t = 1 .. T`` frames back is a hypothesis with the same prior odds: the frames since it lie
+    at random places, those before it on the line; the log likelihood ratio of "no jump"
+    against "jump ``t`` frames back" is the sum over the last ``t`` frames of
+    ``(z^2 - (z - mu)^2) / 2`` along the line (0 where the line leaves the reference), and
+    ``P = 1 / (1 + odds * sum_t exp(-LLR_t))``. With ``T = 1`` it is "posterior"."""
+    n, places = rows.shape
+    centre = rows.mean(axis=1)
+    spread = rows.std(axis=1)
+    safe = np.where(spread > 0, spread, 1.0)
+    mu = np.where(spread > 0, (score - centre) / safe, 0.0)
+    out = np.zeros(n)
+    for i in range(n):
+        horizon = int(min(length[i] if span == "window" else span, cap, i + 1))
+        f = np.arange(horizon)
+        at = match[i] - (_position(velocity[i], i) - _position(velocity[i], i - f))
+        inside = (at >= 0) & (at < places)
+        frames = i - f
+        z = np.where(inside, (rows[frames, np.where(inside, at, 0)] - centre[frames]) / safe[frames], 0.0)
+        llr = np.where(inside & (spread[frames] > 0), (z * z - (z - mu[i]) ** 2) / 2.0, 0.0)
+        cumulative = np.cumsum(llr)
+        top = max(0.0, float((-cumulative).max()))
+        out[i] = np.exp(-top) / (np.exp(-top) + odds * np.exp(-cumulative - top).sum())
+    return out
+
+
+def _position(v, i):
+    return np.floor(v * np.asarray(i, dtype=np.float64) + 0.5).astype(np.int64)
+
+
+def spanning_rule(**kw):
+    def apply(st, rows, cfg):
+        return decide_spanning(st, rows, cfg, **kw)[:2]
+    return apply
+
+
+ROUNDS["7: the sub-window tests and the velocity re-choice against the horizon"] = {
+    "spanning, harness copy (7)": spanning_rule(),
+    "spread test from K": spanning_rule(spread_from="horizon"),
+    "spread test from K/2": spanning_rule(spread_from="half"),
+    "midpoint test from K": spanning_rule(mid_from="horizon"),
+    "spread + midpoint from K": spanning_rule(spread_from="horizon", mid_from="horizon"),
+    "spread + midpoint from K/2": spanning_rule(spread_from="half", mid_from="half"),
+    "re-choice parted": spanning_rule(rechoose="parted"),
+    "re-choice at 2K": spanning_rule(rechoose="twice"),
+    "spread + midpoint from K, re-choice parted": spanning_rule(spread_from="horizon", mid_from="horizon",
+                                                                rechoose="parted"),
+    "spread + midpoint from K/2, re-choice parted": spanning_rule(spread_from="half", mid_from="half",
+                                                                  rechoose="parted"),
+}
+
+ROUNDS["8: the gated tests read a short sub-window where its best line is significant"] = {
+    **{f"spread from K or significant m={m:g}": spanning_rule(spread_from="horizon", evidence=m) for m in (-3, 0, 3, 6)},
+    **{f"spread + midpoint from K or significant m={m:g}": spanning_rule(spread_from="horizon", mid_from="horizon",
+                                                                         evidence=m) for m in (0, 3)},
+    "spread from K or significant m=0, re-choice parted": spanning_rule(spread_from="horizon", evidence=0,
+                                                                        rechoose="parted"),
+}
+
+CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}
+
+ROUNDS["9: the spread test from the horizon, the midpoint test on every sub-window"] = {
+    "spread from K, midpoint every": spanning_rule(spread_from="horizon", mid_from="every"),
+    "spread from K/2, midpoint every": spanning_rule(spread_from="half", mid_from="every"),
+    "midpoint every": spanning_rule(mid_from="every"),
+    "spread from K, midpoint every, re-choice parted": spanning_rule(spread_from="horizon", mid_from="every",
+                                                                     rechoose="parted"),
+}
+
+CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}
+
+ROUNDS["10: the spread test from the horizon or across a break of the rows"] = {
+    **{f"spread from K or across a break (r1 < {b:g})": spanning_rule(spread_from="horizon", break_level=b)
+       for b in (0.0, 0.2, 0.4)},
+    **{f"spread + midpoint from K or across a break (r1 < {b:g})": spanning_rule(
+        spread_from="horizon", mid_from="horizon", break_level=b) for b in (0.0, 0.2)},
+    "spread from K or across a break (r1 < 0), re-choice parted": spanning_rule(spread_from="horizon", break_level=0.0,
+                                                                               rechoose="parted"),
+}
+
+CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}
+
+ROUNDS["11: the break at the decorrelation level, with the half horizon and the parted re-choice"] = {
+    "spread from K or across a break (r1 < 0.4)": spanning_rule(spread_from="horizon", break_level=wr.DECORRELATION_LEVEL),
+    "spread from K or across a break (r1 < 0.3)": spanning_rule(spread_from="horizon", break_level=0.3),
+    "spread from K/2 or across a break (r1 < 0.4)": spanning_rule(spread_from="half", break_level=wr.DECORRELATION_LEVEL),
+    "spread from K/2 or across a break (r1 < 0.2)": spanning_rule(spread_from="half", break_level=0.2),
+    "spread from K or across a break (r1 < 0.4), re-choice parted": spanning_rule(
+        spread_from="horizon", break_level=wr.DECORRELATION_LEVEL, rechoose="parted"),
+    "spread from K/2 or across a break (r1 < 0.4), re-choice parted": spanning_rule(
+        spread_from="half", break_level=wr.DECORRELATION_LEVEL, rechoose="parted"),
+}
+
+CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}
+
+ROUNDS["12: the confidence of a line held over its recent frames (change point)"] = {
+    "posterior, harness copy": spanning_rule(),
+    **{f"change point T={T}, odds {w:g}": spanning_rule(confidence=("changepoint", T, w))
+       for T, w in ((1, wr.JUMP_ODDS), (5, wr.JUMP_ODDS), (10, wr.JUMP_ODDS), ("window", wr.JUMP_ODDS),
+                    (10, 0.03), ("window", 0.03), ("window", 0.003))},
+}
+
+CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}
+
+ROUNDS["13: a break as decorrelation from each of the last frames"] = {
+    **{f"spread from K or across a break (r1..r{k} < {b:g})": spanning_rule(
+        spread_from="horizon", break_level=b, break_lags=k) for k in (2, 3) for b in (0.4, 0.2)},
+    **{f"spread from K/2 or across a break (r1..r{k} < 0.4)": spanning_rule(
+        spread_from="half", break_level=0.4, break_lags=k) for k in (2, 3)},
+}
+
+CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}
+
+ROUNDS["14: the spread test from the horizon or where a shorter line beats the window's"] = {
+    **{f"spread from K or beaten by {c:g}": spanning_rule(spread_from="horizon", beaten_by=c) for c in (0.5, 1.0, 2.0)},
+    **{f"spread from K/2 or beaten by {c:g}": spanning_rule(spread_from="half", beaten_by=c) for c in (0.5, 1.0)},
+    "re-choice parted (14)": spanning_rule(rechoose="parted"),
+}
+
+CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}

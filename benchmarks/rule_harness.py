@@ -272,6 +272,10 @@ def main(argv=None) -> None:
     ap.add_argument("--sets", default="table,heldout")
     ap.add_argument("--rules", default=None, help="comma-separated rule names (default: all)")
     ap.add_argument("--datasets", default="Nordland,UJI,synthetic")
+    ap.add_argument("--round", default=None,
+                    help="only the candidates of this round of rule_candidates.ROUNDS (its number), beside "
+                         "the library's 'spanning'")
+    ap.add_argument("--dump", default=None, help="write every cell's AUC per rule to this JSON file")
     ap.add_argument("--write", action="store_true",
                     help="the library's rules and the parts of 'spanning'; write results/window_rules.md|json")
     args = ap.parse_args(argv)
@@ -281,6 +285,11 @@ def main(argv=None) -> None:
     if "heldout" in args.sets:
         cells += heldout_cells()
     table = candidates(args.write)
+    if args.round is not None:
+        import rule_candidates
+
+        chosen = next(v for k, v in rule_candidates.ROUNDS.items() if k.split(":")[0] == args.round)
+        table = {"spanning": library_rule("spanning"), **chosen}
     rules = list(table) if args.rules is None else [r for r in args.rules.split(",") if r]
     results = {r: [] for r in rules}
     for cell in cells:
@@ -295,6 +304,9 @@ def main(argv=None) -> None:
     for r in rules:
         s = summary(cells, results[r])
         print(f"{r:24s} " + " | ".join(f"{k}: {fmt(v)}" for k, v in s.items()))
+    if args.dump:
+        Path(args.dump).write_text(json.dumps({"cells": [[c.dataset, c.label, c.best_fixed] for c in cells],
+                                               "auc": results}, indent=1))
     if args.write:
         write_results(cells, results)
 
