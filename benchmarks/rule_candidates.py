@@ -480,3 +480,20 @@ ROUNDS["14: the spread test from the horizon or where a shorter line beats the w
 }
 
 CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}
+
+_BREAK = dict(spread_from="half", break_level=wr.DECORRELATION_LEVEL, break_lags=3)
+
+#: the candidates of rounds 7-14 written to ``benchmarks/results/window_rules.md`` beside the
+#: library's rules (docs/sequence.md, section "0.2: the adaptive window on reversed and re-timed routes")
+REPORTED = {
+    "spanning: spread test from K": spanning_rule(spread_from="horizon"),
+    "spanning: spread test from K/2": spanning_rule(spread_from="half"),
+    "spanning: spread + midpoint tests from K": spanning_rule(spread_from="horizon", mid_from="horizon"),
+    "spanning: spread test from K or across a break (r1 < 0.4)": spanning_rule(
+        spread_from="horizon", break_level=wr.DECORRELATION_LEVEL),
+    "spanning: spread test from K/2 or across a break (r1..r3 < 0.4)": spanning_rule(**_BREAK),
+    "spanning: velocity re-chosen only where the lines part": spanning_rule(rechoose="parted"),
+    "spanning, confidence change point (T = 5)": spanning_rule(confidence=("changepoint", 5, wr.JUMP_ODDS)),
+    "spanning: spread test from K/2 or across a break (r1..r3 < 0.4), confidence change point (T = 5)":
+        spanning_rule(**_BREAK, confidence=("changepoint", 5, wr.JUMP_ODDS)),
+}

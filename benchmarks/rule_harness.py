@@ -29,8 +29,10 @@ Ground truth is read only to score a rule, never by it. Run from the repository 
 
 which prints the margins of the default rule (a check that the harness reproduces the
 committed benchmarks) and of every candidate of ``benchmarks/rule_candidates.py``; with
-``--write`` the library's rules "unrivalled", "decorrelated" and "spanning" and the parts of
-"spanning", written to ``benchmarks/results/window_rules.md`` and ``.json``.
+``--write`` the library's rules "unrivalled", "decorrelated" and "spanning", the parts of
+"spanning" and the candidates around it that docs/sequence.md reports, written to
+``benchmarks/results/window_rules.md`` and ``.json`` (``--round N``: one round of the search
+beside "spanning"; ``--dump``: every cell's AUC per rule as JSON).
 """
 
 from __future__ import annotations
@@ -227,14 +229,15 @@ def fmt(s) -> str:
 
 def candidates(write: bool = False) -> dict:
     """Rules compared by ``main`` (name → rule function). With ``write``: the library's rules
-    "unrivalled" (the default), "decorrelated" and "spanning" and the parts of "spanning"
-    (``rule_candidates.ABLATIONS``); else the default and every candidate of the search
+    "unrivalled", "decorrelated" and "spanning" (the default), the parts of "spanning"
+    (``rule_candidates.ABLATIONS``) and the candidates around it that the documentation reports
+    (``rule_candidates.REPORTED``); else the default and every candidate of the search
     (``rule_candidates.CANDIDATES``)."""
     import rule_candidates
 
     if write:
         return {"unrivalled": library_rule("unrivalled"), "decorrelated": library_rule("decorrelated"),
-                "spanning": library_rule("spanning"), **rule_candidates.ABLATIONS}
+                "spanning": library_rule("spanning"), **rule_candidates.ABLATIONS, **rule_candidates.REPORTED}
     return {"unrivalled": library_rule("unrivalled"), **rule_candidates.CANDIDATES}
 
 
