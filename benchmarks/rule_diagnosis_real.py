@@ -7,16 +7,19 @@ labels every frame: the length, velocity and decorrelation horizon rule "spannin
 whether its match is correct, whether the fixed window of 500 frames (at its own most
 significant velocity: the best fixed window of these cells) and rule "decorrelated" are
 correct there. Ground truth is read here only to label frames, never by a rule. The lost
-frames (spanning wrong, the 500-frame window right) are split by cause:
+frames (spanning wrong, the 500-frame window right) are split by cause, each frame counted
+once, in this order:
 
-* *start-up*: fewer frames seen than the chosen window's length would need to differ from
-  the 500-frame window (frame index below 500, where the 500-frame window is itself the
-  ``i + 1`` frames seen so far);
-* *velocity*: the chosen length at the condition's true velocity would be right, at the
-  chosen one it is wrong;
-* *window*: at the chosen velocity the 500-frame window (or any longer window) is right:
-  split by which test rejected the longer windows (midpoint, spread, rival);
+* *start-up*: frame index below 500 (the 500-frame window is still the ``i + 1`` frames seen);
+* *velocity re-choice*: the velocity was re-chosen away from the one summed over the lengths,
+  and the chosen length at the summed velocity would be right;
+* *window too short*: a longer window at the summed velocity is right; for these, which of
+  the sub-window tests (midpoint, spread, rival) rejected the 500-frame line;
 * *other*.
+
+Beside them: how often each test rejects the 500-frame line where it is right and where it is
+wrong, the share of frames at the condition's true velocity, and the AUC without the hub
+correction (the statistics computed once more without it).
 
 Run from the repository root::
 
