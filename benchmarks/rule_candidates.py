@@ -10,6 +10,13 @@ random places (``log p < -ln N - margin``, the library's "unrivalled"); ``"disti
 significant than the best place beyond the exclusion radius at that length by ``margin``
 nats (``log p < log p_2 - margin``, ``p_2`` the same approximation at the second-best
 score), a null measured at every frame and length instead of assumed.
+
+Rounds 7–14 (docs/sequence.md, section "0.2: the adaptive window on reversed and re-timed
+routes") start from rule "spanning" (:func:`decide_spanning`): the midpoint and spread tests
+read only on sub-windows that span the decorrelation horizon, or that hold a *break* of the
+query's rows (:func:`since_breaks`), or whose best line is significant or beats the window's;
+the velocity re-chosen only where the lines part; and the confidence "change point"
+(:func:`on_line_since`), the posterior of no jump over the last frames along the line.
 """
 
 from __future__ import annotations
