@@ -30,8 +30,8 @@ Methods
     signed-velocity motion by default); ``mode="auto"`` (default) takes the grid up to
     :data:`GRID_MAX_PLACES` places and particles above. ``model="combined"`` adds the
     adaptive sequence matcher's evidence to the tempered whole-image evidence, its ratios
-    tempered by how often the filter confirms the matcher's best place and counted once per
-    frame of its window; ``"histogram-combined"`` is paper 2's product of the bootstrapped
+    tempered by how often the filter confirms the matcher's best place and each frame counted
+    at most once (one over the longest window so far); ``"histogram-combined"`` is paper 2's product of the bootstrapped
     histogram model and the sequence scores' online histograms. The observation model's options
     (``window``, ``approximation``, ``n_init`` …) are parameters of the filter method,
     so a sweep can vary them.
