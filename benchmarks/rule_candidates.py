@@ -488,6 +488,63 @@ ROUNDS["14: the spread test from the horizon or where a shorter line beats the w
 
 CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}
 
+def decide_calibrated(st, rows, cfg, fraction=0.5, half_life=wr.DECORRELATION_HALF_LIFE):
+    """Rule "spanning" with the spread test's threshold read from the query's record: at
+    sub-window length ``l`` and frame ``i``, ``min(EVIDENT_SPREADS, fraction * m_l(i))``, where
+    ``m_l(i)`` is the discounted mean (``half_life`` frames) over the frames before ``i`` of how
+    many common spreads the line "spanning" chose lay below the random places' mean over its
+    last ``l`` frames (lengths below the chosen one). The record is read from "spanning"'s own
+    choices (one pass), not from this rule's."""
+    n = st.best_s.shape[0]
+    r = np.arange(n)
+    _, _, g0, v0 = decide_spanning(st, rows, cfg)
+    common = wr._common_std(st)[:, 0, :]
+    z = (st.mean[r, v0, :] - st.sub[r, v0, g0, :]) / common  # (n, H)
+    valid = np.arange(z.shape[1])[None, :] < g0[:, None]
+    decay = 2.0 ** (-1.0 / half_life)
+    total, weight = np.zeros(z.shape[1]), np.zeros(z.shape[1])
+    typical = np.full(z.shape, np.inf)
+    for i in range(n):
+        with np.errstate(invalid="ignore", divide="ignore"):
+            typical[i] = np.where(weight > 0, total / weight, np.inf)
+        total = decay * total + np.where(valid[i], z[i], 0.0)
+        weight = decay * weight + valid[i]
+    tau = np.minimum(wr.EVIDENT_SPREADS, fraction * typical)  # (n, H)
+    log_p = wr._log_p(st)
+    horizon = horizons(rows)
+    lengths = cfg.grid.astype(np.float64)
+    shorter = lengths[None, :] < lengths[:, None]
+    recent = shorter & (lengths[None, :] >= cfg.recent_fraction * lengths[:, None])
+    mid = 0.5 * (st.best_s[..., None] + st.mean[:, :, None, :])
+    ok = (st.sub <= mid) | ~recent
+    com = wr._common_std(st)[:, :, None, :]
+    ok &= (st.sub <= st.mean[:, :, None, :] - tau[:, None, None, :] * com) | ~shorter
+    rival = (log_p < -np.log(rows.shape[1]) - wr.SPANNING_MARGIN) & (lengths[None, None, :] >= horizon[:, None, None])
+    beaten = st.sub > st.best_s[:, :, None, :] + wr.RIVAL_SPREADS * com
+    ok &= ~(beaten & rival[:, :, None, :]) | ~recent
+    every = np.all(ok, axis=3)
+    every[:, :, 0] = True
+    v = np.argmin(log_p.sum(axis=2), axis=1)
+    g = np.argmin(np.where(every[r, v], log_p[r, v], np.inf), axis=1)
+    v = np.where(cfg.grid[g] >= horizon, np.argmin(log_p[r, :, g], axis=1), v)
+    adm = every[r, v]
+    adm[r, g] = True
+    best, match = st.best_s[r, v, g], st.best_j[r, v, g]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gaps = np.where(common > 0, (st.second_s[r, v] - st.best_s[r, v]) / common, 0.0)
+    gaps = np.where(np.isfinite(gaps), gaps, 0.0)
+    agree = adm & (np.abs(st.best_j[r, v] - match[:, None]) <= cfg.radius)
+    conf = np.where(agree, gaps, 0.0).sum(axis=1) * wr._on_line(*wr._current_z(rows, match, best))
+    return match, conf
+
+
+ROUNDS["15: the spread test's threshold from the query's record"] = {
+    f"spread threshold {name} of the record": (lambda f: lambda st, rows, cfg: decide_calibrated(st, rows, cfg, f))(f)
+    for name, f in (("1/2", 0.5), ("1/3", 1.0 / 3.0))
+}
+
+CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}
+
 _BREAK = dict(spread_from="half", break_level=wr.DECORRELATION_LEVEL, break_lags=3)
 
 #: the candidates of rounds 7-14 written to ``benchmarks/results/window_rules.md`` beside the

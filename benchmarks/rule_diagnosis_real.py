@@ -138,7 +138,13 @@ def runs(mask):
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--conditions", default="reversed,speed 2,speed 0.5,in order")
+    ap.add_argument("--signals", action="store_true",
+                    help="instead: the autocorrelation of the frames' standardised difference at the match, and "
+                         "how far the correct chosen lines' sub-windows stand from random places (Nordland, UJI 02)")
     args = ap.parse_args(argv)
+    if args.signals:
+        signals()
+        return
     wanted = args.conditions.split(",")
     cells = {c.label: c for c in H.table_cells(("Nordland",)) if c.label in wanted}
     rows = [diagnose(cells[label], label) for label in wanted]
@@ -174,6 +180,34 @@ def main(argv=None) -> None:
     line("velocity: chosen / summed = the true one", lambda o: f"{o['v_true_share']:.3f} / {o['v_sum_true_share']:.3f}")
     hubs = [diagnose(cells[label], label, offsets=False) for label in wanted]
     print("| AUC without the hub correction | " + " | ".join(f"{o['auc']:.3f}" for o in hubs) + " |")
+
+
+def signals() -> None:
+    """Two candidate signals that could tell Nordland's hard stretches from UJI's dwelling
+    (docs/sequence.md): per cell, the autocorrelation of each frame's standardised difference
+    at rule "spanning"'s match, and, where the rule chose a window of 16 frames or more and was
+    right, how many common spreads its line's 5-, 11- and 23-frame sub-windows lie below the
+    random places' mean."""
+    import rule_candidates as C
+
+    cfg = H.config("spanning")
+    for cell in H.table_cells(("Nordland", "UJI", "synthetic")):
+        if cell.label not in ("in order", "shuffled 2–20 % (seed 4)", "reversed"):
+            continue
+        st, rows, index, truth = next(cell.each())
+        n = rows.shape[0]
+        r = np.arange(n)
+        match, conf, g, v = C.decide_spanning(st, rows, cfg)
+        e = wr._current_z(rows, match)
+        e = e - e.mean()
+        acf = [np.corrcoef(e[:-k], e[k:])[0, 1] for k in (1, 5, 20)]
+        ok = evaluate(index, match, conf, truth).correct.astype(bool)
+        z = (st.mean[r, v, :] - st.sub[r, v, g, :]) / wr._common_std(st)[:, 0, :]
+        sel = ok & (g > 2)
+        print(f"{cell.parts[0][0]}: autocorrelation at lags 1 / 5 / 20 " + " / ".join(f"{a:.2f}" for a in acf)
+              + "; correct chosen line, spreads below random at 5 / 11 / 23 frames: median "
+              + " / ".join(f"{x:.2f}" for x in np.median(z[sel][:, [0, 2, 4]], axis=0)) + ", 10th pct "
+              + " / ".join(f"{x:.2f}" for x in np.percentile(z[sel][:, [0, 2, 4]], 10, axis=0)))
 
 
 if __name__ == "__main__":
