@@ -190,13 +190,14 @@ class _Horizon:
         self.total = np.zeros(self.capacity)  # lag k at index k - 1
         self.weight = np.zeros(self.capacity)
 
-    def update(self, row: np.ndarray, i: int, spread: float) -> int:
-        """Read frame ``i``'s row (``spread``: its standard deviation); the horizon ``K >= 1``."""
+    def update(self, row: np.ndarray, i: int, spread: float, centre: float | None = None) -> int:
+        """Read frame ``i``'s row (``spread``: its standard deviation; ``centre``: its mean,
+        ``row.mean()`` where not given); the horizon ``K >= 1``."""
         slot = i % self.capacity
         ratio = np.zeros(self.capacity)
         seen = np.zeros(self.capacity)
         if spread > 0:
-            centre = row.mean()
+            centre = row.mean() if centre is None else centre
             best = self._best_places(row, centre, spread)
             m = best.shape[0]
             own = ((row[best] - centre) / spread).mean()
@@ -297,16 +298,28 @@ def _log_p(st: _Stats) -> np.ndarray:
     return (top + np.log(np.exp(terms - top).sum(axis=-1, keepdims=True)))[..., 0]
 
 
-def _horizons(cfg: _Config, frame_index: np.ndarray, rows_d, record: _Record | None) -> np.ndarray | None:
+def _row_moments(rows) -> tuple[np.ndarray, np.ndarray]:
+    """``(n,)`` each row's mean and ``(n,)`` its standard deviation, one row at a time (the
+    arithmetic of ``row.mean()`` and ``row.std()``, so that the streaming and the batch forms,
+    and the cluster's rows, agree): read once per frame by the horizon and the confidence."""
+    n = rows.shape[0]
+    centres, spreads = np.empty(n), np.empty(n)
+    for t in range(n):
+        centres[t], spreads[t] = rows[t].mean(), rows[t].std()
+    return centres, spreads
+
+
+def _horizons(cfg: _Config, frame_index: np.ndarray, rows_d, record: _Record | None,
+              moments: tuple[np.ndarray, np.ndarray]) -> np.ndarray | None:
     """``(n,)``: rule "spanning"'s decorrelation horizon of each frame, in order, from the
     record's clock (:class:`_Horizon`, the one of rule "decorrelated"); ``None`` for the
-    other rules."""
+    other rules. ``moments``: :func:`_row_moments` of ``rows_d``."""
     if cfg.fixed or cfg.rule != "spanning":
         return None
+    centres, spreads = moments
     out = np.empty(frame_index.shape[0], dtype=np.int64)
     for t, i in enumerate(frame_index):
-        row = rows_d[t]
-        out[t] = record.clock.update(row, int(i), row.std())
+        out[t] = record.clock.update(rows_d[t], int(i), spreads[t], centres[t])
     return out
 
 
@@ -368,21 +381,23 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
     return admissible
 
 
-def _current_z(rows: np.ndarray, match: np.ndarray, score: np.ndarray | None = None):
+def _current_z(rows: np.ndarray, match: np.ndarray, score: np.ndarray | None = None,
+               moments: tuple[np.ndarray, np.ndarray] | None = None):
     """``(n,)``: each frame's own difference at its match, standardised over its row.
 
     With ``score`` (the window score of each match) also returns that score standardised
     with the same row's mean and spread: the chosen line's mean standardised difference
     per frame. One row at a time, so that the streaming and the batch forms do the same
-    arithmetic.
+    arithmetic. ``moments``: :func:`_row_moments` of ``rows`` where already read.
     """
+    centres, spreads = _row_moments(rows) if moments is None else moments
     out = np.zeros(match.shape[0])
     line = np.zeros(match.shape[0])
     for t in range(match.shape[0]):
         row = rows[t]
-        spread = row.std()
+        spread = spreads[t]
         if spread > 0:
-            centre = row.mean()
+            centre = centres[t]
             out[t] = (row[match[t]] - centre) / spread
             if score is not None:
                 line[t] = (score[t] - centre) / spread
@@ -411,7 +426,10 @@ def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool
     # the velocity: the one whose windows are the most significant summed over every length
     v = np.argmin(log_p.sum(axis=2), axis=1)
     lp = log_p[rows, v]  # (n, G)
-    horizon = _horizons(cfg, frame_index, rows_d, record)
+    # each row's mean and spread, read once by the horizon and the confidence
+    reads = cfg.rule == "spanning" or cfg.confidence in ("posterior", "support")
+    moments = _row_moments(rows_d) if reads and not cfg.fixed else None
+    horizon = _horizons(cfg, frame_index, rows_d, record, moments)
     every = _admissible(st, cfg, log_p, rows_d.shape[1], horizon)  # (n, V, G)
     admissible = every[rows, v]
     masked = np.where(admissible, lp, np.inf)
@@ -448,9 +466,9 @@ def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool
         agree = admissible & (np.abs(st.best_j[rows, v] - match[:, None]) <= cfg.radius)
         conf = np.where(agree, gaps, 0.0).sum(axis=1)
         if cfg.confidence == "support":
-            conf = conf * ndtr(-_current_z(rows_d, match))
+            conf = conf * ndtr(-_current_z(rows_d, match, moments=moments))
         else:
-            conf = conf * _on_line(*_current_z(rows_d, match, best))
+            conf = conf * _on_line(*_current_z(rows_d, match, best, moments))
     elif cfg.confidence == "neglogp":
         conf = -lp[rows, g]
     else:

@@ -1056,7 +1056,7 @@ class _Replayed:
         self.capacity = capacity
         self.start, self.ks = 0, np.empty(0, dtype=np.int64)
 
-    def update(self, row, i: int, spread) -> int:
+    def update(self, row, i: int, spread, centre=None) -> int:
         return int(self.ks[i - self.start])
 
 

@@ -205,7 +205,7 @@ SPANNING = {"rule": "spanning", "l_max": 30, "grid": 4, "velocities": (-1.0, 1.0
 def _run_with_clock(local, params, k):
     """The local run with the horizon held at ``k`` on every frame (a wrong clock)."""
     original = wr._Horizon.update
-    wr._Horizon.update = lambda self, row, i, spread: k
+    wr._Horizon.update = lambda self, row, i, spread, centre=None: k
     try:
         return match_sequences(local, **params)
     finally:
