@@ -9,9 +9,10 @@ out=benchmarks/results/compare_cli.md
 {
   echo "# \`catgraph compare\` on four inputs"
   echo
-  echo "Each table is the output of the command above it (2,000 particles, seed 0; the filter's confidence
-is its posterior mass within the ground-truth tolerance, DESIGN §6; ms/frame is the"
-  echo "method's own time per query frame, difference matrix excluded)."
+  echo "Measured at commit \`$(git rev-parse --short HEAD)\`. Each table is the output of the command above it
+(the registry's defaults; the filters rank their answers by their score, the posterior log-odds of the
+answer's neighbourhood, ±2 mean spacings along the route, which never reads the ground truth or its
+tolerance; ms/frame is the method's own time per query frame, difference matrix excluded)."
   run() {
     echo; echo "\`\`\`"; echo "\$ catgraph compare $*"
     catgraph compare "$@" 2>/dev/null; echo "\`\`\`"
