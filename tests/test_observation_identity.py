@@ -55,6 +55,10 @@ def _digest(mode: str, hubs: bool, seed: int = 0, n_places: int = 3000, n_frames
     obs = observation_model(p, n_places, None)
     obs.models[1].temperature = "window"  # the sequence part's temperature then (the default is now "longest")
     loc = make_filter(p, PlaceGraph.chain(n_places), obs)
+    if mode == "grid":
+        loc.blur = 0.01  # the grid filter's blur then (the default is now 0.005)
+    else:
+        loc.motion.blur = 0.01  # the particles follow the grid's blur unless given one
     loc.reset()
     h = hashlib.sha256()
     tempered = obs.models[0]
