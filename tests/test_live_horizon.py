@@ -18,9 +18,10 @@ from catgraph._window_rule import _Horizon
 
 
 class _PartitionHorizon(_Horizon):
-    """The reference: the row standardised as a whole and partitioned by numpy."""
+    """The reference: the row standardised as a whole and partitioned by numpy (``centre``,
+    the row's mean where the caller has it, is recomputed here)."""
 
-    def update(self, row, i, spread):
+    def update(self, row, i, spread, centre=None):
         slot = i % self.capacity
         ratio = np.zeros(self.capacity)
         seen = np.zeros(self.capacity)
