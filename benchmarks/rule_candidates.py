@@ -76,6 +76,18 @@ def horizons(rows):
     return _HORIZONS[key]
 
 
+def support(st, cfg, adm, v, match):
+    """``(n,)``: the gaps of every admitted window (velocity ``v``) whose best place agrees
+    with ``match``, summed (the library's confidence "posterior" before its on-line factor)."""
+    r = np.arange(st.best_s.shape[0])
+    stds = wr._common_std(st)[:, 0, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gaps = np.where(stds > 0, (st.second_s[r, v] - st.best_s[r, v]) / stds, 0.0)
+    gaps = np.where(np.isfinite(gaps), gaps, 0.0)
+    agree = adm & (np.abs(st.best_j[r, v] - match[:, None]) <= cfg.radius)
+    return np.where(agree, gaps, 0.0).sum(axis=1)
+
+
 def decide(st, rows, cfg, velocity="summed", vgate=None, vmargin=0.0, **kw):
     """Rule "unrivalled" with the rival test of ``kw`` (velocity, argmin p, confidence "posterior").
 
@@ -123,12 +135,7 @@ def decide(st, rows, cfg, velocity="summed", vgate=None, vmargin=0.0, **kw):
     lp = log_p[r, v]
     best = st.best_s[r, v, g]
     match = st.best_j[r, v, g]
-    stds = wr._common_std(st)[:, 0, :]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        gaps = np.where(stds > 0, (st.second_s[r, v] - st.best_s[r, v]) / stds, 0.0)
-    gaps = np.where(np.isfinite(gaps), gaps, 0.0)
-    agree = adm & (np.abs(st.best_j[r, v] - match[:, None]) <= cfg.radius)
-    conf = np.where(agree, gaps, 0.0).sum(axis=1) * wr._on_line(*wr._current_z(rows, match, best))
+    conf = support(st, cfg, adm, v, match) * wr._on_line(*wr._current_z(rows, match, best))
     return match, conf, g, v
 
 
@@ -346,17 +353,12 @@ def decide_spanning(st, rows, cfg, rechoose="horizon", spread_from="all", mid_fr
         adm[r, g] = True
     best = st.best_s[r, v, g]
     match = st.best_j[r, v, g]
-    stds = wr._common_std(st)[:, 0, :]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        gaps = np.where(stds > 0, (st.second_s[r, v] - st.best_s[r, v]) / stds, 0.0)
-    gaps = np.where(np.isfinite(gaps), gaps, 0.0)
-    agree = adm & (np.abs(st.best_j[r, v] - match[:, None]) <= cfg.radius)
-    support = np.where(agree, gaps, 0.0).sum(axis=1)
+    held = support(st, cfg, adm, v, match)
     if confidence == "posterior":
-        conf = support * wr._on_line(*wr._current_z(rows, match, best))
+        conf = held * wr._on_line(*wr._current_z(rows, match, best))
     else:  # ("changepoint", span, odds): the line held over its recent frames, not the current one alone
         _, span, odds = confidence
-        conf = support * on_line_since(rows, match, best, cfg.velocities[v], cfg.grid[g], span, odds)
+        conf = held * on_line_since(rows, match, best, cfg.velocities[v], cfg.grid[g], span, odds)
     return match, conf, g, v
 
 
@@ -530,11 +532,7 @@ def decide_calibrated(st, rows, cfg, fraction=0.5, half_life=wr.DECORRELATION_HA
     adm = every[r, v]
     adm[r, g] = True
     best, match = st.best_s[r, v, g], st.best_j[r, v, g]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        gaps = np.where(common > 0, (st.second_s[r, v] - st.best_s[r, v]) / common, 0.0)
-    gaps = np.where(np.isfinite(gaps), gaps, 0.0)
-    agree = adm & (np.abs(st.best_j[r, v] - match[:, None]) <= cfg.radius)
-    conf = np.where(agree, gaps, 0.0).sum(axis=1) * wr._on_line(*wr._current_z(rows, match, best))
+    conf = support(st, cfg, adm, v, match) * wr._on_line(*wr._current_z(rows, match, best))
     return match, conf
 
 
