@@ -54,9 +54,16 @@ RIVAL_MARGIN = 10.0
 SPANNING_MARGIN = 6.0
 
 
-#: with confidence "posterior": prior odds that the query jumped away from the chosen line at
-#: the current frame (against staying on it); chosen on the whole condition table
+#: with confidences "posterior" and "changepoint": prior odds that the query jumped away from
+#: the chosen line at a given frame (against staying on it); chosen on the whole condition table
 JUMP_ODDS = 0.3
+
+#: with confidence "changepoint": how many of the latest frames along the chosen line are
+#: weighed; every jump time ``t = 1 .. CHANGE_POINT_FRAMES`` frames back is one hypothesis
+#: (the frames since it at random places), each at the prior odds :data:`JUMP_ODDS`. With 1
+#: it is confidence "posterior" (the current frame alone). Chosen on the whole condition table
+#: (``benchmarks/results/window_rules.md``), not per dataset
+CHANGE_POINT_FRAMES = 5
 
 
 #: with rule "predictive": each window's line at frame ``i - PREDICTION_HORIZON`` predicts the
@@ -82,6 +89,11 @@ DECORRELATION_HALF_LIFE = 100.0
 #: ... and at most this many frames (also the horizon while no lag has decorrelated yet)
 HORIZON_MAX = 48
 
+
+#: the confidences that weigh the admitted windows' agreeing gaps by the rows along the chosen
+#: line (the current frame's, or with "changepoint" the latest frames'): with a fixed window
+#: they are SeqSLAM's gap
+WEIGHED_CONFIDENCES = ("posterior", "support", "changepoint")
 
 #: the rules that choose the window by a predictive record (no sub-window statistics)
 RECORD_RULES = ("predictive", "decorrelated")
@@ -117,6 +129,7 @@ class _Record:
         self.velocity = np.zeros(capacity)
         self.total = np.zeros(g_count)
         self.weight = 0.0
+        self.recent: _Recent | None = None  # confidence "changepoint": the latest rows
 
     def loss(self, row: np.ndarray, i: int) -> np.ndarray | None:
         """``(G,)``: the standardised difference of ``row`` (frame ``i``) at the place each
@@ -234,14 +247,55 @@ class _Horizon:
         return np.argpartition((row - centre) / spread, m - 1)[:m]
 
 
+class _Recent:
+    """Confidence "changepoint": the latest frames' rows and moments, carried from block to block.
+
+    The confidence of frame ``i`` reads the standardised differences of frames ``i - 1 ..
+    i - T + 1`` (``T`` = :data:`CHANGE_POINT_FRAMES`) at the places the frame's chosen line
+    passes; that line is known only at frame ``i``, so the whole rows are kept: the last
+    ``T - 1`` rows (copies, float64) with their means and spreads, ``8 (T - 1) (N + 2)``
+    bytes (32 MB at ``N = 10^6`` with ``T = 5``, against the matcher's own int16 ring of
+    ``2 (l_max + 1) N`` bytes, 1 GB). A block of frames reads its own earlier rows from the
+    block and only the frames before it from here. Rows handed as something other than an
+    array (the cluster's :class:`catgraph.distributed._Rows`, which serves the values
+    itself) keep only their moments.
+    """
+
+    def __init__(self, frames: int | None = None):
+        self.frames = int(CHANGE_POINT_FRAMES if frames is None else frames)
+        slots = max(0, self.frames - 1)
+        self.index = np.full(slots, -1, dtype=np.int64)  # the frame held in each slot
+        self.rows: list = [None] * slots
+        self.centres = np.zeros(slots)
+        self.spreads = np.zeros(slots)
+
+    def keep(self, frame_index: np.ndarray, rows_d, moments: tuple[np.ndarray, np.ndarray]) -> None:
+        """Remember the last ``T - 1`` frames of a block (``frame_index`` consecutive)."""
+        slots = self.index.shape[0]
+        copy = isinstance(rows_d, np.ndarray)
+        for t in range(max(0, frame_index.shape[0] - slots), frame_index.shape[0]):
+            i = int(frame_index[t])
+            slot = i % slots
+            self.index[slot] = i
+            self.rows[slot] = np.array(rows_d[t], dtype=np.float64, copy=True) if copy else None
+            self.centres[slot], self.spreads[slot] = moments[0][t], moments[1][t]
+
+
 def _new_record(cfg: _Config) -> _Record | None:
     """The state a rule carries from frame to frame (rules "predictive" and "decorrelated";
-    rule "spanning" reads only the record's clock)."""
-    if cfg.fixed or cfg.rule not in RECORD_RULES + ("spanning",):
+    rule "spanning" reads only the record's clock; confidence "changepoint" keeps the latest
+    rows in the record's :class:`_Recent`, whatever the rule)."""
+    if cfg.fixed:
         return None
+    recent = _Recent() if cfg.confidence == "changepoint" else None
     if cfg.rule in ("decorrelated", "spanning"):
-        return _Record(cfg.grid.shape[0], clock=_Horizon())
-    return _Record(cfg.grid.shape[0])
+        record = _Record(cfg.grid.shape[0], clock=_Horizon())
+    elif cfg.rule in RECORD_RULES or recent is not None:
+        record = _Record(cfg.grid.shape[0])
+    else:
+        return None
+    record.recent = recent
+    return record
 
 
 def _predictive_choice(st: _Stats, cfg: _Config, frame_index: np.ndarray, rows_d: np.ndarray, v: np.ndarray,
@@ -418,6 +472,89 @@ def _on_line(z: np.ndarray, mu: np.ndarray) -> np.ndarray:
     return expit((z * z - (z - mu) ** 2) / 2.0 - np.log(JUMP_ODDS))
 
 
+def _line_places(match: np.ndarray, velocity: np.ndarray, frame_index: np.ndarray, frames: int):
+    """``(n, T)`` places of each frame's chosen line at frames ``i, i - 1, .. i - T + 1``
+    (``match_i - (pos_v(i) - pos_v(i - f))``, the kernels' lines) and ``(n, T)`` which of
+    those frames exist (``i - f >= 0``)."""
+    f = np.arange(frames)
+    i = frame_index[:, None]
+    earlier = i - f[None, :]
+    v = np.asarray(velocity, dtype=np.float64)[:, None]
+    places = match[:, None] - (_position(v, i) - _position(v, np.maximum(earlier, 0)))
+    return places, earlier >= 0
+
+
+def _line_z(rows_d, moments: tuple[np.ndarray, np.ndarray], frame_index: np.ndarray, match: np.ndarray,
+            velocity: np.ndarray, recent: _Recent) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The standardised differences along each frame's chosen line over its latest ``T`` frames.
+
+    Returns ``z`` (``(n, T)``: ``(d_{i-f}[place] - mean d_{i-f}) / std d_{i-f}`` at the line's
+    place of frame ``i - f``; 0 where not read), ``counts`` (``(n, T)``: the place lies on the
+    reference and the row has a spread: the term enters the likelihood ratio) and ``exists``
+    (``(n, T)``: frame ``i - f`` exists, a jump time that is a hypothesis). Frames of the block
+    are read from ``rows_d`` (moments: :func:`_row_moments` of it), earlier ones from
+    ``recent``; rows that serve their own values (``line_values``, the cluster's) are asked
+    for every place at once.
+    """
+    n_rows = rows_d.shape[1]
+    places, exists = _line_places(match, velocity, frame_index, recent.frames)
+    inside = exists & (places >= 0) & (places < n_rows)
+    rel = np.arange(match.shape[0])[:, None] - np.arange(recent.frames)[None, :]  # block row of frame i - f
+    centres, spreads = np.zeros(places.shape), np.zeros(places.shape)
+    mine = rel >= 0
+    centres[mine], spreads[mine] = moments[0][rel[mine]], moments[1][rel[mine]]
+    before = np.argwhere(exists & ~mine)
+    for t, f in before:  # frames before the block: from the carried rows
+        slot = int(frame_index[t] - f) % recent.index.shape[0]
+        centres[t, f], spreads[t, f] = recent.centres[slot], recent.spreads[slot]
+    counts = inside & (spreads > 0)
+    values = np.zeros(places.shape)
+    if hasattr(rows_d, "line_values"):
+        at = np.argwhere(counts)
+        if at.shape[0]:
+            values[counts] = rows_d.line_values(rel[counts], places[counts])
+    else:
+        here = counts & mine
+        values[here] = rows_d[rel[here], places[here]]
+        for t, f in np.argwhere(counts & ~mine):
+            slot = int(frame_index[t] - f) % recent.index.shape[0]
+            values[t, f] = recent.rows[slot][places[t, f]]
+    safe = np.where(counts, spreads, 1.0)
+    z = np.where(counts, (values - centres) / safe, 0.0)
+    return z, counts, exists
+
+
+def _on_line_since(z: np.ndarray, counts: np.ndarray, exists: np.ndarray, mu: np.ndarray) -> np.ndarray:
+    """``(n,)``: confidence "changepoint", the posterior probability that the query has not
+    jumped off the chosen line within its latest ``T`` frames.
+
+    Confidence "posterior" (:func:`_on_line`) weighs the current frame alone. Here every jump
+    time ``t = 1 .. T`` frames back (``T`` = :data:`CHANGE_POINT_FRAMES`, fewer at the
+    query's start) is a hypothesis at the prior odds :data:`JUMP_ODDS`: the ``t`` frames since
+    the jump lie at random places (their standardised differences ``z`` at the line a standard
+    normal), the frames before it on the line (a unit normal around the line's mean
+    standardised difference ``mu`` of the current frame). The log likelihood ratio of "no
+    jump" against "a jump ``t`` frames back" is ``LLR_t = sum_{f < t} (z_f^2 - (z_f - mu)^2) / 2``
+    over the latest ``t`` frames (a term is 0 where the line has left the reference or the row
+    is flat: ``counts``), and ``P = 1 / (1 + JUMP_ODDS sum_t exp(-LLR_t))``, computed as
+    ``e^{-m} / (e^{-m} + JUMP_ODDS sum_t e^{-LLR_t - m})`` with ``m = max(0, max_t -LLR_t)``.
+    The running sums and the sum over ``t`` are added one frame at a time, in order (the same
+    floats in the streaming and the batch forms). With ``T = 1`` it equals "posterior".
+    """
+    llr = np.where(counts, (z * z - (z - mu[:, None]) ** 2) / 2.0, 0.0)
+    cumulative = np.empty_like(llr)
+    running = np.zeros(llr.shape[0])
+    for f in range(llr.shape[1]):
+        running = running + llr[:, f]
+        cumulative[:, f] = running
+    top = np.maximum(0.0, np.where(exists, -cumulative, -np.inf).max(axis=1))
+    total = np.zeros(llr.shape[0])
+    for f in range(llr.shape[1]):
+        total = total + np.where(exists[:, f], np.exp(-cumulative[:, f] - top), 0.0)
+    keep = np.exp(-top)
+    return keep / (keep + JUMP_ODDS * total)
+
+
 def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool, rows_d: np.ndarray,
             record: _Record | None = None):
     n, v_count, g_count = st.best_s.shape
@@ -427,7 +564,7 @@ def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool
     v = np.argmin(log_p.sum(axis=2), axis=1)
     lp = log_p[rows, v]  # (n, G)
     # each row's mean and spread, read once by the horizon and the confidence
-    reads = cfg.rule == "spanning" or cfg.confidence in ("posterior", "support")
+    reads = cfg.rule == "spanning" or cfg.confidence in WEIGHED_CONFIDENCES
     moments = _row_moments(rows_d) if reads and not cfg.fixed else None
     horizon = _horizons(cfg, frame_index, rows_d, record, moments)
     every = _admissible(st, cfg, log_p, rows_d.shape[1], horizon)  # (n, V, G)
@@ -453,11 +590,11 @@ def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool
     best = st.best_s[rows, v, g]
     std = _common_std(st)[rows, 0, g]
     match = st.best_j[rows, v, g]
-    if cfg.confidence == "gap" or (cfg.confidence in ("posterior", "support") and cfg.fixed):
+    if cfg.confidence == "gap" or (cfg.confidence in WEIGHED_CONFIDENCES and cfg.fixed):
         with np.errstate(divide="ignore", invalid="ignore"):
             conf = np.where(std > 0, (st.second_s[rows, v, g] - best) / std, 0.0)
         conf = np.where(np.isfinite(conf), conf, 0.0)
-    elif cfg.confidence in ("posterior", "support"):
+    elif cfg.confidence in WEIGHED_CONFIDENCES:
         # the gaps of every admitted window (chosen velocity) whose best place agrees
         stds = _common_std(st)[:, 0, :]
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -467,6 +604,11 @@ def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool
         conf = np.where(agree, gaps, 0.0).sum(axis=1)
         if cfg.confidence == "support":
             conf = conf * ndtr(-_current_z(rows_d, match, moments=moments))
+        elif cfg.confidence == "changepoint":
+            _, mu = _current_z(rows_d, match, best, moments)
+            recent = record.recent
+            conf = conf * _on_line_since(*_line_z(rows_d, moments, frame_index, match, cfg.velocities[v], recent), mu)
+            recent.keep(frame_index, rows_d, moments)
         else:
             conf = conf * _on_line(*_current_z(rows_d, match, best, moments))
     elif cfg.confidence == "neglogp":
