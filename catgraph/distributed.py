@@ -152,11 +152,31 @@ block are computed *where the shards live*, and only per-frame summaries travel 
    ``benchmarks/results/distributed_identity_spanning.md``: Nordland and UJI, one shard
    and padded to two shards with the edge in the route's middle, every frame identical).
 
+9. **Confidence "changepoint"** (:mod:`catgraph._window_rule`, ``T`` =
+   :data:`~catgraph._window_rule.CHANGE_POINT_FRAMES`). It weighs the standardised
+   differences of the latest ``T`` frames at the places the frame's chosen line passes:
+   ``d_{i-f}[match_i - (pos_v(i) - pos_v(i - f))]``, ``f < T``, each with its row's mean and
+   spread. The line is known only once the rule has chosen it, so these values are asked
+   for after the rule, by the rule itself (the rows handed to
+   :func:`catgraph._window_rule._decide` serve them, :class:`_Lines`): each shard returns
+   the values of the (frame, place) pairs it holds, in one more round per block, from the
+   normalised rows it already has (the block carries ``l_max >= T - 1`` earlier rows, so
+   frames of the previous block are there too, the same values). ``f = 0`` (the current
+   frame at its match) is served with the summaries (6), so at most ``T - 1`` pairs per
+   frame travel: ``16 (T - 1)`` bytes per frame (an int32 row and column out, a float64
+   back: 64 bytes with ``T = 5``), fewer where the line has left the map or a row is flat.
+   The earlier rows' means and spreads are those the client reduced for the previous block
+   (step 6), carried in the record (``16 (T - 1)`` bytes). Matches, scores, velocities,
+   window lengths and confidences equal the local run bit for bit (tested: in order,
+   reversed, at speed 2, shuffled, blocks of 37 frames on a route that crosses two shard
+   edges; rules "unrivalled", "predictive" and "decorrelated" hub-corrected with frames
+   without information).
+
 Per block, only ``O(rows V G (radius + G + 8))`` numbers per shard return to the client
 (``G`` candidate lengths, 1 for a fixed window): four client rounds for a fixed window
 (two for the normalisation, one for the mean codes, one for the summaries; one more per
 query for the quantum), two more for the row moments of the adaptive window's
-confidence, two more for the hub correction; the full ``n_query × N`` matrix is never gathered
+confidence (one more with "changepoint"), two more for the hub correction; the full ``n_query × N`` matrix is never gathered
 (:func:`difference_matrix` gathers it on request, for tests and small maps).
 
 What to call
@@ -184,7 +204,8 @@ import numpy as np
 from ._jit import njit
 from ._sequence_kernels import _NONE, encode, position, unit_of
 from ._validation import check_scalar
-from ._window_rule import RECORD_RULES, _decide, _log_p, _needs_sub, _new_record, _position, _Record, _Stats
+from ._window_rule import (CHANGE_POINT_FRAMES, RECORD_RULES, WEIGHED_CONFIDENCES, _decide, _log_p, _needs_sub,
+                           _new_record, _position, _Record, _Stats)
 from .differences import LAYOUTS, METRICS, PreparedReference, _combine, _zero_spread, code_scale
 from .exceptions import InvalidParameterError, MissingDependencyError
 from .sequence import DEFAULT_GRID, DEFAULT_RULE, DEFAULT_VELOCITIES, _config, _velocity_set
@@ -203,6 +224,8 @@ SHARD_UNIT = 4096
 #: (never through the client), no extra client round (step 7 of the module notes).
 #: "spanning" reads that horizon and, beyond it, only statistics the summaries already
 #: carry: the same ``8 N`` bytes between workers, no lookups, no extra round (step 8).
+#: Every rule also runs exactly with the confidence "changepoint": ``16 (T - 1)`` bytes per
+#: frame and one more round per block (step 9).
 EXACT_RULES = ("unrivalled", "evident", "consistent", "sustained", "literal", "predictive", "decorrelated",
                "spanning")
 
@@ -696,16 +719,19 @@ def _line_blocks(ref: ShardedReference, q: np.ndarray, start: int, stop: int, wi
                  velocities: np.ndarray, unit: float | None, radius: int, want_sums: bool = False,
                  blank: np.ndarray | None = None, want_sub: bool = False,
                  keep_rows: bool = False, hubs: list | None = None,
-                 at_best: bool | None = None) -> tuple[list, float, list | None]:
+                 at_best: bool | None = None, back: int = 0) -> tuple[list, float, list | None]:
     """Futures of each shard's window sums and summaries (:func:`_shard_lines`) for query
     rows ``[start, stop)``, every velocity and every length in ``windows``; the quantum
     (fixed by the first block when ``unit`` is ``None``); with ``keep_rows``, the futures
     of the shards' normalised rows (else ``None``); with ``at_best`` (default: ``keep_rows``),
-    each shard's row values at its best places come back with the summaries."""
+    each shard's row values at its best places come back with the summaries; with ``back``,
+    the kept rows begin up to ``back`` frames before ``start`` (the latest rows the confidence
+    "changepoint" reads), as ``(rows, earlier)``: the rows from ``start`` and those from
+    ``start - min(back, start)``."""
     c = ref.client
     at_best = keep_rows if at_best is None else at_best
     longest = int(windows[-1])
-    first = max(0, start - longest)
+    first = max(0, start - max(longest, back))
     blocks = _normalised_blocks(ref, q[first:stop], True, None if blank is None else blank[first:stop], hubs)
     if unit is None:  # the first block starts at query frame 0
         unit = _quantum(ref, blocks)
@@ -726,6 +752,9 @@ def _line_blocks(ref: ShardedReference, q: np.ndarray, start: int, stop: int, wi
                               velocities, mean_codes, lo, ref.n_places, radius, want_sums, want_sub,
                               blocks[s] if at_best else None))
     rows = [ref.submit(s, _rows_from, b, start - first) for s, b in enumerate(blocks)] if keep_rows else None
+    if keep_rows and back:
+        earlier = min(back, start)
+        rows = (rows, [ref.submit(s, _rows_from, b, start - first - earlier) for s, b in enumerate(blocks)])
     return out, unit, rows
 
 
@@ -970,9 +999,28 @@ class _Rows:
     spread are ``nan`` (the rule then reads only the rows' width, and rule "spanning"
     hands each row to the replayed clock, which does not read it)."""
 
-    def __init__(self, n: int, mean=None, std=None, places=None, values=None, rows: int = 0):
+    def __init__(self, n: int, mean=None, std=None, places=None, values=None, rows: int = 0, lines=None):
         self.shape = (rows if mean is None else mean.shape[0], n)
         self._mean, self._std, self._places, self._values = mean, std, places, values
+        self._lines = lines
+        if lines is not None:
+            self.line_values = self._line_values
+
+    def _line_values(self, rel: np.ndarray, places: np.ndarray) -> np.ndarray:
+        """Confidence "changepoint": the rows' values at ``places`` of the frames ``rel``
+        (block rows; negative: the frames before the block), those already served for the
+        current frame (its best places) from here, the others in one round from the shards
+        that hold them (:class:`_Lines`)."""
+        out = np.empty(rel.shape[0])
+        known = np.zeros(rel.shape[0], dtype=bool)
+        for k in np.flatnonzero(rel >= 0):
+            row = self._places[rel[k]].ravel()
+            hit = np.flatnonzero(row == places[k])
+            if hit.size:
+                out[k], known[k] = self._values[rel[k]].ravel()[hit[0]], True
+        ask = ~known
+        out[ask] = self._lines.serve(rel[ask], places[ask])
+        return out
 
     def __getitem__(self, t: int) -> _Row:
         if self._mean is None:  # nothing served: only the replayed clock is handed the row, and ignores it
@@ -980,6 +1028,41 @@ class _Rows:
         places, values = self._places[t].ravel(), self._values[t].ravel()
         used = places >= 0
         return _Row(self._mean[t], self._std[t], dict(zip(places[used].tolist(), values[used])), self.shape[1])
+
+
+def _values_at(rows: np.ndarray, at_row: np.ndarray, at_col: np.ndarray) -> np.ndarray:
+    return rows[at_row, at_col]
+
+
+class _Lines:
+    """Confidence "changepoint" on the cluster: the rows' values along the chosen lines.
+
+    ``earlier`` are the futures of each shard's normalised rows from ``back`` frames before
+    the block (the block carries ``l_max`` earlier rows anyway: the same values a local run
+    keeps). :meth:`serve` sends each shard the (row, column) pairs it holds, in one round,
+    and counts the round and the pairs (``16`` bytes each: an int32 row and column out, a
+    float64 back)."""
+
+    def __init__(self, ref: ShardedReference, earlier: list, back: int):
+        self.ref, self.earlier, self.back = ref, earlier, back
+        self.rounds, self.pairs = 0, 0
+
+    def serve(self, rel: np.ndarray, places: np.ndarray) -> np.ndarray:
+        out = np.empty(rel.shape[0])
+        if not rel.shape[0]:
+            return out
+        futs, where = [], []
+        for s, (lo, hi) in enumerate(self.ref.bounds):
+            here = np.flatnonzero((places >= lo) & (places < hi))
+            if here.size:
+                where.append(here)
+                futs.append(self.ref.submit(s, _values_at, self.earlier[s], (rel[here] + self.back).astype(np.int32),
+                                            (places[here] - lo).astype(np.int32)))
+        for here, got in zip(where, self.ref.client.gather(futs)):
+            out[here] = got
+        self.rounds += 1
+        self.pairs += rel.shape[0]
+        return out
 
 
 def _predicted_places(st: _Stats, cfg, record: _Record, start: int, n: int,
@@ -1080,7 +1163,10 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
     hubs = _hub_futures(ref, hub_offsets, owner)
     with_sub = _needs_sub(cfg)
     # the current frame's term of the confidence ("posterior", "support" with an adaptive window)
-    current = not cfg.fixed and cfg.confidence in ("posterior", "support")
+    current = not cfg.fixed and cfg.confidence in WEIGHED_CONFIDENCES
+    # confidence "changepoint": the latest rows along the chosen line, served after the rule
+    # has chosen it (one more round per block)
+    back = CHANGE_POINT_FRAMES - 1 if current and cfg.confidence == "changepoint" else 0
     # rules "predictive" and "decorrelated": a record carried from block to block, and G
     # lookups per row; rule "spanning" reads only the record's clock (no lookups)
     record = _new_record(cfg)
@@ -1097,7 +1183,11 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
         stop = min(n_q, start + block_rows)
         futs, unit, rows = _line_blocks(ref, q, start, stop, windows, cfg.velocities, unit, cfg.radius, blank=blank,
                                         want_sub=with_sub, keep_rows=current or record is not None, hubs=hubs,
-                                        at_best=current)
+                                        at_best=current, back=back)
+        lines = None
+        if back:
+            rows, earlier = rows
+            lines = _Lines(ref, earlier, min(back, start))
         summaries = [ref.submit(s, _summaries_only, f) for s, f in enumerate(futs)]
         if clock is not None:  # chained on one worker, gathered with the summaries
             ends = []
@@ -1141,7 +1231,7 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
                 at_best = np.take_along_axis(np.stack([p["at_best"] for p in parts]), pick, axis=0)[0]
                 places = np.concatenate([best_j.reshape(stop - start, -1), places], axis=1)
                 values = np.concatenate([at_best.reshape(stop - start, -1), values], axis=1)
-            rows_d = _Rows(n, row_mean, row_std, places, values)
+            rows_d = _Rows(n, row_mean, row_std, places, values, lines=lines)
         else:  # the rule reads the rows' width only (and, rule "spanning", hands them to the replayed clock)
             rows_d = _Rows(n, rows=stop - start)
         m, s, k, w, v, _ = _decide(st, cfg, np.arange(start, stop), False, rows_d, record)
