@@ -1,0 +1,108 @@
+"""The sequence matcher's kernels stay bit-identical when they are made faster.
+
+Streaming runs of the kernel driver :func:`catgraph._sequence_kernels.run_batch` (one
+row per call, as :meth:`catgraph.sequence.SequenceMatcher.step` calls it) against
+digests of the outputs the kernels produced before any speed-up: every frame's best
+places, best and second-best scores, means, spreads and sub-window scores, and the
+final running sums, ring and quantum, bit for bit. The rows: random rows over several
+blocks of the block minima, rows whose window sums are too large for the float64
+moments to be exact (any change in their summation order would show), and a stretch
+of the real Nordland difference matrix. The window rule that reads these outputs is
+not part of the digests (it has tests of its own)."""
+
+import hashlib
+
+import numpy as np
+
+from catgraph import _sequence_kernels as k
+from catgraph import sequence as seq
+
+from .conftest import NORDLAND, needs_nordland
+
+
+def _digest(arrays) -> str:
+    h = hashlib.sha256()
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(str(a.dtype).encode() + str(a.shape).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()[:16]
+
+
+def _kernel_run(d, l_max=40):
+    """Every frame's kernel outputs (best places, scores, moments, sub-window scores)."""
+    cfg = seq._config("test", "adaptive", "gaussian", seq.DEFAULT_RULE, "posterior", 5, l_max, seq.DEFAULT_GRID, 10,
+                      0.05, seq.DEFAULT_VELOCITIES, None)
+    n_q, n = d.shape
+    sums, ring, mring, state, scratch = seq._state(cfg, n)
+    out = []
+    for i in range(n_q):
+        st = seq._Stats(1, cfg.velocities.shape[0], cfg.grid.shape[0], cfg.n_components, True)
+        k.run_batch(d[i:i + 1], i, sums, ring, mring, state, cfg.velocities, cfg.grid, cfg.approx_code, 10, 1,
+                    cfg.radius, st.best_j, st.best_s, st.second_s, st.mean, st.std, st.weights, st.locs, st.scales,
+                    st.sub, *scratch)
+        out += [st.best_j, st.best_s, st.second_s, st.mean, st.std, st.sub]
+    out += [sums, ring, mring, state]
+    _kernel_run.sums = sums
+    return _digest(out)
+
+
+def _random_rows(n_q=70, n=5000, seed=0, scale=1.0):
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(n_q, n))
+    # a line at velocity 1 and one at velocity -2, so the best places move across blocks
+    for i in range(n_q):
+        d[i, (1000 + i) % n] -= 4.0
+        d[i, (4100 - 2 * i) % n] -= 3.0
+    return d * scale
+
+
+def _large_rows(n_q=150, n=5000, seed=1):
+    """One pattern moving one place per frame (the velocity-1 window sums grow with the
+    window) at 20 times the first row's scale: codes up to the int16 limit, window sums
+    of millions, their squares summed over the places beyond 2^53 (the float64 moments
+    round, so their summation order shows)."""
+    rng = np.random.default_rng(seed)
+    base = rng.normal(size=n)
+    d = np.stack([np.roll(base, i) for i in range(n_q)]) + 0.1 * rng.normal(size=(n_q, n))
+    d[0] *= 0.05
+    return d
+
+
+def _nordland_rows(n_q=120):
+    """The first query frames' normalised difference rows of Nordland (summer map, winter query)."""
+    from catgraph.datasets import load_traverse
+    from catgraph.pipeline import differences
+    from catgraph.traverse import Traverse
+
+    ref = load_traverse(NORDLAND / "summer")
+    query = load_traverse(NORDLAND / "winter")
+    return differences(ref, Traverse(query.frames[:n_q]))
+
+
+#: digests of the outputs before the speed-ups (the code of the commit that added this file)
+_DIGESTS = {"random kernel": "8c8d35bac63a2adf", "large kernel": "1b49e25679892957",
+            "nordland kernel": "56944d93fade143e"}
+
+
+def test_kernel_outputs_are_those_before_the_speed_ups():
+    assert _kernel_run(_random_rows()) == _DIGESTS["random kernel"]
+
+
+def test_kernel_outputs_with_rounding_moments_are_those_before_the_speed_ups():
+    d = _large_rows()
+    assert _kernel_run(d, l_max=500) == _DIGESTS["large kernel"]
+    # the case is what it claims: a window's squared deviations sum beyond 2^53
+    s = _kernel_run.sums[5, -1].astype(np.int64)  # velocity 1, the longest window
+    assert sum(int(y) ** 2 for y in s - s[0]) > 2**53
+
+
+def test_kernel_outputs_do_not_depend_on_the_threads(monkeypatch):
+    monkeypatch.setattr(k, "WORK_PER_THREAD", 1)  # both threads, one velocity at a time
+    assert _kernel_run(_random_rows()) == _DIGESTS["random kernel"]
+
+
+@needs_nordland
+def test_nordland_rows_give_the_outputs_before_the_speed_ups():
+    d = _nordland_rows()
+    assert _kernel_run(d, l_max=500) == _DIGESTS["nordland kernel"]
