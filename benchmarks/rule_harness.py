@@ -30,9 +30,11 @@ Ground truth is read only to score a rule, never by it. Run from the repository 
 which prints the margins of the default rule (a check that the harness reproduces the
 committed benchmarks) and of every candidate of ``benchmarks/rule_candidates.py``; with
 ``--write`` the library's rules "unrivalled", "decorrelated" and "spanning", the parts of
-"spanning" and the candidates around it that docs/sequence.md reports, written to
+"spanning" and the candidates around it that docs/sequence.md reports, and rule "spanning"
+with the library's confidence "changepoint", written to
 ``benchmarks/results/window_rules.md`` and ``.json`` (``--round N``: one round of the search
-beside "spanning"; ``--dump``: every cell's AUC per rule as JSON).
+beside "spanning"; ``--dump``: every cell's AUC per rule as JSON; ``--add``: only the
+library's confidences, added as columns to the committed files).
 """
 
 from __future__ import annotations
@@ -132,6 +134,23 @@ def library_rule(rule: str, **kwargs):
         match, _, conf, length, vel, _ = wr._decide(st, c, np.arange(rows.shape[0]), False, rows, wr._new_record(c))
         return match, conf
     return apply
+
+
+#: the library's confidences beside the harness's candidates (``--add``: only these, added as
+#: columns to the committed ``window_rules.json``)
+LIBRARY_CONFIDENCES = {"spanning, confidence changepoint (library)": library_rule("spanning", confidence="changepoint")}
+
+
+def add_columns(cells: list[Cell], new: dict) -> None:
+    """Add the rules ``new`` (name → AUC per cell, in the order of ``cells``) to the committed
+    ``window_rules.json`` (the same cells) and write both files again."""
+    data = json.loads((RESULTS / "window_rules.json").read_text())
+    keys = [(c["dataset"], c["condition"]) for c in data["cells"]]
+    if keys != [(c.dataset, c.label) for c in cells]:
+        raise SystemExit("--add needs every cell of the committed window_rules.json (--sets table,heldout)")
+    results = {r: [c["auc"][r] for c in data["cells"]] for r in data["cells"][0]["auc"]}
+    results.update(new)
+    write_results(cells, results)
 
 
 def score(cell: Cell, rule) -> float:
@@ -237,7 +256,8 @@ def candidates(write: bool = False) -> dict:
 
     if write:
         return {"unrivalled": library_rule("unrivalled"), "decorrelated": library_rule("decorrelated"),
-                "spanning": library_rule("spanning"), **rule_candidates.ABLATIONS, **rule_candidates.REPORTED}
+                "spanning": library_rule("spanning"), **rule_candidates.ABLATIONS, **rule_candidates.REPORTED,
+                **LIBRARY_CONFIDENCES}
     return {"unrivalled": library_rule("unrivalled"), **rule_candidates.CANDIDATES}
 
 
@@ -279,6 +299,9 @@ def main(argv=None) -> None:
                     help="only the candidates of this round of rule_candidates.ROUNDS (its number), beside "
                          "the library's 'spanning'")
     ap.add_argument("--dump", default=None, help="write every cell's AUC per rule to this JSON file")
+    ap.add_argument("--add", action="store_true",
+                    help="only the library's confidences (LIBRARY_CONFIDENCES), added to the committed "
+                         "results/window_rules.md|json as columns")
     ap.add_argument("--write", action="store_true",
                     help="the library's rules and the parts of 'spanning'; write results/window_rules.md|json")
     args = ap.parse_args(argv)
@@ -287,7 +310,7 @@ def main(argv=None) -> None:
         cells += table_cells(tuple(args.datasets.split(",")))
     if "heldout" in args.sets:
         cells += heldout_cells()
-    table = candidates(args.write)
+    table = dict(LIBRARY_CONFIDENCES) if args.add else candidates(args.write)
     if args.round is not None:
         import rule_candidates
 
@@ -312,6 +335,8 @@ def main(argv=None) -> None:
                                                "auc": results}, indent=1))
     if args.write:
         write_results(cells, results)
+    elif args.add:
+        add_columns(cells, results)
 
 
 if __name__ == "__main__":

@@ -19,7 +19,10 @@ take to decorrelate (the row's standardised differences at the best places of th
 and the record scores each line that many frames ahead. Rule "spanning" keeps the tests of
 "unrivalled" and reads the same clock: a line shorter than the query's decorrelation time is
 about one observation, so only lines that span it may re-choose the velocity at the chosen
-window or count as rivals of a longer window.
+window or count as rivals of a longer window. The confidence "changepoint" is the one
+confidence with a memory: it reads the latest :data:`CHANGE_POINT_FRAMES` rows at the places
+the chosen line passes (a :class:`_Recent` carried in the record from block to block, or
+from step to step), so both forms again read the same values in the same order.
 """
 
 from __future__ import annotations
