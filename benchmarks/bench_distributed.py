@@ -19,7 +19,8 @@ With ``--rules`` it times the adaptive window's rules that read the difference r
 same rounds, and writes that table as a section of ``distributed.md``. With
 ``--identity`` it compares the cluster with the local run on the real data (one shard),
 and with ``--identity ... --identity-rule RULE --sharded`` on the real data padded to two
-shards, the shard edge in the route's middle.
+shards, the shard edge in the route's middle (``--identity-confidence changepoint``: with the
+confidence "changepoint", counting the values the shards serve along the chosen lines).
 """
 
 from __future__ import annotations
@@ -185,7 +186,7 @@ def identity(conditions: list[str], rule: str | None = None) -> list[dict]:
     return out
 
 
-def identity_sharded(conditions: list[str], rule: str, filler_seed: int = 0) -> list[dict]:
+def identity_sharded(conditions: list[str], rule: str, filler_seed: int = 0, confidence: str | None = None) -> list[dict]:
     """The adaptive window with ``rule`` on the real data across a shard edge: each map
     (after its front-end) is padded in front with filler places so that it holds two
     shards of 4096 places and the edge at place 4096 falls in the middle of the route.
@@ -195,7 +196,10 @@ def identity_sharded(conditions: list[str], rule: str, filler_seed: int = 0) -> 
     workers, every default, the hub correction from the padded map, frames without
     information flagged) against :func:`catgraph.sequence.match_sequences` on the whole
     normalised matrix with the same offsets: per dataset and condition, the frames whose
-    match, score, velocity, window length and confidence are identical."""
+    match, score, velocity, window length and confidence are identical. With ``confidence``,
+    both run with that confidence (else the default), and the values the confidence
+    "changepoint" has the shards serve along the chosen lines are counted (pairs per frame,
+    rounds)."""
     import types
     import warnings
 
@@ -237,13 +241,26 @@ def identity_sharded(conditions: list[str], rule: str, filler_seed: int = 0) -> 
                 q, informative = describe_query(the_map, q_trav)
                 local = difference_matrix(q, padded, the_map.metric, normalise=True)
                 local[~informative] = 0.0
+                extra = {} if confidence is None else {"confidence": confidence}
                 t0 = time.perf_counter()
-                expected = match_sequences(local, rule=rule, hub_offsets=offsets)
+                expected = match_sequences(local, rule=rule, hub_offsets=offsets, **extra)
                 t_local = time.perf_counter() - t0
-                t0 = time.perf_counter()
-                got = dd.match_adaptive_window(q, sharded, rule=rule, no_information=~informative,
-                                               hub_offsets=offsets, block_rows=512)
-                t_cluster = time.perf_counter() - t0
+                served = {"pairs": 0, "rounds": 0}
+                original = dd._Lines.serve
+
+                def counted(self, rel, places, _original=original):
+                    served["pairs"] += int(rel.shape[0])
+                    served["rounds"] += 1
+                    return _original(self, rel, places)
+
+                dd._Lines.serve = counted
+                try:
+                    t0 = time.perf_counter()
+                    got = dd.match_adaptive_window(q, sharded, rule=rule, no_information=~informative,
+                                                   hub_offsets=offsets, block_rows=512, **extra)
+                    t_cluster = time.perf_counter() - t0
+                finally:
+                    dd._Lines.serve = original
                 same = np.ones(len(q), dtype=bool)
                 for f in fields:
                     same &= getattr(got, f) == getattr(expected, f)
@@ -252,14 +269,21 @@ def identity_sharded(conditions: list[str], rule: str, filler_seed: int = 0) -> 
                             "filler": int(filler_places), "shards": len(sharded.bounds),
                             "in_shard_1": int(np.sum(expected.match >= dd.SHARD_UNIT)),
                             "in_filler": int(np.sum(expected.match < filler_places)),
-                            "seconds_local": t_local, "seconds_cluster": t_cluster})
+                            "seconds_local": t_local, "seconds_cluster": t_cluster,
+                            "line_pairs": served["pairs"], "line_rounds": served["rounds"],
+                            "blocks": -(-len(q) // 512)})
                 print(out[-1], flush=True)
     return out
 
 
-def write_sharded(rows: list[dict], conditions: list[str], rule: str, commit: str) -> list[str]:
+def write_sharded(rows: list[dict], conditions: list[str], rule: str, commit: str,
+                  confidence: str | None = None) -> list[str]:
     """The across-a-shard-edge table as a section of ``distributed_identity_RULE.md`` (replacing
-    the section if present), the rows in ``distributed_identity_RULE_sharded.json``."""
+    the section if present), the rows in ``distributed_identity_RULE_sharded.json``; with a
+    ``confidence``, ``distributed_identity_RULE_CONFIDENCE.md`` and its json, with the values
+    served along the chosen lines."""
+    if confidence is not None:
+        return _write_confidence(rows, conditions, rule, commit, confidence)
     lines = [SHARDED_HEADING, "",
              f"`benchmarks/bench_distributed.py --identity {' '.join(conditions)} --identity-rule "
              f"{rule} --sharded` at commit {commit}: each map (after its front-end) padded in front "
@@ -286,6 +310,31 @@ def write_sharded(rows: list[dict], conditions: list[str], rule: str, commit: st
         text = text[:text.index(SHARDED_HEADING)].rstrip("\n") + "\n"
     path.write_text((text + "\n" if text else "") + "\n".join(lines) + "\n")
     (RESULTS / f"distributed_identity_{rule}_sharded.json").write_text(
+        json.dumps({"commit": commit, "results": rows}, indent=1))
+    return lines
+
+
+def _write_confidence(rows: list[dict], conditions: list[str], rule: str, commit: str, confidence: str) -> list[str]:
+    lines = [f"# Dask path against the local run on the real data (rule \"{rule}\", confidence \"{confidence}\")", "",
+             f"`benchmarks/bench_distributed.py --identity {' '.join(conditions)} --identity-rule {rule} "
+             f"--identity-confidence {confidence} --sharded` at commit {commit}: as the section \"Across a shard "
+             "edge\" of `distributed_identity_spanning.md` (each map padded in front with filler places so that the "
+             "shard edge at 4096 falls in the route's middle; a `LocalCluster` of two workers; every default but "
+             f"the confidence \"{confidence}\"; blocks of 512 frames). Frames whose match, score, velocity, window "
+             "length and confidence are identical (bit for bit); the (frame, place) values the shards served "
+             "along the chosen lines for the confidence (16 bytes each: an int32 row and column out, a float64 "
+             "back) and the rounds that served them. Seconds: one run each on this shared 2-core machine: not a "
+             "speed comparison.", "",
+             "| dataset | condition | places (filler) | identical frames | matches in shard 1 | values served "
+             "(per frame) | rounds (blocks) | seconds local / cluster |",
+             "|---|---|---|---|---|---|---|---|"]
+    lines += [f"| {r['dataset']} | {r['condition']} | {r['places']} ({r['filler']}) | {r['identical']} / "
+              f"{r['frames']} | {r['in_shard_1']} | {r['line_pairs']} ({r['line_pairs'] / r['frames']:.2f}) | "
+              f"{r['line_rounds']} ({r['blocks']}) | {r['seconds_local']:.1f} / {r['seconds_cluster']:.1f} |"
+              for r in rows]
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / f"distributed_identity_{rule}_{confidence}.md").write_text("\n".join(lines) + "\n")
+    (RESULTS / f"distributed_identity_{rule}_{confidence}.json").write_text(
         json.dumps({"commit": commit, "results": rows}, indent=1))
     return lines
 
@@ -367,6 +416,9 @@ def main() -> None:
     parser.add_argument("--identity-rule", metavar="RULE",
                         help="with --identity: only the adaptive window with this rule "
                              "(writes distributed_identity_RULE.md)")
+    parser.add_argument("--identity-confidence", metavar="CONFIDENCE", default=None,
+                        help="with --sharded: this confidence (writes distributed_identity_RULE_CONFIDENCE.md, with "
+                             "the values served along the chosen lines)")
     parser.add_argument("--sharded", action="store_true",
                         help="with --identity and --identity-rule: the maps padded to two shards, the edge in the "
                              "route's middle (appends a section to distributed_identity_RULE.md)")
@@ -375,10 +427,10 @@ def main() -> None:
         if args.identity is None or args.identity_rule is None:
             parser.error("--sharded needs --identity and --identity-rule")
         conditions = args.identity or ["in-order", "reverse", "speed:2"]
-        rows = identity_sharded(conditions, args.identity_rule)
+        rows = identity_sharded(conditions, args.identity_rule, confidence=args.identity_confidence)
         commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
                                 cwd=Path(__file__).parent).stdout.strip()
-        lines = write_sharded(rows, conditions, args.identity_rule, commit)
+        lines = write_sharded(rows, conditions, args.identity_rule, commit, args.identity_confidence)
         print("\n".join(lines))
         return
     if args.rules is not None:

@@ -16,7 +16,7 @@ applied. Methods:
 * the classic SeqSLAM fixed windows (the same lengths, forward diagonal v = 1 only, the
   same hub-corrected rows), so that "the best fixed window" is the better of the two;
 * the default adaptive matcher (``match_sequences`` defaults: rule "spanning",
-  confidence "posterior");
+  confidence "changepoint");
 * the same matches ranked by confidence "support" (the default before "posterior");
 * the adaptive matcher with rule "evident" (the default before the rival test);
 * the adaptive matcher with rule "consistent" and every shorter sub-window tested (the
@@ -26,11 +26,12 @@ applied. Methods:
   with the default and the best fixed window in a table of its own;
 * the adaptive matcher with rule "decorrelated" (the same record, scored at the query's own
   decorrelation time instead of a constant horizon), in a table of its own too;
-* the adaptive matcher with rule "spanning" (the default: the tests of rule "unrivalled", with
-  the velocity re-chosen at the chosen window and a rival test that only lines spanning the
-  query's decorrelation time may make), in a table of its own against rule "unrivalled";
+* the adaptive matcher with rule "spanning" and confidence "posterior" (the default until the
+  confidence "changepoint": the tests of rule "unrivalled", with the velocity re-chosen at the
+  chosen window and a rival test that only lines spanning the query's decorrelation time may
+  make), in a table of its own against rule "unrivalled";
 * the adaptive matcher with rule "unrivalled" (the default before "spanning"), the reference
-  of the rule tables;
+  of the rule tables (the rule rows, "support" apart, with confidence "posterior");
 * for reference, the previous default (rule "sustained", forward diagonal only, L in
   [10, 500] on 32 lengths, sub-windows from L/8, no hub offsets).
 
@@ -105,12 +106,14 @@ PREVIOUS = "previous default"
 SINGLE = "single frame"
 PREVIOUS_KWARGS = dict(rule="sustained", velocities=(1.0,), l_min=10, l_max=500, grid=32, recent_fraction=0.125,
                        confidence="gap")
-CONSISTENT_KWARGS = dict(rule="consistent", recent_fraction=0.0)
-EVIDENT_KWARGS = dict(rule="evident")
-PREDICTIVE_KWARGS = dict(rule="predictive")
-DECORRELATED_KWARGS = dict(rule="decorrelated")
-SPANNING_KWARGS = dict(rule="spanning")
-UNRIVALLED_KWARGS = dict(rule="unrivalled")
+# the rule rows keep the confidence they were measured with ("posterior", the default until
+# "changepoint"), so that a change of the default confidence re-measures the default row only
+CONSISTENT_KWARGS = dict(rule="consistent", recent_fraction=0.0, confidence="posterior")
+EVIDENT_KWARGS = dict(rule="evident", confidence="posterior")
+PREDICTIVE_KWARGS = dict(rule="predictive", confidence="posterior")
+DECORRELATED_KWARGS = dict(rule="decorrelated", confidence="posterior")
+SPANNING_KWARGS = dict(rule="spanning", confidence="posterior")
+UNRIVALLED_KWARGS = dict(rule="unrivalled", confidence="posterior")
 GROUPS = ("in order", "shuffled 2–20 %", "shuffled 0.5–3 %", "reversed", "speed 2", "speed 0.5")
 
 
