@@ -88,10 +88,10 @@ def pair_block(query, reference, lo, hi, code, out):  # pragma: no cover - compi
 CODE_LANES = 64
 
 
-def _code_block_intrinsic(squared: bool):
-    """A numba intrinsic ``f(a, ia, b, ib) → int64``: ``Σ_{t<64} g(a[ia+t] − b[ib+t])``
-    over 64 consecutive ``uint8`` values of two C-contiguous arrays (flat offsets),
-    ``g`` = ``|·|`` or ``(·)²``.
+def _code_block_intrinsic(squared: bool, groups: int = 1):
+    """A numba intrinsic ``f(a, ia, b, ib) → int64``: ``Σ_{t<64 groups} g(a[ia+t] − b[ib+t])``
+    over ``64 · groups`` consecutive ``uint8`` values of two C-contiguous arrays (flat
+    offsets), ``g`` = ``|·|`` or ``(·)²``.
 
     Written as plain vector IR — load 64 bytes, widen, subtract, absolute value (or
     square), add the lanes — which LLVM's instruction selection turns into the
@@ -101,6 +101,11 @@ def _code_block_intrinsic(squared: bool):
     replaces was vectorised by widening every byte to 64 bits (four per 256-bit
     register), which made the row compute-bound at a sixth of the memory speed.
     Every sum is an exact integer (at most ``64 · 255² < 2³¹``).
+
+    With ``groups > 1`` the ``groups`` vectors of terms are added lane by lane before the
+    one reduction across the lanes (at most ``8 · 255² < 2³¹`` per lane for 8 groups),
+    so a 512-value descriptor costs one horizontal sum instead of eight: the same
+    integer, about a tenth less time per place (measured at ``N = 10^5``, one thread).
     """
     from llvmlite import ir
     from numba import types
@@ -123,19 +128,24 @@ def _code_block_intrinsic(squared: bool):
         def codegen(context, builder, signature, args):
             i8v = ir.VectorType(ir.IntType(8), lanes)
             i32v = ir.VectorType(ir.IntType(32), lanes)
-            values = []
-            for array, offset, ty in ((args[0], args[1], signature.args[0]), (args[2], args[3], signature.args[2])):
-                data = context.make_array(ty)(context, builder, array).data
-                pointer = builder.bitcast(builder.gep(data, [offset]), i8v.as_pointer())
-                values.append(builder.zext(builder.load(pointer, align=1), i32v))
-            diff = builder.sub(values[0], values[1])
-            if squared:
-                terms = builder.mul(diff, diff)
-            else:
-                absolute = declare(builder.module, f"llvm.abs.v{lanes}i32", i32v, [i32v, ir.IntType(1)])
-                terms = builder.call(absolute, [diff, ir.Constant(ir.IntType(1), 0)])
+            data = [context.make_array(ty)(context, builder, array).data
+                    for array, ty in ((args[0], signature.args[0]), (args[2], signature.args[2]))]
+            total = None
+            for group in range(groups):
+                values = []
+                for base, offset in ((data[0], args[1]), (data[1], args[3])):
+                    at = builder.add(offset, ir.Constant(offset.type, group * lanes)) if group else offset
+                    pointer = builder.bitcast(builder.gep(base, [at]), i8v.as_pointer())
+                    values.append(builder.zext(builder.load(pointer, align=1), i32v))
+                diff = builder.sub(values[0], values[1])
+                if squared:
+                    terms = builder.mul(diff, diff)
+                else:
+                    absolute = declare(builder.module, f"llvm.abs.v{lanes}i32", i32v, [i32v, ir.IntType(1)])
+                    terms = builder.call(absolute, [diff, ir.Constant(ir.IntType(1), 0)])
+                total = terms if total is None else builder.add(total, terms)
             reduce = declare(builder.module, f"llvm.vector.reduce.add.v{lanes}i32", ir.IntType(32), [i32v])
-            return builder.zext(builder.call(reduce, [terms]), ir.IntType(64))
+            return builder.zext(builder.call(reduce, [total]), ir.IntType(64))
 
         return sig, codegen
 
@@ -144,6 +154,10 @@ def _code_block_intrinsic(squared: bool):
 
 _sad_lanes = _code_block_intrinsic(squared=False)
 _ssd_lanes = _code_block_intrinsic(squared=True)
+#: Vector steps summed lane by lane before one horizontal sum (:func:`_code_block_intrinsic`).
+CODE_GROUPS = 8
+_sad_groups = _code_block_intrinsic(squared=False, groups=CODE_GROUPS)
+_ssd_groups = _code_block_intrinsic(squared=True, groups=CODE_GROUPS)
 
 
 @njit(nogil=True)
@@ -153,6 +167,7 @@ def pair_block_codes(query, reference, lo, hi, code, step, out):  # pragma: no c
     ``out[i, j] = step · Σ_k f(q_ik − r_jk)`` with ``f`` = ``|·|`` (``code`` 0) or
     ``(·)²`` (``code`` 1) on the integer code differences, summed exactly in 64-bit
     integers, then one float64 multiplication by ``step``. The values run in steps of
+    ``CODE_GROUPS · CODE_LANES`` = 512 bytes (one horizontal sum each), then of
     :data:`CODE_LANES` bytes (:func:`_code_block_intrinsic`: one ``vpsadbw`` per 64
     byte pairs on x86-64), the last ``d mod 64`` in a scalar loop. Integer addition is
     associative, so the result is exact and the same on any machine, for any vector
@@ -161,6 +176,7 @@ def pair_block_codes(query, reference, lo, hi, code, step, out):  # pragma: no c
     """
     m, d = query.shape
     full = d - d % CODE_LANES
+    wide = d - d % (CODE_LANES * CODE_GROUPS)
     for b in range(lo, hi, PLACE_BLOCK):
         stop = min(hi, b + PLACE_BLOCK)
         for i in range(m):
@@ -169,12 +185,16 @@ def pair_block_codes(query, reference, lo, hi, code, step, out):  # pragma: no c
                 rj = j * d
                 acc = np.int64(0)
                 if code == SAD:
-                    for k in range(0, full, CODE_LANES):
+                    for k in range(0, wide, CODE_LANES * CODE_GROUPS):
+                        acc += _sad_groups(query, qi + k, reference, rj + k)
+                    for k in range(wide, full, CODE_LANES):
                         acc += _sad_lanes(query, qi + k, reference, rj + k)
                     for k in range(full, d):
                         acc += abs(np.int64(query[i, k]) - np.int64(reference[j, k]))
                 else:
-                    for k in range(0, full, CODE_LANES):
+                    for k in range(0, wide, CODE_LANES * CODE_GROUPS):
+                        acc += _ssd_groups(query, qi + k, reference, rj + k)
+                    for k in range(wide, full, CODE_LANES):
                         acc += _ssd_lanes(query, qi + k, reference, rj + k)
                     for k in range(full, d):
                         t = np.int64(query[i, k]) - np.int64(reference[j, k])
