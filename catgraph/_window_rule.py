@@ -267,8 +267,8 @@ class _Recent:
     def __init__(self, frames: int | None = None):
         self.frames = int(CHANGE_POINT_FRAMES if frames is None else frames)
         slots = max(0, self.frames - 1)
-        self.index = np.full(slots, -1, dtype=np.int64)  # the frame held in each slot
-        self.rows: list = [None] * slots
+        self.index = np.full(slots, -1, dtype=np.int64)  # the frame held in each slot (frame % slots)
+        self.rows: np.ndarray | None = None  # (slots, N), from the first block handed as an array
         self.centres = np.zeros(slots)
         self.spreads = np.zeros(slots)
 
@@ -276,11 +276,14 @@ class _Recent:
         """Remember the last ``T - 1`` frames of a block (``frame_index`` consecutive)."""
         slots = self.index.shape[0]
         copy = isinstance(rows_d, np.ndarray)
+        if copy and slots and self.rows is None:
+            self.rows = np.zeros((slots, rows_d.shape[1]))
         for t in range(max(0, frame_index.shape[0] - slots), frame_index.shape[0]):
             i = int(frame_index[t])
             slot = i % slots
             self.index[slot] = i
-            self.rows[slot] = np.array(rows_d[t], dtype=np.float64, copy=True) if copy else None
+            if copy:
+                self.rows[slot] = rows_d[t]
             self.centres[slot], self.spreads[slot] = moments[0][t], moments[1][t]
 
 
@@ -502,26 +505,27 @@ def _line_z(rows_d, moments: tuple[np.ndarray, np.ndarray], frame_index: np.ndar
     n_rows = rows_d.shape[1]
     places, exists = _line_places(match, velocity, frame_index, recent.frames)
     inside = exists & (places >= 0) & (places < n_rows)
-    rel = np.arange(match.shape[0])[:, None] - np.arange(recent.frames)[None, :]  # block row of frame i - f
-    centres, spreads = np.zeros(places.shape), np.zeros(places.shape)
+    f = np.arange(recent.frames)[None, :]
+    rel = np.arange(match.shape[0])[:, None] - f  # block row of frame i - f
     mine = rel >= 0
-    centres[mine], spreads[mine] = moments[0][rel[mine]], moments[1][rel[mine]]
-    before = np.argwhere(exists & ~mine)
-    for t, f in before:  # frames before the block: from the carried rows
-        slot = int(frame_index[t] - f) % recent.index.shape[0]
-        centres[t, f], spreads[t, f] = recent.centres[slot], recent.spreads[slot]
+    take = np.where(mine, rel, 0)
+    slots = recent.index.shape[0]
+    back = exists & ~mine  # frames before the block: from the carried rows
+    slot = np.where(back, (frame_index[:, None] - f) % max(slots, 1), 0)
+    before = back.any()
+    centres = np.where(mine, moments[0][take], recent.centres[slot] if before else 0.0)
+    spreads = np.where(mine, moments[1][take], recent.spreads[slot] if before else 0.0)
+    spreads = np.where(exists, spreads, 0.0)
     counts = inside & (spreads > 0)
-    values = np.zeros(places.shape)
     if hasattr(rows_d, "line_values"):
-        at = np.argwhere(counts)
-        if at.shape[0]:
+        values = np.zeros(places.shape)
+        if counts.any():
             values[counts] = rows_d.line_values(rel[counts], places[counts])
     else:
-        here = counts & mine
-        values[here] = rows_d[rel[here], places[here]]
-        for t, f in np.argwhere(counts & ~mine):
-            slot = int(frame_index[t] - f) % recent.index.shape[0]
-            values[t, f] = recent.rows[slot][places[t, f]]
+        at = np.where(counts, places, 0)
+        values = rows_d[take, at]
+        if before:
+            values = np.where(mine, values, recent.rows[slot, at])
     safe = np.where(counts, spreads, 1.0)
     z = np.where(counts, (values - centres) / safe, 0.0)
     return z, counts, exists
