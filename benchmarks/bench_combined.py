@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_filter import _stamped  # noqa: E402  (the commit a table was measured at, under its title)
 from datasets import benchmark_conditions, prepared_datasets  # noqa: E402
 
 import catgraph.methods as methods  # noqa: E402
@@ -154,7 +155,7 @@ def main(argv=None) -> None:
         rows.sort(key=lambda r: DATASET_ORDER.index(r["dataset"]))
     RESULTS.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"machine": platform.platform(), "rows": rows}, indent=1))
-    out.with_suffix(".md").write_text(markdown(rows, conditions, args.quick))
+    out.with_suffix(".md").write_text(_stamped(markdown(rows, conditions, args.quick)))
 
 
 class _Temperature:
@@ -212,7 +213,7 @@ def held_out(temperatures: list[str]) -> None:
                  + " | ".join(f"{np.mean([r[c]['auc'] for r in rows]):.3f}" for c in columns) + " |\n")
     out = RESULTS / "combined_heldout.json"
     out.write_text(json.dumps({"machine": platform.platform(), "rows": rows}, indent=1))
-    out.with_suffix(".md").write_text("".join(lines))
+    out.with_suffix(".md").write_text(_stamped("".join(lines)))
 
 
 #: sequence.json's dataset names → this table's
