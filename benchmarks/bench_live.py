@@ -10,6 +10,7 @@ cost — so ratios survive a busy machine. Writes ``benchmarks/results/live.md``
 
     python benchmarks/bench_live.py [--sizes 10000 100000 1000000] [--frames 60]
     python benchmarks/bench_live.py --cold-start
+    python benchmarks/bench_live.py --profile --sizes 10000 100000   # the step's pieces (live_profile.md)
 
 Cases (per N):
 
@@ -367,6 +368,156 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
         raise SystemExit(f"unknown case {case!r}")
     out.setdefault("peak_rss_mb", _peak_rss_mb())
     return out
+
+
+def profile_step(n: int, rounds: int = 41, l_max: int = 500) -> dict:
+    """What each piece of the live step's matcher and difference row costs at ``N = n``.
+
+    One process; every piece is timed once per round, the pieces in turn (so a busy
+    spell of the shared machine falls on all of them alike), and the floors in the same
+    rounds: a plain read of the compact map (numba, one thread, vectorised; numpy's
+    integer sum is slower than the memory) and a read and write of the matcher's
+    running sums (``np.add(sums, 0, out=sums)``, one thread). Wall-clock medians and
+    CPU-time medians of the calling thread (the latter is the work itself where a piece
+    runs on one thread, and less than it where a second thread shares the work).
+    """
+    import numba
+
+    from catgraph import _diff_kernels as dk
+    from catgraph import _sequence_kernels as sk
+    from catgraph._validation import check_array
+    from catgraph._window_rule import _decide
+    from catgraph.differences import PreparedReference
+    from catgraph.sequence import SequenceMatcher
+
+    rng = np.random.default_rng(1)
+    rows = rng.standard_normal((8, n))
+    matcher = SequenceMatcher(window="adaptive", l_max=l_max)
+    for k in range(l_max + 1):  # the ring filled: steady state
+        matcher.step(rows[k % 8])
+    cfg, st, buffers = matcher._cfg, matcher._stats, matcher._buffers
+    every = sk._velocity_sets(cfg.velocities.shape[0])[-1]
+    sums, ring, mring, state = matcher._sums, matcher._ring, matcher._mring, matcher._state
+    gauss = (cfg.velocities, cfg.grid, cfg.radius, st.best_j, st.best_s, st.second_s, st.mean, st.std, st.weights,
+             st.locs, st.scales, st.sub, buffers[0])
+
+    def frame():
+        return matcher.n_steps_
+
+    def step():
+        matcher.step(rows[frame() % 8])
+
+    def run_batch():
+        i = frame()
+        sk.run_batch(rows[i % 8][None, :], i, sums, ring, mring, state, cfg.velocities, cfg.grid, cfg.approx_code,
+                     10, 1, cfg.radius, st.best_j, st.best_s, st.second_s, st.mean, st.std, st.weights, st.locs,
+                     st.scales, st.sub, *buffers)
+        matcher.n_steps_ = i + 1
+
+    def kernel_one_thread():
+        i = frame()
+        sk.store_rows(rows[i % 8][None, :], 0, 1, i, ring, mring, state)
+        sk.run_velocities_gaussian(every, 0, 1, i, sums, ring, mring, state, *gauss)
+        matcher.n_steps_ = i + 1
+
+    def store_row():
+        i = frame() - 1  # the latest row stored again: the state does not change
+        sk.store_rows(rows[i % 8][None, :], 0, 1, i, ring, mring, state)
+
+    def decide():
+        i = frame() - 1
+        _decide(st, cfg, np.array([i]), False, rows[i % 8][None, :], matcher._record)
+
+    def validate():
+        np.ascontiguousarray(check_array(rows[0], "difference row", ndim=1))
+
+    def sums_floor():
+        np.add(sums, 0, out=sums)
+
+    reference = PreparedReference(_reference(n), "sad", layout="uint8")
+    codes = reference.descriptors
+    flat = codes.reshape(-1)[: codes.size - codes.size % 8].view(np.uint64)
+    query = rng.standard_normal((8, DIM), dtype=np.float32)
+    out = np.empty(n)
+    view = out.reshape(1, -1)
+    q = reference.prepare_query(query[0], single=True)
+
+    @numba.njit(nogil=True, cache=False)
+    def plain_read(x):  # pragma: no cover - compiled
+        total = np.uint64(0)
+        for k in range(x.shape[0]):
+            total += x[k]
+        return total
+
+    def row():
+        reference.row(query[frame() % 8], normalise=True, out=out)
+
+    def prepare():
+        reference.prepare_query(query[0], single=True)
+
+    def pair_one_thread():
+        dk.pair_block_codes(q, codes, 0, n, dk.SAD, float(reference.step), view)
+
+    def pair_threads():
+        reference._raw(q, view)
+
+    def normalise():
+        dk.normalise_row(out, out)
+
+    pieces = {
+        "matcher: SequenceMatcher.step (everything)": step,
+        "matcher: run_batch (store + kernel, threads)": run_batch,
+        "matcher: store + kernel, all velocities, one thread": kernel_one_thread,
+        "matcher: store_rows (one row)": store_row,
+        "matcher: window rule (_decide, Python + numpy)": decide,
+        "matcher: validating the row (check_array)": validate,
+        "floor: read + write the running sums (numpy, one thread)": sums_floor,
+        "row: PreparedReference.row, normalised (everything)": row,
+        "row: prepare_query (encode the descriptor)": prepare,
+        "row: pair_block_codes, one thread": pair_one_thread,
+        "row: pair_block_codes, threads (_raw)": pair_threads,
+        "row: normalise_row": normalise,
+        "floor: plain read of the compact map (numba, one thread)": lambda: plain_read(flat),
+        "floor: numpy sum of the compact map as uint64 (as live.md)": flat.sum,
+    }
+    for fn in pieces.values():  # compiled and warm
+        fn()
+    wall = {k: [] for k in pieces}
+    cpu = {k: [] for k in pieces}
+    load = [os.getloadavg()[0]]
+    for _ in range(rounds):
+        for key, fn in pieces.items():
+            c, t = time.thread_time(), time.perf_counter()
+            fn()
+            wall[key].append(time.perf_counter() - t)
+            cpu[key].append(time.thread_time() - c)
+    load.append(os.getloadavg()[0])
+    return {"n": n, "rounds": rounds, "commit": _commit(), "threads": numba.get_num_threads(), "load": load,
+            "pieces": {k: {"wall_ms": 1000 * float(np.median(wall[k])), "cpu_ms": 1000 * float(np.median(cpu[k])),
+                           "wall_min_ms": 1000 * float(np.min(wall[k]))} for k in pieces}}
+
+
+def write_profile(results: list[dict], path: Path) -> None:
+    """``live_profile.md``: the pieces side by side for each ``N``."""
+    sizes = [r["n"] for r in results]
+    lines = ["# The live step's matcher and difference row, piece by piece", "",
+             "Generated by `benchmarks/bench_live.py --profile`: one process per N; every piece timed once per "
+             "round, the pieces in turn, the floors in the same rounds. Wall = median wall-clock ms (min in "
+             "brackets); CPU = median CPU ms of the calling thread (the work itself for one-thread pieces; less "
+             "than the work where a second thread shares it). 2 cores shared with other work: compare each "
+             "piece with the floors of its own column.", "",
+             "| piece | " + " | ".join(f"N = {n:,}: wall (min) | CPU" for n in sizes) + " |",
+             "|---|" + "---|---|" * len(sizes)]
+    for key in results[0]["pieces"]:
+        cells = []
+        for r in results:
+            p = r["pieces"][key]
+            cells.append(f"{p['wall_ms']:.2f} ({p['wall_min_ms']:.2f}) | {p['cpu_ms']:.2f}")
+        lines.append(f"| {key} | " + " | ".join(cells) + " |")
+    lines += ["", "Commit, rounds, threads and the 1-minute load average before and after: " + "; ".join(
+        f"N = {r['n']:,}: {r['commit']}, {r['rounds']} rounds, {r['threads']} threads, load {r['load'][0]:.2f} -> "
+        f"{r['load'][1]:.2f}" for r in results) + ".", ""]
+    path.write_text("\n".join(lines))
 
 
 def _subprocess(args: list[str], env: dict | None = None) -> dict:
@@ -775,13 +926,25 @@ def main() -> None:
                         help="measure only the batch commands on this saved map and query (.npy)")
     parser.add_argument("--dask", action="store_true", help="measure only the Dask shards")
     parser.add_argument("--layout", default="float32", help="with --dask: the shards' layout (float32 or uint8)")
+    parser.add_argument("--profile", action="store_true",
+                        help="measure only the matcher's and the row's pieces (live_profile.md)")
     parser.add_argument("--case", help=argparse.SUPPRESS)
     parser.add_argument("--n", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--anchor-rows", type=int, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.case:  # worker mode: one case, JSON on stdout
+        if args.case == "profile":
+            print(json.dumps(profile_step(args.n, l_max=args.l_max)))
+            return
         anchor = args.anchor_rows or (256 if args.n >= 1_000_000 else 1024)
         print(json.dumps(run_case(args.case, args.n, args.frames, args.l_max, anchor)))
+        return
+    if args.profile:
+        sizes = [n for n in args.sizes if n <= 1_000_000]
+        results = [_subprocess(["--case", "profile", "--n", str(n), "--l-max", str(args.l_max)]) for n in sizes]
+        (RESULTS / "live_profile.json").write_text(json.dumps(results, indent=1))
+        write_profile(results, RESULTS / "live_profile.md")
+        print((RESULTS / "live_profile.md").read_text())
         return
     store = RESULTS / "live.json"
     previous = json.loads(store.read_text()) if store.exists() else {"results": [], "cold": None}

@@ -57,16 +57,27 @@ The hot loop (:func:`_update_stats`, per frame, velocity and window) is one pass
 the places, cut into stretches whose slots are contiguous and whose old term is of one
 kind, and those into chunks of :data:`CHUNK` places, each a plain loop over
 equal-length views that the compiler vectorises (integer additions, float64 moments of
-``y = S - shift``): it updates the sums and accumulates the window's moments in the same
-loop. Nothing is divided or copied per place: the statistics are taken on the integer
-sums ``S`` and scaled by ``u / L_eff`` once (the order, and so the best place and the
-best and second-best scores, are the same). The block minima for the best and
-second-best search are integer minima (vectorised) over each chunk's freshly written
-sums while they are in the first-level cache; blocks of 256 places cost half the time
-of blocks of 64 (fewer, longer minima). What kept earlier loops scalar: the block bounds computed inside a loop over blocks (the compiler then
-vectorises neither the minimum nor the sums), a floating-point minimum (needs ``nnan``
-on the whole function), and floating-point sums without reassociation; a per-place
-division cost as much again as the update.
+``y = S - shift``, the smallest ``S``): it updates the sums, accumulates the window's
+moments and takes the chunk's smallest sum in the same loop. Nothing is divided or
+copied per place: the statistics are taken on the integer sums ``S`` and scaled by
+``u / L_eff`` once (the order, and so the best place and the best and second-best
+scores, are the same). A chunk never crosses a multiple of :data:`CHUNK` places, so its
+minimum is the minimum of one block of :data:`CHUNK` places; the best place is then
+searched in the first block holding the smallest minimum, and the second best reads the
+minima of the blocks clear of the excluded radius and vectorised minima over the places
+of the (one or two) blocks it meets. Measured at ``N = 10^5`` (one thread, CPU time,
+medians of 31 interleaved runs on the shared machine): taking the minima in the update
+loop instead of a second pass over blocks of 256 places, 13.8 -> 12.3 ms per frame for
+the eight velocities; the moments' vectorised order is unchanged by the extra
+reduction (the same machine code for them; ``tests/test_matcher_identity.py`` holds
+digests of the outputs before the change, including rows whose moments round). What
+kept earlier loops scalar: the block bounds computed inside a loop over blocks (the
+compiler then vectorises neither the minimum nor the sums), a floating-point minimum
+(needs ``nnan`` on the whole function), and floating-point sums without reassociation;
+a per-place division cost as much again as the update. Splitting the update into an
+integer pass and a moments pass keeps the same bits but costs more (measured: 8.9 ->
+9.9 ms); the moments are about a third of the loop's time and their order fixes their
+bits, so they stay as they are.
 
 Cold compile. numba compiles every kernel into a code library of its own, links the
 libraries of the kernels it calls into it, and then optimises and generates machine code
@@ -183,44 +194,62 @@ _REDUCE = {"reassoc", "nsz", "contract"}
 
 @njit(fastmath=_REDUCE)
 def _add_row(sums, cur, shift):
-    """``S += cur``; returns the sums of ``y = S - shift`` and ``y^2`` in float64
-    (equal-length views: one plain loop the compiler vectorises; the sum of ``y`` is
-    exact while its partial sums stay below ``2^53``, e.g. for ``N < 2^21`` places)."""
+    """``S += cur``; returns the sums of ``y = S - shift`` and ``y^2`` in float64 and the
+    smallest updated ``S`` (int64) (equal-length, non-empty views: one plain loop the
+    compiler vectorises; the sum of ``y`` is exact while its partial sums stay below
+    ``2^53``, e.g. for ``N < 2^21`` places).
+
+    Each new sum is formed in int64 (exact: ``|S| < 2^31`` for int32 sums) and stored;
+    the minimum is one more vector reduction in the same loop, beside the moments, whose
+    vectorised order (four accumulators of four lanes each, added in a fixed tree) it
+    leaves as it was without it: ``y`` has the same value converted from int64 as from
+    the stored int32, and the moments' bits are those of the loop without the minimum
+    (``tests/test_matcher_identity.py``, with window sums whose squares' sum rounds)."""
     a = 0.0
     q = 0.0
+    m = sums[0] + cur[0]  # the first updated sum
     for k in range(sums.shape[0]):
-        sums[k] = sums[k] + cur[k]
-        y = np.float64(sums[k]) - shift
+        x = sums[k] + cur[k]
+        sums[k] = x
+        m = x if x < m else m
+        y = np.float64(x) - shift
         a += y
         q += y * y
-    return a, q
+    return a, q, m
 
 
 @njit(fastmath=_REDUCE)
 def _add_row_fill(sums, cur, fill, shift):
     """``S += cur - fill`` (the old term outside the reference); the sums of ``y`` and
-    ``y^2`` as :func:`_add_row`."""
+    ``y^2`` and the smallest sum as :func:`_add_row`."""
     a = 0.0
     q = 0.0
+    m = sums[0] + (cur[0] - fill)
     for k in range(sums.shape[0]):
-        sums[k] = sums[k] + (cur[k] - fill)
-        y = np.float64(sums[k]) - shift
+        x = sums[k] + (cur[k] - fill)
+        sums[k] = x
+        m = x if x < m else m
+        y = np.float64(x) - shift
         a += y
         q += y * y
-    return a, q
+    return a, q, m
 
 
 @njit(fastmath=_REDUCE)
 def _add_row_old(sums, cur, old, shift):
-    """``S += cur - old``; the sums of ``y`` and ``y^2`` as :func:`_add_row`."""
+    """``S += cur - old``; the sums of ``y`` and ``y^2`` and the smallest sum as
+    :func:`_add_row`."""
     a = 0.0
     q = 0.0
+    m = sums[0] + (cur[0] - old[0])
     for k in range(sums.shape[0]):
-        sums[k] = sums[k] + (cur[k] - old[k])
-        y = np.float64(sums[k]) - shift
+        x = sums[k] + (cur[k] - old[k])
+        sums[k] = x
+        m = x if x < m else m
+        y = np.float64(x) - shift
         a += y
         q += y * y
-    return a, q
+    return a, q, m
 
 
 @njit
@@ -236,7 +265,9 @@ def _block_min(seg):
 @njit
 def _segment_min(seg, j_lo, bmin):
     """Fold the sums ``seg`` of places ``j_lo ..`` into the minima ``bmin`` of their
-    blocks of :data:`BLOCK` places (exact: a minimum does not depend on the order)."""
+    blocks of :data:`BLOCK` places (exact: a minimum does not depend on the order).
+    A separate pass over freshly written sums; the matcher now takes each chunk's
+    minimum in its update loop (:func:`_add_row`) instead."""
     j_hi = j_lo + seg.shape[0]
     if j_hi <= j_lo:
         return
@@ -248,17 +279,29 @@ def _segment_min(seg, j_lo, bmin):
             bmin[blk] = m
 
 
-#: places updated before their block minima are taken (the sums, row and old row of a
-#: chunk stay in the first-level cache for the minima; a multiple of BLOCK)
+#: places updated per call of the update loops, and places per block of the block
+#: minima: a chunk never crosses a multiple of CHUNK, so its minimum (taken in the update
+#: loop) folds into the minimum of one block
 CHUNK = 2048
+
+
+@njit
+def _block_places(n, bmin):
+    """Places per block of the block minima ``bmin`` of ``n`` places: :data:`CHUNK` (the
+    matcher's: each chunk's minimum is taken in its update loop) or, for an array sized
+    for them, :data:`BLOCK` (a separate pass, :func:`_segment_min`). The two sizes give
+    different block counts beyond ``BLOCK`` places; below, one block holds every place."""
+    return CHUNK if bmin.shape[0] == (n + CHUNK - 1) // CHUNK else BLOCK
 
 
 @njit(inline="always")
 def _stretch(sums_g, cur, old, fill, kind, lo, hi, sh, off, shift, bmin):
     """Places ``[lo, hi)`` (slots ``lo + sh ..``) of one kind of old term (``kind`` 0:
     none yet, 1: the old row, place ``j - off``; 2: outside, the fill), in chunks of
-    :data:`CHUNK` places: update the sums and the moments, then fold the chunk's
-    freshly written sums into the block minima. Returns the sums of ``y`` and ``y^2``."""
+    :data:`CHUNK` places: update the sums, the moments and the chunk's smallest sum in one
+    loop, and fold that minimum into its block's (block ``c // CHUNK``: a chunk lies in
+    one block; :func:`_segment_min` instead where ``bmin`` holds blocks of :data:`BLOCK`
+    places). Returns the sums of ``y`` and ``y^2``."""
     sa = 0.0
     sq = 0.0
     c = lo
@@ -266,14 +309,19 @@ def _stretch(sums_g, cur, old, fill, kind, lo, hi, sh, off, shift, bmin):
         e = (c // CHUNK + 1) * CHUNK
         e = e if e < hi else hi
         if kind == 0:
-            da, dq = _add_row(sums_g[c + sh:e + sh], cur[c:e], shift)
+            da, dq, m = _add_row(sums_g[c + sh:e + sh], cur[c:e], shift)
         elif kind == 1:
-            da, dq = _add_row_old(sums_g[c + sh:e + sh], cur[c:e], old[c - off:e - off], shift)
+            da, dq, m = _add_row_old(sums_g[c + sh:e + sh], cur[c:e], old[c - off:e - off], shift)
         else:
-            da, dq = _add_row_fill(sums_g[c + sh:e + sh], cur[c:e], fill, shift)
+            da, dq, m = _add_row_fill(sums_g[c + sh:e + sh], cur[c:e], fill, shift)
         sa += da
         sq += dq
-        _segment_min(sums_g[c + sh:e + sh], c, bmin)
+        if bmin.shape[0] == (sums_g.shape[0] + CHUNK - 1) // CHUNK:  # blocks of CHUNK places
+            m = np.int64(m)
+            if m < bmin[c // CHUNK]:
+                bmin[c // CHUNK] = m
+        else:  # blocks of BLOCK places: a pass over the fresh sums
+            _segment_min(sums_g[c + sh:e + sh], c, bmin)
         c = e
     return sa, sq
 
@@ -282,7 +330,8 @@ def _stretch(sums_g, cur, old, fill, kind, lo, hi, sh, off, shift, bmin):
 def _update_stats(sums_g, ring, mring, i, v, length, shift, bmin):
     """Advance one velocity's window sums of length ``length`` to frame ``i``; returns
     the sums of ``y = S - shift`` and ``y^2`` (float64) over the places and writes the
-    minimum sum of every block of :data:`BLOCK` places into ``bmin`` (int64).
+    minimum sum of every block of places into ``bmin`` (int64; blocks of :data:`CHUNK`
+    places, or of :data:`BLOCK` where ``bmin`` is sized for them, :func:`_block_places`).
 
     One pass: each stretch of places whose slots are contiguous and whose old term is of
     one kind (none yet, inside the reference, outside it) is cut into chunks of
@@ -323,6 +372,7 @@ def _update_stats(sums_g, ring, mring, i, v, length, shift, bmin):
             e_lo = 0
             e_hi = 0
     if e_hi > e_lo:
+        block = _block_places(n, bmin)
         fill = _fill_sum(mring, i, eff)
         for j in range(e_lo, e_hi):
             slot = j - sbase
@@ -333,7 +383,7 @@ def _update_stats(sums_g, ring, mring, i, v, length, shift, bmin):
             y = np.float64(val) - fshift
             sa += y
             sq += y * y
-            blk = j // BLOCK
+            blk = j // block
             if val < bmin[blk]:
                 bmin[blk] = val
     # the other places continue their line: [0, e_lo) and [e_hi, n)
@@ -509,38 +559,83 @@ def _gmm_em(s, stride, mean, std, n_iter, w, mu, sd, resp, coef, inv):
             w[k] /= tw
 
 
-BLOCK = 256  # places per block of the block minima (fewer, longer vectorised minima than 64: measured faster)
+#: places per block of :func:`_segment_min` (the matcher's own block minima are per
+#: :data:`CHUNK` places, taken in its update loops)
+BLOCK = 256
+
+
+@njit
+def _places_min(sums_g, sbase, a, b):
+    """The smallest sum of places ``[a, b)`` (``_NONE`` if none), place ``j`` in slot
+    ``(j - sbase) mod N``: at most two contiguous runs of slots, each one vectorised
+    minimum (:func:`_block_min`)."""
+    n = sums_g.shape[0]
+    m = _NONE
+    if b <= a:
+        return m
+    if a < sbase:
+        hi = b if b < sbase else sbase
+        x = np.int64(_block_min(sums_g[a - sbase + n:hi - sbase + n]))
+        m = x if x < m else m
+    if b > sbase:
+        lo = a if a > sbase else sbase
+        x = np.int64(_block_min(sums_g[lo - sbase:b - sbase]))
+        m = x if x < m else m
+    return m
+
+
+@njit
+def _first_place(sums_g, sbase, a, b, value):
+    """The first place in ``[a, b)`` whose sum is ``value`` (``b`` if none), in place
+    order over the (at most two) contiguous runs of slots."""
+    n = sums_g.shape[0]
+    if a < sbase:
+        hi = b if b < sbase else sbase
+        seg = sums_g[a - sbase + n:hi - sbase + n]
+        for t in range(seg.shape[0]):
+            if seg[t] == value:
+                return a + t
+    if b > sbase:
+        lo = a if a > sbase else sbase
+        seg = sums_g[lo - sbase:b - sbase]
+        for t in range(seg.shape[0]):
+            if seg[t] == value:
+                return lo + t
+    return b
 
 
 @njit
 def _best_and_second(sums_g, sbase, bmin, radius):
     """The first place of the smallest sum, that sum, and the smallest sum more than
-    ``radius`` places away (``_NONE`` if none), from the block minima (place ``j`` in
-    slot ``(j - sbase) mod N``)."""
+    ``radius`` places away (``_NONE`` if none), from the minima ``bmin`` of the blocks of
+    places (:func:`_block_places`; place ``j`` in slot ``(j - sbase) mod N``): the first block
+    holding the smallest minimum is searched for its first place with that sum; a block
+    clear of the excluded places ``[jb - radius, jb + radius]`` gives its minimum, one
+    that meets them the minima of its places either side (:func:`_places_min`)."""
     n = sums_g.shape[0]
     nb = bmin.shape[0]
+    block = _block_places(n, bmin)
     kb = 0
     for blk in range(1, nb):
         if bmin[blk] < bmin[kb]:
             kb = blk
     vb = bmin[kb]
-    jb = kb * BLOCK
-    while sums_g[jb - sbase + n if jb < sbase else jb - sbase] != vb:
-        jb += 1
+    b_end = kb * block + block if kb * block + block < n else n
+    jb = _first_place(sums_g, sbase, kb * block, b_end, vb)
     lo = jb - radius  # places in [lo, hi] are excluded
     hi = jb + radius
     v2 = _NONE
     for blk in range(nb):
-        b_lo = blk * BLOCK
-        b_hi = b_lo + BLOCK if b_lo + BLOCK < n else n  # exclusive
+        b_lo = blk * block
+        b_hi = b_lo + block if b_lo + block < n else n  # exclusive
         if b_hi <= lo or b_lo > hi:
             if bmin[blk] < v2:
                 v2 = bmin[blk]
         else:
-            for j in range(b_lo, b_hi):
-                x = np.int64(sums_g[j - sbase + n if j < sbase else j - sbase])
-                if (j < lo or j > hi) and x < v2:
-                    v2 = x
+            x = _places_min(sums_g, sbase, b_lo, lo if lo < b_hi else b_hi)
+            v2 = x if x < v2 else v2
+            x = _places_min(sums_g, sbase, hi + 1 if hi + 1 > b_lo else b_lo, b_hi)
+            v2 = x if x < v2 else v2
     return jb, vb, v2
 
 
@@ -588,7 +683,7 @@ def _velocity_stats_gaussian(sums_v, ring, mring, i, v, grid, unit, radius,
                              best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s):
     """:func:`_velocity_stats` for the Gaussian approximation alone (compiles without the
     median and the mixture fit; ``s`` is not read: the statistics come from the sums)."""
-    bmin = np.empty((sums_v.shape[1] + BLOCK - 1) // BLOCK, dtype=np.int64)
+    bmin = np.empty((sums_v.shape[1] + CHUNK - 1) // CHUNK, dtype=np.int64)
     for g in range(grid.shape[0]):
         _window(sums_v[g], ring, mring, i, v, grid[g], unit, radius, bmin, g, best_j, best_s, second_s, mean, std)
         weights[g, 0] = 1.0
@@ -605,7 +700,7 @@ def _velocity_stats(sums_v, ring, mring, i, v, grid, unit, approx, n_iter, em_st
     n_components = weights.shape[1]
     coef = np.empty(n_components)
     inv = np.empty(n_components)
-    bmin = np.empty((s.shape[0] + BLOCK - 1) // BLOCK, dtype=np.int64)
+    bmin = np.empty((s.shape[0] + CHUNK - 1) // CHUNK, dtype=np.int64)
     for g in range(grid.shape[0]):
         _window(sums_v[g], ring, mring, i, v, grid[g], unit, radius, bmin, g, best_j, best_s, second_s, mean, std)
         if approx != APPROX_GAUSSIAN:
@@ -771,7 +866,7 @@ def fixed_scores(d, length, v):
     mring = np.zeros(length + 1, dtype=np.int16)
     state = np.zeros(1)
     sums = np.zeros(n, dtype=np.int64)
-    bmin = np.empty((n + BLOCK - 1) // BLOCK, dtype=np.int64)
+    bmin = np.empty((n + CHUNK - 1) // CHUNK, dtype=np.int64)
     for i in range(n_q):
         advance(ring, mring, state, i, d[i])
         _update_stats(sums, ring, mring, i, v, length, np.int64(0), bmin)

@@ -13,6 +13,7 @@ not part of the digests (it has tests of its own)."""
 import hashlib
 
 import numpy as np
+import pytest
 
 from catgraph import _sequence_kernels as k
 from catgraph import sequence as seq
@@ -106,3 +107,52 @@ def test_kernel_outputs_do_not_depend_on_the_threads(monkeypatch):
 def test_nordland_rows_give_the_outputs_before_the_speed_ups():
     d = _nordland_rows()
     assert _kernel_run(d, l_max=500) == _DIGESTS["nordland kernel"]
+
+
+def _slow_best_and_second(in_place, radius):
+    """Numpy: the first place of the smallest sum, that sum, the smallest sum beyond the radius."""
+    jb = int(np.argmin(in_place))
+    far = np.abs(np.arange(in_place.size) - jb) > radius
+    return jb, int(in_place[jb]), int(in_place[far].min()) if far.any() else int(k._NONE)
+
+
+@pytest.mark.parametrize("n", [150, 2048, 2049, 5000])
+def test_chunk_minima_of_the_update_and_the_best_and_second_equal_numpy(n):
+    """The block minima the update loops take per chunk (blocks of CHUNK places) and
+    the best and second-best search over them against numpy on the sums left behind, for
+    every velocity kind (slot wrap, entering lines, old rows in and outside the
+    reference), with exact ties planted across a block boundary."""
+    rng = np.random.default_rng(n)
+    length = 4
+    d = rng.integers(-3, 4, size=(14, n)) / 8.0  # coarse values: many exact ties
+    for v, dtype in ((1.0, np.int32), (0.5, np.int64), (-2.0, np.int32), (3.0, np.int32)):
+        ring = np.zeros((length + 1, n), dtype=np.int16)
+        mring = np.zeros(length + 1, dtype=np.int16)
+        state = np.zeros(1)
+        sums = np.zeros(n, dtype=dtype)
+        bmin = np.empty((n + k.CHUNK - 1) // k.CHUNK, dtype=np.int64)
+        for i in range(d.shape[0]):
+            k.advance(ring, mring, state, i, d[i])
+            k._update_stats(sums, ring, mring, i, v, length, 0, bmin)
+            sbase = k.position(v, i) % n
+            in_place = np.roll(sums, sbase).astype(np.int64)
+            np.testing.assert_array_equal(bmin, [in_place[b:b + k.CHUNK].min() for b in range(0, n, k.CHUNK)])
+            for radius in (0, 3, 40):
+                assert k._best_and_second(sums, sbase, bmin, radius) == _slow_best_and_second(in_place, radius)
+
+
+@pytest.mark.parametrize("n", [300, 2100, 4500])
+def test_best_and_second_with_ties_and_the_radius_across_blocks(n):
+    rng = np.random.default_rng(7)
+    for trial in range(40):
+        sums = rng.integers(-50, 50, size=n).astype(np.int32)
+        low = int(sums.min()) - 1
+        edge = k.CHUNK * (1 + trial % 2) if n > 2 * k.CHUNK else n // 2
+        sums[rng.integers(0, n, size=3)] = low  # ties: the first place must win
+        sums[(edge + rng.integers(-5, 5)) % n] = low - (trial % 3 == 0)
+        sbase = int(rng.integers(0, n))
+        slots = np.roll(sums, -sbase)  # place j in slot (j - sbase) mod n
+        bmin = np.array([sums[b:b + k.CHUNK].min() for b in range(0, n, k.CHUNK)], dtype=np.int64)
+        for radius in (0, 5, 2 * k.CHUNK):
+            assert k._best_and_second(slots, sbase, bmin, radius) == _slow_best_and_second(
+                sums.astype(np.int64), radius)
