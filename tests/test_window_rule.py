@@ -135,7 +135,7 @@ def test_posterior_confidence_matches_slow_reference(rule, fraction, seed, stren
     d = planted(36, 40, seed, jump_at=20, strength=strength, echo=0.6 * strength)
     grid = window_grid(3, 24, 7)
     result = match_sequences(d, "adaptive", rule=rule, grid=7, l_min=3, l_max=24, velocities=V1,
-                             recent_fraction=fraction, radius=radius)
+                             recent_fraction=fraction, radius=radius, confidence="posterior")
     match, length, confidence = slow_choice(d, grid, rule, fraction, radius, with_confidence=True)
     np.testing.assert_array_equal(result.match, match)
     np.testing.assert_allclose(result.confidence, confidence, rtol=1e-9, atol=1e-12)

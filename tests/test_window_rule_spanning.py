@@ -105,7 +105,8 @@ VELOCITIES = (1.0, 2.0)
 def test_spanning_rule_matches_slow_reference(seed):
     d = varying_route(seed)
     grid = window_grid(3, 24, 6)
-    result = match_sequences(d, "adaptive", rule="spanning", grid=6, l_min=3, l_max=24, velocities=VELOCITIES)
+    result = match_sequences(d, "adaptive", rule="spanning", grid=6, l_min=3, l_max=24, velocities=VELOCITIES,
+                             confidence="posterior")
     slow, _, _ = slow_spanning(d, grid, VELOCITIES)
     np.testing.assert_array_equal(result.match, slow["match"])
     np.testing.assert_array_equal(result.window_length, slow["length"])
