@@ -220,7 +220,7 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
     """One measurement, in this process."""
     from catgraph.differences import PreparedReference, difference_row
 
-    out: dict = {"case": case, "n": n, "frames": frames, "commit": _commit()}
+    out: dict = {"case": case, "n": n, "frames": frames, "commit": _commit(), "load_start": os.getloadavg()[0]}
     rng = np.random.default_rng(1)
     if case in ("grid", "grid-1t"):  # the grid filter's step alone (a fixed observation), all cores or one
         from catgraph import grid
@@ -367,6 +367,7 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
     else:
         raise SystemExit(f"unknown case {case!r}")
     out.setdefault("peak_rss_mb", _peak_rss_mb())
+    out["load_end"] = os.getloadavg()[0]
     return out
 
 
@@ -611,7 +612,7 @@ def cold_start(layout: str = "uint8", tree: str | None = None, warm_up: bool = F
             if proc.returncode != 0:
                 raise SystemExit(proc.stderr)
             row = json.loads(proc.stdout.strip().splitlines()[-1])
-            row.update(label=label, process_s=wall)
+            row.update(label=label, process_s=wall, load=os.getloadavg()[0])
             runs.append(row)
     return {"runs": runs, "layout": layout, "tree": tree, "warm_up_s": warm_up_s,
             "argv": COLD_CLI_ARGV if cli else None}
@@ -719,9 +720,16 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
              ", ".join(sorted({r.get("commit", "unrecorded") for r in results if "error" not in r})) +
              " (per row in `live.json`).", "",
              "Floor = one parallel read of the reference (N × 2 KiB as float32, N × 512 B as uint8 codes), the "
-             "least a difference row can cost; each figure is beside the floor measured in the same process.", "",
-             "| per frame | " + " | ".join(f"N = {n:,}" for n in sizes) + " |",
-             "|---|" + "---|" * len(sizes)]
+             "least a difference row can cost; each figure is beside the floor measured in the same process.", ""]
+    loads = {}
+    for r in results:
+        if "load_start" in r and "error" not in r:
+            loads.setdefault(r["n"], []).extend([r["load_start"], r.get("load_end", r["load_start"])])
+    if loads:
+        lines += ["The machine's 1-minute load average at the start and end of the cases that recorded it (2 cores): " +
+                  "; ".join(f"N = {n:,}: {min(v):.2f}–{max(v):.2f}" for n, v in sorted(loads.items())) + ".", ""]
+    lines += ["| per frame | " + " | ".join(f"N = {n:,}" for n in sizes) + " |",
+              "|---|" + "---|" * len(sizes)]
 
     def row(label, case, key="median_ms", ratio=True, floor="floor_ms"):
         cells = []
