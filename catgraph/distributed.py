@@ -212,7 +212,7 @@ from ._window_rule import (CHANGE_POINT_FRAMES, RECORD_RULES, WEIGHED_CONFIDENCE
                            _new_record, _position, _Record, _Stats)
 from .differences import LAYOUTS, METRICS, PreparedReference, _combine, _zero_spread, code_scale
 from .exceptions import InvalidParameterError, MissingDependencyError
-from .sequence import DEFAULT_GRID, DEFAULT_RULE, DEFAULT_VELOCITIES, _config, _velocity_set
+from .sequence import DEFAULT_CONFIDENCE, DEFAULT_GRID, DEFAULT_RULE, DEFAULT_VELOCITIES, _config, _velocity_set
 
 #: Shards hold a whole multiple of this many places (the normalisation's sum chunk);
 #: a window may not be longer (its sums' squares then stay exact in int64).
@@ -1244,7 +1244,7 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
 
 
 def match_fixed_window(query, ref: ShardedReference, window: int, radius: int = 10,
-                       velocities=DEFAULT_VELOCITIES, confidence: str = "posterior",
+                       velocities=DEFAULT_VELOCITIES, confidence: str = DEFAULT_CONFIDENCE,
                        block_rows: int = 256, no_information: np.ndarray | None = None,
                        hub_offsets: np.ndarray | None = None) -> ShardedMatches:
     """Fixed-window sequence matching on the cluster, searching velocities.
@@ -1270,9 +1270,9 @@ def match_fixed_window(query, ref: ShardedReference, window: int, radius: int = 
         Places either side of the best excluded when finding the second best.
     velocities : sequence of float
         Velocities searched (default: those of :func:`~catgraph.sequence.match_sequences`).
-    confidence : {"posterior", "support", "gap", "neglogp", "z"}
-        As :func:`~catgraph.sequence.match_sequences` with a fixed window (the first three
-        are then SeqSLAM's gap).
+    confidence : {"changepoint", "posterior", "support", "gap", "neglogp", "z"}
+        As :func:`~catgraph.sequence.match_sequences` with a fixed window (the first four
+        are then SeqSLAM's gap; default :data:`catgraph.sequence.DEFAULT_CONFIDENCE`).
     block_rows : int
         Query rows per round.
     no_information : ndarray of bool, shape (n_query,), optional
@@ -1290,7 +1290,8 @@ def match_fixed_window(query, ref: ShardedReference, window: int, radius: int = 
     return _match(query, ref, cfg, block_rows, no_information, "match_fixed_window", hub_offsets)
 
 
-def match_adaptive_window(query, ref: ShardedReference, rule: str = DEFAULT_RULE, confidence: str = "posterior",
+def match_adaptive_window(query, ref: ShardedReference, rule: str = DEFAULT_RULE,
+                          confidence: str = DEFAULT_CONFIDENCE,
                           l_min: int = 5, l_max: int = 500, grid=DEFAULT_GRID, radius: int = 10,
                           recent_fraction: float = 0.05, velocities=DEFAULT_VELOCITIES,
                           approximation: str = "gaussian", block_rows: int = 512,
@@ -1305,10 +1306,12 @@ def match_adaptive_window(query, ref: ShardedReference, rule: str = DEFAULT_RULE
     :func:`match_fixed_window` and the sums of every length at their best place of each
     length (the sub-window scores the rules test); the client rebuilds the local kernel's
     statistics from them and hands them to the local window rule
-    (:func:`catgraph._window_rule._decide`). The confidences "posterior" and "support"
-    also read the current frame's mean and spread over the whole row, which the client
-    reduces in numpy's own pairwise order from the shards' subtree sums
-    (:func:`_row_moments`, two more rounds), and the frame's difference at the match.
+    (:func:`catgraph._window_rule._decide`). The confidences "changepoint" (the default,
+    :data:`catgraph.sequence.DEFAULT_CONFIDENCE`), "posterior" and "support" also read the
+    current frame's mean and spread over the whole row, which the client reduces in numpy's
+    own pairwise order from the shards' subtree sums (:func:`_row_moments`, two more rounds),
+    and the frame's difference at the match; "changepoint" also the latest ``T - 1`` rows'
+    values along the chosen line (one more round; module notes, step 9).
     Rules "predictive" and "decorrelated" read ``G`` more values of each row, served in
     the first of those rounds; "decorrelated" and "spanning" put each whole row together
     on one worker for its horizon (``8 N`` bytes per frame between workers, the horizon

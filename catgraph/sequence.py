@@ -238,7 +238,7 @@ up in three of five seeds (0.17 → 0.38, 0.08 → 0.25, 0.15 → 0.60) but down
 in-order-like queries (Nordland in order 0.82 → 0.76, speed 0.5 0.64 → 0.35; UJI in
 order 0.63 → 0.38).
 
-``"posterior"`` (default) keeps the sum but replaces ``Phi(-z_i)`` (a factor of a few at
+``"posterior"`` (the default until ``"changepoint"``) keeps the sum but replaces ``Phi(-z_i)`` (a factor of a few at
 most: 0.84 at ``z_i = -1``, 0.98 at ``z_i = -2``, where many correct frames lie, against
 supports that differ tenfold; the most confident wrong frames right after a jump on
 shuffled Nordland lie at ``z_i`` between about −1.3 and +0.6) by the posterior
@@ -260,10 +260,29 @@ AUC per cell Nordland −0.000 … +0.003, UJI −0.002 … +0.003, synthetic wo
 −0.001); R@100P on shuffled Nordland 0.27 → 0.34 (mean over seeds) but 0.80 → 0.77 in
 order, 0.81 → 0.80 reversed, 0.84 → 0.82 at speed 2.
 
-With a fixed window ``"support"`` and ``"posterior"`` are SeqSLAM's gap (no factor), so
-that a fixed window gives the classic method's numbers. ``"neglogp"`` is
+``"changepoint"`` (default, :data:`DEFAULT_CONFIDENCE`) keeps the sum and weighs the latest
+``T = CHANGE_POINT_FRAMES = 5`` frames along the chosen line instead of the current one
+alone: every jump time ``t = 1 .. T`` frames back is a hypothesis at the prior odds
+``JUMP_ODDS``, the frames since it at random places, those before it on the line::
+
+    changepoint_i = P_i * sum_{L admitted, |j*(L) - match_i| <= radius} gap_i(L),
+    P_i = 1 / (1 + JUMP_ODDS * sum_{t=1..T} exp(-sum_{f<t} (z_f^2 - (z_f - mu_i)^2) / 2)),
+    z_f = (d_{i-f, j_f} - mean d_{i-f}) / std d_{i-f},  j_f = match_i - (pos_v(i) - pos_v(i - f))
+
+(a term is left out where ``j_f`` is off the reference or the row is flat; ``T = 1`` is
+``"posterior"``). Right after a jump on Nordland the long windows still carry the old line
+and one frame is weak evidence; a few frames together are stronger. The matcher keeps the
+last ``T - 1`` rows for it (``8 (T - 1) N`` bytes). Measured on the condition table against
+``"posterior"`` at the same matches (``benchmarks/results/window_rules.md``,
+``docs/sequence.md``): mean AUC margin to the best fixed window over the 42 cells −0.0578 →
+−0.0524, UJI −0.0632 → −0.0563, synthetic world −0.0676 → −0.0559, held-out worlds −0.0404 →
+−0.0305, Nordland −0.0426 → −0.0451; R@100P on shuffled Nordland 0.316 → 0.358 (mean over
+seeds) but 0.77 → 0.72 in order, 0.80 → 0.75 reversed, 0.82 → 0.77 at speed 2.
+
+With a fixed window ``"support"``, ``"posterior"`` and ``"changepoint"`` are SeqSLAM's gap
+(no factor), so that a fixed window gives the classic method's numbers. ``"neglogp"`` is
 ``-log p_i(L_i, v_i)``; ``"z"`` is ``(mean - s_best) / std``. Larger is more confident
-for all five.
+for all six.
 
 Two forms
 ---------
@@ -301,6 +320,7 @@ __all__ = [
     "CONFIDENCES",
     "DEFAULT_VELOCITIES",
     "DEFAULT_RULE",
+    "DEFAULT_CONFIDENCE",
 ]
 
 APPROXIMATIONS = ("gaussian", "robust", "gmm2", "gmm3")
@@ -308,7 +328,10 @@ RULES = ("unrivalled", "evident", "consistent", "sustained", "literal", "predict
 #: the window rule of the adaptive window when none is named (the one owner: the matcher, the
 #: registry and the cluster read it from here)
 DEFAULT_RULE = "spanning"
-CONFIDENCES = ("posterior", "support", "gap", "neglogp", "z")
+CONFIDENCES = ("changepoint", "posterior", "support", "gap", "neglogp", "z")
+#: the confidence of the adaptive window when none is named (the one owner: the matcher, the
+#: registry and the cluster read it from here)
+DEFAULT_CONFIDENCE = "changepoint"
 #: reference places per query frame searched by default: driven backwards or forwards, 0.5x to 3x
 DEFAULT_VELOCITIES = (-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0)
 #: candidate window lengths by default: 13 geometric lengths from l_min to l_max
@@ -565,7 +588,7 @@ def match_sequences(
     window: int | str = "adaptive",
     approximation: str = "gaussian",
     rule: str = DEFAULT_RULE,
-    confidence: str = "posterior",
+    confidence: str = DEFAULT_CONFIDENCE,
     l_min: int = 5,
     l_max: int = 500,
     grid: str | int | Sequence[int] = DEFAULT_GRID,
@@ -588,16 +611,17 @@ def match_sequences(
         Approximation of the score distribution used for ``p_i(L)``.
     rule : {"unrivalled", "evident", "consistent", "sustained", "literal", "predictive", "decorrelated", "spanning"}
         Window choice, see the module docstring.
-    confidence : {"posterior", "support", "gap", "neglogp", "z"}
-        Confidence given to each match (see the module docstring).
+    confidence : {"changepoint", "posterior", "support", "gap", "neglogp", "z"}
+        Confidence given to each match (see the module docstring; default
+        :data:`DEFAULT_CONFIDENCE`).
     l_min, l_max : int
         Range of candidate window lengths (adaptive only).
     grid : "geometric", "all", int or sequence of int
         Candidate lengths, see :func:`window_grid`.
     radius : int
         Places either side of the best match excluded when looking for the second best
-        (``confidence="gap"``, ``"support"`` and ``"posterior"``), and the agreement
-        radius of ``"support"`` and ``"posterior"``.
+        (``confidence="gap"``, ``"support"``, ``"posterior"`` and ``"changepoint"``), and the
+        agreement radius of the last three.
     recent_fraction : float
         A window of length ``L`` is tested on its recent sub-windows of length ``l`` in
         the grid with ``recent_fraction * L <= l < L`` (the midpoint test of rules
@@ -691,7 +715,7 @@ class SequenceMatcher:
         window: int | str = "adaptive",
         approximation: str = "gaussian",
         rule: str = DEFAULT_RULE,
-        confidence: str = "posterior",
+        confidence: str = DEFAULT_CONFIDENCE,
         l_min: int = 5,
         l_max: int = 500,
         grid: str | int | Sequence[int] = DEFAULT_GRID,

@@ -22,14 +22,6 @@ from catgraph import distributed as dd  # noqa: E402
 FIELDS = ("match", "score", "velocity", "window_length", "confidence")
 
 
-@pytest.fixture(autouse=True)
-def _TEMP_confidences(monkeypatch):
-    from catgraph import sequence
-
-    if "changepoint" not in sequence.CONFIDENCES:
-        monkeypatch.setattr(sequence, "CONFIDENCES", sequence.CONFIDENCES + ("changepoint",))
-
-
 @pytest.fixture(scope="module")
 def alike():
     """A map whose neighbouring places look alike and a query driven at a varying speed

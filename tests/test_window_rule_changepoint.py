@@ -24,12 +24,6 @@ from tests.test_window_rule import on_grid
 from tests.test_window_rule_spanning import VELOCITIES, varying_route
 
 
-@pytest.fixture(autouse=True)
-def _TEMP_confidences(monkeypatch):
-    if "changepoint" not in sequence.CONFIDENCES:
-        monkeypatch.setattr(sequence, "CONFIDENCES", sequence.CONFIDENCES + ("changepoint",))
-
-
 def position(v: float, i: int) -> int:
     return int(np.floor(v * i + 0.5))
 
