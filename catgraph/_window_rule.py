@@ -256,7 +256,7 @@ class _Recent:
     The confidence of frame ``i`` reads the standardised differences of frames ``i - 1 ..
     i - T + 1`` (``T`` = :data:`CHANGE_POINT_FRAMES`) at the places the frame's chosen line
     passes; that line is known only at frame ``i``, so the whole rows are kept: the last
-    ``T - 1`` rows (copies, float64) with their means and spreads, ``8 (T - 1) (N + 2)``
+    ``T - 1`` rows (copies, float64) with their means and spreads, ``8 (T - 1) (N + 3)``
     bytes (32 MB at ``N = 10^6`` with ``T = 5``, against the matcher's own int16 ring of
     ``2 (l_max + 1) N`` bytes, 1 GB). A block of frames reads its own earlier rows from the
     block and only the frames before it from here. Rows handed as something other than an
