@@ -63,7 +63,7 @@ cost), and (d) by the online candidate ``support_sum x P(on line)``: the current
 likelihood ratio between "on the chosen line" (a normal of unit spread around the
 line's mean standardised difference ``mu``, the window score of the match) and "a random
 place" (a standard normal), ``P = sigmoid((z^2 - (z - mu)^2) / 2 - ln w)`` for prior odds
-``w`` of a jump (``w = 0.3`` is confidence "posterior", the default). (b) and (c) read the
+``w`` of a jump (``w = 0.3`` is confidence "posterior", the default before "changepoint"). (b) and (c) read the
 ground truth and are no method; they bound what a confidence can gain.
 """
 
