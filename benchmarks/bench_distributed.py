@@ -186,7 +186,8 @@ def identity(conditions: list[str], rule: str | None = None) -> list[dict]:
     return out
 
 
-def identity_sharded(conditions: list[str], rule: str, filler_seed: int = 0, confidence: str | None = None) -> list[dict]:
+def identity_sharded(conditions: list[str], rule: str, filler_seed: int = 0,
+                     confidence: str | None = None) -> list[dict]:
     """The adaptive window with ``rule`` on the real data across a shard edge: each map
     (after its front-end) is padded in front with filler places so that it holds two
     shards of 4096 places and the edge at place 4096 falls in the middle of the route.

@@ -180,7 +180,8 @@ Per block, only ``O(rows V G (radius + G + 8))`` numbers per shard return to the
 (``G`` candidate lengths, 1 for a fixed window): four client rounds for a fixed window
 (two for the normalisation, one for the mean codes, one for the summaries; one more per
 query for the quantum), two more for the row moments of the adaptive window's
-confidence (one more with "changepoint"), two more for the hub correction; the full ``n_query × N`` matrix is never gathered
+confidence (one more with "changepoint"), two more for the hub correction; the full
+``n_query × N`` matrix is never gathered
 (:func:`difference_matrix` gathers it on request, for tests and small maps).
 
 What to call

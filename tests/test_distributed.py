@@ -164,7 +164,8 @@ def test_halos_from_several_shards_equal_local(client):
 
 @pytest.mark.parametrize("condition", [Condition("in-order"), Condition("reverse"), Condition("speed", factor=2.0)])
 def test_adaptive_window_equals_the_local_matcher(client, route, condition):
-    # the library's default matcher (rule sequence.DEFAULT_RULE, confidence sequence.DEFAULT_CONFIDENCE, every velocity),
+    # the library's default matcher (rule sequence.DEFAULT_RULE, confidence sequence.DEFAULT_CONFIDENCE,
+    # every velocity),
     # on a shorter grid so that the test stays fast; the route also jumps (a second stretch)
     q, r = route
     q = q[condition.order(len(q))]
