@@ -727,10 +727,20 @@ def row_statistics(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _normalise_into(d: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """Normalise the rows of ``d`` into ``out`` (may be ``d``). Where the passes would run
+    on one thread anyway, each row's passes run in one compiled call
+    (:func:`catgraph._diff_kernels.normalise_row`: the same chunk sums in the same order,
+    the same division, so the same floats), which is also what the live step calls: a
+    process that only matches live rows and small blocks compiles one kernel for the
+    normalisation instead of three."""
     if d.shape[0] == 0:
         return out
-    mean, std = row_statistics(d)
     k = _kernels()
+    if len(_split(*d.shape, k.SUM_CHUNK)) == 1:
+        for i in range(d.shape[0]):
+            k.normalise_row(d[i], out[i])
+        return out
+    mean, std = row_statistics(d)
     _run_parallel([(k.scale_rows, (d[a:b, lo:hi], mean[a:b], std[a:b], out[a:b, lo:hi]))
                    for a, b, lo, hi in _split(*d.shape, k.SUM_CHUNK)])
     return out

@@ -1,0 +1,41 @@
+"""Row normalisation: the one-call row kernel and the threaded passes give the same floats.
+
+:func:`catgraph.differences._normalise_into` runs each row's passes in one compiled call
+(:func:`catgraph._diff_kernels.normalise_row`) where the work fits one thread, and the
+chunk-sum and scale passes split over threads otherwise; both must give the same floats,
+bit for bit, for any rows (large offsets, zero and tiny spread, negative zeros)."""
+
+import numpy as np
+
+import catgraph.differences as differences
+from catgraph import _diff_kernels as k
+
+
+def _rows(rng):
+    d = rng.normal(size=(9, 3 * k.SUM_CHUNK + 123)) * rng.uniform(0.01, 1e4, size=(9, 1))
+    d[1] += 1e9  # a large offset: the centred second pass matters
+    d[2] = 7.25  # no spread: zeros
+    d[3] = 0.0
+    d[3, ::2] = -0.0
+    d[4] = 1e6 + rng.normal(size=d.shape[1]) * 1e-9  # spread below the zero-spread threshold
+    return d
+
+
+def test_row_kernel_path_equals_the_threaded_passes(monkeypatch):
+    rng = np.random.default_rng(11)
+    d = _rows(rng)
+    monkeypatch.setattr(differences, "NORMALISE_PER_THREAD", 1)  # the passes, split over threads
+    monkeypatch.setattr(differences, "_threads_available", lambda: 3)
+    assert len(differences._split(*d.shape, k.SUM_CHUNK)) > 1
+    split = differences._normalise_into(d.copy(), np.empty_like(d))
+    monkeypatch.setattr(differences, "NORMALISE_PER_THREAD", 1 << 60)  # one piece: the row kernel
+    assert len(differences._split(*d.shape, k.SUM_CHUNK)) == 1
+    one = differences._normalise_into(d.copy(), np.empty_like(d))
+    in_place = d.copy()
+    differences._normalise_into(in_place, in_place)
+    assert np.array_equal(one, split) and np.array_equal(in_place, split)
+    assert np.all(one[2] == 0.0) and np.all(one[3] == 0.0) and np.all(one[4] == 0.0)
+    # against the statistics the passes compute, row by row
+    mean, std = differences.row_statistics(d)
+    for i in (0, 1, 5):
+        assert np.array_equal(one[i], (d[i] - mean[i]) / std[i])
