@@ -56,6 +56,26 @@ the ``recovery`` argument as a prior worth ``RECOVERY_PRIOR_FRAMES`` frames). A 
 order drives ``ε`` down, so the track is held tightly; a query that jumps drives it up,
 so the filter lets go of a track sooner.
 
+A jump hazard that knows how long the track held (``jump_rates``, off by default). With
+one jump rate a jump anywhere costs ``log(N / ε)`` nats however long the track has held,
+so a stretch over which a wrong track out-scores the true one by more than that moves
+the answer, whatever the hundreds of frames before it said. With ``jump_rates = (ε_1 …
+ε_K)`` each *run* (the frames between two jumps) has its own rate, drawn at the run's
+start from ``π`` and kept until the run ends: the hazard of the run length is a mixture
+of geometric ones, which falls with the run's age (Bayesian online change-point
+detection, Adams & MacKay 2007, with this hazard; the rate's posterior is a sufficient
+statistic for the run length). The state is one posterior over (place, velocity) per
+rate, with weights ``w_k``: component ``k`` keeps ``w_k (1 − ε_k)`` of its moved mass
+and receives ``π_k J`` of the jump mass ``J = Σ_k w_k ε_k``, uniform over places with
+the mixture's jump velocity; the update weighs each component by its evidence ``Σ_j
+prior_kj e^{r_j}``, and the answer, confidence and feedback read the mixture. A track
+that has held for long is carried by the small rates (its cost of leaving tends to
+``log(N / ε_K)``), a young one by the large. ``π`` is learned (``learn_recovery``):
+the posterior probability that a run ended at a frame, ``J · mean_j e^{r_j} / Σ_j
+prior_j e^{r_j}``, is counted to the rates in proportion to ``w_k ε_k`` (the rate of the
+run that ended), on a uniform Dirichlet prior, so that a query that jumps often starts
+its runs with the large rates. Time and memory ``× K``.
+
 New place. ``P(new)`` is a two-state hypothesis "this frame is a place the map does
 not cover", entered with probability ``new_place_prior`` per frame and kept with
 ``new_place_stay``, weighted by the model's ``new_place_log_ratio`` against the map's
@@ -850,6 +870,13 @@ class GridLocalizer:
         a map whose neighbouring places look alike (Wi-Fi scans a metre apart) the exact
         place is a coin toss that read as disagreement and kept the temperature low.
         The answers and ``place_posterior_`` are unchanged.
+    jump_rates : sequence of float in (0, 1), optional
+        The run-length hazard (see "A jump hazard that knows how long the track held" in
+        the module docstring): one posterior over (place, velocity) per jump rate, a
+        new run drawing its rate evenly among them, so that the hazard of leaving a track
+        falls with the evidence the track has gathered. ``recovery`` and
+        ``learn_recovery`` are then not used. Default ``None``: one jump rate
+        (``recovery``, learned or fixed). Time and memory per frame × ``len(jump_rates)``.
 
     Attributes
     ----------
@@ -861,18 +888,27 @@ class GridLocalizer:
         ``(1 − P(new)) Σ_b state_[:, b]``.
     new_place_probability_ : float
     recovery_ : float
-        The jump rate ``ε`` used by the latest prediction (learned, or ``recovery``).
+        The jump rate ``ε`` used by the latest prediction (learned, or ``recovery``; with
+        ``jump_rates``, the mixture's hazard ``Σ_k w_k ε_k``).
+    rate_weights_ : ndarray of float64, shape (len(jump_rates),)
+        With ``jump_rates``: the posterior probability of each rate's component (the
+        current run's rate).
     converged_ : bool
         Whether the filter has converged (see ``converged_log_odds``).
     n_steps_ : int
     """
+
+    #: The line path's prediction storage (float32: half the memory traffic; a float64
+    #: state gives the general path's floats).
+    _line_dtype = np.float32
 
     def __init__(self, graph: PlaceGraph, model, velocities=DEFAULT_VELOCITIES, velocity_stay: float = 0.99,
                  reverse_probability: float = 0.001, blur: float = 0.005, recovery: float = 0.05,
                  junction_probability: float = 0.1, new_place_prior: float = 0.05, new_place_stay: float = 0.8,
                  confidence_radius: int = 2, confidence_radius_m: float | None = None,
                  learn_recovery: bool = True, converged_log_odds: float = 1.0, converged_frames: int = 8,
-                 unconverged_penalty: float = 1.0, max_phases: int = 4, smooth_feedback: bool = True) -> None:
+                 unconverged_penalty: float = 1.0, max_phases: int = 4, smooth_feedback: bool = True,
+                 jump_rates=None) -> None:
         self.graph = graph
         self.model = model
         self.velocities = velocities
@@ -891,12 +927,16 @@ class GridLocalizer:
         self.unconverged_penalty = unconverged_penalty
         self.smooth_feedback = smooth_feedback
         self.max_phases = max_phases
+        self.jump_rates = jump_rates
 
     @property
     def state_(self) -> np.ndarray:
         """Posterior over (place, velocity), shape ``(n_places, n_velocities)`` (the phases
         of a velocity summed)."""
-        bins = self._bin_state()
+        if self.jump_rates is not None and hasattr(self, "_components"):
+            bins = sum(w * (c["_state"] * c["_like"]).T for w, c in zip(self.rate_weights_, self._components))
+        else:
+            bins = self._bin_state()
         if len(self._owner) == len(self._v):
             return bins
         return np.add.reduceat(bins, self._phase_start, axis=1)
@@ -938,6 +978,13 @@ class GridLocalizer:
         if not isinstance(self.learn_recovery, (bool, np.bool_)):
             raise InvalidParameterError(f"The 'learn_recovery' parameter of {owner} must be a bool. "
                                         f"Got {self.learn_recovery!r} instead.")
+        if self.jump_rates is not None:
+            rates = np.asarray(self.jump_rates, dtype=np.float64) if np.ndim(self.jump_rates) == 1 else None
+            if (rates is None or len(rates) == 0 or not np.all((rates > 0) & (rates < 1))
+                    or len(np.unique(rates)) != len(rates)):
+                raise InvalidParameterError(
+                    f"The 'jump_rates' parameter of {owner} must be None or a non-empty sequence of distinct jump "
+                    f"rates in (0, 1), e.g. (0.1, 0.01, 0.001, 0.0001). Got {self.jump_rates!r} instead.")
         if self.confidence_radius_m is not None:
             check_scalar(self.confidence_radius_m, "confidence_radius_m", owner, float, 0.0)
             if self.graph.positions is None:
@@ -982,7 +1029,7 @@ class GridLocalizer:
         self._like_buffer = np.empty(g.n_places)
         # the line path keeps the prediction in float32 (half the memory traffic of a step;
         # every sum and the likelihood stay float64); the general path, the reference, float64
-        dtype = np.float32 if self._line else np.float64
+        dtype = self._line_dtype if self._line else np.float64
         self._spare = np.empty((nb, g.n_places), dtype=dtype)
         # the posterior, factored: the prediction (velocity-major, so that shifts are
         # contiguous) times the latest frame's normalised likelihood per place
@@ -1016,7 +1063,28 @@ class GridLocalizer:
             self._neighbourhoods = confidence_neighbourhoods(g, self.confidence_radius, self.confidence_radius_m,
                                                              getattr(self, "_tree", None), self._route,
                                                              self._route_radius)
+        if self.jump_rates is not None:
+            self._reset_components(FramePool)
         return self
+
+    #: A component's own arrays (swapped in while the shared step code runs on it).
+    _COMPONENT_FIELDS = ("_state", "_spare", "_like", "prior_", "_mass", "_velocity", "_summed", "_like_buffer",
+                         "_pool")
+
+    def _reset_components(self, pool) -> None:
+        """One posterior per jump rate, each uniform, the rates' weights even."""
+        self._rates = np.asarray(self.jump_rates, dtype=np.float64)
+        k = len(self._rates)
+        self._rate_prior = np.full(k, 1.0 / k)
+        self._rate_runs = np.ones(k)  # the rates of ended runs, counted (a uniform Dirichlet prior)
+        self.rate_weights_ = self._rate_prior.copy()
+        self._components = [{"_state": self._state.copy(), "_spare": np.empty_like(self._spare), "_like": self._ones,
+                             "prior_": self.prior_.copy(), "_mass": self.prior_.copy(),
+                             "_velocity": self._velocity.copy(), "_summed": None,
+                             "_like_buffer": np.empty(self.graph.n_places), "_pool": pool(6)}
+                            for _ in range(k)]
+        self._own_pool = self._pool
+        self.recovery_ = float(self._rate_prior @ self._rates)
 
     # ------------------------------------------------------------------ one step
     def step(self, observation: np.ndarray, odometry: float | None = None):
@@ -1043,8 +1111,11 @@ class GridLocalizer:
         odometry = check_odometry(odometry)
         obs = self.model.observe(row)
         ratio = self._exp_ratio(obs)
-        self._predict(odometry, ratio)
-        self._update(ratio)
+        if self.jump_rates is None:
+            self._predict(odometry, ratio)
+            self._update(ratio)
+        else:
+            self._hazard_step(odometry, ratio)
         estimate, near = self._summarise()
         self._feedback(near)
         self.n_steps_ += 1
@@ -1101,19 +1172,89 @@ class GridLocalizer:
         if ratio is None:
             return
         e, top, new_place_log_ratio = ratio
+        total, like_mean = self._likelihood(e)
+        if total <= 0.0:
+            return  # every place impossible: keep the prediction
+        if self.n_steps_ > 0:
+            self._learn_recovery(like_mean / total)
+        self._new_place(math.log(total) + top, new_place_log_ratio)  # log Σ prior · e^r
+
+    def _likelihood(self, e: np.ndarray) -> tuple[float, float]:
+        """The factored update of the current state by ``e`` (:func:`_likelihood`):
+        ``(Σ_j prior_j e_j, mean_j e_j)``; the posterior's likelihood, place masses and
+        velocity marginal are kept unless the first is 0 (every place impossible)."""
         summed = self._summed is not None
         velocity = self._summed if summed else np.empty(len(self._owner))
         # the previous frame's likelihood was consumed by the prediction: its buffer is free
         like = self._like_buffer
         mass = self._pool.take(len(e))
         total, like_mean = _likelihood(self._state, e, self.prior_, like, velocity, mass, summed)
-        if total <= 0.0:
-            return  # every place impossible: keep the prediction
-        self._like, self._velocity = like, velocity
-        self._mass = mass
+        if total > 0.0:
+            self._like, self._velocity = like, velocity
+            self._mass = mass
+        return total, like_mean
+
+    def _hazard_step(self, odometry: float | None, ratio) -> None:
+        """Predict and update every jump rate's component, then their mixture (see the
+        module docstring, "A jump hazard that knows how long the track held").
+
+        A component ``k`` (weight ``w_k``, jump rate ``ε_k``) keeps ``w_k (1 − ε_k)`` of
+        its mass on its moved track and receives ``π_k J`` of the jump mass ``J = Σ_k w_k
+        ε_k`` (uniform over places, the jump velocity of the mixture): its normalised
+        prediction is the single-rate prediction with the jump share ``ρ_k = π_k J /
+        (w_k (1 − ε_k) + π_k J)``, and its predicted weight that sum. The update weighs
+        each component by its evidence ``Σ_j prior_kj e^{r_j}``."""
+        rates, pi, w = self._rates, self._rate_prior, self.rate_weights_
+        jump = 0.0
         if self.n_steps_ > 0:
-            self._learn_recovery(like_mean / total)
-        log_map = math.log(total) + top  # log Σ prior · e^r
+            jump = float(w @ rates)
+            predicted = w * (1.0 - rates) + pi * jump
+            share = pi * jump / predicted
+            self.recovery_ = jump
+        else:
+            predicted, share = w.copy(), np.zeros(len(w))
+        velocity = self._velocity  # the mixture's: every component's jump lands with it
+        totals = np.zeros(len(w))
+        fields = self._COMPONENT_FIELDS
+        for k, component in enumerate(self._components):
+            for f in fields:
+                setattr(self, f, component[f])
+            self._velocity = velocity
+            jump_rate, self.recovery_ = self.recovery_, float(share[k])
+            self._predict(odometry, ratio)
+            self.recovery_ = jump_rate
+            if ratio is not None:
+                totals[k] = self._likelihood(ratio[0])[0]
+            for f in fields:
+                component[f] = getattr(self, f)
+        self._pool = self._own_pool
+        components = self._components
+        self.prior_ = _weighted_sum(predicted, [c["prior_"] for c in components], self._pool.take(self.graph.n_places))
+        evidence = predicted * totals
+        total = float(evidence.sum())
+        if ratio is None or not total > 0.0:
+            # no update (or every place impossible): the predictions stand
+            self.rate_weights_ = predicted / predicted.sum()
+            self._mass = _weighted_sum(self.rate_weights_, [c["_mass"] for c in components],
+                                       self._pool.take(self.graph.n_places))
+            self._velocity = velocity
+            return
+        if self.n_steps_ > 0 and self.learn_recovery:
+            # the posterior probability that a run ended here, its rate ∝ w_k ε_k (the
+            # jump share's evidence: mean_j e_j, uniform over places and velocities)
+            ended = min(1.0, jump * float(ratio[0].mean()) / total)
+            self._rate_runs += ended * (w * rates) / jump
+            self._rate_prior = self._rate_runs / self._rate_runs.sum()
+        self.rate_weights_ = evidence / total
+        self._mass = _weighted_sum(self.rate_weights_, [c["_mass"] for c in components],
+                                   self._pool.take(self.graph.n_places))
+        self._velocity = _weighted_sum(self.rate_weights_, [c["_velocity"] for c in components],
+                                       np.empty(len(self._owner)))
+        self._new_place(math.log(total) + ratio[1], ratio[2])
+
+    def _new_place(self, log_map: float, new_place_log_ratio: float) -> None:
+        """The new-place hypothesis against the map's evidence ``log_map = log Σ_j
+        prior_j e^{r_j}``."""
         p_new = self.new_place_probability_
         prior = self.new_place_stay * p_new + self.new_place_prior * (1.0 - p_new)
         if prior > 0.0:
@@ -1226,6 +1367,14 @@ class GridLocalizer:
         seconds = (time.perf_counter() - start) / max(n, 1)
         return LocalizationResult(place, conf, p_new, np.full(n, float(self.graph.n_places)), pos, qi, seconds,
                                   log_odds, score, posterior)
+
+
+def _weighted_sum(weights: np.ndarray, arrays: list, out: np.ndarray) -> np.ndarray:
+    """``Σ_k weights[k] · arrays[k]`` into ``out``."""
+    np.multiply(arrays[0], weights[0], out=out)
+    for w, a in zip(weights[1:], arrays[1:]):
+        out += w * a
+    return out
 
 
 def _inside_outside(mass: np.ndarray, near) -> tuple[float, float]:
