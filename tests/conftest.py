@@ -47,6 +47,24 @@ def hub_map(places):
     return r, q
 
 
+def hub_case(client, dd):
+    """The cluster's hub case: :func:`hub_map` of a route crossing a shard edge and the map's
+    end, three blank query frames, sharded in 4096 places, the local normalised rows (blank
+    frames zeroed) and the map's hub offsets. Returns ``(query, sharded, local, blank,
+    offsets)``."""
+    from catgraph.differences import difference_matrix
+    from catgraph.hubs import hub_offsets
+
+    r, q = hub_map(np.concatenate([np.arange(3990, 4120), np.arange(8150, 8200)]))
+    blank = np.zeros(len(q), dtype=bool)
+    blank[[0, 15, 100]] = True
+    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
+    local = difference_matrix(q, r, "sad", normalise=True)
+    local[blank] = 0.0
+    offsets = hub_offsets(difference_matrix(r[::7], r, "sad", normalise=True), rows=np.arange(0, 8200, 7))
+    return q, ref, local, blank, offsets
+
+
 @pytest.fixture(scope="module")
 def client():
     """A Dask client on a two-worker in-process cluster (skips without dask.distributed)."""

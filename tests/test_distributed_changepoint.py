@@ -14,7 +14,7 @@ from catgraph import _window_rule as wr
 from catgraph.conditions import Condition
 from catgraph.differences import difference_matrix
 from catgraph.sequence import match_sequences
-from .conftest import hub_map
+from .conftest import hub_case
 
 distributed = pytest.importorskip("distributed")
 from catgraph import distributed as dd  # noqa: E402
@@ -64,15 +64,7 @@ def test_changepoint_equals_the_local_matcher(sharded, alike, condition):
 @pytest.mark.parametrize("rule", ["unrivalled", "predictive", "decorrelated"])
 def test_changepoint_with_other_rules_and_hubs(client, rule):
     # flat frames (hubs) in every shard, blank query frames, the rule's own lookups beside the lines'
-    from catgraph.hubs import hub_offsets
-
-    r, q = hub_map(np.concatenate([np.arange(3990, 4120), np.arange(8150, 8200)]))
-    blank = np.zeros(len(q), dtype=bool)
-    blank[[0, 15, 100]] = True
-    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
-    local = difference_matrix(q, r, "sad", normalise=True)
-    local[blank] = 0.0
-    offsets = hub_offsets(difference_matrix(r[::7], r, "sad", normalise=True), rows=np.arange(0, 8200, 7))
+    q, ref, local, blank, offsets = hub_case(client, dd)
     params = {"rule": rule, "l_max": 30, "grid": 4, "confidence": "changepoint"}
     res = dd.match_adaptive_window(q, ref, block_rows=50, no_information=blank, hub_offsets=offsets, **params)
     out = match_sequences(local, hub_offsets=offsets, **params)

@@ -7,7 +7,7 @@ from catgraph.conditions import Condition
 from catgraph.differences import difference_matrix
 from catgraph.exceptions import InvalidParameterError
 from catgraph.sequence import match_sequences
-from .conftest import hub_map
+from .conftest import hub_case
 
 distributed = pytest.importorskip("distributed")
 from catgraph import distributed as dd  # noqa: E402
@@ -107,15 +107,7 @@ def test_predicted_places_match_a_direct_replay(route):
 def test_record_rules_with_hubs_and_frames_without_information(client, rule):
     # flat frames (hubs) in every shard, blank query frames: the rows the rule reads are
     # corrected and normalised again on the shards, as locally
-    from catgraph.hubs import hub_offsets
-
-    r, q = hub_map(np.concatenate([np.arange(3990, 4120), np.arange(8150, 8200)]))
-    blank = np.zeros(len(q), dtype=bool)
-    blank[[0, 15, 100]] = True
-    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
-    local = difference_matrix(q, r, "sad", normalise=True)
-    local[blank] = 0.0
-    offsets = hub_offsets(difference_matrix(r[::7], r, "sad", normalise=True), rows=np.arange(0, 8200, 7))
+    q, ref, local, blank, offsets = hub_case(client, dd)
     params = {"rule": rule, "l_max": 30, "grid": 4}
     res = dd.match_adaptive_window(q, ref, block_rows=50, no_information=blank, hub_offsets=offsets, **params)
     out = match_sequences(local, hub_offsets=offsets, **params)
