@@ -56,25 +56,35 @@ the ``recovery`` argument as a prior worth ``RECOVERY_PRIOR_FRAMES`` frames). A 
 order drives ``ε`` down, so the track is held tightly; a query that jumps drives it up,
 so the filter lets go of a track sooner.
 
-A jump hazard that knows how long the track held (``jump_rates``, off by default). With
-one jump rate a jump anywhere costs ``log(N / ε)`` nats however long the track has held,
-so a stretch over which a wrong track out-scores the true one by more than that moves
-the answer, whatever the hundreds of frames before it said. With ``jump_rates = (ε_1 …
-ε_K)`` each *run* (the frames between two jumps) has its own rate, drawn at the run's
-start from ``π`` and kept until the run ends: the hazard of the run length is a mixture
-of geometric ones, which falls with the run's age (Bayesian online change-point
-detection, Adams & MacKay 2007, with this hazard; the rate's posterior is a sufficient
-statistic for the run length). The state is one posterior over (place, velocity) per
-rate, with weights ``w_k``: component ``k`` keeps ``w_k (1 − ε_k)`` of its moved mass
-and receives ``π_k J`` of the jump mass ``J = Σ_k w_k ε_k``, uniform over places with
-the mixture's jump velocity; the update weighs each component by its evidence ``Σ_j
-prior_kj e^{r_j}``, and the answer, confidence and feedback read the mixture. A track
-that has held for long is carried by the small rates (its cost of leaving tends to
-``log(N / ε_K)``), a young one by the large. ``π`` is learned (``learn_recovery``):
-the posterior probability that a run ended at a frame, ``J · mean_j e^{r_j} / Σ_j
-prior_j e^{r_j}``, is counted to the rates in proportion to ``w_k ε_k`` (the rate of the
-run that ended), on a uniform Dirichlet prior, so that a query that jumps often starts
-its runs with the large rates. Time and memory ``× K``.
+Jump rates weighed by the evidence (``jump_rates``, off by default). With one jump rate
+a jump anywhere costs ``log(N / ε)`` nats however long the track has held, so a stretch
+over which a wrong track out-scores the true one by more than that moves the answer,
+whatever the hundreds of frames before it said; and the one rate also decides how fast a
+real jump is followed. With ``jump_rates = (ε_1 … ε_K)`` the state is one posterior over
+(place, velocity) per rate, with weights ``w_k``, each weighted by its evidence ``Σ_j
+prior_kj e^{r_j}`` frame by frame; the answer, its confidence and the model's feedback
+read the mixture. Two models of what a rate belongs to (``jump_rate_scope``):
+
+* ``"query"`` (Bayesian model averaging over the rate): the query has one jump rate,
+  unknown; component ``k`` is the fixed-rate filter of ``ε_k`` and ``w_k`` its
+  posterior probability. A query that has held its track for thousands of frames has
+  given the small rates its evidence (each frame without a jump costs the rate ``ε``
+  about ``ε`` nats), so there a jump costs about ``log(N / ε_K)``; a query that jumps
+  often has given it to the large rates, which then follow a jump at once.
+* ``"run"`` (a run-length hazard, Bayesian online change-point detection, Adams &
+  MacKay 2007): each run between two jumps draws its rate from ``π`` at its start and
+  keeps it, so the hazard of the run's length is a mixture of geometric ones that falls
+  with the run's age. Component ``k`` keeps ``w_k (1 − ε_k)`` of its moved mass and
+  receives ``π_k J`` of the jump mass ``J = Σ_k w_k ε_k``. ``π`` is learned
+  (``learn_recovery``): the posterior probability that a run ended at a frame, ``J ·
+  mean_j e^{r_j} / Σ_j prior_j e^{r_j}``, is counted to the rates in proportion to
+  ``w_k ε_k`` (the rate of the run that ended), on a uniform Dirichlet prior. A
+  decreasing hazard is the wrong shape for a query cut into segments of bounded length
+  (whose hazard rises with the segment's age): measured in ``docs/particle_filter.md``,
+  ninth round.
+
+Every jump lands uniformly over places with the mixture's jump velocity. Time and
+memory ``× K``.
 
 New place. ``P(new)`` is a two-state hypothesis "this frame is a place the map does
 not cover", entered with probability ``new_place_prior`` per frame and kept with
@@ -183,6 +193,10 @@ def learn_jump_rate(jumps: float, frames: float, prior: float, current: float,
     eps = (jumps + RECOVERY_PRIOR_FRAMES * prior) / (frames + RECOVERY_PRIOR_FRAMES)
     return jumps, frames, float(min(max(eps, RECOVERY_RANGE[0]), RECOVERY_RANGE[1]))
 
+
+#: What ``jump_rates`` are the rates of: the whole query (Bayesian model averaging over
+#: the rates) or each run between two jumps (a run-length hazard).
+JUMP_RATE_SCOPES = ("query", "run")
 
 #: Default signed velocity bins (places per query frame).
 DEFAULT_VELOCITIES = (-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0)
@@ -871,12 +885,17 @@ class GridLocalizer:
         place is a coin toss that read as disagreement and kept the temperature low.
         The answers and ``place_posterior_`` are unchanged.
     jump_rates : sequence of float in (0, 1), optional
-        The run-length hazard (see "A jump hazard that knows how long the track held" in
-        the module docstring): one posterior over (place, velocity) per jump rate, a
-        new run drawing its rate evenly among them, so that the hazard of leaving a track
-        falls with the evidence the track has gathered. ``recovery`` and
-        ``learn_recovery`` are then not used. Default ``None``: one jump rate
-        (``recovery``, learned or fixed). Time and memory per frame × ``len(jump_rates)``.
+        A jump model over several rates (see "Jump rates weighed by the evidence" in the
+        module docstring): one posterior over (place, velocity) per jump rate, weighted
+        by its evidence, so that the cost of leaving a track grows with the evidence the
+        frames have given the small rates. ``recovery`` is then not used. Default
+        ``None``: one jump rate (``recovery``, learned or fixed). Time and memory per
+        frame × ``len(jump_rates)``.
+    jump_rate_scope : {"query", "run"}
+        With ``jump_rates``: ``"query"`` (default), one rate for the whole query,
+        averaged over the rates by Bayes' rule; ``"run"``, a rate per run between two
+        jumps, drawn at each jump (a run-length hazard; the rates of ended runs learned
+        when ``learn_recovery``).
 
     Attributes
     ----------
@@ -908,7 +927,7 @@ class GridLocalizer:
                  confidence_radius: int = 2, confidence_radius_m: float | None = None,
                  learn_recovery: bool = True, converged_log_odds: float = 1.0, converged_frames: int = 8,
                  unconverged_penalty: float = 1.0, max_phases: int = 4, smooth_feedback: bool = True,
-                 jump_rates=None) -> None:
+                 jump_rates=None, jump_rate_scope: str = "query") -> None:
         self.graph = graph
         self.model = model
         self.velocities = velocities
@@ -928,6 +947,7 @@ class GridLocalizer:
         self.smooth_feedback = smooth_feedback
         self.max_phases = max_phases
         self.jump_rates = jump_rates
+        self.jump_rate_scope = jump_rate_scope
 
     @property
     def state_(self) -> np.ndarray:
@@ -985,6 +1005,9 @@ class GridLocalizer:
                 raise InvalidParameterError(
                     f"The 'jump_rates' parameter of {owner} must be None or a non-empty sequence of distinct jump "
                     f"rates in (0, 1), e.g. (0.1, 0.01, 0.001, 0.0001). Got {self.jump_rates!r} instead.")
+        if self.jump_rate_scope not in JUMP_RATE_SCOPES:
+            raise InvalidParameterError(f"The 'jump_rate_scope' parameter of {owner} must be one of "
+                                        f"{JUMP_RATE_SCOPES}. Got {self.jump_rate_scope!r} instead.")
         if self.confidence_radius_m is not None:
             check_scalar(self.confidence_radius_m, "confidence_radius_m", owner, float, 0.0)
             if self.graph.positions is None:
@@ -1196,17 +1219,23 @@ class GridLocalizer:
 
     def _hazard_step(self, odometry: float | None, ratio) -> None:
         """Predict and update every jump rate's component, then their mixture (see the
-        module docstring, "A jump hazard that knows how long the track held").
+        module docstring, "Jump rates weighed by the evidence").
 
-        A component ``k`` (weight ``w_k``, jump rate ``ε_k``) keeps ``w_k (1 − ε_k)`` of
-        its mass on its moved track and receives ``π_k J`` of the jump mass ``J = Σ_k w_k
-        ε_k`` (uniform over places, the jump velocity of the mixture): its normalised
-        prediction is the single-rate prediction with the jump share ``ρ_k = π_k J /
-        (w_k (1 − ε_k) + π_k J)``, and its predicted weight that sum. The update weighs
-        each component by its evidence ``Σ_j prior_kj e^{r_j}``."""
+        Scope ``"query"``: component ``k`` is the filter of the fixed rate ``ε_k`` (its
+        jumps land in it). Scope ``"run"``: component ``k`` (weight ``w_k``) keeps ``w_k
+        (1 − ε_k)`` of its mass on its moved track and receives ``π_k J`` of the jump mass
+        ``J = Σ_k w_k ε_k``: its normalised prediction is the single-rate prediction with
+        the jump share ``ρ_k = π_k J / (w_k (1 − ε_k) + π_k J)``, and its predicted
+        weight that sum. Every jump lands uniformly over places with the mixture's jump
+        velocity. The update weighs each component by its evidence ``Σ_j prior_kj
+        e^{r_j}``."""
         rates, pi, w = self._rates, self._rate_prior, self.rate_weights_
         jump = 0.0
-        if self.n_steps_ > 0:
+        if self.n_steps_ > 0 and self.jump_rate_scope == "query":
+            jump = float(w @ rates)
+            predicted, share = w.copy(), rates.copy()
+            self.recovery_ = jump
+        elif self.n_steps_ > 0:
             jump = float(w @ rates)
             predicted = w * (1.0 - rates) + pi * jump
             share = pi * jump / predicted
@@ -1239,7 +1268,7 @@ class GridLocalizer:
                                        self._pool.take(self.graph.n_places))
             self._velocity = velocity
             return
-        if self.n_steps_ > 0 and self.learn_recovery:
+        if self.n_steps_ > 0 and self.learn_recovery and self.jump_rate_scope == "run":
             # the posterior probability that a run ended here, its rate ∝ w_k ε_k (the
             # jump share's evidence: mean_j e_j, uniform over places and velocities)
             ended = min(1.0, jump * float(ratio[0].mean()) / total)

@@ -1,5 +1,5 @@
-"""The grid filter's run-length jump hazard (``jump_rates``) against a plain dense-matrix
-Bayes filter over (rate, place, velocity) on a tiny route."""
+"""The grid filter over several jump rates (``jump_rates``, both scopes) against a plain
+dense-matrix Bayes filter over (rate, place, velocity) on a tiny route."""
 
 import math
 
@@ -63,12 +63,14 @@ def _motion(n, velocities, stay, reverse, blur):
     return a
 
 
-def _reference(rows, rates, learn):
+def _reference(rows, rates, learn, scope):
     """The filter over (rate k, place j, velocity b) as vectors and one matrix: each
-    rate's normalised motion, its jump rate, the jump mass ``J = Σ_k w_k ε_k`` landing
-    uniformly with the mixture's jump velocity in rate ``k`` with probability ``π_k``;
-    Bayes' rule; ``π`` the counted rates of ended runs (``learn``). Returns per frame
-    the place posterior ``(1 − P(new)) Σ_k Σ_b``, ``P(new)`` and the rates' weights."""
+    rate's normalised motion and its jump rate; scope ``"query"``: rate ``k``'s jumps
+    land in rate ``k``; ``"run"``: the jump mass ``J = Σ_k w_k ε_k`` lands in rate ``k``
+    with probability ``π_k``, ``π`` the counted rates of ended runs (``learn``); every
+    jump uniform over places with the mixture's jump velocity; Bayes' rule. Returns per
+    frame the place posterior ``(1 − P(new)) Σ_k Σ_b``, ``P(new)`` and the rates'
+    weights."""
     n = rows.shape[1]
     nb = len(VELOCITIES)
     eps = np.asarray(rates)
@@ -91,10 +93,11 @@ def _reference(rows, rates, learn):
             jump = float(w @ eps)
             land = np.tile((0.5 * velocity + 0.5 * vprior) / n, n)
             moved = [a @ x[i] for i in range(k)]
-            y = [w[i] * (1 - eps[i]) * moved[i] / moved[i].sum() + pi[i] * jump * land for i in range(k)]
+            into = w * eps if scope == "query" else pi * jump  # the jump mass landing in each rate
+            y = [w[i] * (1 - eps[i]) * moved[i] / moved[i].sum() + into[i] * land for i in range(k)]
         z = [yi * like for yi in y]
         total = sum(zi.sum() for zi in z)
-        if t > 0 and learn:
+        if t > 0 and learn and scope == "run":
             ended = min(1.0, jump * np.exp(r).mean() / total)
             runs = runs + ended * w * eps / jump
         w = np.array([zi.sum() for zi in z]) / total
@@ -117,13 +120,15 @@ def _rows(n, frames, seed):
     return rows
 
 
+@pytest.mark.parametrize("scope", ["query", "run"])
 @pytest.mark.parametrize("learn", [True, False])
 @pytest.mark.parametrize("kind", [_Float64, _General])
-def test_hazard_equals_dense_reference(kind, learn):
+def test_jump_rates_equal_dense_reference(kind, learn, scope):
     n = 11
     rows = _rows(n, 17, seed=1)
-    loc = kind(PlaceGraph.chain(n), _Ratios(), jump_rates=RATES, learn_recovery=learn, **SETTINGS).reset()
-    for row, (mass, p_new, w) in zip(rows, _reference(rows, RATES, learn)):
+    loc = kind(PlaceGraph.chain(n), _Ratios(), jump_rates=RATES, jump_rate_scope=scope, learn_recovery=learn,
+               **SETTINGS).reset()
+    for row, (mass, p_new, w) in zip(rows, _reference(rows, RATES, learn, scope)):
         est = loc.step(row)
         np.testing.assert_allclose(loc.place_posterior_, mass, rtol=1e-12, atol=1e-15)
         assert est.new_place_probability == pytest.approx(p_new, rel=1e-12, abs=1e-15)
@@ -131,11 +136,12 @@ def test_hazard_equals_dense_reference(kind, learn):
         assert est.place == int(np.argmax(mass))
 
 
-def test_float32_line_path_agrees_with_float64():
+@pytest.mark.parametrize("scope", ["query", "run"])
+def test_float32_line_path_agrees_with_float64(scope):
     n = 40
     rows = _rows(n, 17, seed=2)
-    fast = GridLocalizer(PlaceGraph.chain(n), _Ratios(), jump_rates=RATES, **SETTINGS).reset()
-    exact = _Float64(PlaceGraph.chain(n), _Ratios(), jump_rates=RATES, **SETTINGS).reset()
+    fast = GridLocalizer(PlaceGraph.chain(n), _Ratios(), jump_rates=RATES, jump_rate_scope=scope, **SETTINGS).reset()
+    exact = _Float64(PlaceGraph.chain(n), _Ratios(), jump_rates=RATES, jump_rate_scope=scope, **SETTINGS).reset()
     assert fast._state.dtype == np.float32
     for row in rows:
         fast.step(row), exact.step(row)
@@ -143,11 +149,13 @@ def test_float32_line_path_agrees_with_float64():
         np.testing.assert_allclose(fast.state_, exact.state_, rtol=1e-5, atol=1e-9)
 
 
-def test_one_rate_is_the_fixed_rate_filter():
+@pytest.mark.parametrize("scope", ["query", "run"])
+def test_one_rate_is_the_fixed_rate_filter(scope):
     n = 30
     rows = _rows(n, 17, seed=3)
     for learn in (True, False):
-        one = GridLocalizer(PlaceGraph.chain(n), _Ratios(), jump_rates=(0.03,), learn_recovery=learn).run(rows)
+        one = GridLocalizer(PlaceGraph.chain(n), _Ratios(), jump_rates=(0.03,), jump_rate_scope=scope,
+                            learn_recovery=learn).run(rows)
         fixed = GridLocalizer(PlaceGraph.chain(n), _Ratios(), recovery=0.03, learn_recovery=False).run(rows)
         np.testing.assert_array_equal(one.place, fixed.place)
         np.testing.assert_allclose(one.log_odds, fixed.log_odds, rtol=1e-12, atol=1e-12)
@@ -162,7 +170,8 @@ def test_same_input_same_output():
     np.testing.assert_array_equal(a.log_odds, b.log_odds)
 
 
-def test_a_long_held_track_outlasts_a_misleading_stretch():
+@pytest.mark.parametrize("scope", ["query", "run"])
+def test_a_long_held_track_outlasts_a_misleading_stretch(scope):
     """A track held for 150 frames, then 12 frames where another track far away looks
     better by 1 a frame (12 nats in all, about ``log(n / ε)`` at the single learned rate):
     the hazard keeps the track on (nearly) every frame; the single rate leaves it."""
@@ -173,7 +182,8 @@ def test_a_long_held_track_outlasts_a_misleading_stretch():
     rows = rng.uniform(0.0, 1.0, (frames, n))
     rows[np.arange(frames), truth] -= 1.0
     rows[150 + np.arange(12), 300 + np.arange(12)] -= 2.0  # a wrong track, better than the truth by 1 a frame
-    hazard = GridLocalizer(PlaceGraph.chain(n), _Ratios(), jump_rates=(0.1, 0.01, 0.001, 0.0001)).run(rows)
+    hazard = GridLocalizer(PlaceGraph.chain(n), _Ratios(), jump_rates=(0.1, 0.01, 0.001, 0.0001),
+                           jump_rate_scope=scope).run(rows)
     single = GridLocalizer(PlaceGraph.chain(n), _Ratios()).run(rows)
     assert np.mean(np.abs(hazard.place - truth)[150:] <= 2) >= 0.95
     assert np.mean(np.abs(single.place - truth)[150:] <= 2) < 0.9
@@ -183,3 +193,8 @@ def test_a_long_held_track_outlasts_a_misleading_stretch():
 def test_jump_rates_validated(bad):
     with pytest.raises(InvalidParameterError, match="jump_rates"):
         GridLocalizer(PlaceGraph.chain(5), _Ratios(), jump_rates=bad).reset()
+
+
+def test_jump_rate_scope_validated():
+    with pytest.raises(InvalidParameterError, match="jump_rate_scope"):
+        GridLocalizer(PlaceGraph.chain(5), _Ratios(), jump_rates=RATES, jump_rate_scope="frame").reset()
