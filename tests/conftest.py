@@ -47,6 +47,21 @@ def hub_map(places):
     return r, q
 
 
+def alike_map():
+    """A map whose neighbouring places look alike (each descriptor averaged over 15
+    places), so that the query's rows take several frames to decorrelate, and a query
+    driven at a varying speed (1, 2, 1/2, backwards) that crosses the shard edges at
+    4096 and 8192, jumps, and runs off the end of the map (three shards of 4096).
+    Returns ``(query, reference)``."""
+    rng = np.random.default_rng(7)
+    base = rng.normal(size=(8200, 16))
+    r = np.stack([np.convolve(base[:, c], np.ones(15) / 15, mode="same") for c in range(16)], 1).astype(np.float32)
+    places = np.concatenate([np.arange(4000, 4090), np.arange(4090, 4190, 2), np.repeat(np.arange(1000, 1040), 2),
+                             np.arange(2040, 2000, -1), np.arange(8150, 8200)])
+    q = r[places] + (0.6 * r.std()) * rng.normal(size=(places.size, 16)).astype(np.float32)
+    return q, r
+
+
 def hub_case(client, dd):
     """The cluster's hub case: :func:`hub_map` of a route crossing a shard edge and the map's
     end, three blank query frames, sharded in 4096 places, the local normalised rows (blank

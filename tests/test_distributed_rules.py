@@ -7,7 +7,7 @@ from catgraph.conditions import Condition
 from catgraph.differences import difference_matrix
 from catgraph.exceptions import InvalidParameterError
 from catgraph.sequence import match_sequences
-from .conftest import hub_case
+from .conftest import alike_map, hub_case
 
 distributed = pytest.importorskip("distributed")
 from catgraph import distributed as dd  # noqa: E402
@@ -178,17 +178,8 @@ def test_cluster_experiment_with_rule_decorrelated_equals_the_local_run(client):
 
 @pytest.fixture(scope="module")
 def alike():
-    """A map whose neighbouring places look alike (each descriptor averaged over 15
-    places), so that the query's rows take several frames to decorrelate, and a query
-    driven at a varying speed (1, 2, 1/2, backwards) that crosses the shard edges at
-    4096 and 8192, jumps, and runs off the end of the map (three shards)."""
-    rng = np.random.default_rng(7)
-    base = rng.normal(size=(8200, 16))
-    r = np.stack([np.convolve(base[:, c], np.ones(15) / 15, mode="same") for c in range(16)], 1).astype(np.float32)
-    places = np.concatenate([np.arange(4000, 4090), np.arange(4090, 4190, 2), np.repeat(np.arange(1000, 1040), 2),
-                             np.arange(2040, 2000, -1), np.arange(8150, 8200)])
-    q = r[places] + (0.6 * r.std()) * rng.normal(size=(places.size, 16)).astype(np.float32)
-    return q, r
+    """:func:`conftest.alike_map`."""
+    return alike_map()
 
 
 SPANNING = {"rule": "spanning", "l_max": 30, "grid": 4, "velocities": (-1.0, 1.0, 2.0)}
