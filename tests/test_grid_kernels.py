@@ -1,0 +1,129 @@
+"""The grid filter's line path stays bit-identical when it is made faster.
+
+Whole runs of :class:`~catgraph.grid.GridLocalizer` on line graphs (the fast path:
+float32 prediction, factored update, fused passes) against digests of the outputs the
+filter produced before the step's passes were fused: every frame's answer, confidence,
+log-odds, score, new-place probability and place posterior, and the final state,
+likelihood, velocity marginal and jump rate, bit for bit. The runs: random rows with a
+moving track on a map of several blocks (one thread), the same on a map large enough
+for the blocks to be shared among threads, frames the model finds uninformative or
+impossible (the update's other branches), and a stretch of the real Nordland
+difference matrix with the tempered whole-image model (whose feedback reads the
+posterior every frame). The pieces of the fused passes are also tested against the
+numpy they replace."""
+
+import hashlib
+
+import numpy as np
+import pytest
+
+from catgraph import grid
+from catgraph.graph import PlaceGraph
+from catgraph.grid import GridLocalizer
+from catgraph.observation import Observation, TemperedObservation
+
+from .conftest import NORDLAND, needs_nordland
+
+
+def _digest(arrays) -> str:
+    h = hashlib.sha256()
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(str(a.dtype).encode() + str(a.shape).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()[:16]
+
+
+def _run(loc, d) -> str:
+    """Digest of every frame's outputs and of the filter's final state."""
+    res = loc.run(d, return_posterior=True)
+    out = [res.place, res.confidence, res.new_place_probability, res.log_odds, res.score, res.posterior,
+           loc._state, loc._like, loc._velocity, loc.prior_, loc.place_posterior_, np.array([loc.recovery_])]
+    return _digest(out)
+
+
+def _track_rows(n_q, n, seed, speed=1):
+    """Random rows with one place per frame (at ``speed`` places per frame) clearly best."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(n_q, n))
+    for i in range(n_q):
+        d[i, (n // 3 + speed * i) % n] -= 5.0
+        d[i, (n // 3 + speed * i + 1) % n] -= 3.0
+    return d
+
+
+class _Scripted:
+    """A model replaying fixed log-ratios; ``None`` rows are uninformative frames."""
+
+    def __init__(self, ratios, new_place=-1.0):
+        self.ratios, self.new_place, self.k = ratios, new_place, 0
+
+    def reset(self):
+        self.k = 0
+
+    def observe(self, row):
+        r = self.ratios[self.k % len(self.ratios)]
+        self.k += 1
+        if r is None:
+            return Observation(np.zeros(len(row)), 0.0, False)
+        return Observation(r, self.new_place, True)
+
+    def feedback(self, feedback):
+        pass
+
+
+def _scripted_ratios(n, seed):
+    """Log-ratios with a moving peak, two uninformative frames and one frame no place of
+    which is possible (every ratio −inf: the update keeps the prediction)."""
+    rng = np.random.default_rng(seed)
+    ratios = []
+    for i in range(40):
+        r = rng.normal(size=n)
+        r[(n // 2 + 2 * i) % n] += 6.0
+        ratios.append(r)
+    ratios[7] = None
+    ratios[8] = None
+    ratios[20] = np.full(n, -np.inf)
+    return ratios
+
+
+#: digests of the outputs before the passes were fused (the code of the commit that added this file)
+_DIGESTS = {"random tempered": "65df66da61ac163f", "random tempered double speed": "199a06dd72faec44",
+            "scripted branches": "82c69d651eaf6f6b", "threaded": "29988694c919ce9d", "nordland": "fb6bb5dbe77f855a"}
+
+
+def _cases():
+    yield "random tempered", lambda: (GridLocalizer(PlaceGraph.chain(5000), TemperedObservation()),
+                                      _track_rows(60, 5000, 0))
+    yield "random tempered double speed", lambda: (GridLocalizer(PlaceGraph.chain(5000), TemperedObservation()),
+                                                   _track_rows(60, 5000, 1, speed=2))
+    yield "scripted branches", lambda: (GridLocalizer(PlaceGraph.chain(3000), _Scripted(_scripted_ratios(3000, 2))),
+                                        np.zeros((40, 3000)))
+    yield "threaded", lambda: (GridLocalizer(PlaceGraph.chain(60_000), TemperedObservation()),
+                               _track_rows(12, 60_000, 3))
+
+
+@pytest.mark.filterwarnings("ignore:invalid value encountered")
+@pytest.mark.parametrize("name", [c[0] for c in _cases()])
+def test_line_path_outputs_are_those_before_the_fusion(name):
+    make = dict(_cases())[name]
+    loc, d = make()
+    assert _run(loc, d) == _DIGESTS[name]
+
+
+def _nordland_rows(n_q=300):
+    """The first query frames' normalised difference rows of Nordland (summer map, winter query)."""
+    from catgraph.datasets import load_traverse
+    from catgraph.pipeline import differences
+    from catgraph.traverse import Traverse
+
+    ref = load_traverse(NORDLAND / "summer")
+    query = load_traverse(NORDLAND / "winter")
+    return differences(ref, Traverse(query.frames[:n_q]))
+
+
+@needs_nordland
+def test_nordland_run_gives_the_outputs_before_the_fusion():
+    d = _nordland_rows()
+    loc = GridLocalizer(PlaceGraph.chain(d.shape[1]), TemperedObservation())
+    assert _run(loc, d) == _DIGESTS["nordland"]
