@@ -554,6 +554,50 @@ def _line_blocks(p, like, out, mass, t_ptr, t_src, t_val, whole, frac, sign, sha
                 accs[kb, b] = acc
 
 
+#: Places per chunk of the update's sums (:func:`_likelihood`, :func:`_evidence_sums`).
+_EVIDENCE_CHUNK = 4096
+
+
+@njit(fastmath=True)
+def _evidence_sums(e, prior_mass, j_start, j_stop, sums):  # pragma: no cover - compiled
+    """``sums += (Σ_j e_j, Σ_j prior_mass_j e_j)`` over places ``j_start .. j_stop − 1``,
+    in chunks of :data:`_EVIDENCE_CHUNK` places (``j_start`` a multiple of it), each
+    added to the running sums: the floats of :func:`_likelihood`'s sums."""
+    like_sum = sums[0]
+    total = sums[1]
+    for j0 in range(j_start, j_stop, 4096):
+        j1 = min(j_stop, j0 + 4096)
+        ee = e[j0:j1]
+        pm = prior_mass[j0:j1]
+        for j in range(j1 - j0):
+            like_sum += ee[j]
+            total += pm[j] * ee[j]
+    sums[0] = like_sum
+    sums[1] = total
+
+
+@njit
+def _posterior_pass(e, inv, prior_mass, like, mass, posterior, keep):  # pragma: no cover - compiled
+    """The update's writes in one pass, once its normaliser ``1 / inv`` and the map's
+    share ``keep = 1 − P(new)`` are known: ``like[j] = e_j · inv``, the posterior place
+    masses ``mass[j] = prior_mass_j · like[j]`` and ``posterior[j] = mass[j] · keep`` (the
+    floats of :func:`_likelihood` and of numpy's product); returns the first place of the
+    largest mass (``np.argmax``: the first NaN, if any)."""
+    n = e.shape[0]
+    best = 0
+    top = -np.inf
+    for j in range(n):
+        x = e[j] * inv
+        like[j] = x
+        m = prior_mass[j] * x
+        mass[j] = m
+        posterior[j] = m * keep
+        if m > top or (m != m and top == top) or j == 0:
+            best = j
+            top = m
+    return best
+
+
 @njit
 def _line_sums(accs, velocity):  # pragma: no cover - compiled
     """``velocity[b] = Σ_k accs[k, b]``, added block after block (the order of one pass)."""
@@ -574,7 +618,7 @@ _POOL = {}
 
 
 def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, frac, sign, blur,
-                  recovery, velocity_prior, block, e, velocity, threads=None):
+                  recovery, velocity_prior, block, e, velocity, threads=None, sums=None):
     """:func:`predict` on a line graph (place ``j``'s neighbours are ``j ± 1``, no
     junctions, no odometry) from the factored posterior ``p[b, j] · like[j]``
     (velocity-major), in one pass over the state, ``block`` places at a time
@@ -589,7 +633,10 @@ def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, fr
     (:data:`LINE_PIECES_PER_THREAD` per thread), each taken by whichever thread is free;
     every block writes its own places and its own velocity sums, which are added in
     block order afterwards, so the result is the same, bit for bit, on any number of
-    threads."""
+    threads.
+
+    ``sums`` (with ``e``): set to the update's sums ``(Σ_j e_j, Σ_j mass_j e_j)``
+    (:func:`_evidence_sums`)."""
     nb, n = p.shape
     share0, centre, side, reach = _line_setup(p, like, prior_mass, t_ptr, t_src, t_val, whole, frac, sign, blur,
                                               recovery)
@@ -626,6 +673,9 @@ def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, fr
         finally:
             for job in jobs:
                 job.result()
+    if sums is not None and len(e) > 0:
+        sums[0] = sums[1] = 0.0
+        _evidence_sums(e, mass, 0, n, sums)
     _line_sums(accs, velocity)
 
 
@@ -1049,6 +1099,9 @@ class GridLocalizer:
         self._pool = FramePool(6)  # the per-frame masses and posteriors handed out
         self._no_e = np.empty(0)  # the line kernel without an update to form sums for
         self._summed = None
+        self._summed_evidence = False
+        self._sums = np.zeros(2)  # the update's sums formed by the line kernel
+        self._deferred = None  # (e, 1 / Σ prior e): the update's writes, left to the summary
         self._like_buffer = np.empty(g.n_places)
         # the line path keeps the prediction in float32 (half the memory traffic of a step;
         # every sum and the likelihood stay float64); the general path, the reference, float64
@@ -1159,6 +1212,7 @@ class GridLocalizer:
 
     def _predict(self, odometry: float | None, ratio=None) -> None:
         self._summed = None
+        self._summed_evidence = False
         if self.n_steps_ > 0:
             jump_velocity = self._jump_velocity()
             if self._line and odometry is None:
@@ -1167,15 +1221,18 @@ class GridLocalizer:
                 mass = self._pool.take(self.graph.n_places)
                 # the next frame's velocity sums formed while the prediction is written
                 summed = np.empty(len(self._owner))
+                # and, for the update, its sums Σ e_j, Σ mass_j e_j (single jump rate)
+                sums = self._sums if self.jump_rates is None else None
                 _line_predict(self._state, self._like, self.prior_, out, mass, *self._t_sparse, whole,
                               frac, sign, float(self.blur), self.recovery_, jump_velocity, _LINE_BLOCK,
-                              self._no_e if ratio is None else ratio[0], summed)
+                              self._no_e if ratio is None else ratio[0], summed, sums=sums)
                 self._spare, self._state = self._state, out
                 self._like = self._ones
                 self.prior_ = mass
                 self._mass = mass
                 if ratio is not None:
                     self._summed = summed
+                    self._summed_evidence = sums is not None
                 return
             if self._neighbours is None:
                 self._neighbours = route_neighbours(self.graph)
@@ -1195,17 +1252,31 @@ class GridLocalizer:
         if ratio is None:
             return
         e, top, new_place_log_ratio = ratio
-        total, like_mean = self._likelihood(e)
+        total, like_mean = self._likelihood(e, defer=True)
         if total <= 0.0:
             return  # every place impossible: keep the prediction
         if self.n_steps_ > 0:
             self._learn_recovery(like_mean / total)
         self._new_place(math.log(total) + top, new_place_log_ratio)  # log Σ prior · e^r
 
-    def _likelihood(self, e: np.ndarray) -> tuple[float, float]:
+    def _likelihood(self, e: np.ndarray, defer: bool = False) -> tuple[float, float]:
         """The factored update of the current state by ``e`` (:func:`_likelihood`):
         ``(Σ_j prior_j e_j, mean_j e_j)``; the posterior's likelihood, place masses and
-        velocity marginal are kept unless the first is 0 (every place impossible)."""
+        velocity marginal are kept unless the first is 0 (every place impossible).
+
+        ``defer`` (single jump rate): where the line kernel has formed the velocity sums
+        and the update's sums already, only the velocity marginal is normalised here;
+        the likelihood and the place masses are written with the place posterior and
+        the answer in one pass (:func:`_posterior_pass`, :meth:`_summarise`)."""
+        if defer and self._summed_evidence:
+            like_sum, total = float(self._sums[0]), float(self._sums[1])
+            like_mean = like_sum / len(e)
+            if not (total > 0.0) or not math.isfinite(total):
+                return 0.0, like_mean
+            inv = 1.0 / total
+            self._velocity = np.multiply(self._summed, inv, out=self._summed)
+            self._deferred = (e, inv)
+            return total, like_mean
         summed = self._summed is not None
         velocity = self._summed if summed else np.empty(len(self._owner))
         # the previous frame's likelihood was consumed by the prediction: its buffer is free
@@ -1306,10 +1377,20 @@ class GridLocalizer:
         from .localizer import Estimate, confidence_log_odds
 
         g = self.graph
-        mass = self._mass
         self.__dict__.pop("place_posterior_", None)  # the previous frame's: reusable if no one else holds it
-        self.place_posterior_ = np.multiply(mass, 1.0 - self.new_place_probability_, out=self._pool.take(len(mass)))
-        best = int(np.argmax(mass))
+        if self._deferred is not None:  # the update's writes, the place posterior and the answer in one pass
+            e, inv = self._deferred
+            self._deferred = None
+            mass = self._pool.take(len(e))
+            self.place_posterior_ = self._pool.take(len(e))
+            best = int(_posterior_pass(e, inv, self.prior_, self._like_buffer, mass, self.place_posterior_,
+                                       1.0 - self.new_place_probability_))
+            self._like, self._mass = self._like_buffer, mass
+        else:
+            mass = self._mass
+            self.place_posterior_ = np.multiply(mass, 1.0 - self.new_place_probability_,
+                                                out=self._pool.take(len(mass)))
+            best = int(np.argmax(mass))
         if self.confidence_radius_m is not None:
             near = np.zeros(g.n_places, dtype=bool)
             near[self._tree.query_ball_point(g.positions[best], self.confidence_radius_m)] = True

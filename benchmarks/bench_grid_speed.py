@@ -1,0 +1,207 @@
+"""The grid filter's step on a large line map, piece by piece, against a memory floor.
+
+Usage (from the project root)::
+
+    python benchmarks/bench_grid_speed.py                       # -> results/grid_speed.md (+ .json)
+    python benchmarks/bench_grid_speed.py --trees OLD NEW ...   # the same step from several source trees
+
+One step of :class:`catgraph.grid.GridLocalizer` (the default 8 velocities in 10 state
+bins, line graph: the fast path) at 100,000 places, the observation precomputed (a
+fixed log-ratio vector, as ``bench_filter.py speed``), timed as the median over several
+runs of 20 steps each; beside every run, in the same process, one ``np.add`` over an
+array of the state's size (8 × places float64), the floor the step is reported against
+(the machine is shared, so absolute times move with its load). The profile times every
+compiled kernel and Python piece of the step on its own (the median of its calls), so
+that what the step is made of can be read off.
+
+``--trees`` runs the step in one fresh process per tree and run (``PYTHONPATH`` set to
+the tree), the trees alternated run after run, so that the load falls on each alike:
+the before/after comparison of a change. The load average is recorded with every run.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+
+N_PLACES = 100_000
+N_ROWS = 30
+N_WARM = 10
+
+
+class _FixedModel:
+    """Observation precomputed: returns the same log-ratio every step (with feedback,
+    as the tempered model: the filter forms the smoothed posterior it hands over)."""
+
+    def __init__(self, log_ratio, new_place_log_ratio=-1.0):
+        from catgraph.observation import Observation
+
+        self._obs = Observation(log_ratio, new_place_log_ratio, True)
+
+    def reset(self):
+        pass
+
+    def observe(self, row):
+        return self._obs
+
+    def feedback(self, feedback):
+        pass
+
+
+def _floor(n_values: int, repeats: int = 20) -> float:
+    """Seconds of one ``np.add`` over two arrays of ``n_values`` float64 (median)."""
+    a, b = np.random.default_rng(1).random((2, n_values))
+    c = np.empty_like(a)
+    t = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        np.add(a, b, out=c)
+        t.append(time.perf_counter() - start)
+    return statistics.median(t)
+
+
+def _localizer(n: int = N_PLACES):
+    from catgraph.graph import PlaceGraph
+    from catgraph.grid import GridLocalizer
+
+    rows = np.random.default_rng(0).standard_normal((N_ROWS, n))
+    loc = GridLocalizer(PlaceGraph.chain(n), _FixedModel(-rows[0])).reset()
+    return loc, rows
+
+
+def _one_run(loc, rows) -> float:
+    """Seconds per step over the rows after ``N_WARM`` warm-up steps."""
+    loc.reset()
+    for r in rows[:N_WARM]:
+        loc.step(r)
+    start = time.perf_counter()
+    for r in rows[N_WARM:]:
+        loc.step(r)
+    return (time.perf_counter() - start) / (len(rows) - N_WARM)
+
+
+def measure(runs: int = 7) -> dict:
+    """Step and floor, ``runs`` times alternated; medians in milliseconds."""
+    loc, rows = _localizer()
+    _one_run(loc, rows)  # compile, fault the buffers in
+    step, floor = [], []
+    for _ in range(runs):
+        step.append(_one_run(loc, rows))
+        floor.append(_floor(8 * N_PLACES))
+    return {"step_ms": 1e3 * statistics.median(step), "floor_ms": 1e3 * statistics.median(floor),
+            "ratio": statistics.median(s / f for s, f in zip(step, floor)), "runs": runs,
+            "load": os.getloadavg()[0], "package": str(Path(__import__("catgraph").__file__).parent)}
+
+
+def profile(rounds: int = 5) -> dict:
+    """Median milliseconds of each piece of the step (its own calls timed, the step
+    otherwise unchanged)."""
+    import catgraph.grid as grid
+    import catgraph.localizer as localizer
+
+    loc, rows = _localizer()
+    _one_run(loc, rows)
+    times: dict = {}
+
+    def timed(owner, name, label):
+        f = getattr(owner, name)
+
+        def wrapper(*args, **kwargs):
+            start = time.perf_counter()
+            out = f(*args, **kwargs)
+            times.setdefault(label, []).append(time.perf_counter() - start)
+            return out
+
+        setattr(owner, name, wrapper)
+        return f
+
+    pieces = [(grid, name, f"grid.{name}") for name in
+              ("_line_setup", "_line_blocks", "_line_sums", "_line_predict", "_evidence_sums", "_posterior_pass",
+               "_likelihood", "_inside_outside") if hasattr(grid, name)]
+    pieces += [(localizer, "_smoothed", "localizer._smoothed")]
+    pieces += [(grid.GridLocalizer, name, f"GridLocalizer.{name}") for name in
+               ("_exp_ratio", "_predict", "_update", "_summarise", "_feedback")]
+    saved = [(owner, name, timed(owner, name, label)) for owner, name, label in pieces]
+    try:
+        steps = []
+        for _ in range(rounds):
+            loc.reset()
+            for r in rows[:N_WARM]:
+                loc.step(r)
+            times.clear() if not steps else None
+            for r in rows[N_WARM:]:
+                start = time.perf_counter()
+                loc.step(r)
+                steps.append(time.perf_counter() - start)
+    finally:
+        for owner, name, f in saved:
+            setattr(owner, name, f)
+    out = {label: 1e3 * statistics.median(v) for label, v in times.items()}
+    out["step (profiled)"] = 1e3 * statistics.median(steps)
+    out["np.add floor"] = 1e3 * _floor(8 * N_PLACES)
+    return out
+
+
+def compare(trees: list[str], runs: int = 5) -> dict:
+    """One fresh process per tree and run, trees alternated; per tree the runs' results."""
+    results: dict = {tree: [] for tree in trees}
+    for _ in range(runs):
+        for tree in trees:
+            env = dict(os.environ, PYTHONPATH=str(Path(tree).resolve()))
+            out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--one"], env=env, check=True,
+                                 capture_output=True, text=True, cwd=str(Path(tree).resolve())).stdout
+            results[tree].append(json.loads(out.strip().splitlines()[-1]))
+            print(tree, results[tree][-1], flush=True)
+    return results
+
+
+def _table(results: dict) -> str:
+    lines = ["| tree | step (ms), median of runs | np.add floor (ms) | step / np.add | load (1 min) |",
+             "|---|---|---|---|---|"]
+    for tree, runs in results.items():
+        step = statistics.median(r["step_ms"] for r in runs)
+        floor = statistics.median(r["floor_ms"] for r in runs)
+        ratio = statistics.median(r["ratio"] for r in runs)
+        loads = [r["load"] for r in runs]
+        lines.append(f"| `{tree}` | {step:.3f} | {floor:.3f} | {ratio:.2f} | {min(loads):.1f}–{max(loads):.1f} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str]) -> None:
+    if argv and argv[0] == "--one":
+        print(json.dumps(measure()))
+        return
+    if argv and argv[0] == "--trees":
+        results = compare(argv[1:])
+        print(_table(results))
+        return
+    m = measure()
+    p = profile()
+    text = ["# Grid filter step at 100,000 places", "",
+            "`python benchmarks/bench_grid_speed.py`: one step of `GridLocalizer` (8 velocities in 10 state bins, "
+            "line graph: the fast path), observation precomputed; medians of "
+            f"{m['runs']} runs of {N_ROWS - N_WARM} steps, each beside one `np.add` over 8 × places float64 in "
+            f"the same process. Load average {m['load']:.1f}.", "",
+            "| step (ms) | np.add (ms) | step / np.add |", "|---|---|---|",
+            f"| {m['step_ms']:.3f} | {m['floor_ms']:.3f} | {m['ratio']:.2f} |", "",
+            "Pieces (median ms per call; a piece inside another is counted in both; `_line_blocks` once per "
+            "block range, of which a threaded step has several):", "", "| piece | ms |", "|---|---|"]
+    text += [f"| `{k}` | {v:.3f} |" for k, v in p.items()]
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / "grid_speed.md").write_text("\n".join(text) + "\n")
+    (RESULTS / "grid_speed.json").write_text(json.dumps({"step": m, "profile": p}, indent=1) + "\n")
+    print("\n".join(text))
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
