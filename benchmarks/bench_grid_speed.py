@@ -112,6 +112,7 @@ def profile(rounds: int = 5) -> dict:
     loc, rows = _localizer()
     _one_run(loc, rows)
     times: dict = {}
+    counting = [False]
 
     def timed(owner, name, label):
         f = getattr(owner, name)
@@ -119,7 +120,8 @@ def profile(rounds: int = 5) -> dict:
         def wrapper(*args, **kwargs):
             start = time.perf_counter()
             out = f(*args, **kwargs)
-            times.setdefault(label, []).append(time.perf_counter() - start)
+            if counting[0]:
+                times.setdefault(label, []).append(time.perf_counter() - start)
             return out
 
         setattr(owner, name, wrapper)
@@ -138,11 +140,12 @@ def profile(rounds: int = 5) -> dict:
             loc.reset()
             for r in rows[:N_WARM]:
                 loc.step(r)
-            times.clear() if not steps else None
+            counting[0] = True
             for r in rows[N_WARM:]:
                 start = time.perf_counter()
                 loc.step(r)
                 steps.append(time.perf_counter() - start)
+            counting[0] = False
     finally:
         for owner, name, f in saved:
             setattr(owner, name, f)
@@ -150,6 +153,30 @@ def profile(rounds: int = 5) -> dict:
     out["step (profiled)"] = 1e3 * statistics.median(steps)
     out["np.add floor"] = 1e3 * _floor(8 * N_PLACES)
     return out
+
+
+def threads(runs: int = 9) -> dict:
+    """The step on one thread, on two (the load left out of the choice), and with the
+    default choice, alternated; per setting the median ms, and the load averages."""
+    import catgraph.grid as grid
+
+    loc, rows = _localizer()
+    _one_run(loc, rows)
+    work, free = grid.LINE_WORK_PER_THREAD, grid._free_cores
+    settings = {"one thread": (1 << 62, free), "two threads": (1, lambda cores: cores),
+                "default (the load decides)": (work, free)}
+    times: dict = {k: [] for k in settings}
+    loads = []
+    try:
+        for _ in range(runs):
+            for name, (w, f) in settings.items():
+                grid.LINE_WORK_PER_THREAD, grid._free_cores = w, f
+                times[name].append(1e3 * _one_run(loc, rows))
+            loads.append(os.getloadavg()[0])
+    finally:
+        grid.LINE_WORK_PER_THREAD, grid._free_cores = work, free
+    return {"ms": {k: statistics.median(v) for k, v in times.items()}, "load": [min(loads), max(loads)],
+            "floor_ms": 1e3 * _floor(8 * N_PLACES)}
 
 
 def compare(trees: list[str], runs: int = 5) -> dict:
@@ -197,9 +224,14 @@ def main(argv: list[str]) -> None:
             "Pieces (median ms per call; a piece inside another is counted in both; `_line_blocks` once per "
             "block range, of which a threaded step has several):", "", "| piece | ms |", "|---|---|"]
     text += [f"| `{k}` | {v:.3f} |" for k, v in p.items()]
+    t = threads()
+    text += ["", f"Threads (the line kernel's block ranges; medians of alternated runs, load average "
+             f"{t['load'][0]:.1f}–{t['load'][1]:.1f}, np.add {t['floor_ms']:.3f} ms):", "",
+             "| threads | step (ms) |", "|---|---|"]
+    text += [f"| {k} | {v:.3f} |" for k, v in t["ms"].items()]
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "grid_speed.md").write_text("\n".join(text) + "\n")
-    (RESULTS / "grid_speed.json").write_text(json.dumps({"step": m, "profile": p}, indent=1) + "\n")
+    (RESULTS / "grid_speed.json").write_text(json.dumps({"step": m, "profile": p, "threads": t}, indent=1) + "\n")
     print("\n".join(text))
 
 

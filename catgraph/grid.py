@@ -153,6 +153,7 @@ Memory ``O(n_places · n_bins)``.
 from __future__ import annotations
 
 import math
+import os
 import time
 
 import numpy as np
@@ -613,6 +614,27 @@ def _line_sums(accs, velocity):  # pragma: no cover - compiled
 LINE_WORK_PER_THREAD = 1 << 18
 #: Runs of whole blocks per thread the line kernel's places are cut into.
 LINE_PIECES_PER_THREAD = 4
+#: Seconds the machine's load average is read for (:func:`_free_cores`).
+LOAD_CHECK_SECONDS = 1.0
+_LOAD = [-math.inf, 0.0]  # when the load was last read, and what it was
+
+
+def _free_cores(cores: int) -> int:
+    """The cores not busy with other processes: ``cores`` less the one-minute load
+    average beyond this process's own (at least 1; read at most every
+    :data:`LOAD_CHECK_SECONDS`). A thread handed a block range on a core that another
+    process holds is descheduled for whole time slices while the other threads wait for
+    its range: measured on a two-core machine with a second process running, the step
+    at 10⁵ places took 1.4 times as long on two threads as on one
+    (``benchmarks/results/grid_speed.md``)."""
+    now = time.monotonic()
+    if now - _LOAD[0] > LOAD_CHECK_SECONDS:
+        try:
+            _LOAD[1] = os.getloadavg()[0]
+        except (AttributeError, OSError):  # pragma: no cover - no load average on this platform
+            _LOAD[1] = 0.0
+        _LOAD[0] = now
+    return int(max(1, min(cores, math.floor(cores + 1.5 - _LOAD[1]))))
 
 _POOL = {}
 
@@ -629,7 +651,8 @@ def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, fr
     stored) while the row is written, so that the update need not read the state again.
 
     The blocks are shared among ``threads`` threads (default: as many as the work is
-    worth, :data:`LINE_WORK_PER_THREAD`, at most the cores) in runs of whole blocks
+    worth, :data:`LINE_WORK_PER_THREAD`, at most the cores not busy with other
+    processes, :func:`_free_cores`) in runs of whole blocks
     (:data:`LINE_PIECES_PER_THREAD` per thread), each taken by whichever thread is free;
     every block writes its own places and its own velocity sums, which are added in
     block order afterwards, so the result is the same, bit for bit, on any number of
@@ -647,6 +670,8 @@ def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, fr
 
         threads = _threads_available()
         threads = min(threads, (nb * n) // LINE_WORK_PER_THREAD)
+        if threads > 1:
+            threads = min(threads, _free_cores(threads))
     threads = int(max(1, min(threads, blocks)))
     args = (p, like, out, mass, t_ptr, t_src, t_val, whole, frac, sign, share0, centre, side, reach,
             velocity_prior, block, e)
