@@ -79,14 +79,18 @@ def _localizer(n: int = N_PLACES):
     return loc, rows
 
 
-def _one_run(loc, rows) -> float:
-    """Seconds per step over the rows after ``N_WARM`` warm-up steps."""
+def _one_run(loc, rows, cpu: list | None = None) -> float:
+    """Seconds per step over the rows after ``N_WARM`` warm-up steps (wall clock;
+    ``cpu`` given: the process's CPU seconds per step appended to it, every thread's
+    work counted, the time spent waiting for a core not)."""
     loc.reset()
     for r in rows[:N_WARM]:
         loc.step(r)
-    start = time.perf_counter()
+    start, start_cpu = time.perf_counter(), time.process_time()
     for r in rows[N_WARM:]:
         loc.step(r)
+    if cpu is not None:
+        cpu.append((time.process_time() - start_cpu) / (len(rows) - N_WARM))
     return (time.perf_counter() - start) / (len(rows) - N_WARM)
 
 
@@ -94,11 +98,12 @@ def measure(runs: int = 7) -> dict:
     """Step and floor, ``runs`` times alternated; medians in milliseconds."""
     loc, rows = _localizer()
     _one_run(loc, rows)  # compile, fault the buffers in
-    step, floor = [], []
+    step, floor, cpu = [], [], []
     for _ in range(runs):
-        step.append(_one_run(loc, rows))
+        step.append(_one_run(loc, rows, cpu))
         floor.append(_floor(8 * N_PLACES))
     return {"step_ms": 1e3 * statistics.median(step), "floor_ms": 1e3 * statistics.median(floor),
+            "cpu_ms": 1e3 * statistics.median(cpu),
             "ratio": statistics.median(s / f for s, f in zip(step, floor)), "runs": runs,
             "load": os.getloadavg()[0], "package": str(Path(__import__("catgraph").__file__).parent)}
 
@@ -193,14 +198,16 @@ def compare(trees: list[str], runs: int = 5) -> dict:
 
 
 def _table(results: dict) -> str:
-    lines = ["| tree | step (ms), median of runs | np.add floor (ms) | step / np.add | load (1 min) |",
-             "|---|---|---|---|---|"]
+    lines = ["| tree | step (ms), median of runs | np.add floor (ms) | step / np.add | CPU ms per step (all threads) "
+             "| load (1 min) |", "|---|---|---|---|---|---|"]
     for tree, runs in results.items():
         step = statistics.median(r["step_ms"] for r in runs)
         floor = statistics.median(r["floor_ms"] for r in runs)
         ratio = statistics.median(r["ratio"] for r in runs)
+        cpu = statistics.median(r["cpu_ms"] for r in runs)
         loads = [r["load"] for r in runs]
-        lines.append(f"| `{tree}` | {step:.3f} | {floor:.3f} | {ratio:.2f} | {min(loads):.1f}–{max(loads):.1f} |")
+        lines.append(f"| `{tree}` | {step:.3f} | {floor:.3f} | {ratio:.2f} | {cpu:.3f} | "
+                     f"{min(loads):.1f}–{max(loads):.1f} |")
     return "\n".join(lines)
 
 
@@ -221,6 +228,7 @@ def main(argv: list[str]) -> None:
             f"the same process. Load average {m['load']:.1f}.", "",
             "| step (ms) | np.add (ms) | step / np.add |", "|---|---|---|",
             f"| {m['step_ms']:.3f} | {m['floor_ms']:.3f} | {m['ratio']:.2f} |", "",
+            f"CPU time per step (the process, every thread): {m['cpu_ms']:.3f} ms.", "",
             "Pieces (median ms per call; a piece inside another is counted in both; `_line_blocks` once per "
             "block range, of which a threaded step has several):", "", "| piece | ms |", "|---|---|"]
     text += [f"| `{k}` | {v:.3f} |" for k, v in p.items()]
