@@ -25,8 +25,9 @@ matrix, of any block of it, and of any shard of the reference on another machine
     serial: they cost a few ms at a million places, less than waking the threads on
     a busy machine.
 :func:`normalise_row`
-    The same passes for one row in one call (the live step's row: no Python between
-    the passes), the same floats.
+    The same passes for one row in one call (the live step's row, and the rows of a
+    batch block, row ranges on threads: no Python between the passes), the same floats;
+    it releases the GIL.
 
 One signature each (float32 descriptors or uint8 codes, float64 output, C-contiguous),
 compiled on first use and cached on disk (:func:`catgraph._jit.njit`: a writable cache
@@ -257,7 +258,7 @@ def scale_rows(d, mean, std, out):  # pragma: no cover - compiled
                 out[i, j] = 0.0
 
 
-@njit
+@njit(nogil=True)
 def normalise_row(d, out):  # pragma: no cover - compiled
     """One row's ``(d − μ) / σ`` into ``out`` (may be ``d``) in one call: the arithmetic of
     :func:`chunk_sums` (both powers), the chunk totals added in chunk order, the zero

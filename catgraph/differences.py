@@ -726,19 +726,31 @@ def row_statistics(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return mean, std
 
 
+def _normalise_row_range(d: np.ndarray, out: np.ndarray) -> None:
+    """Each row of ``d`` normalised into ``out`` by one call of the row kernel (which
+    releases the GIL: row ranges run on threads)."""
+    row = _kernels().normalise_row
+    for i in range(d.shape[0]):
+        row(d[i], out[i])
+
+
 def _normalise_into(d: np.ndarray, out: np.ndarray) -> np.ndarray:
-    """Normalise the rows of ``d`` into ``out`` (may be ``d``). Where the passes would run
-    on one thread anyway, each row's passes run in one compiled call
-    (:func:`catgraph._diff_kernels.normalise_row`: the same chunk sums in the same order,
-    the same division, so the same floats), which is also what the live step calls: a
-    process that only matches live rows and small blocks compiles one kernel for the
-    normalisation instead of three."""
+    """Normalise the rows of ``d`` into ``out`` (may be ``d``). Each row's passes run in
+    one compiled call (:func:`catgraph._diff_kernels.normalise_row`: the same chunk sums
+    in the same order, the same division, so the same floats), row ranges on threads
+    where the work is worth several; only one row too long for one thread takes the
+    chunk-sum and scale passes, split into runs of chunks. The live step calls the same
+    row kernel: a process that matches live rows and batch blocks compiles one kernel
+    for the normalisation instead of three."""
     if d.shape[0] == 0:
         return out
     k = _kernels()
-    if len(_split(*d.shape, k.SUM_CHUNK)) == 1:
-        for i in range(d.shape[0]):
-            k.normalise_row(d[i], out[i])
+    pieces = _split(*d.shape, k.SUM_CHUNK)
+    if len(pieces) == 1:
+        _normalise_row_range(d, out)
+        return out
+    if pieces[0][3] == d.shape[1]:  # whole rows per thread: the row kernel on each (a batch compiles one kernel)
+        _run_parallel([(_normalise_row_range, (d[a:b], out[a:b])) for a, b, _, _ in pieces])
         return out
     mean, std = row_statistics(d)
     _run_parallel([(k.scale_rows, (d[a:b, lo:hi], mean[a:b], std[a:b], out[a:b, lo:hi]))

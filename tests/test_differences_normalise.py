@@ -21,6 +21,23 @@ def _rows(rng):
     return d
 
 
+def test_one_long_row_split_into_chunk_runs_equals_the_row_kernel(monkeypatch):
+    """A single row too long for one thread takes the chunk-sum and scale passes, split
+    into runs of whole chunks: the row kernel's floats."""
+    rng = np.random.default_rng(12)
+    d = _rows(rng)
+    for i in (0, 1, 2, 4):
+        row = d[i:i + 1].copy()
+        monkeypatch.setattr(differences, "NORMALISE_PER_THREAD", 1)
+        monkeypatch.setattr(differences, "_threads_available", lambda: 3)
+        pieces = differences._split(*row.shape, k.SUM_CHUNK)
+        assert len(pieces) == 3 and pieces[0][3] < row.shape[1]  # runs of chunks of the one row
+        split = differences._normalise_into(row, np.empty_like(row))
+        one = np.empty_like(row[0])
+        k.normalise_row(row[0], one)
+        assert np.array_equal(split[0], one)
+
+
 def test_row_kernel_path_equals_the_threaded_passes(monkeypatch):
     rng = np.random.default_rng(11)
     d = _rows(rng)
