@@ -629,6 +629,10 @@ def _iter_columns(ref: "PreparedReference", q: np.ndarray, block_places: int | N
         part = ref._places(lo, lo + block_places)
         return part._raw(q, np.empty((m, part.n_places)))
 
+    if normalise and len(edges) == 1:  # one block: its rows normalised as a whole (the same floats)
+        block = raw(0)
+        yield 0, _normalise_into(block, block)
+        return
     if normalise:  # the row sums of normalise_rows, chunk by chunk, block by block
         parts = np.empty((m, -(-n // k.SUM_CHUNK)))
         for power in (1, 2):

@@ -56,3 +56,22 @@ def test_row_kernel_path_equals_the_threaded_passes(monkeypatch):
     mean, std = differences.row_statistics(d)
     for i in (0, 1, 5):
         assert np.array_equal(one[i], (d[i] - mean[i]) / std[i])
+
+
+def test_column_blocks_in_one_block_equal_the_matrix_bit_for_bit():
+    """A map that fits one column block is normalised row by row as a whole (the row
+    kernel): the floats of the batch matrix and of the same map cut into several blocks
+    (the chunk-sum passes across blocks)."""
+    from catgraph.differences import PreparedReference, difference_matrix, iter_difference_columns
+
+    rng = np.random.default_rng(5)
+    r = rng.normal(size=(9000, 24)).astype(np.float32)
+    q = r[::97] + 0.1
+    for metric in ("sad", "cosine"):
+        ref = PreparedReference(r, metric)
+        full = difference_matrix(q, ref, metric, normalise=True)
+        one = list(iter_difference_columns(q, ref, metric, normalise=True))
+        several = list(iter_difference_columns(q, ref, metric, block_places=4096, normalise=True))
+        assert len(one) == 1 and len(several) == 3
+        assert np.array_equal(one[0][1], full)
+        assert np.array_equal(np.concatenate([b for _, b in several], axis=1), full)
