@@ -707,9 +707,58 @@ def _fmt(v, digits=1):
     return "—" if v is None or (isinstance(v, float) and not np.isfinite(v)) else f"{v:.{digits}f}"
 
 
+def cold_start_compare(trees: list[str], rounds: int = 3) -> dict:
+    """:func:`cold_start` of ``catgraph demo`` (``cli``) for each frozen tree, the trees
+    alternated round after round (each round: an empty cache, cold, warm, warm), so that
+    the machine's load falls on each alike."""
+    runs: dict = {tree: [] for tree in trees}
+    for _ in range(rounds):
+        for tree in trees:
+            runs[tree].append(cold_start(tree=tree, cli=True))
+            r = runs[tree][-1]["runs"]
+            print(tree, [(x["label"], round(x["process_s"], 2), round(x["load"], 2)) for x in r], file=sys.stderr,
+                  flush=True)
+    return {"trees": trees, "rounds": rounds, "runs": runs, "argv": COLD_CLI_ARGV}
+
+
+def _compare_lines(compare: dict) -> list[str]:
+    """The cold/warm table of :func:`cold_start_compare`."""
+    lines = ["", "### `catgraph " + " ".join(compare["argv"]) + "`, empty cache: the trees alternated", "",
+             f"{compare['rounds']} rounds, each tree in its own empty `NUMBA_CACHE_DIR` per round (cold, warm, warm; "
+             "fresh processes); medians over the rounds, the ratio per round (cold over the round's median warm) "
+             "and its median:", "",
+             "| tree | cold s | warm s | cold / warm per round | median | compiled s (cold) | load (1 min) |",
+             "|---|---|---|---|---|---|---|"]
+    for tree, rounds in compare["runs"].items():
+        cold = [r["runs"][0]["process_s"] for r in rounds]
+        warm = [float(np.median([x["process_s"] for x in r["runs"][1:]])) for r in rounds]
+        ratio = [c / w for c, w in zip(cold, warm)]
+        compiled = [sum(r["runs"][0]["compiled_s"].values()) for r in rounds]
+        loads = [x["load"] for r in rounds for x in r["runs"]]
+        lines.append(f"| `{tree}` | {np.median(cold):.2f} | {np.median(warm):.2f} | "
+                     f"{', '.join(f'×{x:.2f}' for x in ratio)} | ×{np.median(ratio):.2f} | {np.median(compiled):.2f} | "
+                     f"{min(loads):.1f}–{max(loads):.1f} |")
+    lines += ["", "Kernels compiled by the cold run (numba compile events, top level; seconds, median over the "
+              "rounds; blank: not compiled):", "", "| kernel | " + " | ".join(f"`{t}`" for t in compare["runs"]) + " |",
+              "|---|" + "---|" * len(compare["runs"])]
+    names: dict = {}
+    for rounds in compare["runs"].values():
+        for r in rounds:
+            for k, v in r["runs"][0]["compiled_s"].items():
+                names[k] = max(names.get(k, 0.0), v)
+    for name in sorted(names, key=lambda k: -names[k]):
+        cells = []
+        for rounds in compare["runs"].values():
+            got = [r["runs"][0]["compiled_s"].get(name) for r in rounds]
+            got = [g for g in got if g is not None]
+            cells.append(f"{np.median(got):.2f}" if got else "")
+        lines.append(f"| `{name}` | " + " | ".join(cells) + " |")
+    return lines
+
+
 def write_report(results: list[dict], cold: dict | None, path: Path, shards: dict | None = None,
                  after_warm_up: dict | None = None, shards_uint8: dict | None = None,
-                 cli_cold: dict | None = None, batch: dict | None = None) -> None:
+                 cli_cold: dict | None = None, batch: dict | None = None, cold_compare: dict | None = None) -> None:
     by = {(r.get("case"), r.get("n")): r for r in results if "error" not in r}
     sizes = sorted({r["n"] for r in results if "n" in r})
     lines = ["# Live localisation: time per frame, memory, cold start", "",
@@ -890,6 +939,8 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
             lines.append(f"| {r['label']} | {r['process_s']:.2f} | {r['command_s']:.2f} | "
                          f"{sum(r['compiled_s'].values()):.2f} | {top} |")
         lines += ["", f"First run / warm: ×{runs[0]['process_s'] / warm:.2f}."]
+    if cold_compare:
+        lines += _compare_lines(cold_compare)
     if batch:
         lines += ["", "## The batch commands on a saved map", "",
                   f"`catgraph <command> --map {Path(batch['map']).name} {Path(batch['query']).name}`, one fresh process "
@@ -930,6 +981,8 @@ def main() -> None:
     parser.add_argument("--tree", help="with --cold-start: import catgraph from this checkout (a frozen copy)")
     parser.add_argument("--warm-up", action="store_true", help="with --cold-start: run catgraph.live.warm_up first")
     parser.add_argument("--cli", action="store_true", help="with --cold-start: time `catgraph demo` instead")
+    parser.add_argument("--trees", nargs="+", help="with --cold-start --cli: these frozen checkouts, alternated")
+    parser.add_argument("--rounds", type=int, default=3, help="with --trees: rounds of each tree")
     parser.add_argument("--batch", nargs=2, metavar=("MAP", "QUERY"),
                         help="measure only the batch commands on this saved map and query (.npy)")
     parser.add_argument("--dask", action="store_true", help="measure only the Dask shards")
@@ -956,7 +1009,9 @@ def main() -> None:
         return
     store = RESULTS / "live.json"
     previous = json.loads(store.read_text()) if store.exists() else {"results": [], "cold": None}
-    if args.cold_start:
+    if args.cold_start and args.trees:
+        previous["cold_cli_compare"] = cold_start_compare(args.trees, args.rounds)
+    elif args.cold_start:
         key = ("cold_cli" if args.cli else "cold") + ("_after_warm_up" if args.warm_up else "")
         previous[key] = cold_start(tree=args.tree, warm_up=args.warm_up, cli=args.cli)
     elif args.batch:
@@ -978,7 +1033,7 @@ def main() -> None:
     write_report(previous["results"], previous.get("cold"), RESULTS / "live.md", previous.get("shards"),
                  previous.get("cold_after_warm_up"), previous.get("shards_uint8"),
                  {k: previous[k] for k in ("cold_cli", "cold_cli_after_warm_up") if previous.get(k)},
-                 previous.get("batch"))
+                 previous.get("batch"), previous.get("cold_cli_compare"))
     print((RESULTS / "live.md").read_text())
 
 
