@@ -134,9 +134,13 @@ in cache, and each row's transition is shifted and blurred while it is still the
 and the update is kept factored (prediction × the frame's likelihood per place, whose
 ``exp`` numpy computes before the prediction, so that the kernel forms the posterior's
 velocity sums while it writes each row): a step reads the state once and writes it
-once, ``O(n_places · n_bins)`` (see ``benchmarks/results/filter_speed.md``). On a large
+once, ``O(n_places · n_bins)`` (see ``benchmarks/results/filter_speed.md``). The
+update's per-place writes — the likelihood, the posterior place masses, the place
+posterior handed out, and the answer's place — are one compiled pass, run once the
+new-place step has given the map's share (:func:`_posterior_pass`). On a large
 map (:data:`LINE_WORK_PER_THREAD` state values per thread) the blocks are shared among
-the cores in runs of whole blocks, each taken by whichever thread is free; every block
+the cores not busy with other processes (the load average, :func:`_free_cores`) in
+runs of whole blocks, each taken by whichever thread is free; every block
 writes its own places and its own velocity sums, added in block order afterwards, so
 the numbers are those of one thread, bit for bit (tested against the one-pass serial
 kernel). The result is the unfused one's to round-off (the velocity sums are added in

@@ -127,3 +127,41 @@ def test_nordland_run_gives_the_outputs_before_the_fusion():
     d = _nordland_rows()
     loc = GridLocalizer(PlaceGraph.chain(d.shape[1]), TemperedObservation())
     assert _run(loc, d) == _DIGESTS["nordland"]
+
+
+@pytest.mark.parametrize("n", [1, 777, 4096, 10_001])
+def test_fused_update_pass_equals_the_kernel_and_numpy_it_replaces(n):
+    """The update's sums (:func:`grid._evidence_sums`) are :func:`grid._likelihood`'s;
+    the writes of :func:`grid._posterior_pass` are its likelihood and place masses, the
+    place posterior numpy's product, the answer ``np.argmax`` (ties: the first)."""
+    rng = np.random.default_rng(n)
+    e = rng.random(n)
+    e[rng.random(n) < 0.1] = 0.0
+    prior = rng.random(n) / n
+    prior[n // 2] = prior[n // 3] = 1.0  # two equal largest masses where e is equal too
+    e[n // 2] = e[n // 3] = 1.0
+    like, velocity, mass = np.empty(n), np.zeros(10), np.empty(n)
+    total, like_mean = grid._likelihood(np.zeros((10, n), np.float32), e, prior, like, velocity, mass, True)
+    sums = np.zeros(2)
+    grid._evidence_sums(e, prior, 0, n, sums)
+    assert sums[1] == total and sums[0] / n == like_mean
+    got_like, got_mass, got_post = np.empty(n), np.empty(n), np.empty(n)
+    best = grid._posterior_pass(e, 1.0 / total, prior, got_like, got_mass, got_post, 0.75)
+    assert np.array_equal(got_like, like) and np.array_equal(got_mass, mass)
+    assert np.array_equal(got_post, np.multiply(mass, 0.75))
+    assert best == int(np.argmax(mass))
+
+
+def test_posterior_pass_answer_with_nan_is_numpys():
+    mass_like = np.array([0.1, 0.5, np.nan, 0.9, np.nan])
+    out = [np.empty(5) for _ in range(3)]
+    assert grid._posterior_pass(np.ones(5), 1.0, mass_like, *out, 1.0) == int(np.argmax(mass_like)) == 2
+
+
+@pytest.mark.parametrize("load, two, sixteen", [(0.0, 2, 16), (1.0, 2, 16), (1.6, 1, 15), (5.0, 1, 12)])
+def test_line_kernel_threads_leave_the_cores_other_processes_hold(monkeypatch, load, two, sixteen):
+    """The cores less the load beyond this process's own (one core's worth), at least one."""
+    monkeypatch.setattr(grid, "_LOAD", [-np.inf, 0.0])
+    monkeypatch.setattr(grid.os, "getloadavg", lambda: (load, load, load))
+    assert grid._free_cores(2) == two
+    assert grid._free_cores(16) == sixteen
