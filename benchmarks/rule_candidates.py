@@ -559,3 +559,161 @@ REPORTED = {
     "spanning: spread test from K/2 or across a break (r1..r3 < 0.4), confidence change point (T = 5)":
         spanning_rule(**_BREAK, confidence=("changepoint", 5, wr.JUMP_ODDS)),
 }
+
+
+# ------------------------------------------------------------------------------------------
+# round 16: the sub-window tests as a jump test on the window's own line, with the rows'
+# dependence (docs/sequence.md, section "0.2: the adaptive window on routes driven in one piece")
+
+_CP = ("changepoint", 5, wr.JUMP_ODDS)
+
+
+def jump_llr(st, lengths, horizon=None, ess=False):
+    """``(n, V, G, H)``: per window and shorter sub-window, the log likelihood ratio of "the
+    window's line holds over the sub-window's frames" against "the query left it before them"
+    (the sub-window's best-line score a draw around the window's own score, one-sided: a
+    sub-window better than its line is no evidence against it; or a draw around the random
+    places' mean at that length; both in that length's common spread). With ``ess`` the ratio
+    is weighted by the sub-window's effective number of observations over the one the spread
+    counts, ``min(1, l / K_i)``: a sub-window shorter than the decorrelation horizon is about
+    one observation of the rows."""
+    common = wr._common_std(st)[:, :, None, :]
+    safe = np.where(common > 0, common, 1.0)
+    on = np.maximum(0.0, st.sub - st.best_s[..., None]) / safe
+    off = (st.sub - st.mean[:, :, None, :]) / safe
+    llr = np.where(common > 0, (off * off - on * on) / 2.0, 0.0)
+    if ess:
+        w = np.minimum(1.0, lengths[None, :] / horizon.astype(np.float64)[:, None])  # (n, H)
+        llr = llr * w[:, None, None, :]
+    return llr
+
+
+def admissible_jump(st, cfg, log_p, n_places, horizon, spread_from="all", mid="bayes", ess=True,
+                    odds=wr.JUMP_ODDS, tested="recent", cumulate=False, since_break=None):
+    """``(n, V, G)``: rule "spanning"'s tests with the midpoint test replaced by a jump test.
+
+    ``mid``: "midpoint" (the library's), "bayes" (reject where a tested sub-window's weighted
+    log likelihood ratio, :func:`jump_llr`, is below ``ln odds``: the posterior odds of a jump
+    before its frames exceed 1 at prior odds ``odds``), "none". ``spread_from``: the spread
+    test on every shorter sub-window ("all"), on those spanning the horizon ("horizon"), "half",
+    or "none". ``tested``: the jump test's sub-windows, "recent" (from ``recent_fraction`` of the
+    window) or "all". ``cumulate``: the jump test of sub-window ``h`` sums the weighted ratios of
+    the segments up to it instead of reading the sub-window alone (the run-length form)."""
+    lengths = cfg.grid.astype(np.float64)
+    shorter = lengths[None, :] < lengths[:, None]
+    recent = shorter & (lengths[None, :] >= cfg.recent_fraction * lengths[:, None])
+    k = horizon.astype(np.float64)[:, None, None, None]
+    l4 = lengths[None, None, None, :]
+    common = wr._common_std(st)[:, :, None, :]
+    ok = np.ones(st.sub.shape, dtype=bool)
+    if mid == "midpoint":
+        ok &= (st.sub <= 0.5 * (st.best_s[..., None] + st.mean[:, :, None, :])) | ~recent
+    elif mid == "bayes":
+        llr = jump_llr(st, lengths, horizon, ess)
+        if cumulate:
+            llr = segment_llr(st, lengths, horizon, ess)
+        mask = recent if tested == "recent" else shorter
+        ok &= (llr >= np.log(odds)) | ~mask[None, None]
+    if spread_from != "none":
+        spans = shorter[None, None]
+        if spread_from == "horizon":
+            spans = spans & (l4 >= k)
+        elif spread_from == "half":
+            spans = spans & (l4 >= 0.5 * k)
+        if since_break is not None and spread_from != "all":
+            spans = spans | (shorter[None, None] & (since_break.astype(np.float64)[:, None, None, None] < l4))
+        ok &= (st.sub <= st.mean[:, :, None, :] - wr.EVIDENT_SPREADS * common) | ~spans
+    rival = (log_p < -np.log(n_places) - wr.SPANNING_MARGIN) & (lengths[None, None, :] >= horizon[:, None, None])
+    beaten = st.sub > st.best_s[:, :, None, :] + wr.RIVAL_SPREADS * common
+    ok &= ~(beaten & rival[:, :, None, :]) | ~recent
+    adm = np.all(ok, axis=3)
+    adm[:, :, 0] = True
+    return adm
+
+
+def segment_llr(st, lengths, horizon, ess):
+    """``(n, V, G, H)``: the run-length form of :func:`jump_llr`: the frames of sub-window ``h``
+    cut into the segments between consecutive grid lengths (their sums from the sub-window
+    scores), each segment's mean judged as in :func:`jump_llr` at the spread of the length
+    nearest its own, weighted by ``min(1, segment / K_i)`` with ``ess``, summed over the
+    segments of the sub-window: the log likelihood ratio of "on the line over these frames"
+    against "off it over all of them"."""
+    n, v_count, g_count, _ = st.sub.shape
+    common = wr._common_std(st)[:, :, None, :]  # (n, 1, 1, H)
+    sums = st.sub * lengths[None, None, None, :]
+    prev = np.concatenate([np.zeros(sums.shape[:3] + (1,)), sums[..., :-1]], axis=3)
+    seg_len = np.diff(np.concatenate([[0.0], lengths]))
+    seg_mean = (sums - prev) / seg_len[None, None, None, :]
+    near = np.abs(np.log(seg_len[:, None]) - np.log(lengths[None, :])).argmin(axis=1)
+    sd = common[..., near]
+    safe = np.where(sd > 0, sd, 1.0)
+    on = np.maximum(0.0, seg_mean - st.best_s[..., None]) / safe
+    off = (seg_mean - st.mean[:, :, None, near]) / safe
+    llr = np.where(sd > 0, (off * off - on * on) / 2.0, 0.0)
+    if ess:
+        w = np.minimum(1.0, seg_len[None, :] / horizon.astype(np.float64)[:, None])
+        llr = llr * w[:, None, None, :]
+    return np.cumsum(llr, axis=3)
+
+
+def decide_jump(st, rows, cfg, confidence=_CP, break_level=None, break_lags=1, **kw):
+    """Rule "spanning" (summed velocity, ``argmin log p`` over the admitted windows, the velocity
+    re-chosen where the window spans the horizon) with :func:`admissible_jump`'s tests."""
+    n = st.best_s.shape[0]
+    r = np.arange(n)
+    log_p = wr._log_p(st)
+    v = np.argmin(log_p.sum(axis=2), axis=1)
+    horizon = horizons(rows)
+    if break_level is not None:
+        kw["since_break"] = since_breaks(rows, break_level, break_lags)
+    every = admissible_jump(st, cfg, log_p, rows.shape[1], horizon, **kw)
+    g = np.argmin(np.where(every[r, v], log_p[r, v], np.inf), axis=1)
+    v = np.where(cfg.grid[g] >= horizon, np.argmin(log_p[r, :, g], axis=1), v)
+    adm = every[r, v]
+    adm[r, g] = True
+    best, match = st.best_s[r, v, g], st.best_j[r, v, g]
+    held = support(st, cfg, adm, v, match)
+    if confidence == "posterior":
+        conf = held * wr._on_line(*wr._current_z(rows, match, best))
+    else:
+        _, span, odds = confidence
+        conf = held * on_line_since(rows, match, best, cfg.velocities[v], cfg.grid[g], span, odds)
+    return match, conf, g, v
+
+
+def jump_rule(**kw):
+    def apply(st, rows, cfg):
+        return decide_jump(st, rows, cfg, **kw)[:2]
+    return apply
+
+
+ROUNDS["16: the sub-window tests as a jump test on the line, with the rows' dependence"] = {
+    "16 spanning + change point (harness copy)": jump_rule(mid="midpoint"),
+    "16 jump test (ESS), spread all": jump_rule(),
+    "16 jump test (no ESS), spread all": jump_rule(ess=False),
+    "16 jump test (ESS), spread from K": jump_rule(spread_from="horizon"),
+    "16 jump test (ESS), spread from K/2": jump_rule(spread_from="half"),
+    "16 jump test (ESS), no spread test": jump_rule(spread_from="none"),
+    "16 jump test (ESS), every sub-window, spread from K": jump_rule(spread_from="horizon", tested="all"),
+    "16 run length (ESS), spread from K": jump_rule(spread_from="horizon", cumulate=True),
+    "16 run length (ESS), spread all": jump_rule(cumulate=True),
+    "16 run length (ESS), no spread test": jump_rule(spread_from="none", cumulate=True),
+    "16 midpoint, spread from K (change point)": jump_rule(mid="midpoint", spread_from="horizon"),
+}
+
+CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}
+
+ROUNDS["17: the jump test with the spread test from the horizon or across a break"] = {
+    "17 jump test (ESS), spread from K/2 or a break (r1..r3 < 0.4)": jump_rule(
+        spread_from="half", break_level=wr.DECORRELATION_LEVEL, break_lags=3),
+    "17 jump test (ESS), spread from K or a break (r1..r3 < 0.4)": jump_rule(
+        spread_from="horizon", break_level=wr.DECORRELATION_LEVEL, break_lags=3),
+    "17 jump test (ESS), spread from K/2 or a break (r1 < 0.4)": jump_rule(
+        spread_from="half", break_level=wr.DECORRELATION_LEVEL, break_lags=1),
+    "17 midpoint, spread from K/2 or a break (r1..r3 < 0.4) (change point)": jump_rule(
+        mid="midpoint", spread_from="half", break_level=wr.DECORRELATION_LEVEL, break_lags=3),
+    "17 jump test (no ESS), every sub-window, spread all": jump_rule(ess=False, tested="all"),
+    "17 jump test (ESS), every sub-window, spread all": jump_rule(tested="all"),
+}
+
+CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}

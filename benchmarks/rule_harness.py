@@ -136,9 +136,11 @@ def library_rule(rule: str, **kwargs):
     return apply
 
 
-#: the library's confidences beside the harness's candidates (``--add``: only these, added as
-#: columns to the committed ``window_rules.json``)
-LIBRARY_CONFIDENCES = {"spanning, confidence changepoint (library)": library_rule("spanning", confidence="changepoint")}
+#: the library's confidences and rules beside the harness's candidates (``--add``: only these,
+#: added as columns to the committed ``window_rules.json``; a column already there is measured again)
+LIBRARY_CONFIDENCES = {"spanning, confidence changepoint (library)": library_rule("spanning", confidence="changepoint"),
+                       "punctuated, confidence changepoint (library)": library_rule("punctuated",
+                                                                                    confidence="changepoint")}
 
 
 def add_columns(cells: list[Cell], new: dict) -> None:

@@ -57,6 +57,19 @@ RIVAL_MARGIN = 10.0
 SPANNING_MARGIN = 6.0
 
 
+#: with rule "punctuated": a frame *breaks* the query's rows where the clock's ratio (:class:`_Horizon`:
+#: the row's mean standardised difference at the best places of the row ``k`` frames back, over
+#: that at its own best places) is below :data:`DECORRELATION_LEVEL` at every lag ``k = 1 ..
+#: BREAK_LAGS``: the frame has decorrelated from each of the frames just before it
+BREAK_LAGS = 3
+
+#: with rule "punctuated": the spread test reads a shorter sub-window only where its length is at
+#: least this fraction of the frame's decorrelation horizon, or where the sub-window holds a
+#: break of the rows (:data:`BREAK_LAGS`): a shorter stretch of alike rows is about one
+#: observation, whose weakness says little about the line
+SPREAD_HORIZON_FRACTION = 0.5
+
+
 #: with confidences "posterior" and "changepoint": prior odds that the query jumped away from
 #: the chosen line at a given frame (against staying on it); chosen on the whole condition table
 JUMP_ODDS = 0.3
@@ -100,6 +113,10 @@ WEIGHED_CONFIDENCES = ("posterior", "support", "changepoint")
 
 #: the rules that choose the window by a predictive record (no sub-window statistics)
 RECORD_RULES = ("predictive", "decorrelated")
+
+#: the rules of the sub-window tests that read the query's decorrelation horizon (the clock of
+#: rule "decorrelated"): only a line that spans it re-chooses the velocity or counts as a rival
+HORIZON_RULES = ("spanning", "punctuated")
 
 
 def _needs_sub(cfg: _Config) -> bool:
@@ -250,6 +267,45 @@ class _Horizon:
         return np.argpartition((row - centre) / spread, m - 1)[:m]
 
 
+class _Breaks(_Horizon):
+    """Rule "punctuated": the clock of :class:`_Horizon` that also marks the *breaks* of the rows.
+
+    After :meth:`_Horizon.update` has read frame ``i``'s row, the frame breaks the rows where
+    its ratio at every lag ``k = 1 .. lags`` (:data:`BREAK_LAGS`) is below the clock's level,
+    :data:`DECORRELATION_LEVEL`: its best places are random places for each of the ``lags``
+    rows before it, so the query has just moved to another scene (or jumped). The ratios are
+    the clock's own: the same best places and the same floats, read at ``lags`` more places
+    sets (``O(lags m)`` work). A frame is no break where its row is flat, where its own best
+    places are not below its mean, where a row within the lags was flat, or before frame
+    ``lags``. :attr:`broke` says whether the frame last read broke the rows and :attr:`since`
+    how many frames ago the latest break was (0 at a breaking frame; more than any window
+    before the first break).
+    """
+
+    def __init__(self, *args, lags: int = BREAK_LAGS, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.lags = int(lags)
+        self.last = -(10 ** 9)  # the frame of the latest break
+        self.broke = False
+        self.since = 10 ** 9
+
+    def update(self, row: np.ndarray, i: int, spread: float, centre: float | None = None) -> int:
+        k = super().update(row, i, spread, centre)
+        self.broke = False
+        if spread > 0 and i >= self.lags:
+            centre = row.mean() if centre is None else centre
+            m = min(self.places, row.shape[0])
+            own = ((row[self.best[i % self.capacity, :m]] - centre) / spread).mean()
+            back = (i - np.arange(1, self.lags + 1)) % self.capacity
+            if own < 0 and self.filled[back].all():
+                past = (row[self.best[back, :m]] - centre) / spread
+                self.broke = bool(np.all(past.mean(axis=1) / own < self.level))
+        if self.broke:
+            self.last = i
+        self.since = i - self.last
+        return k
+
+
 class _Recent:
     """Confidence "changepoint": the latest frames' rows and moments, carried from block to block.
 
@@ -294,7 +350,9 @@ def _new_record(cfg: _Config) -> _Record | None:
     if cfg.fixed:
         return None
     recent = _Recent() if cfg.confidence == "changepoint" else None
-    if cfg.rule in ("decorrelated", "spanning"):
+    if cfg.rule == "punctuated":
+        record = _Record(cfg.grid.shape[0], clock=_Breaks())
+    elif cfg.rule in ("decorrelated", "spanning"):
         record = _Record(cfg.grid.shape[0], clock=_Horizon())
     elif cfg.rule in RECORD_RULES or recent is not None:
         record = _Record(cfg.grid.shape[0])
@@ -370,21 +428,26 @@ def _row_moments(rows) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _horizons(cfg: _Config, frame_index: np.ndarray, rows_d, record: _Record | None,
-              moments: tuple[np.ndarray, np.ndarray]) -> np.ndarray | None:
-    """``(n,)``: rule "spanning"'s decorrelation horizon of each frame, in order, from the
-    record's clock (:class:`_Horizon`, the one of rule "decorrelated"); ``None`` for the
-    other rules. ``moments``: :func:`_row_moments` of ``rows_d``."""
-    if cfg.fixed or cfg.rule != "spanning":
-        return None
+              moments: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """``(n,)``: the decorrelation horizon of each frame (rules "spanning" and "punctuated"),
+    in order, from the record's clock (:class:`_Horizon`, the one of rule "decorrelated"),
+    and ``(n,)`` the frames since the latest break of the rows (rule "punctuated",
+    :class:`_Breaks`); ``None`` where the rule reads neither. ``moments``:
+    :func:`_row_moments` of ``rows_d``."""
+    if cfg.fixed or cfg.rule not in HORIZON_RULES:
+        return None, None
     centres, spreads = moments
     out = np.empty(frame_index.shape[0], dtype=np.int64)
+    since = np.empty(frame_index.shape[0], dtype=np.int64) if cfg.rule == "punctuated" else None
     for t, i in enumerate(frame_index):
         out[t] = record.clock.update(rows_d[t], int(i), spreads[t], centres[t])
-    return out
+        if since is not None:
+            since[t] = record.clock.since
+    return out, since
 
 
 def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_places: int = 1,
-                horizon: np.ndarray | None = None) -> np.ndarray:
+                horizon: np.ndarray | None = None, since: np.ndarray | None = None) -> np.ndarray:
     """``(n, V, G)``: windows whose best hypothesis is supported by its own recent frames.
 
     Rules "consistent", "sustained" and "evident": every shorter sub-window of the window's
@@ -405,7 +468,13 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
     smaller margin :data:`SPANNING_MARGIN`, and counts a rival only when its length is at least
     the frame's decorrelation ``horizon`` (``(n,)``): a shorter line is about one observation,
     whose Gaussian significance says little (on Nordland, whose rows stay alike for about 20
-    frames, the best 5-frame line of a hard stretch looks significant by chance).
+    frames, the best 5-frame line of a hard stretch looks significant by chance). Rule
+    "punctuated" is "spanning" with the spread test read only on the sub-windows that span
+    :data:`SPREAD_HORIZON_FRACTION` of the horizon or hold a break of the rows (``since``,
+    ``(n,)``: frames since the latest break, :class:`_Breaks`; the sub-window of length ``l``
+    holds it where ``since < l``): within a stretch of alike rows a correct line's recent
+    frames are about one observation and may be no better than random places, but right
+    after the rows break they are evidence again.
     """
     n, v_count, g_count = st.best_s.shape
     if not _needs_sub(cfg):
@@ -422,6 +491,13 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
         # least EVIDENT_SPREADS common spreads (the widest over the velocities) below their mean
         common = _common_std(st)[:, :, None, :]  # (n, 1, 1, H)
         ok &= (st.sub <= st.mean[:, :, None, :] - EVIDENT_SPREADS * common) | ~shorter
+    if cfg.rule == "punctuated":
+        # the same, on the sub-windows that span half the horizon or hold a break of the rows
+        common = _common_std(st)[:, :, None, :]  # (n, 1, 1, H)
+        l4 = lengths[None, None, None, :]
+        spans = (l4 >= SPREAD_HORIZON_FRACTION * horizon.astype(np.float64)[:, None, None, None]) | (
+            since.astype(np.float64)[:, None, None, None] < l4)
+        ok &= (st.sub <= st.mean[:, :, None, :] - EVIDENT_SPREADS * common) | ~(shorter[None, None] & spans)
     if cfg.rule == "unrivalled":
         # and no significant line of a recent sub-window's length may beat the window's
         # line over those frames by more than RIVAL_SPREADS common spreads
@@ -430,7 +506,7 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
         rival = log_p < -np.log(n_places) - RIVAL_MARGIN  # (n, V, H)
         beaten = st.sub > st.best_s[:, :, None, :] + RIVAL_SPREADS * common  # (n, V, G, H)
         ok &= ~(beaten & rival[:, :, None, :]) | ~tested
-    if cfg.rule == "spanning":
+    if cfg.rule in HORIZON_RULES:
         # a rival: a significant line of a recent sub-window's length that spans the horizon
         common = _common_std(st)[:, :, None, :]  # (n, 1, 1, H)
         rival = (log_p < -np.log(n_places) - SPANNING_MARGIN) & (lengths[None, None, :] >= horizon[:, None, None])
@@ -571,10 +647,10 @@ def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool
     v = np.argmin(log_p.sum(axis=2), axis=1)
     lp = log_p[rows, v]  # (n, G)
     # each row's mean and spread, read once by the horizon and the confidence
-    reads = cfg.rule == "spanning" or cfg.confidence in WEIGHED_CONFIDENCES
+    reads = cfg.rule in HORIZON_RULES or cfg.confidence in WEIGHED_CONFIDENCES
     moments = _row_moments(rows_d) if reads and not cfg.fixed else None
-    horizon = _horizons(cfg, frame_index, rows_d, record, moments)
-    every = _admissible(st, cfg, log_p, rows_d.shape[1], horizon)  # (n, V, G)
+    horizon, since = _horizons(cfg, frame_index, rows_d, record, moments)
+    every = _admissible(st, cfg, log_p, rows_d.shape[1], horizon, since)  # (n, V, G)
     admissible = every[rows, v]
     masked = np.where(admissible, lp, np.inf)
     if cfg.rule == "sustained" and not cfg.fixed:
@@ -588,7 +664,7 @@ def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool
     else:
         g = np.argmin(masked, axis=1)
     if horizon is not None:
-        # rule "spanning": a chosen window that spans the decorrelation time identifies its own
+        # rules "spanning" and "punctuated": a chosen window that spans the decorrelation time identifies its own
         # velocity; the velocity is re-chosen at that length (the window stays admitted)
         v = np.where(cfg.grid[g] >= horizon, np.argmin(log_p[rows, :, g], axis=1), v)
         lp = log_p[rows, v]

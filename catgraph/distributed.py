@@ -176,6 +176,18 @@ block are computed *where the shards live*, and only per-frame summaries travel 
    edges; rules "unrivalled", "predictive" and "decorrelated" hub-corrected with frames
    without information; and on the real data padded to two shards, every frame).
 
+10. **Rule "punctuated"** (:mod:`catgraph._window_rule`). It is "spanning" with the spread
+    test read only on the sub-windows that span half the horizon ``K_t`` or hold a *break*
+    of the rows (a frame whose best places are random places for each of the
+    :data:`~catgraph._window_rule.BREAK_LAGS` rows before it). A break is read from the
+    clock's own ratios (the same best places of whole rows), so it is computed where the
+    horizon is: the worker of step 7 runs the local :class:`catgraph._window_rule._Breaks`
+    (the clock of "decorrelated" that also marks the breaks) on the whole rows, and returns
+    with each ``K_t`` the frames since the latest break (8 more bytes per frame, in the same
+    round). Everything else is read as for "spanning". Matches, scores, velocities, window
+    lengths and confidences equal the local run bit for bit (tested as for "spanning",
+    with the confidence "changepoint" among them).
+
 Per block, only ``O(rows V G (radius + G + 8))`` numbers per shard return to the client
 (``G`` candidate lengths, 1 for a fixed window): four client rounds for a fixed window
 (two for the normalisation, one for the mean codes, one for the summaries; one more per
@@ -229,10 +241,12 @@ SHARD_UNIT = 4096
 #: (never through the client), no extra client round (step 7 of the module notes).
 #: "spanning" reads that horizon and, beyond it, only statistics the summaries already
 #: carry: the same ``8 N`` bytes between workers, no lookups, no extra round (step 8).
+#: "punctuated" reads the same horizon and, from the same worker, the frames since the latest
+#: break of the rows (8 more bytes per frame, in the same round; step 10).
 #: Every rule also runs exactly with the confidence "changepoint": ``16 (T - 1)`` bytes per
 #: frame and one more round per block (step 9).
 EXACT_RULES = ("unrivalled", "evident", "consistent", "sustained", "literal", "predictive", "decorrelated",
-               "spanning")
+               "spanning", "punctuated")
 
 __all__ = ["ShardedReference", "ShardedMatches", "shard_reference", "difference_matrix", "window_scores",
            "match_fixed_window", "match_adaptive_window"]
@@ -1117,20 +1131,25 @@ def _horizon_steps(state, first_frame: int, *parts: np.ndarray) -> tuple:
     :meth:`catgraph._window_rule._Horizon.update` with the row's own ``std()``, as
     :meth:`catgraph._window_rule._Record.loss` calls it. ``state``: the horizon as the
     previous task left it (or a fresh one), copied, never changed. Returns the horizon
-    after these frames and each frame's ``K``."""
+    after these frames, each frame's ``K`` and (rule "punctuated", a
+    :class:`catgraph._window_rule._Breaks` clock) each frame's frames since the latest
+    break of the rows, ``None`` otherwise."""
     import copy
 
     clock = copy.deepcopy(state[0] if isinstance(state, tuple) else state)
     rows = np.concatenate(parts, axis=1) if len(parts) > 1 else np.ascontiguousarray(parts[0])
     ks = np.empty(rows.shape[0], dtype=np.int64)
+    since = np.empty(rows.shape[0], dtype=np.int64) if hasattr(clock, "since") else None
     for r in range(rows.shape[0]):
         row = rows[r]
         ks[r] = clock.update(row, first_frame + r, row.std())
-    return clock, ks
+        if since is not None:
+            since[r] = clock.since
+    return clock, ks, since
 
 
-def _horizons_of(state: tuple) -> np.ndarray:
-    return state[1]
+def _horizons_of(state: tuple) -> tuple:
+    return state[1], state[2]
 
 
 class _Replayed:
@@ -1138,13 +1157,17 @@ class _Replayed:
     horizons the worker computed from the whole rows, handed to
     :meth:`catgraph._window_rule._Record.loss` (or, rule "spanning",
     :func:`catgraph._window_rule._horizons`) frame by frame; the row and spread it is
-    handed are not read."""
+    handed are not read. Rule "punctuated" also reads, after each update, the frames since
+    the latest break of the rows (:attr:`since`), computed on the same worker."""
 
     def __init__(self, capacity: int):
         self.capacity = capacity
-        self.start, self.ks = 0, np.empty(0, dtype=np.int64)
+        self.start, self.ks, self.breaks = 0, np.empty(0, dtype=np.int64), None
+        self.since = None
 
     def update(self, row, i: int, spread, centre=None) -> int:
+        if self.breaks is not None:
+            self.since = int(self.breaks[i - self.start])
         return int(self.ks[i - self.start])
 
 
@@ -1177,7 +1200,7 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
     record = _new_record(cfg)
     lookups = record is not None and cfg.rule in RECORD_RULES
     clock = replay = None
-    if record is not None and record.clock is not None:  # "decorrelated", "spanning": the horizon on a worker
+    if record is not None and record.clock is not None:  # "decorrelated", "spanning", "punctuated": on a worker
         clock, replay = record.clock, _Replayed(record.clock.capacity)
         record.clock = replay
     windows = cfg.grid
@@ -1203,7 +1226,9 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
                 ends.append(ref.submit(0, _horizons_of, clock))
             got = c.gather(summaries + ends)
             parts = got[:len(summaries)]
-            replay.start, replay.ks = start, np.concatenate(got[len(summaries):])
+            chunks = got[len(summaries):]
+            replay.start, replay.ks = start, np.concatenate([k for k, _ in chunks])
+            replay.breaks = None if chunks[0][1] is None else np.concatenate([b for _, b in chunks])
         else:
             parts = c.gather(summaries)
         values = np.stack([p["low"] for p in parts])

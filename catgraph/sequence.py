@@ -206,6 +206,15 @@ Measured (``docs/sequence.md``): mean AUC margin to the best fixed window over t
 (−0.159); Nordland −0.043 (−0.035). The default rule (:data:`DEFAULT_RULE`); the cluster
 matcher (:mod:`catgraph.distributed`) runs it exactly.
 
+``rule="punctuated"`` is "spanning" with the spread test read only on the sub-windows that
+span half the frame's decorrelation horizon (``SPREAD_HORIZON_FRACTION = 0.5``) or that hold
+a *break* of the query's rows (a frame whose best places are random places for each of the
+``BREAK_LAGS = 3`` rows before it, read from the same clock): within a stretch of alike rows a
+correct line's last few frames are about one observation and may be no better than random
+places (Nordland's hard stretches), while right after the rows break they are evidence again
+(a jump that changes the scene). ``docs/sequence.md`` has the measurements; the cluster
+matcher runs it exactly.
+
 Hub references (flat, textureless frames close to every query) are corrected before
 matching when ``hub_offsets`` (from :func:`catgraph.hubs.hub_offsets`, computed from the
 reference map alone) are given: each row has the offsets subtracted and is normalised
@@ -324,7 +333,8 @@ __all__ = [
 ]
 
 APPROXIMATIONS = ("gaussian", "robust", "gmm2", "gmm3")
-RULES = ("unrivalled", "evident", "consistent", "sustained", "literal", "predictive", "decorrelated", "spanning")
+RULES = ("unrivalled", "evident", "consistent", "sustained", "literal", "predictive", "decorrelated", "spanning",
+         "punctuated")
 #: the window rule of the adaptive window when none is named (the one owner: the matcher, the
 #: registry and the cluster read it from here)
 DEFAULT_RULE = "spanning"
@@ -609,8 +619,10 @@ def match_sequences(
         A fixed window length, or ``"adaptive"`` to choose one per frame.
     approximation : {"gaussian", "robust", "gmm2", "gmm3"}
         Approximation of the score distribution used for ``p_i(L)``.
-    rule : {"unrivalled", "evident", "consistent", "sustained", "literal", "predictive", "decorrelated", "spanning"}
-        Window choice, see the module docstring.
+    rule : str
+        Window choice, one of :data:`RULES` ("unrivalled", "evident", "consistent", "sustained",
+        "literal", "predictive", "decorrelated", "spanning", "punctuated"), see the module
+        docstring (default :data:`DEFAULT_RULE`).
     confidence : {"changepoint", "posterior", "support", "gap", "neglogp", "z"}
         Confidence given to each match (see the module docstring; default
         :data:`DEFAULT_CONFIDENCE`).
