@@ -56,6 +56,13 @@ nothing about the velocity is sampled, and a step costs one small prediction
 junction edges (:meth:`VelocityMotion.supports_marginal`); odometry and junction graphs
 keep the sampled motion.
 
+:class:`LongRunVelocity` is the velocity a *jump* lands with in the grid filter: the
+query's long-run velocity distribution, a discounted mean of the filter's posterior
+velocity marginal shrunk towards a prior. A query cut into segments and shuffled keeps
+its speed across a jump (the segments are pieces of one drive), so a jump should land
+with the speeds the query drives at, not the speed of the frame before the jump alone
+(which, right after a jump, is itself spread) nor a uniform one.
+
 Randomness is explicit and bounded: per step, per particle, one normal (two for
 odometry) and one uniform ``u`` for all its branch choices. A choice among ``m`` options
 takes ``k = ⌊u m⌋`` and goes on with ``u' = u m − k``, again uniform on [0, 1) and
@@ -74,7 +81,7 @@ from ._validation import check_scalar
 from .exceptions import DataError, InvalidParameterError
 from .particles import ParticleSet
 
-__all__ = ["MotionModel", "OdometryMotion", "FrameMotion", "VelocityMotion", "advance"]
+__all__ = ["MotionModel", "OdometryMotion", "FrameMotion", "VelocityMotion", "LongRunVelocity", "advance"]
 
 
 @njit(inline="always")
@@ -862,3 +869,57 @@ def _marginal_transition(j, p, transition, whole, frac, sign, blur, fwd, bwd, re
                          moved):  # pragma: no cover - compiled
     """:func:`_one_place_transition`, callable from Python."""
     _one_place_transition(j, p, transition, whole, frac, sign, blur, fwd, bwd, reach, window, q, moved)
+
+
+class LongRunVelocity:
+    """The query's long-run velocity distribution, learned from a filter's posterior.
+
+    After frame ``k`` the filter's posterior velocity marginal ``m_k`` (over its state
+    bins) enters discounted sums, and the distribution is their ratio shrunk towards
+    ``prior``::
+
+        S_k = δ S_{k−1} + m_k,   F_k = δ F_{k−1} + 1,   δ = 2^(−1/memory)
+        q_k = (S_k + prior_frames · prior) / (F_k + prior_frames)
+
+    (:func:`catgraph.grid.learn_jump_rate` learns the jump rate the same way). Before
+    any frame ``q = prior``. ``q`` sums to 1 when ``prior`` and every ``m_k`` do.
+
+    Parameters
+    ----------
+    prior : ndarray of float64, shape (n_bins,)
+        The distribution before any frame (the filter's velocity prior).
+    memory : float > 0
+        Half-life of the discounted sums, in frames.
+    prior_frames : float >= 0
+        Weight of ``prior``, in frames.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> v = LongRunVelocity(np.array([0.5, 0.5]), memory=100.0, prior_frames=20.0)
+    >>> for _ in range(1000):
+    ...     q = v.update(np.array([0.0, 1.0]))
+    >>> bool(q[1] > 0.85)
+    True
+    """
+
+    def __init__(self, prior: np.ndarray, memory: float = 100.0, prior_frames: float = 20.0) -> None:
+        check_scalar(memory, "memory", "LongRunVelocity", float, 0.0, None, False)
+        check_scalar(prior_frames, "prior_frames", "LongRunVelocity", float, 0.0)
+        self.prior = np.asarray(prior, dtype=np.float64)
+        self.memory = float(memory)
+        self.prior_frames = float(prior_frames)
+        self._decay = 0.5 ** (1.0 / self.memory)
+        self.sum_ = np.zeros(len(self.prior))
+        self.frames_ = 0.0
+
+    def update(self, marginal: np.ndarray) -> np.ndarray:
+        """Add one frame's posterior velocity marginal; return the distribution."""
+        self.sum_ *= self._decay
+        self.sum_ += marginal
+        self.frames_ = self._decay * self.frames_ + 1.0
+        return self.distribution()
+
+    def distribution(self) -> np.ndarray:
+        """The current long-run distribution ``q`` (a new array)."""
+        return (self.sum_ + self.prior_frames * self.prior) / (self.frames_ + self.prior_frames)
