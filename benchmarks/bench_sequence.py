@@ -15,7 +15,7 @@ applied. Methods:
 * every fixed window L ∈ {5, 10, 20, 50, 100, 200, 500}, with the default velocity search;
 * the classic SeqSLAM fixed windows (the same lengths, forward diagonal v = 1 only, the
   same hub-corrected rows), so that "the best fixed window" is the better of the two;
-* the default adaptive matcher (``match_sequences`` defaults: rule "spanning",
+* the default adaptive matcher (``match_sequences`` defaults: rule "punctuated",
   confidence "changepoint");
 * the same matches ranked by confidence "support" (the default before "posterior");
 * the adaptive matcher with rule "evident" (the default before the rival test);
@@ -30,6 +30,8 @@ applied. Methods:
   confidence "changepoint": the tests of rule "unrivalled", with the velocity re-chosen at the
   chosen window and a rival test that only lines spanning the query's decorrelation time may
   make), in a table of its own against rule "unrivalled";
+* the adaptive matcher with rule "spanning" and confidence "changepoint" (the default until rule
+  "punctuated": the spread test read on every shorter sub-window);
 * the adaptive matcher with rule "unrivalled" (the default before "spanning"), the reference
   of the rule tables (the rule rows, "support" apart, with confidence "posterior");
 * for reference, the previous default (rule "sustained", forward diagonal only, L in
@@ -101,6 +103,7 @@ EVIDENT = "adaptive, rule evident"
 PREDICTIVE = "adaptive, rule predictive"
 DECORRELATED = "adaptive, rule decorrelated"
 SPANNING = "adaptive, rule spanning"
+SPANNING_CP = "adaptive, rule spanning, confidence changepoint"
 UNRIVALLED = "adaptive, rule unrivalled"
 PREVIOUS = "previous default"
 SINGLE = "single frame"
@@ -113,6 +116,8 @@ EVIDENT_KWARGS = dict(rule="evident", confidence="posterior")
 PREDICTIVE_KWARGS = dict(rule="predictive", confidence="posterior")
 DECORRELATED_KWARGS = dict(rule="decorrelated", confidence="posterior")
 SPANNING_KWARGS = dict(rule="spanning", confidence="posterior")
+# the default before rule "punctuated" (rule "spanning", confidence "changepoint")
+SPANNING_CP_KWARGS = dict(rule="spanning", confidence="changepoint")
 UNRIVALLED_KWARGS = dict(rule="unrivalled", confidence="posterior")
 GROUPS = ("in order", "shuffled 2–20 %", "shuffled 0.5–3 %", "reversed", "speed 2", "speed 0.5")
 
@@ -134,6 +139,7 @@ def _methods(quick: bool):
     yield PREDICTIVE, PREDICTIVE_KWARGS, True
     yield DECORRELATED, DECORRELATED_KWARGS, True
     yield SPANNING, SPANNING_KWARGS, True
+    yield SPANNING_CP, SPANNING_CP_KWARGS, True
     if not quick:
         yield SUPPORT, dict(confidence="support"), True
         yield EVIDENT, EVIDENT_KWARGS, True

@@ -17,6 +17,16 @@ read only on sub-windows that span the decorrelation horizon, or that hold a *br
 query's rows (:func:`since_breaks`), or whose best line is significant or beats the window's;
 the velocity re-chosen only where the lines part; and the confidence "change point"
 (:func:`on_line_since`), the posterior of no jump over the last frames along the line.
+
+Rounds 16–18 (docs/sequence.md, section "0.2: the adaptive window on routes driven in one
+piece") start from "spanning" with the confidence "change point": the midpoint test replaced
+by a *jump test* on the window's own line (:func:`jump_llr`: each recent sub-window judged
+against the line's own level and the random places' mean, weighted by its effective number
+of observations ``min(1, l / K_i)``), its run-length form over the segments between the grid's
+lengths (:func:`segment_llr`), each with the spread test on every sub-window, from the
+horizon, from half of it, across a break, or none (:func:`decide_jump`); and the neighbours of
+the constants of rule "punctuated" (the library's, the spread test from ``K_i / 2`` or across
+a break of the rows at lags 1–3).
 """
 
 from __future__ import annotations
@@ -589,16 +599,17 @@ def jump_llr(st, lengths, horizon=None, ess=False):
 
 
 def admissible_jump(st, cfg, log_p, n_places, horizon, spread_from="all", mid="bayes", ess=True,
-                    odds=wr.JUMP_ODDS, tested="recent", cumulate=False, since_break=None):
+                    odds=wr.JUMP_ODDS, tested="recent", cumulate=False, since_break=None, spread_fraction=0.5):
     """``(n, V, G)``: rule "spanning"'s tests with the midpoint test replaced by a jump test.
 
     ``mid``: "midpoint" (the library's), "bayes" (reject where a tested sub-window's weighted
     log likelihood ratio, :func:`jump_llr`, is below ``ln odds``: the posterior odds of a jump
     before its frames exceed 1 at prior odds ``odds``), "none". ``spread_from``: the spread
     test on every shorter sub-window ("all"), on those spanning the horizon ("horizon"), "half",
-    or "none". ``tested``: the jump test's sub-windows, "recent" (from ``recent_fraction`` of the
-    window) or "all". ``cumulate``: the jump test of sub-window ``h`` sums the weighted ratios of
-    the segments up to it instead of reading the sub-window alone (the run-length form)."""
+    "frac" (``l >= spread_fraction * K_i``), or "none". ``tested``: the jump test's
+    sub-windows, "recent" (from ``recent_fraction`` of the window) or "all". ``cumulate``: the
+    jump test of sub-window ``h`` sums the weighted ratios of the segments up to it instead of
+    reading the sub-window alone (the run-length form)."""
     lengths = cfg.grid.astype(np.float64)
     shorter = lengths[None, :] < lengths[:, None]
     recent = shorter & (lengths[None, :] >= cfg.recent_fraction * lengths[:, None])
@@ -620,6 +631,8 @@ def admissible_jump(st, cfg, log_p, n_places, horizon, spread_from="all", mid="b
             spans = spans & (l4 >= k)
         elif spread_from == "half":
             spans = spans & (l4 >= 0.5 * k)
+        elif spread_from == "frac":
+            spans = spans & (l4 >= spread_fraction * k)
         if since_break is not None and spread_from != "all":
             spans = spans | (shorter[None, None] & (since_break.astype(np.float64)[:, None, None, None] < l4))
         ok &= (st.sub <= st.mean[:, :, None, :] - wr.EVIDENT_SPREADS * common) | ~spans
@@ -714,6 +727,14 @@ ROUNDS["17: the jump test with the spread test from the horizon or across a brea
         mid="midpoint", spread_from="half", break_level=wr.DECORRELATION_LEVEL, break_lags=3),
     "17 jump test (no ESS), every sub-window, spread all": jump_rule(ess=False, tested="all"),
     "17 jump test (ESS), every sub-window, spread all": jump_rule(tested="all"),
+}
+
+CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}
+
+ROUNDS["18: rule 'punctuated' (library, confidence 'changepoint'): its constants' neighbours"] = {
+    **{f"18 midpoint, spread from {f:g} K or a break (r1..r{k} < 0.4) (change point)": jump_rule(
+        mid="midpoint", spread_from="frac", spread_fraction=f, break_level=wr.DECORRELATION_LEVEL, break_lags=k)
+       for f, k in ((0.75, 3), (1.0, 3), (0.5, 2), (0.5, 4), (0.25, 3))},
 }
 
 CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}

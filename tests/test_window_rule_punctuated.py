@@ -159,7 +159,8 @@ def test_punctuated_reference_exercises_the_gate():
 def test_breaks_clock_matches_slow_loop():
     """The clock's frames since the latest break equal the plain loop's, on rows alike for
     several frames with changes of scene, a flat row and rows shown twice."""
-    d = np.concatenate([scene_route(0, 16, 2.0), scene_route(1, 24, 2.5), np.repeat(scene_route(2, 12, 2.0), 2, axis=0)])
+    d = np.concatenate([scene_route(0, 16, 2.0), scene_route(1, 24, 2.5),
+                        np.repeat(scene_route(2, 12, 2.0), 2, axis=0)])
     d[30] = 0.5  # a flat row: no break, and no break in the three frames after it
     clock = _Breaks()
     since = []
