@@ -565,8 +565,10 @@ live = LiveLocalizer(live_map, model="combined", n_particles=500)
 for f in world.query.frames[:20]:
     live.step(f)
 t3 = time.perf_counter()
+import catgraph
 print(json.dumps({"import_and_map_s": t1 - t0, "first_row_s": t2 - t1, "twenty_combined_steps_s": t3 - t2,
-                  "total_s": t3 - t0, "compiled_s": dict(sorted(compiled.items(), key=lambda kv: -kv[1]))}))
+                  "total_s": t3 - t0, "compiled_s": dict(sorted(compiled.items(), key=lambda kv: -kv[1])),
+                  "package": catgraph.__path__[0]}))
 """
 
 
@@ -576,7 +578,9 @@ from catgraph.cli.main import main
 code = main(ARGV)
 t1 = time.perf_counter()
 assert code == 0, code
-print(json.dumps({"command_s": t1 - t0, "compiled_s": dict(sorted(compiled.items(), key=lambda kv: -kv[1]))}))
+import catgraph
+print(json.dumps({"command_s": t1 - t0, "compiled_s": dict(sorted(compiled.items(), key=lambda kv: -kv[1])),
+                  "package": catgraph.__path__[0]}))
 """
 
 #: The command line the CLI cold start runs (the demo's three methods on a small world).
@@ -602,17 +606,21 @@ def cold_start(layout: str = "uint8", tree: str | None = None, warm_up: bool = F
         if warm_up:  # the install step: `catgraph warm-up` (live paths and batch methods)
             start = time.perf_counter()
             subprocess.run([sys.executable, "-c", "from catgraph.cli.main import main; main(['warm-up', '-q'])"],
-                           check=True, env={**env, "NUMBA_CACHE_DIR": cache})
+                           check=True, env={**env, "NUMBA_CACHE_DIR": cache}, cwd=cache)
             warm_up_s = time.perf_counter() - start
         for label in ("first after warm-up" if warm_up else "cold", "warm", "warm"):
             start = time.perf_counter()
+            # run in the cache folder: ``python -c`` puts its working directory first on
+            # the path, which would import the working tree's package instead of ``tree``
             proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                                  env={**env, "NUMBA_CACHE_DIR": cache})
+                                  env={**env, "NUMBA_CACHE_DIR": cache}, cwd=cache)
             wall = time.perf_counter() - start
             if proc.returncode != 0:
                 raise SystemExit(proc.stderr)
             row = json.loads(proc.stdout.strip().splitlines()[-1])
             row.update(label=label, process_s=wall, load=os.getloadavg()[0])
+            if tree and not row.get("package", "").startswith(str(Path(tree).resolve())):
+                raise SystemExit(f"the run imported catgraph from {row.get('package')!r}, not from {tree!r}")
             runs.append(row)
     return {"runs": runs, "layout": layout, "tree": tree, "warm_up_s": warm_up_s,
             "argv": COLD_CLI_ARGV if cli else None}
