@@ -51,9 +51,6 @@ def run_demo(out_dir: str | Path = "catgraph-demo", seed: int = 0, n_particles: 
         f"(night, out of order, {int(query.meta['new_place'].sum())} frames through unmapped streets)")
     graph = prepared.graph()
     log(f"map: {graph!r}")
-    # the posterior figure's particle filter needs only the differences and the map: it
-    # runs beside the methods (a first run compiles its kernels while they run)
-    posterior = _Background(_particle_posterior, graph, prepared.differences, world.query.odometry, n_particles, seed)
 
     plan = [("single-frame", {}), ("sequence", {"window": "adaptive"})]
     plan += [("filter", {"model": model, "n_particles": n_particles, "seed": seed})
@@ -66,7 +63,7 @@ def run_demo(out_dir: str | Path = "catgraph-demo", seed: int = 0, n_particles: 
         write_json_atomic(out / f"{result.method.replace('/', '-')}.json", out_payload)
     diff = prepared.differences
 
-    figures = _figures(world, diff, graph, payloads, posterior.result())
+    figures = _figures(world, diff, graph, payloads, seed, n_particles)
     report = write_report(payloads, out, title=f"catgraph demo — synthetic city (seed {seed})", extra_figures=figures,
                           notes=_reading(query, payloads), new_place_truth=query.meta["new_place"])
     log(f"finished in {time.perf_counter() - t0:.1f} s")
@@ -96,47 +93,13 @@ def _reading(query, payloads) -> list[str]:
     return notes
 
 
-class _Background:
-    """``fn(*args)`` on a thread of its own, started at once; :meth:`result` waits for it
-    (and raises what it raised). The demo's stages are mostly compiled kernels and numpy,
-    which release the interpreter, and a first run's compilation is mostly the code
-    generator, which does too: a stage run beside the others hides part of its time."""
-
-    def __init__(self, fn, *args) -> None:
-        import threading
-
-        self._out: list = []
-        self._thread = threading.Thread(target=self._run, args=(fn, args), name="catgraph-demo", daemon=True)
-        self._thread.start()
-
-    def _run(self, fn, args) -> None:
-        try:
-            self._out.append((True, fn(*args)))
-        except BaseException as exc:  # handed to the caller by result()
-            self._out.append((False, exc))
-
-    def result(self):
-        self._thread.join()
-        ok, value = self._out[0]
-        if not ok:
-            raise value
-        return value
-
-
-def _particle_posterior(graph, diff, odometry, n_particles: int, seed: int) -> np.ndarray:
-    """The particle filter's posterior over places per frame (filter + online histogram model)."""
-    from .localizer import Localizer
-    from .observation import HistogramObservation
-
-    loc = Localizer(graph, HistogramObservation(), n_particles=n_particles, seed=seed)
-    return loc.run(diff, odometry=odometry, return_posterior=True).posterior
-
-
-def _figures(world, diff, graph, payloads, posterior):
+def _figures(world, diff, graph, payloads, seed, n_particles):
     """Figures the report does not draw from result files alone."""
     from matplotlib.figure import Figure
 
     from . import plot
+    from .localizer import Localizer
+    from .observation import HistogramObservation
 
     figures = []
     adaptive = next(p for p in payloads if p["method"] == "adaptive")
@@ -156,6 +119,8 @@ def _figures(world, diff, graph, payloads, posterior):
 
     fig = Figure(figsize=(9, 4.5), layout="constrained")
     ax = fig.add_subplot()
+    loc = Localizer(graph, HistogramObservation(), n_particles=n_particles, seed=seed)
+    posterior = loc.run(diff, odometry=query.odometry, return_posterior=True).posterior
     plot.plot_posterior(posterior, log=True, ax=ax)
     ax.set_title("particle posterior over the places, log scale (filter + online histogram model)")
     figures.append(("Posterior mass per place over time: bright diagonals are the filter tracking the route", fig))
