@@ -47,8 +47,13 @@ chain's edge lengths (junctions are taken only by frame-based motion).
 Recovery and jumps. ``ε`` is the probability per frame of a jump anywhere on the map; a
 jump is then found by Bayes' rule: the uniform share is weighted by the frame's
 likelihood like everything else, so a run of frames the current track cannot explain
-moves the mass. A jump changes the place, not the speed: the recovery share's velocity
-distribution is half the current velocity marginal, half uniform. ``ε`` is learned
+moves the mass. A jump changes the place, not the speed: the recovery share lands with
+half the current velocity marginal and half uniform (``jump_velocity="current"``, the
+class default), or with the query's long-run velocity distribution (``"long-run"``, the
+registry's ``filter`` method; :class:`~catgraph.motion.LongRunVelocity`: a discounted
+mean of the posterior velocity marginal, half-life ``RECOVERY_MEMORY`` frames, the
+uniform prior worth ``RECOVERY_PRIOR_FRAMES`` frames; ``docs/particle_filter.md``, tenth
+round). ``ε`` is learned
 online (``learn_recovery``, default): after each frame the posterior share of that
 frame's recovery mass, ``ε · mean_j e^{r_j} / Σ_j prior_j e^{r_j}`` (the E-step of EM
 for a mixture weight), enters a discounted mean (half-life ``RECOVERY_MEMORY`` frames,
@@ -202,6 +207,10 @@ def learn_jump_rate(jumps: float, frames: float, prior: float, current: float,
 #: What ``jump_rates`` are the rates of: the whole query (Bayesian model averaging over
 #: the rates) or each run between two jumps (a run-length hazard).
 JUMP_RATE_SCOPES = ("query", "run")
+
+#: The velocity distribution a jump lands with: half the current marginal and half
+#: uniform, or the query's long-run one.
+JUMP_VELOCITIES = ("current", "long-run")
 
 #: Default signed velocity bins (places per query frame).
 DEFAULT_VELOCITIES = (-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0)
@@ -975,6 +984,13 @@ class GridLocalizer:
         averaged over the rates by Bayes' rule; ``"run"``, a rate per run between two
         jumps, drawn at each jump (a run-length hazard; the rates of ended runs learned
         when ``learn_recovery``).
+    jump_velocity : {"current", "long-run"}
+        The velocity distribution of the recovery share (a jump keeps the speed, not the
+        place): ``"current"`` (default), half the current velocity marginal and half
+        uniform; ``"long-run"``, the query's long-run velocity distribution learned from
+        the posterior (:class:`~catgraph.motion.LongRunVelocity`; the registry's
+        ``filter`` method uses it: on short shuffles the frame before a jump is a poor
+        witness of the speed, ``docs/particle_filter.md``, tenth round).
 
     Attributes
     ----------
@@ -1006,7 +1022,7 @@ class GridLocalizer:
                  confidence_radius: int = 2, confidence_radius_m: float | None = None,
                  learn_recovery: bool = True, converged_log_odds: float = 1.0, converged_frames: int = 8,
                  unconverged_penalty: float = 1.0, max_phases: int = 4, smooth_feedback: bool = True,
-                 jump_rates=None, jump_rate_scope: str = "query") -> None:
+                 jump_rates=None, jump_rate_scope: str = "query", jump_velocity: str = "current") -> None:
         self.graph = graph
         self.model = model
         self.velocities = velocities
@@ -1027,6 +1043,7 @@ class GridLocalizer:
         self.max_phases = max_phases
         self.jump_rates = jump_rates
         self.jump_rate_scope = jump_rate_scope
+        self.jump_velocity = jump_velocity
 
     @property
     def state_(self) -> np.ndarray:
@@ -1087,6 +1104,9 @@ class GridLocalizer:
         if self.jump_rate_scope not in JUMP_RATE_SCOPES:
             raise InvalidParameterError(f"The 'jump_rate_scope' parameter of {owner} must be one of "
                                         f"{JUMP_RATE_SCOPES}. Got {self.jump_rate_scope!r} instead.")
+        if self.jump_velocity not in JUMP_VELOCITIES:
+            raise InvalidParameterError(f"The 'jump_velocity' parameter of {owner} must be one of "
+                                        f"{JUMP_VELOCITIES}. Got {self.jump_velocity!r} instead.")
         if self.confidence_radius_m is not None:
             check_scalar(self.confidence_radius_m, "confidence_radius_m", owner, float, 0.0)
             if self.graph.positions is None:
@@ -1120,6 +1140,10 @@ class GridLocalizer:
         # a uniform prior over velocities, each shared evenly by its phases
         self._velocity_prior = 1.0 / (len(self._v) * np.bincount(owner)[owner])
         self._velocity = self._velocity_prior.copy()
+        from .motion import LongRunVelocity
+
+        self._long_run = LongRunVelocity(self._velocity_prior, RECOVERY_MEMORY, RECOVERY_PRIOR_FRAMES)
+        self._landing, self._landing_step = None, -1
         self.recovery_ = float(self.recovery)
         self._jumps, self._frames = 0.0, 0.0
         self._e = np.empty(g.n_places)
@@ -1273,9 +1297,15 @@ class GridLocalizer:
         self._mass = self.prior_
 
     def _jump_velocity(self) -> np.ndarray:
-        """Velocity distribution of the recovery share: a jump changes the place, not the
-        speed, so half the current velocity marginal and half uniform."""
-        return 0.5 * self._velocity + 0.5 * self._velocity_prior
+        """Velocity distribution of the recovery share (``jump_velocity``): a jump changes
+        the place, not the speed. The long-run distribution takes the previous frame's
+        posterior marginal once per frame (with ``jump_rates``, the mixture's: every
+        component lands with it)."""
+        if self.jump_velocity == "current":
+            return 0.5 * self._velocity + 0.5 * self._velocity_prior
+        if self._landing_step != self.n_steps_:
+            self._landing, self._landing_step = self._long_run.update(self._velocity), self.n_steps_
+        return self._landing
 
     def _update(self, ratio) -> None:
         if ratio is None:
