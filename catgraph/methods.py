@@ -439,7 +439,7 @@ def make_filter(params: dict, graph, model):
         from .grid import GridLocalizer
 
         common.pop("seed", None)
-        return GridLocalizer(graph, model, **common)
+        return GridLocalizer(graph, model, jump_velocity=params["jump_velocity"], **common)
     from .localizer import Localizer
     from .motion import VelocityMotion
 
@@ -472,6 +472,8 @@ def _filter_not_applicable(params: dict) -> dict[str, str]:
         # the seed also draws the histogram models' samples, so it stays for those
         for k in (*_PARTICLE_KEYS, "motion", *(("seed",) if model not in histogram_models else ())):
             out[k] = "the grid filter has no particles (it is exact); use mode 'particles'"
+    if params["mode"] == "particles":
+        out["jump_velocity"] = "it sets the grid filter's jumps; the particle filter's recovery particles are drawn"
     if model not in sequence_models:
         for k in ("window", *_WINDOW_ADAPTIVE):
             out[k] = f"model {model!r} has no sequence matcher"
@@ -529,6 +531,9 @@ def _filter_params() -> tuple[Param, ...]:
         Param("new_place_prior", "float", None, "per-step probability of entering unmapped space (default: the "
               "filter's own, 0.05 for the grid)",
               low=0.0, high=0.99, optional=True),
+        Param("jump_velocity", "str", "long-run", "grid: the velocity a jump lands with: 'long-run' (the query's "
+              "long-run velocity distribution) or 'current' (half the current marginal, half uniform)",
+              choices=("long-run", "current")),
         *seq.values(),
         hist["n_init"], hist["exclusion_radius"], hist["gap"], hist["max_different"],
     )

@@ -111,3 +111,14 @@ def test_same_seed_same_output():
 def test_unknown_jump_velocity():
     with pytest.raises(InvalidParameterError, match="'jump_velocity' parameter of GridLocalizer"):
         GridLocalizer(PlaceGraph.chain(5), _Ratios(), jump_velocity="uniform").reset()
+
+
+def test_registry_filter_lands_with_the_long_run_velocity():
+    from catgraph import methods
+
+    graph = PlaceGraph.chain(5)
+    params = methods.resolve_params("filter", {"mode": "grid"})
+    assert params["jump_velocity"] == "long-run"
+    assert methods.make_filter(params, graph, _Ratios()).jump_velocity == "long-run"
+    params = methods.resolve_params("filter", {"mode": "grid", "jump_velocity": "current"})
+    assert methods.make_filter(params, graph, _Ratios()).jump_velocity == "current"
