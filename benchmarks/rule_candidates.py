@@ -18,7 +18,7 @@ query's rows (:func:`since_breaks`), or whose best line is significant or beats 
 the velocity re-chosen only where the lines part; and the confidence "change point"
 (:func:`on_line_since`), the posterior of no jump over the last frames along the line.
 
-Rounds 16–18 (docs/sequence.md, section "0.2: the adaptive window on routes driven in one
+Rounds 16–20 (docs/sequence.md, section "0.2: the adaptive window on routes driven in one
 piece") start from "spanning" with the confidence "change point": the midpoint test replaced
 by a *jump test* on the window's own line (:func:`jump_llr`: each recent sub-window judged
 against the line's own level and the random places' mean, weighted by its effective number
@@ -26,7 +26,8 @@ of observations ``min(1, l / K_i)``), its run-length form over the segments betw
 lengths (:func:`segment_llr`), each with the spread test on every sub-window, from the
 horizon, from half of it, across a break, or none (:func:`decide_jump`); and the neighbours of
 the constants of rule "punctuated" (the library's, the spread test from ``K_i / 2`` or across
-a break of the rows at lags 1–3).
+a break of the rows at lags 1–3); and the spread test read below the horizon only where the
+window's own line is weak (:func:`decide_level`).
 """
 
 from __future__ import annotations
@@ -735,6 +736,69 @@ ROUNDS["18: rule 'punctuated' (library, confidence 'changepoint'): its constants
     **{f"18 midpoint, spread from {f:g} K or a break (r1..r{k} < 0.4) (change point)": jump_rule(
         mid="midpoint", spread_from="frac", spread_fraction=f, break_level=wr.DECORRELATION_LEVEL, break_lags=k)
        for f, k in ((0.75, 3), (1.0, 3), (0.5, 2), (0.5, 4), (0.25, 3))},
+}
+
+CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}
+
+
+# ------------------------------------------------------------------------------------------
+# round 19: the gated spread test read again where the window's line is weak
+
+def admissible_level(st, cfg, log_p, n_places, horizon, since, level, fraction=0.5):
+    """``(n, V, G)``: rule "punctuated"'s tests, with the spread test also read on a short
+    sub-window (shorter than ``fraction * K_i``, no break in it) where the window's own line is
+    weak: its mean lies less than ``level`` common spreads of that sub-window's length below
+    the random places' mean. A strong line (Nordland's correct one in a hard stretch) survives
+    a weak recent stretch; a weak line (the old line after a jump) does not."""
+    lengths = cfg.grid.astype(np.float64)
+    shorter = lengths[None, :] < lengths[:, None]
+    recent = shorter & (lengths[None, :] >= cfg.recent_fraction * lengths[:, None])
+    k = horizon.astype(np.float64)[:, None, None, None]
+    l4 = lengths[None, None, None, :]
+    common = wr._common_std(st)[:, :, None, :]
+    safe = np.where(common > 0, common, 1.0)
+    line_level = (st.mean[:, :, None, :] - st.best_s[..., None]) / safe  # (n, V, G, H)
+    ok = (st.sub <= 0.5 * (st.best_s[..., None] + st.mean[:, :, None, :])) | ~recent
+    spans = (l4 >= fraction * k) | (since.astype(np.float64)[:, None, None, None] < l4) | (line_level < level)
+    ok &= (st.sub <= st.mean[:, :, None, :] - wr.EVIDENT_SPREADS * common) | ~(shorter[None, None] & spans)
+    rival = (log_p < -np.log(n_places) - wr.SPANNING_MARGIN) & (lengths[None, None, :] >= horizon[:, None, None])
+    beaten = st.sub > st.best_s[:, :, None, :] + wr.RIVAL_SPREADS * common
+    ok &= ~(beaten & rival[:, :, None, :]) | ~recent
+    adm = np.all(ok, axis=3)
+    adm[:, :, 0] = True
+    return adm
+
+
+def decide_level(st, rows, cfg, level, fraction=0.5, breaks=True):
+    n = st.best_s.shape[0]
+    r = np.arange(n)
+    log_p = wr._log_p(st)
+    v = np.argmin(log_p.sum(axis=2), axis=1)
+    horizon = horizons(rows)
+    since = since_breaks(rows, wr.DECORRELATION_LEVEL, wr.BREAK_LAGS) if breaks else np.full(n, 10 ** 9)
+    every = admissible_level(st, cfg, log_p, rows.shape[1], horizon, since, level, fraction)
+    g = np.argmin(np.where(every[r, v], log_p[r, v], np.inf), axis=1)
+    v = np.where(cfg.grid[g] >= horizon, np.argmin(log_p[r, :, g], axis=1), v)
+    adm = every[r, v]
+    adm[r, g] = True
+    best, match = st.best_s[r, v, g], st.best_j[r, v, g]
+    conf = support(st, cfg, adm, v, match) * on_line_since(rows, match, best, cfg.velocities[v], cfg.grid[g], 5,
+                                                           wr.JUMP_ODDS)
+    return match, conf
+
+
+ROUNDS["19: the gated spread test read again where the window's line is weak"] = {
+    **{f"19 punctuated + weak line < {lam:g}": (lambda lam: lambda st, rows, cfg: decide_level(st, rows, cfg, lam))(lam)
+       for lam in (1.5, 2.0, 2.5, 3.0)},
+    **{f"19 spread from K, weak line < {lam:g}, no break": (lambda lam: lambda st, rows, cfg: decide_level(
+        st, rows, cfg, lam, fraction=1.0, breaks=False))(lam) for lam in (2.0, 2.5)},
+}
+
+CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}
+
+ROUNDS["20: the spread test from the horizon, read below it where the line is weak"] = {
+    **{f"20 spread from {f:g} K, weak line < {lam:g}, no break": (lambda lam, f: lambda st, rows, cfg: decide_level(
+        st, rows, cfg, lam, fraction=f, breaks=False))(lam, f) for lam, f in ((1.5, 1.0), (1.75, 1.0), (2.0, 0.5))},
 }
 
 CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}

@@ -19,7 +19,10 @@ take to decorrelate (the row's standardised differences at the best places of th
 and the record scores each line that many frames ahead. Rule "spanning" keeps the tests of
 "unrivalled" and reads the same clock: a line shorter than the query's decorrelation time is
 about one observation, so only lines that span it may re-choose the velocity at the chosen
-window or count as rivals of a longer window. The confidence "changepoint" is the one
+window or count as rivals of a longer window. Rule "punctuated" (the default) is "spanning"
+whose spread test reads a short sub-window only where it spans half that time or holds a
+*break* of the rows (a frame decorrelated from each of the few frames before it, read from the
+same clock, :class:`_Breaks`). The confidence "changepoint" is the one
 confidence with a memory: it reads the latest :data:`CHANGE_POINT_FRAMES` rows at the places
 the chosen line passes (a :class:`_Recent` carried in the record from block to block, or
 from step to step), so both forms again read the same values in the same order.
@@ -345,7 +348,8 @@ class _Recent:
 
 def _new_record(cfg: _Config) -> _Record | None:
     """The state a rule carries from frame to frame (rules "predictive" and "decorrelated";
-    rule "spanning" reads only the record's clock; confidence "changepoint" keeps the latest
+    rule "spanning" reads only the record's clock, rule "punctuated" only the clock that also
+    marks the breaks, :class:`_Breaks`; confidence "changepoint" keeps the latest
     rows in the record's :class:`_Recent`, whatever the rule)."""
     if cfg.fixed:
         return None
