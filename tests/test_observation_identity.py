@@ -57,6 +57,7 @@ def _digest(mode: str, hubs: bool, seed: int = 0, n_places: int = 3000, n_frames
     loc = make_filter(p, PlaceGraph.chain(n_places), obs)
     if mode == "grid":
         loc.blur = 0.01  # the grid filter's blur then (the default is now 0.005)
+        loc.jump_velocity = "current"  # a jump's velocity then (the registry's is now "long-run")
     else:
         loc.motion.blur = 0.01  # the particles follow the grid's blur unless given one
     loc.reset()
