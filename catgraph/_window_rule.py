@@ -19,10 +19,13 @@ take to decorrelate (the row's standardised differences at the best places of th
 and the record scores each line that many frames ahead. Rule "spanning" keeps the tests of
 "unrivalled" and reads the same clock: a line shorter than the query's decorrelation time is
 about one observation, so only lines that span it may re-choose the velocity at the chosen
-window or count as rivals of a longer window. Rule "punctuated" (the default) is "spanning"
+window or count as rivals of a longer window. Rule "punctuated" is "spanning"
 whose spread test reads a short sub-window only where it spans half that time or holds a
 *break* of the rows (a frame decorrelated from each of the few frames before it, read from the
-same clock, :class:`_Breaks`). The confidence "changepoint" is the one
+same clock, :class:`_Breaks`). Rule "gated" (the default) is "spanning" whose spread test reads
+a sub-window shorter than that time only where the window's own line is weak
+(:data:`WEAK_LINE_SPREADS`): a strong line survives a few weak frames of a stretch of alike
+rows, the old line after a jump does not. The confidence "changepoint" is the one
 confidence with a memory: it reads the latest :data:`CHANGE_POINT_FRAMES` rows at the places
 the chosen line passes (a :class:`_Recent` carried in the record from block to block, or
 from step to step), so both forms again read the same values in the same order.
@@ -72,6 +75,14 @@ BREAK_LAGS = 3
 #: observation, whose weakness says little about the line
 SPREAD_HORIZON_FRACTION = 0.5
 
+#: with rule "gated": the spread test reads a sub-window shorter than the frame's decorrelation
+#: horizon only where the window's own line is *weak*: its score lies less than this many common
+#: spreads (at the sub-window's length) below the mean of random places. A strong line (a correct
+#: one through a stretch of alike rows) survives a few weak recent frames; a weak line (the old
+#: line right after a jump) does not. Chosen on the whole condition table (1.5 and 2 measure
+#: within 0.001 of it, ``docs/sequence.md``)
+WEAK_LINE_SPREADS = 1.75
+
 
 #: with confidences "posterior" and "changepoint": prior odds that the query jumped away from
 #: the chosen line at a given frame (against staying on it); chosen on the whole condition table
@@ -119,7 +130,7 @@ RECORD_RULES = ("predictive", "decorrelated")
 
 #: the rules of the sub-window tests that read the query's decorrelation horizon (the clock of
 #: rule "decorrelated"): only a line that spans it re-chooses the velocity or counts as a rival
-HORIZON_RULES = ("spanning", "punctuated")
+HORIZON_RULES = ("spanning", "punctuated", "gated")
 
 
 def _needs_sub(cfg: _Config) -> bool:
@@ -348,7 +359,7 @@ class _Recent:
 
 def _new_record(cfg: _Config) -> _Record | None:
     """The state a rule carries from frame to frame (rules "predictive" and "decorrelated";
-    rule "spanning" reads only the record's clock, rule "punctuated" only the clock that also
+    rules "spanning" and "gated" read only the record's clock, rule "punctuated" only the clock that also
     marks the breaks, :class:`_Breaks`; confidence "changepoint" keeps the latest
     rows in the record's :class:`_Recent`, whatever the rule)."""
     if cfg.fixed:
@@ -356,7 +367,7 @@ def _new_record(cfg: _Config) -> _Record | None:
     recent = _Recent() if cfg.confidence == "changepoint" else None
     if cfg.rule == "punctuated":
         record = _Record(cfg.grid.shape[0], clock=_Breaks())
-    elif cfg.rule in ("decorrelated", "spanning"):
+    elif cfg.rule in ("decorrelated", "spanning", "gated"):
         record = _Record(cfg.grid.shape[0], clock=_Horizon())
     elif cfg.rule in RECORD_RULES or recent is not None:
         record = _Record(cfg.grid.shape[0])
@@ -478,7 +489,11 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
     ``(n,)``: frames since the latest break, :class:`_Breaks`; the sub-window of length ``l``
     holds it where ``since < l``): within a stretch of alike rows a correct line's recent
     frames are about one observation and may be no better than random places, but right
-    after the rows break they are evidence again.
+    after the rows break they are evidence again. Rule "gated" is "spanning" with the spread
+    test read on the sub-windows that span the horizon, and on a shorter one only where the
+    window's own line is weak (its score less than :data:`WEAK_LINE_SPREADS` common spreads at
+    the sub-window's length below the random places' mean there): a strong line survives a
+    weak recent stretch of alike rows, a weak one (the old line after a jump) does not.
     """
     n, v_count, g_count = st.best_s.shape
     if not _needs_sub(cfg):
@@ -501,6 +516,14 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
         l4 = lengths[None, None, None, :]
         spans = (l4 >= SPREAD_HORIZON_FRACTION * horizon.astype(np.float64)[:, None, None, None]) | (
             since.astype(np.float64)[:, None, None, None] < l4)
+        ok &= (st.sub <= st.mean[:, :, None, :] - EVIDENT_SPREADS * common) | ~(shorter[None, None] & spans)
+    if cfg.rule == "gated":
+        # the same, on the sub-windows that span the horizon, and on shorter ones where the
+        # window's own line is weak
+        common = _common_std(st)[:, :, None, :]  # (n, 1, 1, H)
+        l4 = lengths[None, None, None, :]
+        level = (st.mean[:, :, None, :] - st.best_s[..., None]) / np.where(common > 0, common, 1.0)  # (n, V, G, H)
+        spans = (l4 >= horizon.astype(np.float64)[:, None, None, None]) | (level < WEAK_LINE_SPREADS)
         ok &= (st.sub <= st.mean[:, :, None, :] - EVIDENT_SPREADS * common) | ~(shorter[None, None] & spans)
     if cfg.rule == "unrivalled":
         # and no significant line of a recent sub-window's length may beat the window's

@@ -109,7 +109,8 @@ def test_changepoint_lowers_the_frames_after_a_jump():
     assert ratio[30:33].min() < 0.999 * ratio[10:16].max()
 
 
-@pytest.mark.parametrize("rule", ["spanning", "punctuated", "unrivalled", "predictive", "decorrelated"])
+@pytest.mark.parametrize("rule", ["spanning", "punctuated", "gated", "unrivalled", "predictive",
+                                  "decorrelated"])
 def test_changepoint_streaming_equals_batch(rule, monkeypatch):
     """Same numbers step by step, in one batch, and in batches cut into blocks of 7 and of
     2 frames (fewer than ``T``: the latest rows travel from block to block)."""

@@ -21,7 +21,8 @@ import pytest
 from scipy.special import log_ndtr
 
 from catgraph._window_rule import (BREAK_LAGS, DECORRELATION_LEVEL, DECORRELATION_PLACES, EVIDENT_SPREADS,
-                                   JUMP_ODDS, RIVAL_SPREADS, SPANNING_MARGIN, SPREAD_HORIZON_FRACTION, _Breaks)
+                                   JUMP_ODDS, RIVAL_SPREADS, SPANNING_MARGIN, SPREAD_HORIZON_FRACTION,
+                                   WEAK_LINE_SPREADS, _Breaks)
 from catgraph.sequence import match_sequences, window_grid
 from tests.test_sequence_velocity import slow_line_scores
 from tests.test_window_rule import on_grid
@@ -52,10 +53,14 @@ def slow_since_breaks(d: np.ndarray, lags: int = BREAK_LAGS, level: float = DECO
     return out
 
 
-def slow_punctuated(d: np.ndarray, grid: np.ndarray, velocities, fraction: float = 0.05, radius: int = 10):
+def slow_punctuated(d: np.ndarray, grid: np.ndarray, velocities, fraction: float = 0.05, radius: int = 10,
+                    rule: str = "punctuated"):
     """Per frame: match, effective window, velocity and confidence "posterior" of rule
-    "punctuated"; and the number of frames whose chosen window the spread test on every
-    shorter sub-window (rule "spanning") would have rejected."""
+    "punctuated" (or, ``rule="gated"``, of rule "gated": the spread test read on the
+    sub-windows that span the horizon, and on shorter ones where the window's own score lies
+    less than ``WEAK_LINE_SPREADS`` spreads below the mean at the sub-window's length); and the
+    number of frames whose chosen window the spread test on every shorter sub-window (rule
+    "spanning") would have rejected."""
     n_q, n = d.shape
     horizons = slow_horizons(d)
     since = slow_since_breaks(d)
@@ -77,7 +82,11 @@ def slow_punctuated(d: np.ndarray, grid: np.ndarray, velocities, fraction: float
                     recent = grid[h] >= fraction * grid[g]
                     if recent and sub > 0.5 * (own + rows[a][h].mean()):
                         ok = False
-                    read = grid[h] >= SPREAD_HORIZON_FRACTION * horizons[i] or since[i] < grid[h] or not gated
+                    if rule == "gated":
+                        weak = (rows[a][h].mean() - own) / (spread[h] if spread[h] > 0 else 1.0) < WEAK_LINE_SPREADS
+                        read = grid[h] >= horizons[i] or weak or not gated
+                    else:
+                        read = grid[h] >= SPREAD_HORIZON_FRACTION * horizons[i] or since[i] < grid[h] or not gated
                     if read and sub > rows[a][h].mean() - EVIDENT_SPREADS * spread[h]:
                         ok = False
                     if (recent and grid[h] >= horizons[i] and log_p[a][h] < -np.log(n) - SPANNING_MARGIN
@@ -178,4 +187,56 @@ def test_punctuated_streaming_equals_batch(confidence, monkeypatch):
     its latest break travel from block to block)."""
     d = np.concatenate([scene_route(1, 24, 2.5), scene_route(3, 16, 2.0)[:12]])
     kwargs = dict(rule="punctuated", l_min=3, l_max=30, grid=6, confidence=confidence, velocities=VELOCITIES)
+    assert_streaming_equals_batch(d, kwargs, monkeypatch)
+
+
+def strong_line_route(seed: int = 2, width: int = 12, strength: float = 3.0, hard: int = 3) -> np.ndarray:
+    """Rows alike for about ``width`` frames along a strong planted line whose dip is removed
+    for ``hard`` frames from frame 40: a strong line with a weak recent stretch shorter than
+    the horizon, which rule "gated" keeps and the spread test on every sub-window rejects."""
+    d = smooth_route(48, 60, seed, width, strength)
+    f = np.arange(40, 40 + hard)
+    d[f, (f + 5) % 60] += strength
+    return on_grid(d)
+
+
+def gated_routes():
+    """The routes of rule "punctuated" and one whose strong line the gate keeps."""
+    yield from routes()
+    yield strong_line_route()
+
+
+@pytest.mark.parametrize("k", range(5))
+def test_gated_rule_matches_slow_reference(k):
+    d = list(gated_routes())[k]
+    grid = window_grid(3, 24, 6)
+    result = match_sequences(d, "adaptive", rule="gated", grid=6, l_min=3, l_max=24, velocities=VELOCITIES,
+                             confidence="posterior")
+    slow, _ = slow_punctuated(d, grid, VELOCITIES, rule="gated")
+    np.testing.assert_array_equal(result.match, slow["match"])
+    np.testing.assert_array_equal(result.window_length, slow["length"])
+    np.testing.assert_array_equal(result.velocity, slow["velocity"])
+    np.testing.assert_allclose(result.confidence, slow["confidence"], rtol=1e-9, atol=1e-9)
+
+
+def test_gated_reference_exercises_the_gate():
+    """On these routes the gate admits windows that the spread test on every shorter
+    sub-window rejects, and the answers differ from rule "punctuated"'s somewhere."""
+    grid = window_grid(3, 24, 6)
+    spared = 0
+    differ = 0
+    for d in gated_routes():
+        gated, n_spared = slow_punctuated(d, grid, VELOCITIES, rule="gated")
+        spared += n_spared
+        punctuated, _ = slow_punctuated(d, grid, VELOCITIES)
+        differ += int(np.sum(gated["length"] != punctuated["length"]))
+    assert spared > 0
+    assert differ > 0
+
+
+@pytest.mark.parametrize("confidence", ["posterior", "changepoint"])
+def test_gated_streaming_equals_batch(confidence, monkeypatch):
+    """Same numbers step by step, and in a batch cut into blocks of 7 frames."""
+    d = np.concatenate([scene_route(1, 24, 2.5), scene_route(3, 16, 2.0)[:12]])
+    kwargs = dict(rule="gated", l_min=3, l_max=30, grid=6, confidence=confidence, velocities=VELOCITIES)
     assert_streaming_equals_batch(d, kwargs, monkeypatch)
