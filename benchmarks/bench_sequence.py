@@ -104,6 +104,7 @@ PREDICTIVE = "adaptive, rule predictive"
 DECORRELATED = "adaptive, rule decorrelated"
 SPANNING = "adaptive, rule spanning"
 SPANNING_CP = "adaptive, rule spanning, confidence changepoint"
+PUNCTUATED = "adaptive, rule punctuated"
 UNRIVALLED = "adaptive, rule unrivalled"
 PREVIOUS = "previous default"
 SINGLE = "single frame"
@@ -118,6 +119,8 @@ DECORRELATED_KWARGS = dict(rule="decorrelated", confidence="posterior")
 SPANNING_KWARGS = dict(rule="spanning", confidence="posterior")
 # the default before rule "punctuated" (rule "spanning", confidence "changepoint")
 SPANNING_CP_KWARGS = dict(rule="spanning", confidence="changepoint")
+# the default before rule "gated"
+PUNCTUATED_KWARGS = dict(rule="punctuated", confidence="changepoint")
 UNRIVALLED_KWARGS = dict(rule="unrivalled", confidence="posterior")
 GROUPS = ("in order", "shuffled 2–20 %", "shuffled 0.5–3 %", "reversed", "speed 2", "speed 0.5")
 
@@ -140,6 +143,7 @@ def _methods(quick: bool):
     yield DECORRELATED, DECORRELATED_KWARGS, True
     yield SPANNING, SPANNING_KWARGS, True
     yield SPANNING_CP, SPANNING_CP_KWARGS, True
+    yield PUNCTUATED, PUNCTUATED_KWARGS, True
     if not quick:
         yield SUPPORT, dict(confidence="support"), True
         yield EVIDENT, EVIDENT_KWARGS, True
