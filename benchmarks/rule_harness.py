@@ -140,7 +140,8 @@ def library_rule(rule: str, **kwargs):
 #: added as columns to the committed ``window_rules.json``; a column already there is measured again)
 LIBRARY_CONFIDENCES = {"spanning, confidence changepoint (library)": library_rule("spanning", confidence="changepoint"),
                        "punctuated, confidence changepoint (library)": library_rule("punctuated",
-                                                                                    confidence="changepoint")}
+                                                                                    confidence="changepoint"),
+                       "gated, confidence changepoint (library)": library_rule("gated", confidence="changepoint")}
 
 
 def add_columns(cells: list[Cell], new: dict) -> None:
