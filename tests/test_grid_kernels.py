@@ -12,8 +12,6 @@ difference matrix with the tempered whole-image model (whose feedback reads the
 posterior every frame). The pieces of the fused passes are also tested against the
 numpy they replace."""
 
-import hashlib
-
 import numpy as np
 import pytest
 
@@ -22,16 +20,7 @@ from catgraph.graph import PlaceGraph
 from catgraph.grid import GridLocalizer
 from catgraph.observation import Observation, TemperedObservation
 
-from .conftest import NORDLAND, needs_nordland
-
-
-def _digest(arrays) -> str:
-    h = hashlib.sha256()
-    for a in arrays:
-        a = np.ascontiguousarray(a)
-        h.update(str(a.dtype).encode() + str(a.shape).encode())
-        h.update(a.tobytes())
-    return h.hexdigest()[:16]
+from .conftest import NORDLAND, array_digest as _digest, needs_nordland
 
 
 def _run(loc, d) -> str:

@@ -10,24 +10,13 @@ moments to be exact (any change in their summation order would show), and a stre
 of the real Nordland difference matrix. The window rule that reads these outputs is
 not part of the digests (it has tests of its own)."""
 
-import hashlib
-
 import numpy as np
 import pytest
 
 from catgraph import _sequence_kernels as k
 from catgraph import sequence as seq
 
-from .conftest import NORDLAND, needs_nordland
-
-
-def _digest(arrays) -> str:
-    h = hashlib.sha256()
-    for a in arrays:
-        a = np.ascontiguousarray(a)
-        h.update(str(a.dtype).encode() + str(a.shape).encode())
-        h.update(a.tobytes())
-    return h.hexdigest()[:16]
+from .conftest import NORDLAND, array_digest as _digest, needs_nordland
 
 
 def _kernel_run(d, l_max=40):
