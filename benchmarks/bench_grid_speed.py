@@ -38,24 +38,7 @@ N_PLACES = 100_000
 N_ROWS = 30
 N_WARM = 10
 
-
-class _FixedModel:
-    """Observation precomputed: returns the same log-ratio every step (with feedback,
-    as the tempered model: the filter forms the smoothed posterior it hands over)."""
-
-    def __init__(self, log_ratio, new_place_log_ratio=-1.0):
-        from catgraph.observation import Observation
-
-        self._obs = Observation(log_ratio, new_place_log_ratio, True)
-
-    def reset(self):
-        pass
-
-    def observe(self, row):
-        return self._obs
-
-    def feedback(self, feedback):
-        pass
+from bench_filter import _FixedModel  # noqa: E402  (observation precomputed)
 
 
 def _floor(n_values: int, repeats: int = 20) -> float:
