@@ -39,18 +39,7 @@ N_ROWS = 30
 N_WARM = 10
 
 from bench_filter import _FixedModel  # noqa: E402  (observation precomputed)
-
-
-def _floor(n_values: int, repeats: int = 20) -> float:
-    """Seconds of one ``np.add`` over two arrays of ``n_values`` float64 (median)."""
-    a, b = np.random.default_rng(1).random((2, n_values))
-    c = np.empty_like(a)
-    t = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        np.add(a, b, out=c)
-        t.append(time.perf_counter() - start)
-    return statistics.median(t)
+from bench_filter import _memory_reference as _floor  # noqa: E402  (one np.add, the floor)
 
 
 def _localizer(n: int = N_PLACES):
