@@ -23,6 +23,19 @@ Candidates:
     Half that long-run distribution, half uniform (the registry's mix, the long-run mean
     in place of the current marginal).
 
+``rigid-line``
+    Bayesian model averaging over two motion models (one posterior over (place, velocity)
+    each, weighted by its evidence frame by frame, as ``jump_rates`` with scope
+    ``"query"``): the registry's (``velocity_stay``, ``blur``, the learned jump rate) and
+    a *rigid line* — the velocity never changes (``velocity_stay`` 1), no blur, a jump
+    rate of ``RIGID_JUMP_RATE`` (1e-12) — with prior weight ``RIGID_PRIOR`` (0.05): the
+    prior probability that the query is one unbroken line driven at one speed, which is
+    what a long fixed window assumes. A query that jumps or changes speed refutes the
+    rigid component within a few frames of doing so and the registry's carries on; a
+    query that does neither hands it the weight, and a jump then costs ``log(N / 1e-12)``
+    nats and a speed change more, so a hard stretch no longer moves the answer
+    (``docs/particle_filter.md``, eleventh round).
+
 Run from the repository root::
 
     python benchmarks/bench_filter_candidates.py CANDIDATE [--quick] [--datasets nordland,uji,synthetic,heldout]
@@ -35,6 +48,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import platform
 import sys
 import time
@@ -78,7 +92,78 @@ class JumpVelocityMeanHalf(JumpVelocityMean):
         return 0.5 * super()._jump_velocity() + 0.5 * self._velocity_prior
 
 
-CANDIDATES = {"jump-velocity-mean": JumpVelocityMean, "jump-velocity-mean-half": JumpVelocityMeanHalf}
+#: The rigid line's jump rate and prior weight (``rigid-line``).
+RIGID_JUMP_RATE = 1e-12
+RIGID_PRIOR = 0.05
+
+
+class RigidLine(_REGISTERED):
+    """Bayesian model averaging over the registry's motion model and a rigid line (module
+    docstring): the ``jump_rates`` machinery's components, each with its own velocity
+    transition, blur and jump rate (the registry's learned as the single-rate filter
+    learns it)."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs["jump_rates"] = (0.5, 0.25)  # two components (their rates are set below)
+        kwargs["jump_rate_scope"] = "query"
+        super().__init__(*args, **kwargs)
+
+    def reset(self):
+        super().reset()
+        owner, _, _, _, _, successor = grid.phase_bins(self._v, self.max_phases)
+        self._motion = []
+        for stay, reverse, blur, rate in ((self.velocity_stay, self.reverse_probability, self.blur, None),
+                                          (1.0, 0.0, 0.0, RIGID_JUMP_RATE)):
+            t = grid.phase_transition(grid.velocity_transition(self._v, stay, reverse), owner, successor)
+            nz = t.T != 0
+            sparse = (np.concatenate([[0], np.cumsum(nz.sum(1))]).astype(np.int64), np.nonzero(nz)[1].astype(np.int64),
+                      np.ascontiguousarray(t.T[nz], dtype=np.float64))
+            self._motion.append({"transition": t, "sparse": sparse, "blur": float(blur), "learned": rate is None,
+                                 "rate": float(self.recovery if rate is None else rate), "jumps": 0.0, "frames": 0.0})
+        self.rate_weights_ = np.array([1.0 - RIGID_PRIOR, RIGID_PRIOR])
+        self._own_motion = (self.blur, self._transition, self._t_sparse)
+        return self
+
+    def _hazard_step(self, odometry, ratio):
+        w, velocity = self.rate_weights_, self._velocity
+        totals, means = np.zeros(len(w)), np.zeros(len(w))
+        for k, (component, m) in enumerate(zip(self._components, self._motion)):
+            for f in self._COMPONENT_FIELDS:
+                setattr(self, f, component[f])
+            self._velocity = velocity  # every component's jump lands with the mixture's velocity
+            self.blur, self._transition, self._t_sparse = m["blur"], m["transition"], m["sparse"]
+            self.recovery_ = m["rate"]
+            self._predict(odometry, ratio)
+            if ratio is not None:
+                totals[k], means[k] = self._likelihood(ratio[0])
+            for f in self._COMPONENT_FIELDS:
+                component[f] = getattr(self, f)
+        self.blur, self._transition, self._t_sparse = self._own_motion
+        self.recovery_ = float(w @ [m["rate"] for m in self._motion])
+        self._pool = self._own_pool
+        components = self._components
+        self.prior_ = grid._weighted_sum(w, [c["prior_"] for c in components], self._pool.take(self.graph.n_places))
+        evidence = w * totals
+        total = float(evidence.sum())
+        if ratio is None or not total > 0.0:
+            self._mass = grid._weighted_sum(w, [c["_mass"] for c in components], self._pool.take(self.graph.n_places))
+            self._velocity = velocity
+            return
+        if self.n_steps_ > 0 and self.learn_recovery:
+            for k, m in enumerate(self._motion):
+                if m["learned"] and totals[k] > 0.0:
+                    m["jumps"], m["frames"], m["rate"] = grid.learn_jump_rate(
+                        m["jumps"], m["frames"], float(self.recovery), m["rate"], means[k] / totals[k])
+        self.rate_weights_ = evidence / total
+        self._mass = grid._weighted_sum(self.rate_weights_, [c["_mass"] for c in components],
+                                        self._pool.take(self.graph.n_places))
+        self._velocity = grid._weighted_sum(self.rate_weights_, [c["_velocity"] for c in components],
+                                            np.empty(len(self._owner)))
+        self._new_place(math.log(total) + ratio[1], ratio[2])
+
+
+CANDIDATES = {"jump-velocity-mean": JumpVelocityMean, "jump-velocity-mean-half": JumpVelocityMeanHalf,
+              "rigid-line": RigidLine}
 
 
 def _run(params, prepared, cls):
