@@ -91,6 +91,29 @@ read the mixture. Two models of what a rate belongs to (``jump_rate_scope``):
 Every jump lands uniformly over places with the mixture's jump velocity. Time and
 memory ``× K``.
 
+A rigid line beside the filter's motion (``rigid_prior``, off by default). A long fixed
+window compares whole lines of one slope and never considers a jump or a change of
+speed; a filter whose motion allows both (any jump rate, any ``velocity_stay < 1``) lets
+a wrong track that out-scores the true one over a hard stretch take the answer, because
+a jump costs at most ``log(N / ε)`` nats whatever the frames before the stretch said
+(``docs/particle_filter.md``, eighth to eleventh rounds). With ``rigid_prior = p`` the
+filter averages two motion models by Bayes' rule (the ``"query"`` scope of ``jump_rates``:
+one posterior over (place, velocity) each, weighted by its evidence ``Σ_j prior_kj
+e^{r_j}`` frame by frame): its own (``velocity_stay``, ``blur``, the jump rate, learned
+or fixed), prior weight ``1 − p``, and a *rigid line*, prior weight ``p``: the velocity
+never changes (``velocity_stay`` 1, no turning), no blur, jump rate
+:data:`RIGID_JUMP_RATE`. ``p`` is the prior probability that the query is one unbroken
+line driven at one speed. A query that does neither gives the rigid line the weight
+(each frame the flexible motion pays its jump rate and velocity leak, about 0.03 nats on
+Nordland, so after ``n`` frames its log-odds have grown by about ``0.03 n``), and a jump
+then costs ``log(N / RIGID_JUMP_RATE)`` nats. A query that jumps or changes speed refutes
+the rigid line once the frames' evidence has spent that lead (its weight falls to the
+floor its own rare jump keeps, and grows back only as slowly as it was earned), and the
+filter's own motion carries on: a jump is followed later by about the frames that spend
+the lead, the price of the rigid line on a query that does jump. Every
+jump lands with the mixture's jump velocity; the jump rate of the filter's own motion is
+learned from its own component's evidence. Time and memory ``× 2``.
+
 New place. ``P(new)`` is a two-state hypothesis "this frame is a place the map does
 not cover", entered with probability ``new_place_prior`` per frame and kept with
 ``new_place_stay``, weighted by the model's ``new_place_log_ratio`` against the map's
@@ -203,6 +226,10 @@ def learn_jump_rate(jumps: float, frames: float, prior: float, current: float,
     eps = (jumps + RECOVERY_PRIOR_FRAMES * prior) / (frames + RECOVERY_PRIOR_FRAMES)
     return jumps, frames, float(min(max(eps, RECOVERY_RANGE[0]), RECOVERY_RANGE[1]))
 
+
+#: The rigid line's jump rate (``rigid_prior``): about ``log(N / 1e-12)`` ≈ 36 nats to
+#: leave a track on a map of 3,576 places.
+RIGID_JUMP_RATE = 1e-12
 
 #: What ``jump_rates`` are the rates of: the whole query (Bayesian model averaging over
 #: the rates) or each run between two jumps (a run-length hazard).
@@ -991,6 +1018,11 @@ class GridLocalizer:
         the posterior (:class:`~catgraph.motion.LongRunVelocity`; the registry's
         ``filter`` method uses it: on short shuffles the frame before a jump is a poor
         witness of the speed, ``docs/particle_filter.md``, tenth round).
+    rigid_prior : float in [0, 1)
+        The prior probability that the query is one unbroken line at one speed: the
+        filter's motion averaged by Bayes' rule with a rigid line (velocity kept, no blur,
+        jump rate :data:`RIGID_JUMP_RATE`) of this prior weight (module docstring). Default
+        0: off. Not with ``jump_rates``. Time and memory per frame × 2.
 
     Attributes
     ----------
@@ -1006,7 +1038,8 @@ class GridLocalizer:
         ``jump_rates``, the mixture's hazard ``Σ_k w_k ε_k``).
     rate_weights_ : ndarray of float64, shape (len(jump_rates),)
         With ``jump_rates``: the posterior probability of each rate's component (the
-        current run's rate).
+        current run's rate). With ``rigid_prior``: shape (2,), the filter's own motion
+        and the rigid line.
     converged_ : bool
         Whether the filter has converged (see ``converged_log_odds``).
     n_steps_ : int
@@ -1022,7 +1055,8 @@ class GridLocalizer:
                  confidence_radius: int = 2, confidence_radius_m: float | None = None,
                  learn_recovery: bool = True, converged_log_odds: float = 1.0, converged_frames: int = 8,
                  unconverged_penalty: float = 1.0, max_phases: int = 4, smooth_feedback: bool = True,
-                 jump_rates=None, jump_rate_scope: str = "query", jump_velocity: str = "current") -> None:
+                 jump_rates=None, jump_rate_scope: str = "query", jump_velocity: str = "current",
+                 rigid_prior: float = 0.0) -> None:
         self.graph = graph
         self.model = model
         self.velocities = velocities
@@ -1044,12 +1078,13 @@ class GridLocalizer:
         self.jump_rates = jump_rates
         self.jump_rate_scope = jump_rate_scope
         self.jump_velocity = jump_velocity
+        self.rigid_prior = rigid_prior
 
     @property
     def state_(self) -> np.ndarray:
         """Posterior over (place, velocity), shape ``(n_places, n_velocities)`` (the phases
         of a velocity summed)."""
-        if self.jump_rates is not None and hasattr(self, "_components"):
+        if getattr(self, "_components", None) is not None:
             bins = sum(w * (c["_state"] * c["_like"]).T for w, c in zip(self.rate_weights_, self._components))
         else:
             bins = self._bin_state()
@@ -1104,6 +1139,10 @@ class GridLocalizer:
         if self.jump_rate_scope not in JUMP_RATE_SCOPES:
             raise InvalidParameterError(f"The 'jump_rate_scope' parameter of {owner} must be one of "
                                         f"{JUMP_RATE_SCOPES}. Got {self.jump_rate_scope!r} instead.")
+        check_scalar(self.rigid_prior, "rigid_prior", owner, float, 0.0, 1.0, True, False)
+        if self.rigid_prior > 0 and self.jump_rates is not None:
+            raise InvalidParameterError(f"The 'rigid_prior' and 'jump_rates' parameters of {owner} cannot be combined: "
+                                        "give one of them (rigid_prior=0 or jump_rates=None).")
         if self.jump_velocity not in JUMP_VELOCITIES:
             raise InvalidParameterError(f"The 'jump_velocity' parameter of {owner} must be one of "
                                         f"{JUMP_VELOCITIES}. Got {self.jump_velocity!r} instead.")
@@ -1133,10 +1172,7 @@ class GridLocalizer:
         # needs it only for a frame with odometry, so there it is rebuilt on that use
         self._neighbours = None if self._line else neighbours
         del neighbours, idx
-        nz = self._transition.T != 0  # the transition's columns, sparse
-        self._t_sparse = (np.concatenate([[0], np.cumsum(nz.sum(1))]).astype(np.int64),
-                          np.nonzero(nz)[1].astype(np.int64),
-                          np.ascontiguousarray(self._transition.T[nz], dtype=np.float64))
+        self._t_sparse = _sparse_columns(self._transition)
         # a uniform prior over velocities, each shared evenly by its phases
         self._velocity_prior = 1.0 / (len(self._v) * np.bincount(owner)[owner])
         self._velocity = self._velocity_prior.copy()
@@ -1192,7 +1228,8 @@ class GridLocalizer:
             self._neighbourhoods = confidence_neighbourhoods(g, self.confidence_radius, self.confidence_radius_m,
                                                              getattr(self, "_tree", None), self._route,
                                                              self._route_radius)
-        if self.jump_rates is not None:
+        self._components = None
+        if self.jump_rates is not None or self.rigid_prior > 0:
             self._reset_components(FramePool)
         return self
 
@@ -1201,10 +1238,13 @@ class GridLocalizer:
                          "_pool")
 
     def _reset_components(self, pool) -> None:
-        """One posterior per jump rate, each uniform, the rates' weights even."""
-        self._rates = np.asarray(self.jump_rates, dtype=np.float64)
+        """One posterior per jump rate (or per motion model, ``rigid_prior``), each
+        uniform, the rates' weights even (the motion models' their prior)."""
+        rigid = self.jump_rates is None
+        self._rates = np.asarray((self.recovery, RIGID_JUMP_RATE) if rigid else self.jump_rates, dtype=np.float64)
         k = len(self._rates)
-        self._rate_prior = np.full(k, 1.0 / k)
+        self._rate_prior = (np.array([1.0 - self.rigid_prior, self.rigid_prior]) if rigid
+                            else np.full(k, 1.0 / k))
         self._rate_runs = np.ones(k)  # the rates of ended runs, counted (a uniform Dirichlet prior)
         self.rate_weights_ = self._rate_prior.copy()
         self._components = [{"_state": self._state.copy(), "_spare": np.empty_like(self._spare), "_like": self._ones,
@@ -1214,6 +1254,15 @@ class GridLocalizer:
                             for _ in range(k)]
         self._own_pool = self._pool
         self.recovery_ = float(self._rate_prior @ self._rates)
+        self._motions = None
+        if rigid:
+            # each component's velocity transition (sparse columns, as the line kernel reads
+            # them) and blur: the filter's own, then the rigid line's
+            rigid_transition = phase_transition(velocity_transition(self._v, 1.0, 0.0), self._owner,
+                                                phase_bins(self._v, self.max_phases)[5])
+            self._motions = [(self._transition, self._t_sparse, float(self.blur)),
+                             (rigid_transition, _sparse_columns(rigid_transition), 0.0)]
+            self._rigid_jumps = (0.0, 0.0)  # the filter's own component's learned jump rate: its sums
 
     # ------------------------------------------------------------------ one step
     def step(self, observation: np.ndarray, odometry: float | None = None):
@@ -1240,9 +1289,11 @@ class GridLocalizer:
         odometry = check_odometry(odometry)
         obs = self.model.observe(row)
         ratio = self._exp_ratio(obs)
-        if self.jump_rates is None:
+        if self._components is None:
             self._predict(odometry, ratio)
             self._update(ratio)
+        elif self._motions is not None:
+            self._rigid_step(odometry, ratio)
         else:
             self._hazard_step(odometry, ratio)
         estimate, near = self._summarise()
@@ -1275,7 +1326,7 @@ class GridLocalizer:
                 # the next frame's velocity sums formed while the prediction is written
                 summed = np.empty(len(self._owner))
                 # and, for the update, its sums Σ e_j, Σ mass_j e_j (single jump rate)
-                sums = self._sums if self.jump_rates is None else None
+                sums = self._sums if self._components is None else None
                 _line_predict(self._state, self._like, self.prior_, out, mass, *self._t_sparse, whole,
                               frac, sign, float(self.blur), self.recovery_, jump_velocity, _LINE_BLOCK,
                               self._no_e if ratio is None else ratio[0], summed, sums=sums)
@@ -1411,6 +1462,52 @@ class GridLocalizer:
                                        np.empty(len(self._owner)))
         self._new_place(math.log(total) + ratio[1], ratio[2])
 
+    def _rigid_step(self, odometry: float | None, ratio) -> None:
+        """Predict and update both motion models' components (``rigid_prior``), then
+        their mixture (module docstring, "A rigid line beside the filter's motion").
+
+        Component ``k`` is the filter of motion ``k`` (its transition, blur and jump rate;
+        its jumps land in it, with the mixture's jump velocity); the update weighs each
+        by its evidence ``Σ_j prior_kj e^{r_j}``. The filter's own jump rate is learned
+        (``learn_recovery``) from its own component's evidence, as the single-rate
+        filter learns it."""
+        w = self.rate_weights_
+        velocity = self._velocity  # the mixture's: every component's jump lands with it
+        totals, means = np.zeros(len(w)), np.zeros(len(w))
+        fields = self._COMPONENT_FIELDS
+        for k, (component, (transition, sparse, blur)) in enumerate(zip(self._components, self._motions)):
+            for f in fields:
+                setattr(self, f, component[f])
+            self._velocity = velocity
+            self._transition, self._t_sparse, self.blur = transition, sparse, blur
+            self.recovery_ = float(self._rates[k])
+            self._predict(odometry, ratio)
+            if ratio is not None:
+                totals[k], means[k] = self._likelihood(ratio[0])
+            for f in fields:
+                component[f] = getattr(self, f)
+        self._transition, self._t_sparse, self.blur = self._motions[0]
+        self.recovery_ = float(w @ self._rates)
+        self._pool = self._own_pool
+        components = self._components
+        self.prior_ = _weighted_sum(w, [c["prior_"] for c in components], self._pool.take(self.graph.n_places))
+        evidence = w * totals
+        total = float(evidence.sum())
+        if ratio is None or not total > 0.0:
+            self._mass = _weighted_sum(w, [c["_mass"] for c in components], self._pool.take(self.graph.n_places))
+            self._velocity = velocity
+            return
+        if self.n_steps_ > 0 and self.learn_recovery and self.recovery > 0.0 and totals[0] > 0.0:
+            jumps, frames, self._rates[0] = learn_jump_rate(*self._rigid_jumps, float(self.recovery),
+                                                            float(self._rates[0]), means[0] / totals[0])
+            self._rigid_jumps = (jumps, frames)
+        self.rate_weights_ = evidence / total
+        self._mass = _weighted_sum(self.rate_weights_, [c["_mass"] for c in components],
+                                   self._pool.take(self.graph.n_places))
+        self._velocity = _weighted_sum(self.rate_weights_, [c["_velocity"] for c in components],
+                                       np.empty(len(self._owner)))
+        self._new_place(math.log(total) + ratio[1], ratio[2])
+
     def _new_place(self, log_map: float, new_place_log_ratio: float) -> None:
         """The new-place hypothesis against the map's evidence ``log_map = log Σ_j
         prior_j e^{r_j}``."""
@@ -1536,6 +1633,14 @@ class GridLocalizer:
         seconds = (time.perf_counter() - start) / max(n, 1)
         return LocalizationResult(place, conf, p_new, np.full(n, float(self.graph.n_places)), pos, qi, seconds,
                                   log_odds, score, posterior)
+
+
+def _sparse_columns(transition: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A ``(B, B)`` transition's columns as CSR arrays ``(ptr, source, value)`` (the line
+    kernel's form)."""
+    nz = transition.T != 0
+    return (np.concatenate([[0], np.cumsum(nz.sum(1))]).astype(np.int64), np.nonzero(nz)[1].astype(np.int64),
+            np.ascontiguousarray(transition.T[nz], dtype=np.float64))
 
 
 def _weighted_sum(weights: np.ndarray, arrays: list, out: np.ndarray) -> np.ndarray:

@@ -19,7 +19,7 @@ class _General(_Float64):
     def reset(self):
         super().reset()
         self._line = False
-        for c in [self.__dict__] + getattr(self, "_components", []):
+        for c in [self.__dict__] + (getattr(self, "_components", None) or []):
             c["_state"] = c["_state"].astype(np.float64)
         return self
 

@@ -1,0 +1,192 @@
+"""The grid filter's motion averaged with a rigid line (``GridLocalizer(rigid_prior=p)``)
+against a plain dense-matrix Bayes filter over (motion model, place, velocity) on a tiny
+route."""
+
+import math
+
+import numpy as np
+import pytest
+
+from catgraph.exceptions import InvalidParameterError
+from catgraph.graph import PlaceGraph
+from catgraph.grid import RECOVERY_MEMORY, RECOVERY_PRIOR_FRAMES, RIGID_JUMP_RATE, GridLocalizer, learn_jump_rate
+
+from .test_grid_hazard import SETTINGS, VELOCITIES, _Float64, _motion, _Ratios, _rows
+from .test_grid_jump_velocity import _General
+
+PRIOR = 0.2
+RECOVERY = 0.1
+
+
+def _reference(rows, learn, jump_velocity):
+    """Two filters as vectors over (place, velocity), each with its motion as one matrix:
+    the settings' (``velocity_stay``, ``reverse_probability``, ``blur``, jump rate
+    ``RECOVERY``, learned from its own evidence when ``learn``) and the rigid line's
+    (velocity kept, no blur, ``RIGID_JUMP_RATE``); each jump uniform over places with the
+    mixture's jump velocity (``"current"``: half the previous posterior velocity marginal
+    and half uniform; ``"long-run"``: the discounted mean of the posterior marginals so
+    far and the uniform prior, written out as a weighted mean); the two weighed by their
+    evidence (Bayes' rule), starting at ``1 − PRIOR`` and ``PRIOR``. Returns per frame the
+    place posterior, ``P(new)`` and the weights."""
+    n = rows.shape[1]
+    nb = len(VELOCITIES)
+    motion = [_motion(n, VELOCITIES, SETTINGS["velocity_stay"], SETTINGS["reverse_probability"], SETTINGS["blur"]),
+              _motion(n, VELOCITIES, 1.0, 0.0, 0.0)]
+    eps = [RECOVERY, RIGID_JUMP_RATE]
+    jumps, frames = 0.0, 0.0
+    vprior = np.full(nb, 1.0 / nb)
+    x = [np.tile(vprior / n, n) for _ in range(2)]
+    w = np.array([1.0 - PRIOR, PRIOR])
+    marginals = []
+    p_new = 0.0
+    out = []
+    for t, row in enumerate(rows):
+        like = np.repeat(np.exp(-row), nb)
+        if t == 0:
+            pred = [xi.copy() for xi in x]
+        else:
+            if jump_velocity == "current":
+                land_v = 0.5 * marginals[-1] + 0.5 * vprior
+            else:
+                age = np.arange(len(marginals))[::-1]
+                weight = 0.5 ** (age / RECOVERY_MEMORY)
+                land_v = ((weight[:, None] * np.array(marginals)).sum(0) + RECOVERY_PRIOR_FRAMES * vprior) / (
+                    weight.sum() + RECOVERY_PRIOR_FRAMES)
+            land = np.tile(land_v / n, n)
+            moved = [motion[i] @ x[i] for i in range(2)]
+            pred = [(1 - eps[i]) * moved[i] / moved[i].sum() + eps[i] * land for i in range(2)]
+        evidence = [float((pred[i] * like).sum()) for i in range(2)]  # each component's Σ prior e^r
+        if t > 0 and learn:
+            jumps, frames, eps[0] = learn_jump_rate(jumps, frames, RECOVERY, eps[0],
+                                                    float(np.exp(-row).mean()) / evidence[0])
+        z = [w[i] * pred[i] * like for i in range(2)]
+        total = sum(zi.sum() for zi in z)
+        w = np.array([zi.sum() for zi in z]) / total
+        x = [zi / zi.sum() for zi in z]
+        mass = sum(zi.reshape(n, nb).sum(1) for zi in z) / total
+        marginals.append(sum(zi.reshape(n, nb).sum(0) for zi in z) / total)
+        prior = SETTINGS["new_place_stay"] * p_new + SETTINGS["new_place_prior"] * (1 - p_new)
+        a_new = math.log(prior) - 1.0
+        a_map = math.log1p(-prior) + math.log(total)
+        p_new = math.exp(a_new - np.logaddexp(a_new, a_map))
+        out.append(((1 - p_new) * mass, p_new, w))
+    return out
+
+
+@pytest.mark.parametrize("jump_velocity", ["long-run", "current"])
+@pytest.mark.parametrize("learn", [True, False])
+@pytest.mark.parametrize("kind", [_Float64, _General])
+def test_rigid_line_equals_dense_reference(kind, learn, jump_velocity):
+    n = 11
+    rows = _rows(n, 17, seed=5)  # a track, a turn, a faster run
+    loc = kind(PlaceGraph.chain(n), _Ratios(), rigid_prior=PRIOR, recovery=RECOVERY, learn_recovery=learn,
+               jump_velocity=jump_velocity, **SETTINGS).reset()
+    for row, (mass, p_new, w) in zip(rows, _reference(rows, learn, jump_velocity)):
+        est = loc.step(row)
+        np.testing.assert_allclose(loc.place_posterior_, mass, rtol=1e-9, atol=1e-15)
+        assert est.new_place_probability == pytest.approx(p_new, rel=1e-9, abs=1e-15)
+        np.testing.assert_allclose(loc.rate_weights_, w, rtol=1e-9, atol=1e-15)
+        assert est.place == int(np.argmax(mass))
+
+
+def test_float32_line_path_agrees_with_float64():
+    n = 40
+    rows = _rows(n, 17, seed=6)
+    fast = GridLocalizer(PlaceGraph.chain(n), _Ratios(), rigid_prior=PRIOR, **SETTINGS).reset()
+    exact = _Float64(PlaceGraph.chain(n), _Ratios(), rigid_prior=PRIOR, **SETTINGS).reset()
+    assert fast._state.dtype == np.float32
+    for row in rows:
+        fast.step(row), exact.step(row)
+        np.testing.assert_allclose(fast.place_posterior_, exact.place_posterior_, rtol=1e-5, atol=1e-9)
+        np.testing.assert_allclose(fast.state_, exact.state_, rtol=1e-5, atol=1e-9)
+
+
+def test_the_parameters_are_left_as_given():
+    """The components swap their motion in and out: the filter's own settings stand after a run."""
+    n = 30
+    loc = GridLocalizer(PlaceGraph.chain(n), _Ratios(), rigid_prior=PRIOR, **SETTINGS)
+    loc.run(_rows(n, 17, seed=7))
+    assert loc.blur == SETTINGS["blur"] and loc.velocity_stay == SETTINGS["velocity_stay"]
+    np.testing.assert_array_equal(loc._transition, loc._motions[0][0])
+
+
+def test_same_input_same_output():
+    n = 30
+    rows = _rows(n, 17, seed=8)
+    loc = GridLocalizer(PlaceGraph.chain(n), _Ratios(), rigid_prior=PRIOR)
+    a, b = loc.run(rows), loc.run(rows)
+    np.testing.assert_array_equal(a.place, b.place)
+    np.testing.assert_array_equal(a.log_odds, b.log_odds)
+
+
+def _track(rng, n, frames, start, stretch=None):
+    truth = start + np.arange(frames)
+    rows = rng.uniform(0.0, 1.0, (frames, n))
+    rows[np.arange(frames), truth] -= 1.0
+    if stretch is not None:  # frames where a wrong track far away looks better than the truth
+        first, length, where, gain = stretch
+        rows[first + np.arange(length), truth[first:first + length]] += 1.0  # the truth looks like nothing
+        rows[first + np.arange(length), where + np.arange(length)] -= gain
+    return truth, rows
+
+
+def test_an_unbroken_line_outlasts_a_misleading_stretch():
+    """A track held for 400 frames (the rigid line's log-odds grow by what the flexible
+    motion pays each frame, about 0.03 nats, to 13), then 25 frames where the truth looks
+    like nothing and another track far away looks better by 1 a frame (more than a single
+    learned jump rate lets a track keep): the rigid line keeps the track on every frame,
+    the filter's motion alone leaves it."""
+    n, held = 1000, 400
+    truth, rows = _track(np.random.default_rng(9), n, held + 60, 20, (held, 25, 700, 1.0))
+    loc = GridLocalizer(PlaceGraph.chain(n), _Ratios(), rigid_prior=0.05).reset()
+    places = []
+    for k, row in enumerate(rows):
+        places.append(loc.step(row).place)
+        if k == held - 1:
+            assert loc.rate_weights_[1] > 0.9999
+    plain = GridLocalizer(PlaceGraph.chain(n), _Ratios()).run(rows)
+    assert np.mean(np.abs(np.asarray(places) - truth)[held:] <= 2) == 1.0
+    assert np.mean(np.abs(plain.place - truth)[held:] <= 2) < 0.8
+
+
+def test_a_jump_refutes_the_rigid_line():
+    """A query that jumps after 120 frames of an unbroken line: the rigid line, which held
+    most of the weight, loses it within 30 frames of the jump (below 1e-5 after that), and
+    from then on the filter answers as the plain filter, right on every frame (it follows
+    the jump 7 frames later than the plain filter: the rigid line's lead is spent first)."""
+    rng = np.random.default_rng(10)
+    n = 400
+    truth_a, rows_a = _track(rng, n, 120, 20)
+    truth_b, rows_b = _track(rng, n, 80, 250)
+    rows, truth = np.r_[rows_a, rows_b], np.r_[truth_a, truth_b]
+    loc = GridLocalizer(PlaceGraph.chain(n), _Ratios(), rigid_prior=0.05).reset()
+    weights, places = [], []
+    for row in rows:
+        places.append(loc.step(row).place)
+        weights.append(loc.rate_weights_[1])
+    places = np.asarray(places)
+    assert weights[119] > 0.9  # an unbroken line so far: the rigid line holds most of the weight
+    assert max(weights[150:]) < 1e-5
+    plain = GridLocalizer(PlaceGraph.chain(n), _Ratios()).run(rows)
+    np.testing.assert_array_equal(places[140:], plain.place[140:])
+    assert np.all(np.abs(places - truth)[140:] <= 2)
+
+
+@pytest.mark.parametrize("bad", [-0.1, 1.0, "half"])
+def test_rigid_prior_validated(bad):
+    with pytest.raises(InvalidParameterError, match="rigid_prior"):
+        GridLocalizer(PlaceGraph.chain(5), _Ratios(), rigid_prior=bad).reset()
+
+
+def test_rigid_prior_and_jump_rates_exclusive():
+    with pytest.raises(InvalidParameterError, match="cannot be combined"):
+        GridLocalizer(PlaceGraph.chain(5), _Ratios(), rigid_prior=0.05, jump_rates=(0.1, 0.01)).reset()
+
+
+def test_off_is_the_plain_filter():
+    n = 30
+    rows = _rows(n, 17, seed=11)
+    a = GridLocalizer(PlaceGraph.chain(n), _Ratios(), rigid_prior=0.0).run(rows)
+    b = GridLocalizer(PlaceGraph.chain(n), _Ratios()).run(rows)
+    np.testing.assert_array_equal(a.place, b.place)
+    np.testing.assert_array_equal(a.log_odds, b.log_odds)
