@@ -822,9 +822,6 @@ def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_it
         return
     single = _velocity_sets(v_count)[:-1]
     pool = _pool(threads)
-    if approx == APPROX_GAUSSIAN and d.shape[0] == 1 and grid.shape[0] >= 2 * WINDOW_SPLIT_MIN:
-        _run_window_halves(d, start, sums, ring, mring, state, threads, pool, *rest)
-        return
     for c0 in range(0, d.shape[0], chunk):
         c1 = min(d.shape[0], c0 + chunk)
         store_rows(d, c0, c1, start, ring, mring, state)
@@ -840,59 +837,6 @@ def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_it
         finally:
             for job in jobs:
                 job.result()
-
-
-#: One streamed row with at least ``2 * WINDOW_SPLIT_MIN`` windows is handed to the
-#: threads as half a velocity's windows at a time (:func:`_run_window_halves`).
-WINDOW_SPLIT_MIN = 2
-
-
-def _run_window_halves(d, start, sums, ring, mring, state, threads, pool, velocities, grid, radius, best_j, best_s,
-                       second_s, mean, std, weights, locs, scales, sub, s):
-    """:func:`run_batch` for one row (the streaming step), Gaussian approximation, on
-    ``threads`` threads: the work handed out as ``2 V`` pieces — each velocity's first
-    and second half of the windows — instead of ``V`` velocities, so the thread that
-    finishes last waits for half a velocity at most, not a whole one.
-
-    Each piece is :func:`run_velocities_gaussian` on views of one velocity and a run of
-    windows (C-contiguous: the compiled code the whole call runs, no other signature),
-    without the sub-window scores, which need every window of the velocity; they follow
-    once all pieces are in (:func:`sub_scores`), read from the same sums at the same
-    frame. Every window sum, statistic and score is computed by the same code from the
-    same codes as before, so the results are the same, bit for bit, on any number of
-    threads."""
-    store_rows(d, 0, 1, start, ring, mring, state)
-    half = grid.shape[0] // 2
-    no_sub = np.empty((1, 1, 0, 0))
-    zero = _velocity_sets(1)[0]
-    pieces = [(v, lo, hi) for v in range(velocities.shape[0]) for lo, hi in ((0, half), (half, grid.shape[0]))]
-    queue = iter(pieces)  # shared: each thread takes the next piece when it is free
-
-    def take():
-        for v, lo, hi in queue:
-            w = slice(lo, hi)
-            run_velocities_gaussian(zero, 0, 1, start, sums[v:v + 1, w], ring, mring, state, velocities[v:v + 1],
-                                    grid[w], radius, best_j[:, v:v + 1, w], best_s[:, v:v + 1, w],
-                                    second_s[:, v:v + 1, w], mean[:, v:v + 1, w], std[:, v:v + 1, w],
-                                    weights[:, v:v + 1, w], locs[:, v:v + 1, w], scales[:, v:v + 1, w],
-                                    no_sub[:, :, :hi - lo], s[v:v + 1])
-
-    jobs = [pool.submit(take) for _ in range(threads - 1)]
-    try:
-        take()
-    finally:
-        for job in jobs:
-            job.result()
-    sub_scores(_velocity_sets(velocities.shape[0])[-1], 0, start, sums, state, velocities, grid, best_j, sub)
-
-
-@njit(nogil=True)
-def sub_scores(chosen, t, start, sums, state, velocities, grid, best_j, sub):
-    """:func:`_sub_scores` of row ``t`` (query frame ``start + t``) for the velocities
-    ``chosen``, once their windows' sums are at that frame."""
-    for q in range(chosen.shape[0]):
-        vi = chosen[q]
-        _sub_scores(sums[vi], start + t, velocities[vi], grid, state[0], best_j[t, vi], sub[t, vi])
 
 
 _VELOCITY_SETS = {}

@@ -2,8 +2,7 @@
 
 :func:`catgraph._diff_kernels.chunk_sums` and :func:`~catgraph._diff_kernels.normalise_row`
 sum whole chunks side by side, :func:`catgraph._observation_kernels.first_max` finds a
-running maximum from vectorised block maxima, and the streaming matcher hands its
-threads half a velocity's windows at a time: each is checked here against the plain
+running maximum from vectorised block maxima: each is checked here against the plain
 loop it replaced (kept below as the reference), bit for bit, on values chosen to catch
 the corner cases (ties, ``±0``, NaN, ``±inf``, lengths around the block sizes)."""
 
@@ -187,55 +186,3 @@ def test_standardised_ratios_and_sum_max_are_their_one_pass_forms(kind):
         with np.errstate(all="ignore"):
             assert _bits(ok.sum_max(x, y, oa)) == _bits(_sum_max_reference(x, y, ob))
         assert oa.tobytes() == ob.tobytes()
-
-
-@pytest.mark.parametrize("kw", [{}, {"rule": "spanning"}])
-def test_streaming_matcher_on_window_halves_equals_whole_velocities(kw):
-    """One streamed row on two threads, handed out as half a velocity's windows at a
-    time, gives the outputs of the whole-velocity hand-out and of one thread."""
-    import numba
-
-    import catgraph._sequence_kernels as sk
-    from catgraph.sequence import SequenceMatcher
-
-    n, frames = 24_000, 70
-    rng = np.random.default_rng(3)
-    walk = np.cumsum(rng.standard_normal(n + frames))
-    rows = []
-    for k in range(frames):
-        row = np.abs(walk[:n] - walk[(n // 3 + 2 * k) % n]) + rng.standard_normal(n) * 0.3
-        rows.append((row - row.mean()) / row.std())
-    threads = numba.get_num_threads()
-    split = sk.WINDOW_SPLIT_MIN
-    results = []
-    calls = []
-    halves = sk._run_window_halves
-
-    def counted(*args):
-        calls.append(1)
-        return halves(*args)
-
-    try:
-        for split_min, n_threads in ((split, 2), (10**9, 2), (split, 1)):
-            sk.WINDOW_SPLIT_MIN = split_min
-            numba.set_num_threads(min(n_threads, numba.config.NUMBA_NUM_THREADS))
-            sk._run_window_halves = counted
-            m = SequenceMatcher(window="adaptive", l_max=40, **kw)
-            out = []
-            for row in rows:
-                r = m.step(row)
-                st = m._stats
-                out.append([np.array([r.match, r.confidence, r.window_length, r.velocity]), st.best_j.copy(),
-                            st.best_s.copy(), st.second_s.copy(), st.mean.copy(), st.std.copy(), st.sub.copy()])
-            out.append([m._sums.copy()])
-            results.append(out)
-    finally:
-        sk.WINDOW_SPLIT_MIN = split
-        sk._run_window_halves = halves
-        numba.set_num_threads(threads)
-    if numba.config.NUMBA_NUM_THREADS >= 2:
-        assert calls, "the window halves were not used"
-    for other in results[1:]:
-        for a, b in zip(results[0], other):
-            for x, y in zip(a, b):
-                assert np.asarray(x).tobytes() == np.asarray(y).tobytes()
