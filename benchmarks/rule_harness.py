@@ -141,7 +141,9 @@ def library_rule(rule: str, **kwargs):
 LIBRARY_CONFIDENCES = {"spanning, confidence changepoint (library)": library_rule("spanning", confidence="changepoint"),
                        "punctuated, confidence changepoint (library)": library_rule("punctuated",
                                                                                     confidence="changepoint"),
-                       "gated, confidence changepoint (library)": library_rule("gated", confidence="changepoint")}
+                       "gated, confidence changepoint (library)": library_rule("gated", confidence="changepoint"),
+                       "contested, confidence changepoint (library)": library_rule("contested",
+                                                                                   confidence="changepoint")}
 
 
 def add_columns(cells: list[Cell], new: dict) -> None:

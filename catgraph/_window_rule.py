@@ -22,10 +22,12 @@ about one observation, so only lines that span it may re-choose the velocity at 
 window or count as rivals of a longer window. Rule "punctuated" is "spanning"
 whose spread test reads a short sub-window only where it spans half that time or holds a
 *break* of the rows (a frame decorrelated from each of the few frames before it, read from the
-same clock, :class:`_Breaks`). Rule "gated" (the default) is "spanning" whose spread test reads
+same clock, :class:`_Breaks`). Rule "gated" is "spanning" whose spread test reads
 a sub-window shorter than that time only where the window's own line is weak
 (:data:`WEAK_LINE_SPREADS`): a strong line survives a few weak frames of a stretch of alike
-rows, the old line after a jump does not. The confidence "changepoint" is the one
+rows, the old line after a jump does not. Rule "contested" is "gated" where a weak line
+(:data:`CONTEST_LINE_SPREADS`) also yields to a rival that spans :data:`CONTEST_SPANS` horizons and
+is significant beyond chance at all: the same statistics, no clock beyond the horizon's. The confidence "changepoint" is the one
 confidence with a memory: it reads the latest :data:`CHANGE_POINT_FRAMES` rows at the places
 the chosen line passes (a :class:`_Recent` carried in the record from block to block, or
 from step to step), so both forms again read the same values in the same order.
@@ -83,6 +85,16 @@ SPREAD_HORIZON_FRACTION = 0.5
 #: within 0.001 of it, ``docs/sequence.md``)
 WEAK_LINE_SPREADS = 1.75
 
+#: with rule "contested": where the window's own line is weak at a sub-window's length (its score
+#: less than this many common spreads at that length below the random places' mean), a line of
+#: that length counts as a rival as soon as it is significant beyond chance (``log p < -ln N``,
+#: no margin) and spans :data:`CONTEST_SPANS` decorrelation horizons ...
+CONTEST_LINE_SPREADS = 2.5
+
+#: ... i.e. at least this many horizons, so that it holds several independent observations.
+#: Both chosen on the whole condition table and the held-out worlds (``docs/sequence.md``)
+CONTEST_SPANS = 2.0
+
 
 #: with confidences "posterior" and "changepoint": prior odds that the query jumped away from
 #: the chosen line at a given frame (against staying on it); chosen on the whole condition table
@@ -130,7 +142,7 @@ RECORD_RULES = ("predictive", "decorrelated")
 
 #: the rules of the sub-window tests that read the query's decorrelation horizon (the clock of
 #: rule "decorrelated"): only a line that spans it re-chooses the velocity or counts as a rival
-HORIZON_RULES = ("spanning", "punctuated", "gated")
+HORIZON_RULES = ("spanning", "punctuated", "gated", "contested")
 
 
 def _needs_sub(cfg: _Config) -> bool:
@@ -359,7 +371,7 @@ class _Recent:
 
 def _new_record(cfg: _Config) -> _Record | None:
     """The state a rule carries from frame to frame (rules "predictive" and "decorrelated";
-    rules "spanning" and "gated" read only the record's clock, rule "punctuated" only the clock that also
+    rules "spanning", "gated" and "contested" read only the record's clock, rule "punctuated" only the clock that also
     marks the breaks, :class:`_Breaks`; confidence "changepoint" keeps the latest
     rows in the record's :class:`_Recent`, whatever the rule)."""
     if cfg.fixed:
@@ -367,7 +379,7 @@ def _new_record(cfg: _Config) -> _Record | None:
     recent = _Recent() if cfg.confidence == "changepoint" else None
     if cfg.rule == "punctuated":
         record = _Record(cfg.grid.shape[0], clock=_Breaks())
-    elif cfg.rule in ("decorrelated", "spanning", "gated"):
+    elif cfg.rule in ("decorrelated", "spanning", "gated", "contested"):
         record = _Record(cfg.grid.shape[0], clock=_Horizon())
     elif cfg.rule in RECORD_RULES or recent is not None:
         record = _Record(cfg.grid.shape[0])
@@ -493,7 +505,14 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
     test read on the sub-windows that span the horizon, and on a shorter one only where the
     window's own line is weak (its score less than :data:`WEAK_LINE_SPREADS` common spreads at
     the sub-window's length below the random places' mean there): a strong line survives a
-    weak recent stretch of alike rows, a weak one (the old line after a jump) does not.
+    weak recent stretch of alike rows, a weak one (the old line after a jump) does not. Rule
+    "contested" is "gated" with a second kind of rival: where the window's own line is weak at
+    a recent sub-window's length (less than :data:`CONTEST_LINE_SPREADS` common spreads below
+    the random places' mean there), a line of that length that spans :data:`CONTEST_SPANS`
+    horizons counts as a rival as soon as it is significant beyond chance (``log p < -ln N``,
+    no margin): where rows decorrelate within a few frames, a wrong long line (through repeated
+    scenery, or straight across a stretch driven at another speed) is weak, and a short line of
+    several independent observations that beats it over its recent frames is evidence.
     """
     n, v_count, g_count = st.best_s.shape
     if not _needs_sub(cfg):
@@ -517,7 +536,7 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
         spans = (l4 >= SPREAD_HORIZON_FRACTION * horizon.astype(np.float64)[:, None, None, None]) | (
             since.astype(np.float64)[:, None, None, None] < l4)
         ok &= (st.sub <= st.mean[:, :, None, :] - EVIDENT_SPREADS * common) | ~(shorter[None, None] & spans)
-    if cfg.rule == "gated":
+    if cfg.rule in ("gated", "contested"):
         # the same, on the sub-windows that span the horizon, and on shorter ones where the
         # window's own line is weak
         common = _common_std(st)[:, :, None, :]  # (n, 1, 1, H)
@@ -539,6 +558,13 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
         rival = (log_p < -np.log(n_places) - SPANNING_MARGIN) & (lengths[None, None, :] >= horizon[:, None, None])
         beaten = st.sub > st.best_s[:, :, None, :] + RIVAL_SPREADS * common  # (n, V, G, H)
         ok &= ~(beaten & rival[:, :, None, :]) | ~recent
+        if cfg.rule == "contested":
+            # and, where the window's own line is weak at the sub-window's length, a line that
+            # spans CONTEST_SPANS horizons and is significant beyond chance at all
+            contender = (log_p < -np.log(n_places)) & (
+                lengths[None, None, :] >= CONTEST_SPANS * horizon.astype(np.float64)[:, None, None])  # (n, V, H)
+            weak = level < CONTEST_LINE_SPREADS  # (n, V, G, H), the spread test's level
+            ok &= ~(beaten & contender[:, :, None, :] & weak) | ~recent
     admissible = np.all(ok, axis=3)
     admissible[:, :, 0] = True
     return admissible

@@ -194,7 +194,9 @@ block are computed *where the shards live*, and only per-frame summaries travel 
     random places' mean and common spread at each sub-window's length, statistics the
     summaries already carry (step 8): no bytes and no round beyond those of "spanning".
     Matches, scores, velocities, window lengths and confidences equal the local run bit
-    for bit (tested as for "spanning").
+    for bit (tested as for "spanning"). Rule "contested" adds a rival read from the same
+    statistics (the line's strength, each length's significance and the horizon ``K_t``):
+    again no bytes and no round beyond those of "spanning".
 
 Per block, only ``O(rows V G (radius + G + 8))`` numbers per shard return to the client
 (``G`` candidate lengths, 1 for a fixed window): four client rounds for a fixed window
@@ -251,11 +253,11 @@ SHARD_UNIT = 4096
 #: carry: the same ``8 N`` bytes between workers, no lookups, no extra round (step 8).
 #: "punctuated" reads the same horizon and, from the same worker, the frames since the latest
 #: break of the rows (8 more bytes per frame, in the same round; step 10).
-#: "gated" reads what "spanning" reads (step 11).
+#: "gated" and "contested" read what "spanning" reads (step 11).
 #: Every rule also runs exactly with the confidence "changepoint": ``16 (T - 1)`` bytes per
 #: frame and one more round per block (step 9).
 EXACT_RULES = ("unrivalled", "evident", "consistent", "sustained", "literal", "predictive", "decorrelated",
-               "spanning", "punctuated", "gated")
+               "spanning", "punctuated", "gated", "contested")
 
 __all__ = ["ShardedReference", "ShardedMatches", "shard_reference", "difference_matrix", "window_scores",
            "match_fixed_window", "match_adaptive_window"]
@@ -1209,7 +1211,7 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
     record = _new_record(cfg)
     lookups = record is not None and cfg.rule in RECORD_RULES
     clock = replay = None
-    if record is not None and record.clock is not None:  # "decorrelated", "spanning", "punctuated", "gated"
+    if record is not None and record.clock is not None:  # the rules of a horizon ("decorrelated", HORIZON_RULES)
         clock, replay = record.clock, _Replayed(record.clock.capacity)
         record.clock = replay
     windows = cfg.grid

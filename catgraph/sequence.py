@@ -348,7 +348,7 @@ __all__ = [
 
 APPROXIMATIONS = ("gaussian", "robust", "gmm2", "gmm3")
 RULES = ("unrivalled", "evident", "consistent", "sustained", "literal", "predictive", "decorrelated", "spanning",
-         "punctuated", "gated")
+         "punctuated", "gated", "contested")
 #: the window rule of the adaptive window when none is named (the one owner: the matcher, the
 #: registry and the cluster read it from here)
 DEFAULT_RULE = "gated"
@@ -635,7 +635,7 @@ def match_sequences(
         Approximation of the score distribution used for ``p_i(L)``.
     rule : str
         Window choice, one of :data:`RULES` ("unrivalled", "evident", "consistent", "sustained",
-        "literal", "predictive", "decorrelated", "spanning", "punctuated", "gated"), see the module
+        "literal", "predictive", "decorrelated", "spanning", "punctuated", "gated", "contested"), see the module
         docstring (default :data:`DEFAULT_RULE`).
     confidence : {"changepoint", "posterior", "support", "gap", "neglogp", "z"}
         Confidence given to each match (see the module docstring; default
