@@ -108,94 +108,6 @@ def centred_count(x, mean, threshold, out):  # pragma: no cover - compiled
     return k
 
 
-_MAGNITUDE = np.int64(0x7FFFFFFFFFFFFFFF)
-_SIGN = np.int64(-0x7FFFFFFFFFFFFFFF - 1)
-_INF_BITS = np.int64(0x7FF0000000000000)
-
-
-#: Values per block of :func:`first_max`'s first pass.
-MAX_BLOCK = 256
-
-
-@njit(inline="always")
-def _order_key(b, flip):  # pragma: no cover - compiled
-    """A float's bits ``b`` (sign flipped by ``flip``) as an integer in the float's order
-    (negatives' magnitude bits flipped: a negative NaN falls below ``−inf``), capped at
-    the key of ``+inf`` (a positive NaN gets it too). Branch-free: vectorised."""
-    b = b ^ flip
-    key = b ^ ((b >> 63) & _MAGNITUDE)
-    return key if key < _INF_BITS else _INF_BITS
-
-
-@njit(nogil=True)
-def _running_max(x, sign):  # pragma: no cover - compiled
-    """:func:`first_max` as the running maximum itself (one comparison per value)."""
-    top = -np.inf
-    best = -1
-    for i in range(x.shape[0]):
-        v = sign * x[i]
-        if v > top:
-            top = v
-            best = i
-    return top, best
-
-
-@njit(nogil=True)
-def first_max(x, sign):  # pragma: no cover - compiled
-    """The largest ``v = sign · x[i]`` (``sign`` ±1: ``−x`` exactly) and the first place
-    holding it, as one running maximum ``if v > top: top, best = v, i`` from
-    ``(−inf, −1)`` gives them (:func:`_running_max`): ``(−inf, −1)`` where no ``v``
-    exceeds ``−inf``; NaNs never win; of values that compare equal (``0.0`` and
-    ``−0.0``) the first, with its own bits.
-
-    Without a comparison per value that waits on the previous one: each block of
-    :data:`MAX_BLOCK` values gives its largest ordered integer key (:func:`_order_key`,
-    an integer maximum the compiler vectorises), and :func:`_first_max_from_blocks`
-    finds the value and its first place from them."""
-    n = x.shape[0]
-    bits = x.view(np.int64)
-    flip = _SIGN if sign < 0 else np.int64(0)
-    block_top = np.empty((n + MAX_BLOCK - 1) // MAX_BLOCK, dtype=np.int64)
-    for blk in range(block_top.shape[0]):
-        seg = bits[blk * MAX_BLOCK:min(n, blk * MAX_BLOCK + MAX_BLOCK)]
-        t = _SIGN
-        for i in range(seg.shape[0]):
-            key = _order_key(seg[i], flip)
-            t = key if key > t else t
-        block_top[blk] = t
-    return _first_max_from_blocks(x, sign, block_top)
-
-
-@njit(inline="always")
-def _first_max_from_blocks(x, sign, block_top):  # pragma: no cover - compiled
-    """:func:`first_max` from the blocks' largest keys ``block_top``: the largest key is
-    the largest value, and its first place lies in the first block reaching that key
-    (equal keys are equal bits). Where the largest key is ``+inf``'s (``+inf`` or a
-    positive NaN) or the value is zero (whose two signs compare equal), the running
-    maximum itself answers (:func:`_running_max`)."""
-    n = x.shape[0]
-    bits = x.view(np.int64)
-    flip = _SIGN if sign < 0 else np.int64(0)
-    top_key = _SIGN
-    for blk in range(block_top.shape[0]):
-        top_key = block_top[blk] if block_top[blk] > top_key else top_key
-    if top_key == _INF_BITS:
-        return _running_max(x, sign)
-    one = np.empty(1, dtype=np.int64)
-    one[0] = (top_key ^ ((top_key >> 63) & _MAGNITUDE)) ^ flip
-    top = sign * one.view(np.float64)[0]
-    if not top > -np.inf:  # nothing above -inf (n = 0, or -inf and NaNs only)
-        return -np.inf, -1
-    if top == 0.0:
-        return _running_max(x, sign)
-    for blk in range(block_top.shape[0]):
-        if block_top[blk] == top_key:
-            for i in range(blk * MAX_BLOCK, min(n, blk * MAX_BLOCK + MAX_BLOCK)):
-                if _order_key(bits[i], flip) == top_key:
-                    return sign * x[i], i
-    return -np.inf, -1  # not reached
-
-
 @njit(nogil=True)
 def tempered_ratios(row, h, corrected, scale, base, r):  # pragma: no cover - compiled
     """``base = −(row − h)`` (``−row`` unless ``corrected``) and ``r = scale · base``, one pass.
@@ -425,32 +337,37 @@ def mean_std(x):  # pragma: no cover - compiled
 
 @njit(nogil=True)
 def standardised_ratios(centred, sd, scale, tau, z, r):  # pragma: no cover - compiled
-    """The standardised scores and their tempered ratios: ``z = centred / sd``
-    (``_standardised``'s division), ``r = (scale · −z) · tau`` (the tempered model's
-    ratio ``scale · base``, ``base = −z``, then the sequence part's window temperature),
-    in one vectorised pass; then :func:`first_max` over ``r`` and ``−z``.
+    """The standardised scores and their tempered ratios in one pass: ``z = centred /
+    sd`` (``_standardised``'s division), ``r = (scale · −z) · tau`` (the tempered model's
+    ratio ``scale · base``, ``base = −z``, then the sequence part's window temperature).
 
-    Returns ``(r.max(), np.argmax(−z), finite)``, ``finite`` whether every ``z`` is (the
-    floats of one running pass, as :func:`tempered_ratios`)."""
-    n = centred.shape[0]
-    bad = 0
-    for i in range(n):
+    Returns ``(r.max(), np.argmax(−z), finite)``, ``finite`` whether every ``z`` is."""
+    top = -np.inf
+    best = 0
+    largest = -np.inf
+    finite = True
+    for i in range(centred.shape[0]):
         v = centred[i] / sd
         z[i] = v
-        bad += not np.isfinite(v)
-        r[i] = (scale * -v) * tau
-    top, _ = first_max(r, 1.0)
-    _, best = first_max(z, -1.0)
-    return top, max(best, 0), bad == 0
+        finite &= np.isfinite(v)
+        b = -v
+        w = (scale * b) * tau
+        r[i] = w
+        top = max(top, w)
+        if b > largest:
+            largest = b
+            best = i
+    return top, best, finite
 
 
 @njit(nogil=True)
 def sum_max(a, b, out):  # pragma: no cover - compiled
-    """``out = a + b`` (``np.add``); returns ``out.max()`` (as a running ``top = max(top,
-    out_i)`` from ``−inf``: :func:`first_max`)."""
+    """``out = a + b`` (``np.add``); returns ``out.max()``."""
+    top = -np.inf
     for i in range(a.shape[0]):
-        out[i] = a[i] + b[i]
-    top, _ = first_max(out, 1.0)
+        v = a[i] + b[i]
+        out[i] = v
+        top = max(top, v)
     return top
 
 
