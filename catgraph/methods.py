@@ -439,7 +439,8 @@ def make_filter(params: dict, graph, model):
         from .grid import GridLocalizer
 
         common.pop("seed", None)
-        return GridLocalizer(graph, model, jump_velocity=params["jump_velocity"], **common)
+        return GridLocalizer(graph, model, jump_velocity=params["jump_velocity"],
+                             rigid_prior=params["rigid_prior"], **common)
     from .localizer import Localizer
     from .motion import VelocityMotion
 
@@ -474,6 +475,7 @@ def _filter_not_applicable(params: dict) -> dict[str, str]:
             out[k] = "the grid filter has no particles (it is exact); use mode 'particles'"
     if params["mode"] == "particles":
         out["jump_velocity"] = "it sets the grid filter's jumps; the particle filter's recovery particles are drawn"
+        out["rigid_prior"] = "the rigid line is the grid filter's; the particle filter has none"
     if model not in sequence_models:
         for k in ("window", *_WINDOW_ADAPTIVE):
             out[k] = f"model {model!r} has no sequence matcher"
@@ -534,6 +536,10 @@ def _filter_params() -> tuple[Param, ...]:
         Param("jump_velocity", "str", "long-run", "grid: the velocity a jump lands with: 'long-run' (the query's "
               "long-run velocity distribution) or 'current' (half the current marginal, half uniform)",
               choices=("long-run", "current")),
+        Param("rigid_prior", "float", 0.0, "grid: prior probability that the query is one unbroken line at one "
+              "speed (a rigid-line motion averaged with the filter's by Bayes' rule; 0: off). It holds long "
+              "unbroken traverses through weak stretches and is slower to follow real jumps",
+              low=0.0, high=0.99),
         *seq.values(),
         hist["n_init"], hist["exclusion_radius"], hist["gap"], hist["max_different"],
     )

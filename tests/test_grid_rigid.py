@@ -201,3 +201,16 @@ def test_odometry_takes_the_general_path():
     result = loc.run(rows, odometry=np.ones(len(rows)))
     assert loc.place_posterior_.sum() + loc.new_place_probability_ == pytest.approx(1.0, abs=1e-12)
     np.testing.assert_array_equal(result.place[:7], np.arange(1, 8))
+
+
+def test_registry_filter_passes_the_rigid_prior():
+    from catgraph import methods
+
+    graph = PlaceGraph.chain(5)
+    params = methods.resolve_params("filter", {"mode": "grid"})
+    assert params["rigid_prior"] == 0.0
+    assert methods.make_filter(params, graph, _Ratios()).rigid_prior == 0.0
+    params = methods.resolve_params("filter", {"mode": "grid", "rigid_prior": PRIOR})
+    assert methods.make_filter(params, graph, _Ratios()).rigid_prior == PRIOR
+    with pytest.raises(InvalidParameterError, match="particle filter has none"):
+        methods.resolve_params("filter", {"mode": "particles", "rigid_prior": PRIOR})
