@@ -105,6 +105,7 @@ DECORRELATED = "adaptive, rule decorrelated"
 SPANNING = "adaptive, rule spanning"
 SPANNING_CP = "adaptive, rule spanning, confidence changepoint"
 PUNCTUATED = "adaptive, rule punctuated"
+GATED = "adaptive, rule gated"
 UNRIVALLED = "adaptive, rule unrivalled"
 PREVIOUS = "previous default"
 SINGLE = "single frame"
@@ -121,6 +122,8 @@ SPANNING_KWARGS = dict(rule="spanning", confidence="posterior")
 SPANNING_CP_KWARGS = dict(rule="spanning", confidence="changepoint")
 # the default before rule "gated"
 PUNCTUATED_KWARGS = dict(rule="punctuated", confidence="changepoint")
+# the default before rule "contested"
+GATED_KWARGS = dict(rule="gated", confidence="changepoint")
 UNRIVALLED_KWARGS = dict(rule="unrivalled", confidence="posterior")
 GROUPS = ("in order", "shuffled 2–20 %", "shuffled 0.5–3 %", "reversed", "speed 2", "speed 0.5")
 
@@ -144,6 +147,7 @@ def _methods(quick: bool):
     yield SPANNING, SPANNING_KWARGS, True
     yield SPANNING_CP, SPANNING_CP_KWARGS, True
     yield PUNCTUATED, PUNCTUATED_KWARGS, True
+    yield GATED, GATED_KWARGS, True
     if not quick:
         yield SUPPORT, dict(confidence="support"), True
         yield EVIDENT, EVIDENT_KWARGS, True

@@ -802,3 +802,121 @@ ROUNDS["20: the spread test from the horizon, read below it where the line is we
 }
 
 CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}
+
+
+# ------------------------------------------------------------------------------------------
+# rounds 21-22: a rival for weak lines (rule "contested"), and the midpoint test gated
+
+def admissible_contest(st, cfg, log_p, n_places, horizon, margin=None, span=wr.CONTEST_SPANS, weak=None,
+                       distinct=None, mid_span=None, mid_weak=None, since=None, null="chance"):
+    """``(n, V, G)``: rule "gated"'s tests plus a second rival: a line of a recent sub-window's
+    length ``l`` that spans ``span`` horizons (``l >= span * K_i``) and is significant beyond
+    chance by ``margin(l, K)`` nats counts as a rival; with ``weak`` only where the window's own
+    line lies less than ``weak`` common spreads below the random places' mean at that length
+    (``null`` "velocities", ``margin`` 1 and ``weak`` = 2.5 is the library's "contested"); ``distinct``: "all" (every
+    rival) or "new" (the second kind) must point more than ``radius`` places from the window's
+    match. ``mid_span`` / ``mid_weak``: the midpoint test read only on the recent sub-windows that
+    span ``mid_span`` horizons, where the line is weaker than ``mid_weak``, or (``since``, frames
+    since the latest break of the rows) that hold a break."""
+    lengths = cfg.grid.astype(np.float64)
+    shorter = lengths[None, :] < lengths[:, None]
+    recent = shorter & (lengths[None, :] >= cfg.recent_fraction * lengths[:, None])
+    common = wr._common_std(st)[:, :, None, :]
+    l4 = lengths[None, None, None, :]
+    k4 = horizon.astype(np.float64)[:, None, None, None]
+    level = (st.mean[:, :, None, :] - st.best_s[..., None]) / np.where(common > 0, common, 1.0)  # (n, V, G, H)
+    mid_read = recent[None, None]
+    if mid_span is not None:
+        read = (l4 >= mid_span * k4) | (level < mid_weak)
+        if since is not None:
+            read |= since.astype(np.float64)[:, None, None, None] < l4
+        mid_read = mid_read & read
+    ok = (st.sub <= 0.5 * (st.best_s[..., None] + st.mean[:, :, None, :])) | ~mid_read
+    spans = (l4 >= k4) | (level < wr.WEAK_LINE_SPREADS)
+    ok &= (st.sub <= st.mean[:, :, None, :] - wr.EVIDENT_SPREADS * common) | ~(shorter[None, None] & spans)
+    k3 = horizon.astype(np.float64)[:, None, None]
+    l3 = lengths[None, None, :]
+    strict = (log_p < -np.log(n_places) - wr.SPANNING_MARGIN) & (l3 >= k3)  # (n, V, H)
+    beaten = st.sub > st.best_s[:, :, None, :] + wr.RIVAL_SPREADS * common  # (n, V, G, H)
+    apart = np.abs(st.best_j[:, :, None, :] - st.best_j[:, :, :, None]) > cfg.radius  # rival's place vs match
+    first = beaten & (apart if distinct == "all" else True)
+    ok &= ~(first & strict[:, :, None, :]) | ~recent
+    if margin is not None:
+        # the chance level: the best of N random places (-ln N), of N places at each of V
+        # velocities (-ln NV), or the frame's own best place beyond the exclusion radius
+        base = {"chance": -np.log(n_places), "velocities": -np.log(n_places * log_p.shape[1])}.get(null)
+        if base is None:
+            base = log_p_at(st, st.second_s)
+        loose = (log_p < base - margin(l3, k3)) & (l3 >= span * k3)
+        second = beaten & loose[:, :, None, :]
+        if weak is not None:
+            second &= level < weak
+        if distinct is not None:
+            second &= apart
+        ok &= ~second | ~recent
+    adm = np.all(ok, axis=3)
+    adm[:, :, 0] = True
+    return adm
+
+
+def contest_rule(breaks: bool = False, **kw):
+    """A rule function: the library's ``_decide`` (rule "gated"'s velocity, window and confidence
+    "changepoint") with :func:`admissible_contest` in place of the library's admissibility."""
+
+    def rule(st, rows, cfg):
+        c = H_config(cfg)
+        since = since_breaks(rows, wr.DECORRELATION_LEVEL, wr.BREAK_LAGS) if breaks else None
+        library = wr._admissible
+
+        def admissible(st_, cfg_, log_p=None, n_places=1, horizon=None, since_=None):
+            return admissible_contest(st_, cfg_, log_p, n_places, horizon, since=since, **kw)
+        wr._admissible = admissible
+        try:
+            match, _, conf, _, _, _ = wr._decide(st, c, np.arange(rows.shape[0]), False, rows, wr._new_record(c))
+        finally:
+            wr._admissible = library
+        return match, conf
+    return rule
+
+
+def H_config(cfg):
+    """The harness's configuration of rule "gated" with the confidence "changepoint"."""
+    import rule_harness
+
+    return rule_harness.config("gated", confidence="changepoint")
+
+
+def _flat(m):
+    return lambda l, k: np.full(np.broadcast_shapes(l.shape, k.shape), float(m))
+
+
+ROUNDS["21: a rival for weak lines"] = {
+    "21 rival margin 3 from K": contest_rule(margin=_flat(3.0), span=1.0),
+    "21 rival margin 0 from K": contest_rule(margin=_flat(0.0), span=1.0),
+    "21 rival margin 3 from 2K": contest_rule(margin=_flat(3.0)),
+    "21 rival margin 0 from 2K": contest_rule(margin=_flat(0.0)),
+    "21 rival margin 6 K / l": contest_rule(margin=lambda l, k: 6.0 * np.minimum(1.0, k / l), span=1.0),
+    "21 rival margin 6 (2K / l - 1)": contest_rule(margin=lambda l, k: 6.0 * np.clip(2 * k / l - 1, 0, 1), span=1.0),
+    "21 rival margin 0 from 2K, every rival at another place": contest_rule(margin=_flat(0.0), distinct="all"),
+    "21 rival margin 0 from 2K, the new rivals at another place": contest_rule(margin=_flat(0.0), distinct="new"),
+    **{f"21 weak < {w:g}, margin {m:g} from {s:g} K": contest_rule(margin=_flat(m), span=s, weak=w)
+       for w, m, s in ((1.75, 0, 2), (2.25, 0, 2), (2.5, 0, 1), (2.5, 0, 1.5), (2.5, 0, 2), (2.5, 0, 3), (2.5, 1.5, 2),
+                       (2.5, 3, 2), (2.75, 0, 2), (3.0, 0, 2), (3.0, 0, 3), (3.5, 0, 2))},
+    # the chance level of the N V random lines searched, or of the frame's own best place beyond
+    # the exclusion radius ("weak < 2.5, margin 1 beyond -ln NV from 2 K" is the library's "contested")
+    **{f"21 weak < {w:g}, margin {m:g} beyond -ln NV from 2 K": contest_rule(margin=_flat(m), weak=w, null="velocities")
+       for w, m in ((2.5, 0), (2.5, 1), (2.5, 2), (3.0, 1))},
+    "21 weak < 2.5, margin 2 beyond the best place past the radius, from 2 K": contest_rule(
+        margin=_flat(2), weak=2.5, null="second"),
+}
+
+_CONTESTED = dict(margin=_flat(0.0), weak=wr.CONTEST_LINE_SPREADS)  # measured before the -ln NV chance level
+
+ROUNDS["22: rule contested with the midpoint test gated"] = {
+    **{f"22 contested, midpoint from {k:g} K or weak < {w:g}": contest_rule(mid_span=k, mid_weak=w, **_CONTESTED)
+       for k, w in ((2, 1.75), (2, 2.5), (4, 1.75), (4, 2.5), (8, 2.5))},
+    "22 contested, midpoint from 2 K, weak < 2.5 or across a break": contest_rule(
+        breaks=True, mid_span=2.0, mid_weak=2.5, **_CONTESTED),
+}
+
+CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}

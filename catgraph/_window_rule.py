@@ -25,12 +25,13 @@ whose spread test reads a short sub-window only where it spans half that time or
 same clock, :class:`_Breaks`). Rule "gated" is "spanning" whose spread test reads
 a sub-window shorter than that time only where the window's own line is weak
 (:data:`WEAK_LINE_SPREADS`): a strong line survives a few weak frames of a stretch of alike
-rows, the old line after a jump does not. Rule "contested" is "gated" where a weak line
-(:data:`CONTEST_LINE_SPREADS`) also yields to a rival that spans :data:`CONTEST_SPANS` horizons and
-is significant beyond chance at all: the same statistics, no clock beyond the horizon's. The confidence "changepoint" is the one
-confidence with a memory: it reads the latest :data:`CHANGE_POINT_FRAMES` rows at the places
-the chosen line passes (a :class:`_Recent` carried in the record from block to block, or
-from step to step), so both forms again read the same values in the same order.
+rows, the old line after a jump does not. Rule "contested" (the default) is "gated" where a
+weak line (:data:`CONTEST_LINE_SPREADS`) also yields to a rival that spans :data:`CONTEST_SPANS`
+horizons and is significant by :data:`CONTEST_MARGIN` nats beyond the best of the random lines
+searched: the same statistics, no clock beyond the horizon's. The confidence "changepoint"
+is the one confidence with a memory: it reads the latest :data:`CHANGE_POINT_FRAMES` rows at
+the places the chosen line passes (a :class:`_Recent` carried in the record from block to
+block, or from step to step), so both forms again read the same values in the same order.
 """
 
 from __future__ import annotations
@@ -87,13 +88,18 @@ WEAK_LINE_SPREADS = 1.75
 
 #: with rule "contested": where the window's own line is weak at a sub-window's length (its score
 #: less than this many common spreads at that length below the random places' mean), a line of
-#: that length counts as a rival as soon as it is significant beyond chance (``log p < -ln N``,
-#: no margin) and spans :data:`CONTEST_SPANS` decorrelation horizons ...
+#: that length counts as a rival where it spans :data:`CONTEST_SPANS` decorrelation horizons and
+#: is significant beyond the best of the ``N V`` random lines searched (``N`` places, ``V``
+#: velocities) by :data:`CONTEST_MARGIN` nats: ``log p < -ln(N V) - CONTEST_MARGIN`` ...
 CONTEST_LINE_SPREADS = 2.5
 
-#: ... i.e. at least this many horizons, so that it holds several independent observations.
-#: Both chosen on the whole condition table and the held-out worlds (``docs/sequence.md``)
+#: ... at least this many horizons, so that it holds several independent observations ...
 CONTEST_SPANS = 2.0
+
+#: ... and this many nats. All three chosen on the whole condition table and the held-out worlds
+#: (``docs/sequence.md``); at ``log p < -ln N`` (the velocities not counted, no margin) the worlds
+#: gain more but weak lines of a constant speed in white rows are rejected by chance rivals
+CONTEST_MARGIN = 1.0
 
 
 #: with confidences "posterior" and "changepoint": prior odds that the query jumped away from
@@ -371,8 +377,8 @@ class _Recent:
 
 def _new_record(cfg: _Config) -> _Record | None:
     """The state a rule carries from frame to frame (rules "predictive" and "decorrelated";
-    rules "spanning", "gated" and "contested" read only the record's clock, rule "punctuated" only the clock that also
-    marks the breaks, :class:`_Breaks`; confidence "changepoint" keeps the latest
+    rules "spanning", "gated" and "contested" read only the record's clock, rule "punctuated"
+    only the clock that also marks the breaks, :class:`_Breaks`; confidence "changepoint" keeps the latest
     rows in the record's :class:`_Recent`, whatever the rule)."""
     if cfg.fixed:
         return None
@@ -509,8 +515,9 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
     "contested" is "gated" with a second kind of rival: where the window's own line is weak at
     a recent sub-window's length (less than :data:`CONTEST_LINE_SPREADS` common spreads below
     the random places' mean there), a line of that length that spans :data:`CONTEST_SPANS`
-    horizons counts as a rival as soon as it is significant beyond chance (``log p < -ln N``,
-    no margin): where rows decorrelate within a few frames, a wrong long line (through repeated
+    horizons counts as a rival where it is significant beyond the best of the ``N V`` random
+    lines searched by :data:`CONTEST_MARGIN` nats (not :data:`SPANNING_MARGIN` beyond the best
+    of ``N``): where rows decorrelate within a few frames, a wrong long line (through repeated
     scenery, or straight across a stretch driven at another speed) is weak, and a short line of
     several independent observations that beats it over its recent frames is evidence.
     """
@@ -560,8 +567,8 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
         ok &= ~(beaten & rival[:, :, None, :]) | ~recent
         if cfg.rule == "contested":
             # and, where the window's own line is weak at the sub-window's length, a line that
-            # spans CONTEST_SPANS horizons and is significant beyond chance at all
-            contender = (log_p < -np.log(n_places)) & (
+            # spans CONTEST_SPANS horizons and is significant beyond the best of N V random lines
+            contender = (log_p < -np.log(float(n_places) * v_count) - CONTEST_MARGIN) & (
                 lengths[None, None, :] >= CONTEST_SPANS * horizon.astype(np.float64)[:, None, None])  # (n, V, H)
             weak = level < CONTEST_LINE_SPREADS  # (n, V, G, H), the spread test's level
             ok &= ~(beaten & contender[:, :, None, :] & weak) | ~recent

@@ -22,7 +22,7 @@ CONTESTED = {"rule": "contested", "l_min": 2, "l_max": 40, "grid": 6, "velocitie
              "recent_fraction": 0.3}
 
 
-def repeated_map(seed: int = 0, noise: float = 1.5, copy: float = 0.5):
+def repeated_map(seed: int = 0, noise: float = 2.0, copy: float = 0.8):
     """A map of independent places whose stretch 6000-6199 is a weaker copy of 4000-4199
     (repeated scenery), and a noisy query that drives 4000-4199 at a speed changing from frame
     to frame (one or two places), jumps to 1000 and then crosses the shard edge at 8192.
@@ -52,7 +52,7 @@ def test_contest_changes_the_answers_on_this_route(repeated):
     local = difference_matrix(q, r, "sad", normalise=True)
     out = match_sequences(local, **CONTESTED)
     gated = match_sequences(local, **{**CONTESTED, "rule": "gated"})
-    assert np.sum(out.window_length != gated.window_length) >= 5
+    assert np.sum(out.window_length != gated.window_length) >= 3
 
 
 @pytest.mark.parametrize("condition, confidence", [

@@ -1,6 +1,6 @@
 """Tests for the window rule "contested": rule "gated" where a weak window line also yields to a
-rival that spans two decorrelation horizons and is significant beyond chance at all, against a
-plain loop over frames.
+rival that spans two decorrelation horizons and is significant beyond the random lines searched,
+against a plain loop over frames.
 
 The reference below recomputes every window score of every velocity by a double loop over the
 line's frames and the horizon by the plain loop of ``tests/test_window_rule_decorrelated.py``.
@@ -10,7 +10,8 @@ rival that spans the horizon and is significant by ``SPANNING_MARGIN`` nats beyo
 rejects, in addition, a window whose line, over a recent sub-window where that line is weaker
 than ``CONTEST_LINE_SPREADS`` common spreads below the random places' mean, trails the best
 line of the sub-window's length by more than ``RIVAL_SPREADS`` spreads while that best line
-spans ``CONTEST_SPANS`` horizons and is significant beyond chance (``log p < -ln N``). It takes
+spans ``CONTEST_SPANS`` horizons and is significant beyond the best of the ``N V`` random lines
+searched by ``CONTEST_MARGIN`` nats (``log p < -ln(N V) - CONTEST_MARGIN``). It takes
 the most significant admitted window and re-chooses the velocity where the window spans the
 horizon. The matcher must make the same choices and give the same confidences, in the batch and
 the streaming form, and on the cluster (``tests/test_distributed_rules.py``).
@@ -22,8 +23,8 @@ import numpy as np
 import pytest
 from scipy.special import log_ndtr
 
-from catgraph._window_rule import (CONTEST_LINE_SPREADS, CONTEST_SPANS, EVIDENT_SPREADS, JUMP_ODDS, RIVAL_SPREADS,
-                                   SPANNING_MARGIN, WEAK_LINE_SPREADS)
+from catgraph._window_rule import (CONTEST_LINE_SPREADS, CONTEST_MARGIN, CONTEST_SPANS, EVIDENT_SPREADS, JUMP_ODDS,
+                                   RIVAL_SPREADS, SPANNING_MARGIN, WEAK_LINE_SPREADS)
 from catgraph.sequence import match_sequences, window_grid
 from tests.test_sequence_velocity import slow_line_scores
 from tests.test_window_rule import on_grid
@@ -68,7 +69,8 @@ def slow_contested(d: np.ndarray, grid: np.ndarray, velocities, fraction: float 
                             and beaten):
                         ok = False
                     if (with_contest and recent and beaten and level < CONTEST_LINE_SPREADS
-                            and grid[h] >= CONTEST_SPANS * horizons[i] and log_p[a][h] < -np.log(n)):
+                            and grid[h] >= CONTEST_SPANS * horizons[i]
+                            and log_p[a][h] < -np.log(n * len(velocities)) - CONTEST_MARGIN):
                         ok = False
                 if ok or g == 0:
                     keep.append(g)
