@@ -917,6 +917,10 @@ ROUNDS["22: rule contested with the midpoint test gated"] = {
        for k, w in ((2, 1.75), (2, 2.5), (4, 1.75), (4, 2.5), (8, 2.5))},
     "22 contested, midpoint from 2 K, weak < 2.5 or across a break": contest_rule(
         breaks=True, mid_span=2.0, mid_weak=2.5, **_CONTESTED),
+    # on the library's "contested" (the chance level of the N V lines, margin 1)
+    **{f"22 library contested, midpoint from {k:g} K, weak < 2.5{' or across a break' if b else ''}": contest_rule(
+        breaks=b, mid_span=k, mid_weak=2.5, margin=_flat(1.0), weak=wr.CONTEST_LINE_SPREADS, null="velocities")
+       for k, b in ((1.0, True), (2.0, True), (2.0, False))},
 }
 
 CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}
