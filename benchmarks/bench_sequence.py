@@ -106,6 +106,7 @@ SPANNING = "adaptive, rule spanning"
 SPANNING_CP = "adaptive, rule spanning, confidence changepoint"
 PUNCTUATED = "adaptive, rule punctuated"
 GATED = "adaptive, rule gated"
+CONTESTED = "adaptive, rule contested"
 UNRIVALLED = "adaptive, rule unrivalled"
 PREVIOUS = "previous default"
 SINGLE = "single frame"
@@ -124,6 +125,8 @@ SPANNING_CP_KWARGS = dict(rule="spanning", confidence="changepoint")
 PUNCTUATED_KWARGS = dict(rule="punctuated", confidence="changepoint")
 # the default before rule "contested"
 GATED_KWARGS = dict(rule="gated", confidence="changepoint")
+# the default before rule "persistent"
+CONTESTED_KWARGS = dict(rule="contested", confidence="changepoint")
 UNRIVALLED_KWARGS = dict(rule="unrivalled", confidence="posterior")
 GROUPS = ("in order", "shuffled 2–20 %", "shuffled 0.5–3 %", "reversed", "speed 2", "speed 0.5")
 
@@ -148,6 +151,7 @@ def _methods(quick: bool):
     yield SPANNING_CP, SPANNING_CP_KWARGS, True
     yield PUNCTUATED, PUNCTUATED_KWARGS, True
     yield GATED, GATED_KWARGS, True
+    yield CONTESTED, CONTESTED_KWARGS, True
     if not quick:
         yield SUPPORT, dict(confidence="support"), True
         yield EVIDENT, EVIDENT_KWARGS, True

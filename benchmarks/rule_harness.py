@@ -143,7 +143,9 @@ LIBRARY_CONFIDENCES = {"spanning, confidence changepoint (library)": library_rul
                                                                                     confidence="changepoint"),
                        "gated, confidence changepoint (library)": library_rule("gated", confidence="changepoint"),
                        "contested, confidence changepoint (library)": library_rule("contested",
-                                                                                   confidence="changepoint")}
+                                                                                   confidence="changepoint"),
+                       "persistent, confidence changepoint (library)": library_rule("persistent",
+                                                                                    confidence="changepoint")}
 
 
 def add_columns(cells: list[Cell], new: dict) -> None:

@@ -25,10 +25,13 @@ whose spread test reads a short sub-window only where it spans half that time or
 same clock, :class:`_Breaks`). Rule "gated" is "spanning" whose spread test reads
 a sub-window shorter than that time only where the window's own line is weak
 (:data:`WEAK_LINE_SPREADS`): a strong line survives a few weak frames of a stretch of alike
-rows, the old line after a jump does not. Rule "contested" (the default) is "gated" where a
+rows, the old line after a jump does not. Rule "contested" is "gated" where a
 weak line (:data:`CONTEST_LINE_SPREADS`) also yields to a rival that spans :data:`CONTEST_SPANS`
 horizons and is significant by :data:`CONTEST_MARGIN` nats beyond the best of the random lines
-searched: the same statistics, no clock beyond the horizon's. The confidence "changepoint"
+searched: the same statistics, no clock beyond the horizon's. Rule "persistent" (the default)
+is "contested" whose midpoint test reads a recent sub-window only where it spans the horizon,
+where the window's line is weak, or where it holds a break of the rows (the clock of
+"punctuated"). The confidence "changepoint"
 is the one confidence with a memory: it reads the latest :data:`CHANGE_POINT_FRAMES` rows at
 the places the chosen line passes (a :class:`_Recent` carried in the record from block to
 block, or from step to step), so both forms again read the same values in the same order.
@@ -148,7 +151,7 @@ RECORD_RULES = ("predictive", "decorrelated")
 
 #: the rules of the sub-window tests that read the query's decorrelation horizon (the clock of
 #: rule "decorrelated"): only a line that spans it re-chooses the velocity or counts as a rival
-HORIZON_RULES = ("spanning", "punctuated", "gated", "contested")
+HORIZON_RULES = ("spanning", "punctuated", "gated", "contested", "persistent")
 
 
 def _needs_sub(cfg: _Config) -> bool:
@@ -383,9 +386,9 @@ def _new_record(cfg: _Config) -> _Record | None:
     if cfg.fixed:
         return None
     recent = _Recent() if cfg.confidence == "changepoint" else None
-    if cfg.rule == "punctuated":
+    if cfg.rule in ("punctuated", "persistent"):
         record = _Record(cfg.grid.shape[0], clock=_Breaks())
-    elif cfg.rule in ("decorrelated", "spanning", "gated", "contested"):
+    elif cfg.rule in ("decorrelated", "spanning", "gated", "contested"):  # "persistent": _Breaks above
         record = _Record(cfg.grid.shape[0], clock=_Horizon())
     elif cfg.rule in RECORD_RULES or recent is not None:
         record = _Record(cfg.grid.shape[0])
@@ -471,7 +474,7 @@ def _horizons(cfg: _Config, frame_index: np.ndarray, rows_d, record: _Record | N
         return None, None
     centres, spreads = moments
     out = np.empty(frame_index.shape[0], dtype=np.int64)
-    since = np.empty(frame_index.shape[0], dtype=np.int64) if cfg.rule == "punctuated" else None
+    since = np.empty(frame_index.shape[0], dtype=np.int64) if cfg.rule in ("punctuated", "persistent") else None
     for t, i in enumerate(frame_index):
         out[t] = record.clock.update(rows_d[t], int(i), spreads[t], centres[t])
         if since is not None:
@@ -519,7 +522,12 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
     lines searched by :data:`CONTEST_MARGIN` nats (not :data:`SPANNING_MARGIN` beyond the best
     of ``N``): where rows decorrelate within a few frames, a wrong long line (through repeated
     scenery, or straight across a stretch driven at another speed) is weak, and a short line of
-    several independent observations that beats it over its recent frames is evidence.
+    several independent observations that beats it over its recent frames is evidence. Rule
+    "persistent" is "contested" with the midpoint test read only on the recent sub-windows that
+    span the horizon, where the window's own line is weak (:data:`CONTEST_LINE_SPREADS`), or that
+    hold a break of the rows (``since``, as for "punctuated"): a strong line survives a recent
+    stretch of a horizon or less that lies more than half way to random places, unless the rows
+    broke within it.
     """
     n, v_count, g_count = st.best_s.shape
     if not _needs_sub(cfg):
@@ -530,7 +538,17 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
     # every recent shorter sub-window of the best hypothesis (same line) must lie closer to
     # the window's own score than to the mean of random places at that length
     mid = 0.5 * (st.best_s[..., None] + st.mean[:, :, None, :])  # (n, V, G, H)
-    ok = (st.sub <= mid) | ~recent
+    if cfg.rule == "persistent":
+        # only on the sub-windows that span the horizon, where the window's own line is weak,
+        # or that hold a break of the rows
+        common = _common_std(st)[:, :, None, :]  # (n, 1, 1, H)
+        l4 = lengths[None, None, None, :]
+        level = (st.mean[:, :, None, :] - st.best_s[..., None]) / np.where(common > 0, common, 1.0)
+        read = (l4 >= horizon.astype(np.float64)[:, None, None, None]) | (level < CONTEST_LINE_SPREADS) | (
+            since.astype(np.float64)[:, None, None, None] < l4)
+        ok = (st.sub <= mid) | ~(recent[None, None] & read)
+    else:
+        ok = (st.sub <= mid) | ~recent
     if cfg.rule in ("evident", "unrivalled", "spanning"):
         # and every shorter sub-window must stand out from random places at its length: at
         # least EVIDENT_SPREADS common spreads (the widest over the velocities) below their mean
@@ -543,7 +561,7 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
         spans = (l4 >= SPREAD_HORIZON_FRACTION * horizon.astype(np.float64)[:, None, None, None]) | (
             since.astype(np.float64)[:, None, None, None] < l4)
         ok &= (st.sub <= st.mean[:, :, None, :] - EVIDENT_SPREADS * common) | ~(shorter[None, None] & spans)
-    if cfg.rule in ("gated", "contested"):
+    if cfg.rule in ("gated", "contested", "persistent"):
         # the same, on the sub-windows that span the horizon, and on shorter ones where the
         # window's own line is weak
         common = _common_std(st)[:, :, None, :]  # (n, 1, 1, H)
@@ -565,7 +583,7 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
         rival = (log_p < -np.log(n_places) - SPANNING_MARGIN) & (lengths[None, None, :] >= horizon[:, None, None])
         beaten = st.sub > st.best_s[:, :, None, :] + RIVAL_SPREADS * common  # (n, V, G, H)
         ok &= ~(beaten & rival[:, :, None, :]) | ~recent
-        if cfg.rule == "contested":
+        if cfg.rule in ("contested", "persistent"):
             # and, where the window's own line is weak at the sub-window's length, a line that
             # spans CONTEST_SPANS horizons and is significant beyond the best of N V random lines
             contender = (log_p < -np.log(float(n_places) * v_count) - CONTEST_MARGIN) & (

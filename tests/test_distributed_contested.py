@@ -71,3 +71,45 @@ def test_contested_equals_the_local_matcher(sharded, repeated, condition, confid
     res = dd.match_adaptive_window(q, sharded, block_rows=dd.HORIZON_ROWS + 29, **params)
     for name in FIELDS:
         assert np.array_equal(getattr(res, name), getattr(out, name)), name
+
+
+PERSISTENT = {"rule": "persistent", "l_min": 2, "l_max": 60, "grid": 6, "velocities": (-1.0, 1.0, 1.0 / 3.0),
+              "recent_fraction": 0.05}
+
+
+@pytest.fixture(scope="module")
+def fog():
+    from tests.test_distributed_punctuated import fog_map
+
+    return fog_map()
+
+
+@pytest.fixture(scope="module")
+def fog_sharded(client, fog):
+    return dd.shard_reference(fog[1], "sad", client, shard_places=4096)
+
+
+def test_midpoint_gate_changes_the_answers_on_the_fog_route(fog):
+    # rule "persistent" reads the breaks of the rows (as "punctuated"); on this route its answers
+    # differ from rule "contested"'s, so the comparison below is not vacuous
+    q, r = fog
+    local = difference_matrix(q, r, "sad", normalise=True)
+    out = match_sequences(local, **PERSISTENT)
+    contested = match_sequences(local, **{**PERSISTENT, "rule": "contested"})
+    assert np.sum(out.window_length != contested.window_length) >= 5
+
+
+@pytest.mark.parametrize("condition, confidence", [
+    (Condition("in-order"), "changepoint"),
+    (Condition("reverse"), "posterior"),
+    (Condition("shuffle", seed=1, segment_range=(0.05, 0.2)), "changepoint"),
+])
+def test_persistent_equals_the_local_matcher(fog_sharded, fog, condition, confidence):
+    q, r = fog
+    q = q[condition.order(len(q))]
+    local = difference_matrix(q, r, "sad", normalise=True)
+    params = dict(PERSISTENT, confidence=confidence)
+    out = match_sequences(local, **params)
+    res = dd.match_adaptive_window(q, fog_sharded, block_rows=dd.HORIZON_ROWS + 29, **params)
+    for name in FIELDS:
+        assert np.array_equal(getattr(res, name), getattr(out, name)), name

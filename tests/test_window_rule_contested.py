@@ -30,18 +30,23 @@ from tests.test_sequence_velocity import slow_line_scores
 from tests.test_window_rule import on_grid
 from tests.test_window_rule_decorrelated import slow_horizons
 from tests.test_window_rule_predictive import assert_streaming_equals_batch
+from tests.test_window_rule_punctuated import gated_routes, scene_route, slow_since_breaks
 from tests.test_window_rule_spanning import varying_route
 
 VELOCITIES = (1.0, 2.0)
 
 
 def slow_contested(d: np.ndarray, grid: np.ndarray, velocities, fraction: float = 0.05, radius: int = 10,
-                   contested: bool = True):
+                   contested: bool = True, persistent: bool = False):
     """Per frame: match, effective window, velocity and confidence "posterior" of rule
-    "contested" (``contested=False``: of rule "gated"), and the number of frames where the
-    contested rival rejected the window that rule "gated" would have chosen."""
+    "contested" (``contested=False``: of rule "gated"; ``persistent=True``: of rule "persistent",
+    whose midpoint test is read only on the sub-windows that span the horizon, where the window's
+    line is weaker than ``CONTEST_LINE_SPREADS`` or that hold the latest break of the rows), and
+    the number of frames where the contested rival rejected the window that rule "gated" would
+    have chosen."""
     n_q, n = d.shape
     horizons = slow_horizons(d)
+    since = slow_since_breaks(d)
     scores = {(int(L), v): slow_line_scores(d, int(L), v) for L in grid for v in velocities}
     out = {k: [] for k in ("match", "length", "velocity", "confidence")}
     contests = 0
@@ -59,7 +64,9 @@ def slow_contested(d: np.ndarray, grid: np.ndarray, velocities, fraction: float 
                     sub, own = rows[a][h][best_j[a][g]], rows[a][g][best_j[a][g]]
                     recent = grid[h] >= fraction * grid[g]
                     level = (rows[a][h].mean() - own) / (spread[h] if spread[h] > 0 else 1.0)
-                    if recent and sub > 0.5 * (own + rows[a][h].mean()):
+                    mid_read = recent and (not persistent or grid[h] >= horizons[i] or level < CONTEST_LINE_SPREADS
+                                           or since[i] < grid[h])
+                    if mid_read and sub > 0.5 * (own + rows[a][h].mean()):
                         ok = False
                     read = grid[h] >= horizons[i] or level < WEAK_LINE_SPREADS
                     if read and sub > rows[a][h].mean() - EVIDENT_SPREADS * spread[h]:
@@ -154,4 +161,44 @@ def test_contested_streaming_equals_batch(confidence, monkeypatch):
     """Same numbers step by step, and in a batch cut into blocks of 7 frames."""
     d = np.concatenate([repeated_route(0, n_ref=70), varying_route(1)])
     kwargs = dict(rule="contested", l_min=3, l_max=30, grid=6, confidence=confidence, velocities=VELOCITIES)
+    assert_streaming_equals_batch(d, kwargs, monkeypatch)
+
+
+def persistent_routes():
+    """The routes above, and the routes of rule "gated" (rows alike for 7-13 frames, a change of
+    scene, hard stretches, a strong line with a weak recent stretch)."""
+    yield from routes()
+    yield from gated_routes()
+
+
+@pytest.mark.parametrize("k", range(11))
+def test_persistent_rule_matches_slow_reference(k):
+    d = list(persistent_routes())[k]
+    grid = window_grid(3, 24, 6)
+    result = match_sequences(d, "adaptive", rule="persistent", grid=6, l_min=3, l_max=24, velocities=VELOCITIES,
+                             confidence="posterior")
+    slow, _ = slow_contested(d, grid, VELOCITIES, persistent=True)
+    np.testing.assert_array_equal(result.match, slow["match"])
+    np.testing.assert_array_equal(result.window_length, slow["length"])
+    np.testing.assert_array_equal(result.velocity, slow["velocity"])
+    np.testing.assert_allclose(result.confidence, slow["confidence"], rtol=1e-9, atol=1e-9)
+
+
+def test_persistent_reference_exercises_the_midpoint_gate():
+    """On these routes the gated midpoint test admits windows that rule "contested" rejects."""
+    grid = window_grid(3, 24, 6)
+    differ = 0
+    for d in persistent_routes():
+        a, _ = slow_contested(d, grid, VELOCITIES, persistent=True)
+        b, _ = slow_contested(d, grid, VELOCITIES)
+        differ += int(np.sum(a["length"] != b["length"]))
+    assert differ > 0
+
+
+@pytest.mark.parametrize("confidence", ["posterior", "changepoint"])
+def test_persistent_streaming_equals_batch(confidence, monkeypatch):
+    """Same numbers step by step, and in a batch cut into blocks of 7 frames (the clock and its
+    latest break travel from block to block)."""
+    d = np.concatenate([scene_route(1, 24, 2.5), scene_route(3, 16, 2.0)[:12]])
+    kwargs = dict(rule="persistent", l_min=3, l_max=30, grid=6, confidence=confidence, velocities=VELOCITIES)
     assert_streaming_equals_batch(d, kwargs, monkeypatch)
