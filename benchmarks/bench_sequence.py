@@ -471,10 +471,11 @@ def figure(table: dict, path: Path) -> None:
         ax.set_ylim(0, 1.02)
         ax.set_ylabel("AUC (mean over seeds / months)")
         ax.set_title(name)
-    axes[0][-1].legend(fontsize=7, loc="lower left")
+    handles, labels = axes[0][0].get_legend_handles_labels()  # beside the panels: it would cover one of them
+    fig.legend(handles, labels, fontsize=7, loc="center left", bbox_to_anchor=(1.0, 0.5), ncol=2 if len(labels) > 16 else 1)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
 
 
