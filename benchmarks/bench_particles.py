@@ -30,6 +30,10 @@ Rao–Blackwellised), for a before/after measured in one code state.
 at single places (``Localizer(smooth_feedback=False)``, the filter before its feedback was
 smoothed over the confidence neighbourhoods), for a before/after in one code state.
 
+``--jump-graduation X``: the particle filter with its jump grid
+(``Localizer(jump_graduation=X)``, not a registry parameter), for a before/after in one
+code state.
+
 ``--diagnose``: where the seeds differ on Nordland, shuffled 0.5–3 % (seed 4): the share of
 frames answered correctly by frames since the last jump, per filter seed, and the frames
 each seed takes to the first correct answer of a segment (printed, nothing written).
@@ -246,7 +250,13 @@ def main(argv=None) -> None:
     ap.add_argument("--unsmoothed-feedback", action="store_true",
                     help="the particle filter as before its feedback was smoothed (Localizer(smooth_feedback=False): "
                          "the posterior at single places), for a before/after in one code state")
+    ap.add_argument("--jump-graduation", type=float, default=None,
+                    help="the particle filter with its jump grid (Localizer(jump_graduation=X), X in (0, 1)): the "
+                         "recovery share kept exactly over (place, velocity bin), a share X of it born each step")
     args = ap.parse_args(argv)
+    if args.jump_graduation is not None:
+        _localizer_default("jump_graduation", args.jump_graduation)
+        args.label = f"jump_graduation={args.jump_graduation}"
     if args.sampled_velocity:
         _localizer_default("marginal_velocity", False)
     if args.unsmoothed_feedback:
@@ -264,7 +274,8 @@ def main(argv=None) -> None:
     (RESULTS / f"{args.out}.json").write_text(json.dumps({"machine": platform.platform(), "params": params,
                                                           "seeds": seeds, "rows": rows, "step_times": times,
                                                           "convergence": conv}, indent=1))
-    (RESULTS / f"{args.out}.md").write_text(_markdown(rows, times, conv, params, seeds, args.quick))
+    label = {"Localizer": getattr(args, "label", None)} if args.jump_graduation is not None else {}
+    (RESULTS / f"{args.out}.md").write_text(_markdown(rows, times, conv, {**params, **label}, seeds, args.quick))
 
 
 if __name__ == "__main__":
