@@ -107,6 +107,7 @@ SPANNING_CP = "adaptive, rule spanning, confidence changepoint"
 PUNCTUATED = "adaptive, rule punctuated"
 GATED = "adaptive, rule gated"
 CONTESTED = "adaptive, rule contested"
+PERSISTENT = "adaptive, rule persistent"
 UNRIVALLED = "adaptive, rule unrivalled"
 PREVIOUS = "previous default"
 SINGLE = "single frame"
@@ -127,6 +128,8 @@ PUNCTUATED_KWARGS = dict(rule="punctuated", confidence="changepoint")
 GATED_KWARGS = dict(rule="gated", confidence="changepoint")
 # the default before rule "persistent"
 CONTESTED_KWARGS = dict(rule="contested", confidence="changepoint")
+# the default before rule "challenged"
+PERSISTENT_KWARGS = dict(rule="persistent", confidence="changepoint")
 UNRIVALLED_KWARGS = dict(rule="unrivalled", confidence="posterior")
 GROUPS = ("in order", "shuffled 2–20 %", "shuffled 0.5–3 %", "reversed", "speed 2", "speed 0.5")
 
@@ -152,6 +155,7 @@ def _methods(quick: bool):
     yield PUNCTUATED, PUNCTUATED_KWARGS, True
     yield GATED, GATED_KWARGS, True
     yield CONTESTED, CONTESTED_KWARGS, True
+    yield PERSISTENT, PERSISTENT_KWARGS, True
     if not quick:
         yield SUPPORT, dict(confidence="support"), True
         yield EVIDENT, EVIDENT_KWARGS, True

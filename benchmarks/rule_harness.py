@@ -145,6 +145,8 @@ LIBRARY_CONFIDENCES = {"spanning, confidence changepoint (library)": library_rul
                        "contested, confidence changepoint (library)": library_rule("contested",
                                                                                    confidence="changepoint"),
                        "persistent, confidence changepoint (library)": library_rule("persistent",
+                                                                                    confidence="changepoint"),
+                       "challenged, confidence changepoint (library)": library_rule("challenged",
                                                                                     confidence="changepoint")}
 
 

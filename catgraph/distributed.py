@@ -253,11 +253,12 @@ SHARD_UNIT = 4096
 #: carry: the same ``8 N`` bytes between workers, no lookups, no extra round (step 8).
 #: "punctuated" reads the same horizon and, from the same worker, the frames since the latest
 #: break of the rows (8 more bytes per frame, in the same round; step 10).
-#: "gated" and "contested" read what "spanning" reads (step 11), "persistent" what "punctuated" reads.
+#: "gated" and "contested" read what "spanning" reads (step 11), "persistent" and "challenged" what
+#: "punctuated" reads.
 #: Every rule also runs exactly with the confidence "changepoint": ``16 (T - 1)`` bytes per
 #: frame and one more round per block (step 9).
 EXACT_RULES = ("unrivalled", "evident", "consistent", "sustained", "literal", "predictive", "decorrelated",
-               "spanning", "punctuated", "gated", "contested", "persistent")
+               "spanning", "punctuated", "gated", "contested", "persistent", "challenged")
 
 __all__ = ["ShardedReference", "ShardedMatches", "shard_reference", "difference_matrix", "window_scores",
            "match_fixed_window", "match_adaptive_window"]

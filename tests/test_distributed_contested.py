@@ -1,4 +1,4 @@
-"""Rule "contested" on the cluster equals the local run (LocalCluster).
+"""Rules "contested", "persistent" and "challenged" on the cluster equal the local run (LocalCluster).
 
 The rule reads what rule "gated" reads (the decorrelation horizon of rule "spanning" and the
 window statistics of the summaries); its second rival is a function of those statistics alone.
@@ -109,6 +109,46 @@ def test_persistent_equals_the_local_matcher(fog_sharded, fog, condition, confid
     q = q[condition.order(len(q))]
     local = difference_matrix(q, r, "sad", normalise=True)
     params = dict(PERSISTENT, confidence=confidence)
+    out = match_sequences(local, **params)
+    res = dd.match_adaptive_window(q, fog_sharded, block_rows=dd.HORIZON_ROWS + 29, **params)
+    for name in FIELDS:
+        assert np.array_equal(getattr(res, name), getattr(out, name)), name
+
+
+CHALLENGED = {**CONTESTED, "rule": "challenged"}
+
+
+def test_unproven_rival_changes_the_answers_on_the_repeated_route(repeated):
+    # rule "challenged" reads what "persistent" reads; on this route its answers differ from
+    # rule "persistent"'s, so the comparison below is not vacuous
+    q, r = repeated
+    local = difference_matrix(q, r, "sad", normalise=True)
+    out = match_sequences(local, **CHALLENGED)
+    persistent = match_sequences(local, **{**CHALLENGED, "rule": "persistent"})
+    assert np.sum(out.window_length != persistent.window_length) >= 5
+
+
+@pytest.mark.parametrize("condition, confidence", [
+    (Condition("in-order"), "changepoint"),
+    (Condition("reverse"), "posterior"),
+    (Condition("shuffle", seed=1, segment_range=(0.05, 0.2)), "changepoint"),
+])
+def test_challenged_equals_the_local_matcher(sharded, repeated, condition, confidence):
+    q, r = repeated
+    q = q[condition.order(len(q))]
+    local = difference_matrix(q, r, "sad", normalise=True)
+    params = dict(CHALLENGED, confidence=confidence)
+    out = match_sequences(local, **params)
+    res = dd.match_adaptive_window(q, sharded, block_rows=dd.HORIZON_ROWS + 29, **params)
+    for name in FIELDS:
+        assert np.array_equal(getattr(res, name), getattr(out, name)), name
+
+
+def test_challenged_equals_the_local_matcher_on_the_fog_route(fog_sharded, fog):
+    # the breaks of the rows travel from block to block as for "punctuated"
+    q, r = fog
+    local = difference_matrix(q, r, "sad", normalise=True)
+    params = dict(PERSISTENT, rule="challenged", confidence="changepoint")
     out = match_sequences(local, **params)
     res = dd.match_adaptive_window(q, fog_sharded, block_rows=dd.HORIZON_ROWS + 29, **params)
     for name in FIELDS:

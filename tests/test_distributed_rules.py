@@ -264,7 +264,8 @@ def test_default_rule_is_the_local_default_and_runs_exactly(client, alike):
     assert rule in dd.EXACT_RULES
 
 
-@pytest.mark.parametrize("rule", ["spanning", "punctuated", "gated", "contested", "persistent", "unrivalled"])
+@pytest.mark.parametrize("rule", ["spanning", "punctuated", "gated", "contested", "persistent", "challenged",
+                                  "unrivalled"])
 def test_default_call_equals_the_local_default_call(client, alike, monkeypatch, rule):
     # whichever rule is the library's default (sequence.DEFAULT_RULE, read by both
     # functions' defaults), the cluster's default call gives the local default call's answers

@@ -24,7 +24,7 @@ import pytest
 from scipy.special import log_ndtr
 
 from catgraph._window_rule import (CONTEST_LINE_SPREADS, CONTEST_MARGIN, CONTEST_SPANS, EVIDENT_SPREADS, JUMP_ODDS,
-                                   RIVAL_SPREADS, SPANNING_MARGIN, WEAK_LINE_SPREADS)
+                                   PROVEN_MARGIN, RIVAL_SPREADS, SPANNING_MARGIN, WEAK_LINE_SPREADS)
 from catgraph.sequence import match_sequences, window_grid
 from tests.test_sequence_velocity import slow_line_scores
 from tests.test_window_rule import on_grid
@@ -37,11 +37,14 @@ VELOCITIES = (1.0, 2.0)
 
 
 def slow_contested(d: np.ndarray, grid: np.ndarray, velocities, fraction: float = 0.05, radius: int = 10,
-                   contested: bool = True, persistent: bool = False):
+                   contested: bool = True, persistent: bool = False, challenged: bool = False):
     """Per frame: match, effective window, velocity and confidence "posterior" of rule
     "contested" (``contested=False``: of rule "gated"; ``persistent=True``: of rule "persistent",
     whose midpoint test is read only on the sub-windows that span the horizon, where the window's
-    line is weaker than ``CONTEST_LINE_SPREADS`` or that hold the latest break of the rows), and
+    line is weaker than ``CONTEST_LINE_SPREADS`` or that hold the latest break of the rows;
+    ``challenged=True`` with it: of rule "challenged", whose weak-line rival counts beyond
+    ``-ln N`` without a margin where the window's own line is not significant beyond
+    ``-ln(N V) - PROVEN_MARGIN`` at its full length), and
     the number of frames where the contested rival rejected the window that rule "gated" would
     have chosen."""
     n_q, n = d.shape
@@ -75,9 +78,13 @@ def slow_contested(d: np.ndarray, grid: np.ndarray, velocities, fraction: float 
                     if (recent and grid[h] >= horizons[i] and log_p[a][h] < -np.log(n) - SPANNING_MARGIN
                             and beaten):
                         ok = False
+                    if challenged:
+                        contender = (log_p[a][h] < -np.log(n)
+                                     and log_p[a][g] >= -np.log(n * len(velocities)) - PROVEN_MARGIN)
+                    else:
+                        contender = log_p[a][h] < -np.log(n * len(velocities)) - CONTEST_MARGIN
                     if (with_contest and recent and beaten and level < CONTEST_LINE_SPREADS
-                            and grid[h] >= CONTEST_SPANS * horizons[i]
-                            and log_p[a][h] < -np.log(n * len(velocities)) - CONTEST_MARGIN):
+                            and grid[h] >= CONTEST_SPANS * horizons[i] and contender):
                         ok = False
                 if ok or g == 0:
                     keep.append(g)
@@ -201,4 +208,36 @@ def test_persistent_streaming_equals_batch(confidence, monkeypatch):
     latest break travel from block to block)."""
     d = np.concatenate([scene_route(1, 24, 2.5), scene_route(3, 16, 2.0)[:12]])
     kwargs = dict(rule="persistent", l_min=3, l_max=30, grid=6, confidence=confidence, velocities=VELOCITIES)
+    assert_streaming_equals_batch(d, kwargs, monkeypatch)
+
+
+@pytest.mark.parametrize("k", range(11))
+def test_challenged_rule_matches_slow_reference(k):
+    d = list(persistent_routes())[k]
+    grid = window_grid(3, 24, 6)
+    result = match_sequences(d, "adaptive", rule="challenged", grid=6, l_min=3, l_max=24, velocities=VELOCITIES,
+                             confidence="posterior")
+    slow, _ = slow_contested(d, grid, VELOCITIES, persistent=True, challenged=True)
+    np.testing.assert_array_equal(result.match, slow["match"])
+    np.testing.assert_array_equal(result.window_length, slow["length"])
+    np.testing.assert_array_equal(result.velocity, slow["velocity"])
+    np.testing.assert_allclose(result.confidence, slow["confidence"], rtol=1e-9, atol=1e-9)
+
+
+def test_challenged_reference_exercises_the_unproven_rival():
+    """On these routes the rival beyond chance rejects windows that rule "persistent" admits."""
+    grid = window_grid(3, 24, 6)
+    differ = 0
+    for d in persistent_routes():
+        a, _ = slow_contested(d, grid, VELOCITIES, persistent=True, challenged=True)
+        b, _ = slow_contested(d, grid, VELOCITIES, persistent=True)
+        differ += int(np.sum(a["length"] != b["length"]))
+    assert differ > 0
+
+
+@pytest.mark.parametrize("confidence", ["posterior", "changepoint"])
+def test_challenged_streaming_equals_batch(confidence, monkeypatch):
+    """Same numbers step by step, and in a batch cut into blocks of 7 frames."""
+    d = np.concatenate([repeated_route(0, n_ref=70), varying_route(1)])
+    kwargs = dict(rule="challenged", l_min=3, l_max=30, grid=6, confidence=confidence, velocities=VELOCITIES)
     assert_streaming_equals_batch(d, kwargs, monkeypatch)
