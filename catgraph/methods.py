@@ -417,7 +417,7 @@ def observation_model(params: dict, n_places: int, bootstrap_samples: Callable[[
     return CombinedObservation([TemperedObservation(), part], reliability=None)
 
 
-_PARTICLE_KEYS = ("n_particles", "resampler", "ess_threshold", "redraw_fraction", "proposal")
+_PARTICLE_KEYS = ("n_particles", "resampler", "ess_threshold", "redraw_fraction", "proposal", "jump_graduation")
 #: ``mode="auto"`` runs the exact grid filter on maps up to this many places
 GRID_MAX_PLACES = 100_000
 
@@ -530,6 +530,9 @@ def _filter_params() -> tuple[Param, ...]:
               "a fraction of the particles (0: no recovery)", low=0.0, high=0.99),
         Param("proposal", "str", PROPOSALS[0], "where the recovery particles born each step are drawn",
               choices=PROPOSALS),
+        Param("jump_graduation", "float", 1.0, "particles: share of the exact jump grid born as particles each "
+              "step (1: no grid, births only; smaller: a steadier recovery after jumps, at several times the "
+              "step's cost)", low=0.0, high=1.0),
         Param("new_place_prior", "float", None, "per-step probability of entering unmapped space (default: the "
               "filter's own, 0.05 for the grid)",
               low=0.0, high=0.99, optional=True),

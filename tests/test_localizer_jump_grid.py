@@ -91,3 +91,16 @@ def test_jump_grid_parameters_are_checked():
             Localizer(g, _Fixed(0.8), motion=VelocityMotion(), jump_graduation=bad).reset()
     with pytest.raises(InvalidParameterError, match="proposal='likelihood'"):
         Localizer(g, _Fixed(0.8), motion=VelocityMotion(), jump_graduation=0.5, proposal="best").reset()
+
+
+def test_registry_filter_passes_the_jump_graduation():
+    from catgraph import methods
+    from catgraph.graph import PlaceGraph
+
+    graph = PlaceGraph.chain(5)
+    params = methods.resolve_params("filter", {"mode": "particles"})
+    assert params["jump_graduation"] == 1.0
+    params = methods.resolve_params("filter", {"mode": "particles", "jump_graduation": 0.2})
+    assert methods.make_filter(params, graph, _Fixed(1.0)).jump_graduation == 0.2
+    with pytest.raises(InvalidParameterError, match="jump_graduation"):
+        methods.resolve_params("filter", {"mode": "grid", "jump_graduation": 0.2})
