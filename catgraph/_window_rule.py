@@ -165,6 +165,10 @@ RECORD_RULES = ("predictive", "decorrelated")
 #: rule "decorrelated"): only a line that spans it re-chooses the velocity or counts as a rival
 HORIZON_RULES = ("spanning", "punctuated", "gated", "contested", "persistent", "challenged")
 
+#: the rules that also read the breaks of the rows (the clock :class:`_Breaks`: the frames since
+#: the latest frame decorrelated from each of the few before it)
+BREAK_RULES = ("punctuated", "persistent", "challenged")
+
 
 def _needs_sub(cfg: _Config) -> bool:
     return not cfg.fixed and cfg.rule not in ("literal",) + RECORD_RULES and cfg.grid.shape[0] > 1
@@ -398,9 +402,9 @@ def _new_record(cfg: _Config) -> _Record | None:
     if cfg.fixed:
         return None
     recent = _Recent() if cfg.confidence == "changepoint" else None
-    if cfg.rule in ("punctuated", "persistent", "challenged"):
+    if cfg.rule in BREAK_RULES:
         record = _Record(cfg.grid.shape[0], clock=_Breaks())
-    elif cfg.rule in ("decorrelated", "spanning", "gated", "contested"):  # "persistent", "challenged": _Breaks above
+    elif cfg.rule == "decorrelated" or cfg.rule in HORIZON_RULES:
         record = _Record(cfg.grid.shape[0], clock=_Horizon())
     elif cfg.rule in RECORD_RULES or recent is not None:
         record = _Record(cfg.grid.shape[0])
@@ -486,7 +490,7 @@ def _horizons(cfg: _Config, frame_index: np.ndarray, rows_d, record: _Record | N
         return None, None
     centres, spreads = moments
     out = np.empty(frame_index.shape[0], dtype=np.int64)
-    since = np.empty(frame_index.shape[0], dtype=np.int64) if cfg.rule in ("punctuated", "persistent", "challenged") else None
+    since = np.empty(frame_index.shape[0], dtype=np.int64) if cfg.rule in BREAK_RULES else None
     for t, i in enumerate(frame_index):
         out[t] = record.clock.update(rows_d[t], int(i), spreads[t], centres[t])
         if since is not None:
