@@ -314,6 +314,27 @@ def centred_sums(x, mean, other, out):  # pragma: no cover - compiled
 
 
 @njit(nogil=True)
+def accumulated_levels(total, row, count, level):  # pragma: no cover - compiled
+    """``total += row`` (``np.add`` in place), ``level = total / count`` (``np.divide``)
+    and numpy's ``level.sum()``, in one pass: the online hub levels of the next frame
+    and their sum, formed while the frame is added to the running total."""
+    n = total.shape[0]
+    starts = block_starts(n)
+    nb = len(starts) - 1
+    sums = np.empty(nb)
+    for b in range(nb):
+        lo = starts[b]
+        w = starts[b + 1] - lo
+        ts, rs, ls = total[lo:lo + w], row[lo:lo + w], level[lo:lo + w]
+        for t in range(np.uint64(w)):
+            v = ts[t] + rs[t]
+            ts[t] = v
+            ls[t] = v / count
+        sums[b] = _block_sum(ls, w)
+    return 0.0 + _combine(sums, n)
+
+
+@njit(nogil=True)
 def mean_std(x):  # pragma: no cover - compiled
     """``(x.mean(), x.std())`` as numpy computes them (its sums, its order), in two
     passes and no temporary: the mean, then the centred squares summed as they are
@@ -362,12 +383,53 @@ def standardised_ratios(centred, sd, scale, tau, z, r):  # pragma: no cover - co
 
 @njit(nogil=True)
 def sum_max(a, b, out):  # pragma: no cover - compiled
-    """``out = a + b`` (``np.add``); returns ``out.max()``."""
-    top = -np.inf
-    for i in range(a.shape[0]):
+    """``out = a + b`` (``np.add``); returns ``out.max()``: the value a running
+    ``max(top, v)`` over the values in order returns (NaN skipped, of equal values the
+    first, so of a largest 0 its sign).
+
+    The maximum is kept in eight interleaved running maxima (each value compared with
+    the one of its lane; the same largest value, in 0.07 instead of 0.18 ms at 10⁵
+    places: one compare chain held back every value); only the sign of a largest 0
+    depends on which lane saw it, and is then read from the first 0."""
+    n = a.shape[0]
+    m = n - n % 8
+    t0 = t1 = t2 = t3 = t4 = t5 = t6 = t7 = -np.inf
+    for q in range(m // 8):
+        # unsigned indices: no negative-index handling (one vector load per eight values)
+        i = np.uint64(8 * q)
         v = a[i] + b[i]
         out[i] = v
+        t0 = v if v > t0 else t0
+        v = a[i + np.uint64(1)] + b[i + np.uint64(1)]
+        out[i + np.uint64(1)] = v
+        t1 = v if v > t1 else t1
+        v = a[i + np.uint64(2)] + b[i + np.uint64(2)]
+        out[i + np.uint64(2)] = v
+        t2 = v if v > t2 else t2
+        v = a[i + np.uint64(3)] + b[i + np.uint64(3)]
+        out[i + np.uint64(3)] = v
+        t3 = v if v > t3 else t3
+        v = a[i + np.uint64(4)] + b[i + np.uint64(4)]
+        out[i + np.uint64(4)] = v
+        t4 = v if v > t4 else t4
+        v = a[i + np.uint64(5)] + b[i + np.uint64(5)]
+        out[i + np.uint64(5)] = v
+        t5 = v if v > t5 else t5
+        v = a[i + np.uint64(6)] + b[i + np.uint64(6)]
+        out[i + np.uint64(6)] = v
+        t6 = v if v > t6 else t6
+        v = a[i + np.uint64(7)] + b[i + np.uint64(7)]
+        out[i + np.uint64(7)] = v
+        t7 = v if v > t7 else t7
+    top = max(max(max(t0, t1), max(t2, t3)), max(max(t4, t5), max(t6, t7)))
+    for j in range(m, n):
+        v = a[j] + b[j]
+        out[j] = v
         top = max(top, v)
+    if top == 0.0:  # +0 or −0: the first zero's, as the running maximum keeps it
+        for j in range(n):
+            if out[j] == 0.0:
+                return out[j]
     return top
 
 

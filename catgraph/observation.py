@@ -1423,11 +1423,28 @@ class TemperedObservation:
             return self._hub_excess(self._hub_map)
         if isinstance(self.hub, str) and self._hub_count > 1:
             level = self._buffer("_level", len(self._hub_sum))
+            ready = self.__dict__.get("_level_ready")
+            if ready is not None and ready[0] == self._hub_count:  # formed by the feedback (and its mean)
+                return self._hub_excess(level, ready[1])
             np.divide(self._hub_sum, self._hub_count, out=level)
             return self._hub_excess(level)
         return None
 
-    def _hub_excess(self, level: np.ndarray) -> np.ndarray:
+    def _add_to_levels(self, row: np.ndarray) -> None:
+        """Add a frame to the online hub levels' running total; with a contiguous float64
+        row, also form the next frame's levels ``total / count`` and their mean in the
+        same pass (:func:`catgraph._observation_kernels.accumulated_levels`: numpy's
+        floats), so that :meth:`_hub` reads them instead of dividing again."""
+        self._hub_count += 1
+        total = self._hub_sum
+        if self._hub_count > 1 and _plain_row(row) and len(row) == len(total):
+            level = self._buffer("_level", len(total))
+            level_sum = _kernels().accumulated_levels(total, row, float(self._hub_count), level)
+            self._level_ready = (self._hub_count, level_sum / len(level))
+        else:
+            total += row
+
+    def _hub_excess(self, level: np.ndarray, level_mean: float | None = None) -> np.ndarray:
         """The hub correction from reference levels: ``w · (level − mean level)``.
 
         A hub is a reference whose level is a low outlier among the references': below
@@ -1435,7 +1452,7 @@ class TemperedObservation:
         grows with the fraction ``f`` of references that are hubs: a map with none
         (Wi-Fi fingerprints, the synthetic world) keeps its levels, which there carry
         place information; a map with a run of flat, textureless frames (Nordland's
-        tunnels) has its levels removed.
+        tunnels) has its levels removed. ``level_mean``: ``level.mean()`` where known.
 
         The median and the MAD are selected near the previous frame's
         (:class:`_NearMedian`: exact, one pass and a small selection while they move
@@ -1466,7 +1483,8 @@ class TemperedObservation:
         if near[0].width == 0.0 and spread > 0:  # the brackets' first width: a 50th of the spread
             near[0].width = near[1].width = 0.02 * spread
         # level − mean and the hub count in one pass, then the factor (numpy's two roundings)
-        hubs = int(k.centred_count(level, level.mean(), med - float(self.hub_threshold) * mad, out))
+        mean = level.mean() if level_mean is None else level_mean
+        hubs = int(k.centred_count(level, mean, med - float(self.hub_threshold) * mad, out))
         self.n_hubs_ = hubs
         self.hub_shrinkage_ = min(1.0, hubs / (0.01 * len(level)))
         if self.hub_shrinkage_ != 1.0:  # a factor of exactly 1 leaves every value as it is
@@ -1665,8 +1683,7 @@ class TemperedObservation:
         if self.likelihood == "histogram":
             self._learn(row, np.asarray(feedback.posterior, dtype=np.float64), feedback.near)
         if self._hub_map is None and isinstance(self.hub, str):
-            self._hub_sum += row
-            self._hub_count += 1
+            self._add_to_levels(row)
         self._row = None
 
     def _reads_prior(self) -> bool:

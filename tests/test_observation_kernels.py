@@ -37,6 +37,18 @@ def test_fused_passes_are_the_numpy_formulas(n):
     assert kernels.tempered_ratios(ties, ties, False, factor, base, r)[1] == np.argmax(-ties) == min(1, n - 1)
 
 
+@pytest.mark.parametrize("n", [1, 2, 7, 8, 129, 1000, 1001, 100_003])
+def test_accumulated_levels_are_numpy_add_divide_and_sum(n):
+    rng = np.random.default_rng(n)
+    total, row = rng.standard_normal(n) * 50.0, rng.standard_normal(n)
+    want_total = total + row
+    want_level = np.divide(want_total, 7)
+    level = np.empty(n)
+    level_sum = kernels.accumulated_levels(total, row, 7.0, level)
+    assert np.array_equal(total, want_total) and np.array_equal(level, want_level)
+    assert level_sum == want_level.sum() and level_sum / n == want_level.mean()
+
+
 def _brute_bracket(v, mid, radius):
     d = v - mid
     return int(np.count_nonzero(d < -radius)), np.sort(v[np.abs(d) <= radius])
@@ -166,3 +178,35 @@ def test_standardised_ratios_sum_max_and_all_finite_are_the_numpy_passes(n):
     for value in (np.nan, np.inf, -np.inf):
         a[-1] = value
         assert not kernels.all_finite(a)
+
+
+def _running_max(values):
+    """The slow reference of the compiled maxima: ``top = max(top, v)`` in order (numba's
+    ``max``: a NaN ``v`` is skipped, of equal values the first is kept)."""
+    top = -np.inf
+    for v in values:
+        top = v if v > top else top
+    return top
+
+
+@pytest.mark.parametrize("n", [1, 3, 7, 8, 9, 16, 17, 129, 1000, 100_003])
+def test_sum_max_is_the_running_maximum_in_order(n):
+    rng = np.random.default_rng(n)
+    a, b, out = rng.standard_normal(n), rng.standard_normal(n), np.empty(n)
+    cases = [(a, b)]
+    nan = a.copy()
+    nan[:: 3] = np.nan  # NaN skipped
+    cases.append((nan, b))
+    cases.append((np.full(n, np.nan), b))  # every value NaN: -inf
+    neg = -np.abs(a) - 1.0
+    for first in (0.0, -0.0):  # a largest 0 keeps the sign of the first zero
+        z = neg.copy()
+        z[n // 2] = first
+        z[-1] = -first
+        cases.append((z, np.zeros(n)))
+    cases.append((np.full(n, -np.inf), np.zeros(n)))
+    for x, y in cases:
+        top = kernels.sum_max(x, y, out)
+        want = _running_max(np.add(x, y))
+        assert np.array_equal(out, np.add(x, y), equal_nan=True)
+        assert np.array_equal(np.array([top]), np.array([want])) and np.signbit(top) == np.signbit(want), (n, top, want)

@@ -1,0 +1,58 @@
+"""Values the models hand on instead of recomputing them are the values recomputed.
+
+The online hub levels ``total / count`` and their mean are formed by the feedback while
+the frame is added to the running total (one pass), and read by the next frame's hub
+statistic instead of dividing again: checked against the recomputed values, frame by
+frame, bit for bit.
+"""
+
+import numpy as np
+import pytest
+
+from catgraph.observation import FilterFeedback, TemperedObservation
+
+
+def _rows(rng, n_frames, n_places, hubs=True):
+    rows = rng.standard_normal((n_frames, n_places))
+    if hubs:
+        rows[:, 40:48] -= 2.5  # places that look like every frame
+    return rows
+
+
+@pytest.mark.parametrize("n_places", [300, 4099])
+def test_levels_formed_by_the_feedback_are_the_divided_levels(n_places):
+    rng = np.random.default_rng(n_places)
+    fast, slow = TemperedObservation(), TemperedObservation()
+    for k, row in enumerate(_rows(rng, 30, n_places)):
+        slow.__dict__.pop("_level_ready", None)  # the levels divided again, their mean by numpy
+        a, b = fast.observe(row), slow.observe(row.copy())
+        assert np.array_equal(a.log_ratio, b.log_ratio), k
+        assert a.new_place_log_ratio == b.new_place_log_ratio and a.log_ratio_max == b.log_ratio_max
+        assert (fast.__dict__.get("n_hubs_"), fast.__dict__.get("hub_shrinkage_")) == (
+            slow.__dict__.get("n_hubs_"), slow.__dict__.get("hub_shrinkage_"))
+        posterior = np.exp(a.log_ratio - a.log_ratio.max())
+        posterior /= posterior.sum()
+        best = int(np.argmax(posterior))
+        near = slice(max(0, best - 3), best + 4)
+        fast.feedback(FilterFeedback(None, posterior, near))
+        slow.feedback(FilterFeedback(None, posterior.copy(), near))
+        assert np.array_equal(fast._hub_sum, slow._hub_sum) and fast._hub_count == slow._hub_count
+        assert fast.temperature_ == slow.temperature_
+        if k > 0:
+            count, mean = fast._level_ready
+            level = fast._hub_sum / fast._hub_count
+            assert count == fast._hub_count and np.array_equal(fast._level, level) and mean == level.mean()
+
+
+def test_a_strided_frame_adds_to_the_levels_by_numpy():
+    rng = np.random.default_rng(5)
+    rows = _rows(rng, 12, 401)
+    strided = np.asfortranarray(rows)  # each frame a strided view
+    fast, slow = TemperedObservation(), TemperedObservation()
+    for k in range(len(rows)):
+        a, b = fast.observe(rows[k]), slow.observe(strided[k])
+        assert np.array_equal(a.log_ratio, b.log_ratio), k
+        posterior = np.full(rows.shape[1], 1.0 / rows.shape[1])
+        fast.feedback(FilterFeedback(None, posterior, slice(0, 5)))
+        slow.feedback(FilterFeedback(None, posterior, slice(0, 5)))
+        assert "_level_ready" not in slow.__dict__ or slow._level_ready[0] != slow._hub_count or k == 0
