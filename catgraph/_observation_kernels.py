@@ -131,6 +131,44 @@ def tempered_ratios(row, h, corrected, scale, base, r):  # pragma: no cover - co
 
 
 @njit(nogil=True)
+def count_below(x, threshold):  # pragma: no cover - compiled
+    """``np.count_nonzero(x < threshold)``, without the boolean temporary."""
+    k = 0
+    for i in range(x.shape[0]):
+        k += x[i] < threshold
+    return k
+
+
+@njit(nogil=True)
+def hub_tempered_ratios(row, level, mean, shrink, scale, keep_base, base, r):  # pragma: no cover - compiled
+    """:func:`tempered_ratios` with the hub correction formed on the fly: ``h = level −
+    mean`` (:func:`centred_count`'s values), times ``shrink`` unless it is exactly 1
+    (the model's ``out *= shrink``), ``base = −(row − h)``, ``r = scale · base``; the
+    same floats, without the correction's array written and read back. ``base`` is
+    written only where ``keep_base``.
+
+    Returns ``(r.max(), np.argmax(base))``, as :func:`tempered_ratios`."""
+    top = -np.inf
+    best = 0
+    largest = -np.inf
+    scaled = shrink != 1.0
+    for i in range(row.shape[0]):
+        h = level[i] - mean
+        if scaled:
+            h = h * shrink
+        b = -(row[i] - h)
+        if keep_base:
+            base[i] = b
+        v = scale * b
+        r[i] = v
+        top = max(top, v)
+        if b > largest:
+            largest = b
+            best = i
+    return top, best
+
+
+@njit(nogil=True)
 def row_sums(a, prior):  # pragma: no cover - compiled
     """``(Σ_j a_j, Σ_j a_j prior_j)``, one pass (summed in order)."""
     s = 0.0

@@ -1418,16 +1418,18 @@ class TemperedObservation:
             self._seeded = False
             self._tables = np.tile(-centres, (len(lams), 1))
 
-    def _hub(self) -> np.ndarray | None:
+    def _hub(self, formed: bool = True):
+        """The hub correction (:meth:`_hub_excess`), or None; ``formed=False``: where the
+        levels are contiguous, ``(level, mean, shrinkage)`` instead of the array."""
         if self._hub_map is not None:
-            return self._hub_excess(self._hub_map)
+            return self._hub_excess(self._hub_map, formed=formed)
         if isinstance(self.hub, str) and self._hub_count > 1:
             level = self._buffer("_level", len(self._hub_sum))
             ready = self.__dict__.get("_level_ready")
             if ready is not None and ready[0] == self._hub_count:  # formed by the feedback (and its mean)
-                return self._hub_excess(level, ready[1])
+                return self._hub_excess(level, ready[1], formed)
             np.divide(self._hub_sum, self._hub_count, out=level)
-            return self._hub_excess(level)
+            return self._hub_excess(level, formed=formed)
         return None
 
     def _add_to_levels(self, row: np.ndarray) -> None:
@@ -1444,7 +1446,7 @@ class TemperedObservation:
         else:
             total += row
 
-    def _hub_excess(self, level: np.ndarray, level_mean: float | None = None) -> np.ndarray:
+    def _hub_excess(self, level: np.ndarray, level_mean: float | None = None, formed: bool = True):
         """The hub correction from reference levels: ``w · (level − mean level)``.
 
         A hub is a reference whose level is a low outlier among the references': below
@@ -1453,6 +1455,8 @@ class TemperedObservation:
         (Wi-Fi fingerprints, the synthetic world) keeps its levels, which there carry
         place information; a map with a run of flat, textureless frames (Nordland's
         tunnels) has its levels removed. ``level_mean``: ``level.mean()`` where known.
+        ``formed=False`` (contiguous levels): the statistics only, ``(level, mean level,
+        w)``, for a pass that forms the correction as it reads it.
 
         The median and the MAD are selected near the previous frame's
         (:class:`_NearMedian`: exact, one pass and a small selection while they move
@@ -1484,7 +1488,13 @@ class TemperedObservation:
             near[0].width = near[1].width = 0.02 * spread
         # level − mean and the hub count in one pass, then the factor (numpy's two roundings)
         mean = level.mean() if level_mean is None else level_mean
-        hubs = int(k.centred_count(level, mean, med - float(self.hub_threshold) * mad, out))
+        threshold = med - float(self.hub_threshold) * mad
+        if not formed:
+            hubs = int(k.count_below(level, threshold))
+            self.n_hubs_ = hubs
+            self.hub_shrinkage_ = min(1.0, hubs / (0.01 * len(level)))
+            return level, float(mean), self.hub_shrinkage_
+        hubs = int(k.centred_count(level, mean, threshold, out))
         self.n_hubs_ = hubs
         self.hub_shrinkage_ = min(1.0, hubs / (0.01 * len(level)))
         if self.hub_shrinkage_ != 1.0:  # a factor of exactly 1 leaves every value as it is
@@ -1532,12 +1542,20 @@ class TemperedObservation:
         lam = float(self._lams[0])
         if self.likelihood == "linear" and len(self._lams) == 1 and row.flags.c_contiguous and lam in (0.0, 1.0):
             # the single-frame ratios, their tempered product, its maximum and the frame's
-            # own best place in one compiled pass (the same arithmetic as below)
-            h = self._hub()
+            # own best place in one compiled pass (the same arithmetic as below; the hub
+            # correction formed in it where the levels are contiguous)
+            h = self._hub(formed=False)
             corrected = h is not None and lam != 0.0
             scale = self.temperature_ * self._novelty(row)
             base = self._buffer("_base0", len(row))
             r = _pool(self).take(len(row))
+            if corrected and isinstance(h, tuple):
+                # the single-frame ratios are read again only by a predictive temperature
+                keep = self.temperature == "predictive"
+                top, self._best = _kernels().hub_tempered_ratios(row, *h, scale, keep, base, r)
+                return self._tempered(row, [base] if keep else None, r, float(top))
+            if isinstance(h, tuple):  # not applied (hub weight 0): formed, as before
+                h = None
             top, self._best = _kernels().tempered_ratios(row, h if corrected else row, corrected, scale, base, r)
             return self._tempered(row, [base], r, float(top))
         self._bases = self._base(row)
@@ -1575,7 +1593,7 @@ class TemperedObservation:
         self._row = centred
         return r, float(top)
 
-    def _tempered(self, row: np.ndarray, bases: list[np.ndarray], r: np.ndarray, top: float) -> Observation:
+    def _tempered(self, row: np.ndarray, bases: list[np.ndarray] | None, r: np.ndarray, top: float) -> Observation:
         """The observation of ratios ``r`` (maximum ``top``), keeping what :meth:`feedback` reads."""
         self._bases = bases
         self._row = row

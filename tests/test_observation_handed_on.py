@@ -56,3 +56,26 @@ def test_a_strided_frame_adds_to_the_levels_by_numpy():
         fast.feedback(FilterFeedback(None, posterior, slice(0, 5)))
         slow.feedback(FilterFeedback(None, posterior, slice(0, 5)))
         assert "_level_ready" not in slow.__dict__ or slow._level_ready[0] != slow._hub_count or k == 0
+
+
+@pytest.mark.parametrize("hub_places", [0, 2, 40])
+def test_correction_formed_in_the_ratios_pass_is_the_formed_array(hub_places):
+    """The fast path forms ``w · (level − mean)`` inside the ratios' pass; a model made to
+    form the array first (as before) gives the same ratios, hub statistics and best place."""
+    rng = np.random.default_rng(hub_places)
+    n_places = 2000
+    rows = rng.standard_normal((25, n_places))
+    rows[:, 100:100 + hub_places] -= 4.0  # a few chance hubs only, a few more, two percent (w = 1)
+    fast, slow = TemperedObservation(), TemperedObservation()
+    slow._hub = lambda formed=True: TemperedObservation._hub(slow, True)
+    for k, row in enumerate(rows):
+        a, b = fast.observe(row), slow.observe(row)
+        assert np.array_equal(a.log_ratio, b.log_ratio), k
+        assert a.new_place_log_ratio == b.new_place_log_ratio
+        assert fast.__dict__.get("hub_shrinkage_") == slow.__dict__.get("hub_shrinkage_")
+        assert fast.__dict__.get("n_hubs_") == slow.__dict__.get("n_hubs_") and fast._best == slow._best
+        posterior = np.full(n_places, 1.0 / n_places)
+        fast.feedback(FilterFeedback(None, posterior, slice(0, 5)))
+        slow.feedback(FilterFeedback(None, posterior, slice(0, 5)))
+        assert fast.temperature_ == slow.temperature_
+    assert (fast.hub_shrinkage_ == 1.0) == (hub_places == 40)  # a factor applied (w < 1) and not (w = 1)

@@ -210,3 +210,22 @@ def test_sum_max_is_the_running_maximum_in_order(n):
         want = _running_max(np.add(x, y))
         assert np.array_equal(out, np.add(x, y), equal_nan=True)
         assert np.array_equal(np.array([top]), np.array([want])) and np.signbit(top) == np.signbit(want), (n, top, want)
+
+
+@pytest.mark.parametrize("n", [1, 8, 129, 1001])
+def test_hub_tempered_ratios_are_the_formed_correction_then_tempered_ratios(n):
+    rng = np.random.default_rng(n)
+    row, level = rng.standard_normal(n), rng.standard_normal(n) * 2.0 + 1.0
+    mean = float(level.mean())
+    assert kernels.count_below(level, 0.3) == np.count_nonzero(level < 0.3)
+    for shrink in (1.0, 0.37, 0.0):
+        h = np.subtract(level, mean)
+        if shrink != 1.0:
+            h *= shrink
+        base, r = np.empty(n), np.empty(n)
+        want = kernels.tempered_ratios(row, h, True, 0.61, base, r)
+        for keep in (True, False):
+            got_base, got_r = np.full(n, np.nan), np.empty(n)
+            got = kernels.hub_tempered_ratios(row, level, mean, shrink, 0.61, keep, got_base, got_r)
+            assert got == want and np.array_equal(got_r, r)
+            assert np.array_equal(got_base, base) if keep else np.all(np.isnan(got_base))
