@@ -321,7 +321,8 @@ def pairwise_sum(a):  # pragma: no cover - compiled
 @njit(nogil=True)
 def centred_sums(x, mean, other, out):  # pragma: no cover - compiled
     """``out = x − mean`` and numpy's ``(out * out).sum()`` and, where ``other`` is not
-    empty, ``(out * other).sum()`` (0 otherwise), in one pass.
+    empty, ``(out * other).sum()`` (0 otherwise), in one pass; an empty ``out``: the
+    centred values are not stored (the squares' sum alone, ``other`` empty).
 
     The centring, squares and products of ``np.subtract`` / ``np.multiply`` then
     ``np.sum``, without the squares or products stored: for the novelty weight's
@@ -332,6 +333,16 @@ def centred_sums(x, mean, other, out):  # pragma: no cover - compiled
     nb = len(starts) - 1
     s2, sp = np.empty(nb), np.empty(nb)
     b2, bp = np.empty(_BLOCK), np.empty(_BLOCK)
+    if out.shape[0] == 0:  # the sum of squares only
+        for b in range(nb):
+            lo = starts[b]
+            w = starts[b + 1] - lo
+            xs = x[lo:lo + w]
+            for t in range(np.uint64(w)):
+                d = xs[t] - mean
+                b2[t] = d * d
+            s2[b] = _block_sum(b2, w)
+        return 0.0 + _combine(s2, n), 0.0
     for b in range(nb):
         lo = starts[b]
         w = starts[b + 1] - lo
@@ -395,19 +406,19 @@ def mean_std(x):  # pragma: no cover - compiled
 
 
 @njit(nogil=True)
-def standardised_ratios(centred, sd, scale, tau, z, r):  # pragma: no cover - compiled
-    """The standardised scores and their tempered ratios in one pass: ``z = centred /
-    sd`` (``_standardised``'s division), ``r = (scale · −z) · tau`` (the tempered model's
-    ratio ``scale · base``, ``base = −z``, then the sequence part's window temperature).
+def standardised_ratios(s, mean, sd, scale, tau, r):  # pragma: no cover - compiled
+    """The standardised scores' tempered ratios in one pass from the scores ``s``:
+    ``z = (s − mean) / sd`` (``_standardised``'s centring and division, ``z`` not
+    stored), ``r = (scale · −z) · tau`` (the tempered model's ratio ``scale · base``,
+    ``base = −z``, then the sequence part's window temperature).
 
     Returns ``(r.max(), np.argmax(−z), finite)``, ``finite`` whether every ``z`` is."""
     top = -np.inf
     best = 0
     largest = -np.inf
     finite = True
-    for i in range(centred.shape[0]):
-        v = centred[i] / sd
-        z[i] = v
+    for i in range(s.shape[0]):
+        v = (s[i] - mean) / sd
         finite &= np.isfinite(v)
         b = -v
         w = (scale * b) * tau

@@ -543,8 +543,9 @@ class SequenceObservation:
             tau = float(self.temperature)
         z = self._work("_z", len(s))
         fused = self._tempered is not None and self._tempered._takes_standardised(s)
-        if fused:  # z = s − mean for now; the division comes with the ratios
-            sd = _centred_spread(s, z, self._work("_square", len(s)))
+        if fused:  # the mean and the spread; the centring and the division come with the ratios
+            mean = s.mean()
+            sd = np.sqrt(_kernels().centred_sums(s, mean, _NOTHING, _NOTHING)[0] / len(s))  # s.std()
             fused = sd > 0
             if not fused:  # every score equal: the standardised scores are all 0
                 z[...] = 0.0
@@ -552,7 +553,7 @@ class SequenceObservation:
             z = _standardised(s, z, self._work("_square", len(s)))
         if fused:
             # z = (s − mean) / sd, the tempered ratios and the window temperature in one pass
-            r, top = self._tempered._observe_standardised(z, sd, tau)
+            r, top = self._tempered._observe_standardised(s, mean, sd, tau, z)
         elif self._tempered is not None:
             r = self._tempered.observe(z).log_ratio
             r *= tau  # the tempered model's array is fresh every frame
@@ -1573,24 +1574,28 @@ class TemperedObservation:
                 and self.likelihood == "linear" and self.hub is None and not self.novelty and len(self._lams) == 1
                 and self.temperature != "predictive")
 
-    def _observe_standardised(self, centred: np.ndarray, sd: float, tau: float) -> tuple[np.ndarray, float]:
-        """``observe(centred / sd).log_ratio * tau`` and its maximum, in one compiled pass
-        (:func:`catgraph._observation_kernels.standardised_ratios`: the division, the
-        ratios ``temperature_ · −z``, the factor ``tau``, the maximum and the best place;
-        the same floats as the separate passes). ``centred`` becomes ``z``. Only where
-        :meth:`_takes_standardised`; a ``z`` that is not finite goes through
-        :meth:`observe` (which refuses it)."""
-        n = len(centred)
+    def _observe_standardised(self, scores: np.ndarray, mean: float, sd: float, tau: float,
+                              z: np.ndarray) -> tuple[np.ndarray, float]:
+        """``observe((scores − mean) / sd).log_ratio * tau`` and its maximum, in one
+        compiled pass (:func:`catgraph._observation_kernels.standardised_ratios`: the
+        centring, the division, the ratios ``temperature_ · −z``, the factor ``tau``, the
+        maximum and the best place; the same floats as the separate passes; the
+        standardised scores themselves are not stored: with no hub levels and no
+        histograms, :meth:`feedback` does not read the frame's values). Only where
+        :meth:`_takes_standardised`; scores whose standardised values are not all finite
+        go through :meth:`observe` (which refuses them), formed in ``z``."""
+        n = len(scores)
         r = _pool(self).take(n)
-        scale = self.temperature_ * self._novelty(centred)  # 1: no novelty weight
-        top, best, finite = _kernels().standardised_ratios(centred, sd, scale, tau, centred, r)
+        scale = self.temperature_ * self._novelty(scores)  # 1: no novelty weight
+        top, best, finite = _kernels().standardised_ratios(scores, mean, sd, scale, tau, r)
         if not finite:
-            r = self.observe(centred).log_ratio
+            np.divide(np.subtract(scores, mean, out=z), sd, out=z)
+            r = self.observe(z).log_ratio
             r *= tau
             return r, float(r.max())
         self._best = best
         self._bases = None  # read by feedback only for a predictive temperature or several hub weights
-        self._row = centred
+        self._row = scores  # feedback reads only that a frame was observed (no hub levels, no histograms)
         return r, float(top)
 
     def _tempered(self, row: np.ndarray, bases: list[np.ndarray] | None, r: np.ndarray, top: float) -> Observation:

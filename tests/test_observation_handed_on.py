@@ -79,3 +79,21 @@ def test_correction_formed_in_the_ratios_pass_is_the_formed_array(hub_places):
         slow.feedback(FilterFeedback(None, posterior, slice(0, 5)))
         assert fast.temperature_ == slow.temperature_
     assert (fast.hub_shrinkage_ == 1.0) == (hub_places == 40)  # a factor applied (w < 1) and not (w = 1)
+
+
+def test_standardised_scores_that_are_not_finite_are_refused_as_before():
+    """The sequence part's fused pass does not store ``z``; where a ``z`` is not finite
+    it forms them and hands them to ``observe``, which refuses them (as before)."""
+    from catgraph.exceptions import CatgraphError
+
+    model = TemperedObservation(hub=None, novelty=False, temperature_scale=4.0)
+    model._new_place = False
+    scores = np.random.default_rng(3).standard_normal(50)
+    model.observe(-scores)  # started
+    assert model._takes_standardised(scores)
+    r, top = model._observe_standardised(scores, float(scores.mean()), float(scores.std()), 0.5, np.empty(50))
+    assert np.array_equal(r, model.observe((scores - scores.mean()) / scores.std()).log_ratio * 0.5)
+    bad = scores.copy()
+    bad[7] = np.inf
+    with pytest.raises(CatgraphError):
+        model._observe_standardised(bad, float(scores.mean()), float(scores.std()), 0.5, np.empty(50))
