@@ -66,7 +66,11 @@ newborn generation, drawn from ``J_t`` itself, and ``(1 − λ) J_t`` stays. The
 is the particles plus the grid (the place masses add the grid's exactly), so the
 particles still converge to the grid filter (``tests/test_localizer_jump_grid.py``);
 the births now carry the mass of "jumped in the last few frames and since moved
-here", which grows with every frame that agrees.
+here", which grows with every frame that agrees. On a route whose places follow each
+other by index (every map built from traverses) the grid's prediction, the frame and the
+sums the step reads from it are one compiled pass over (velocity bin, place), shared
+among the free cores (:mod:`catgraph._jump_kernels`, tested against
+:func:`catgraph.grid.predict`); any other route takes :func:`catgraph.grid.predict`.
 
 Young particles are not resampled at once. The particles live in ``n_particles``
 fixed slots: the *cloud*, then ``recovery_frames`` generations of ``M`` slots in a
@@ -148,7 +152,7 @@ reweighting with the place masses, systematic resampling) over arrays allocated 
 marginalised motion: O(occupied places · n_bins² + n_particles + n_places), its
 families' scratch allocated per step). Same
 seed, same output: every random draw comes from the one ``numpy.random.Generator`` made
-from ``seed``.
+from ``seed``. The jump grid adds O(n_places · n_bins) per step (its pass, above).
 """
 
 from __future__ import annotations
@@ -961,9 +965,10 @@ class Localizer:
         self._marginal_step = False
         # the jump grid (jump_graduation < 1): the recent jumps' exact mass over (place, velocity bin)
         self._jump_grid = self._marginal and self.jump_graduation < 1.0 and self._births > 0
-        self._jumps_state = np.zeros((g.n_places, nb)) if self._jump_grid else None
         self._jumps_mass = 0.0
         self._jumps_predicted = None
+        if self._jump_grid:
+            self._reset_jump_grid(nb)
         rd = np.asarray(g.route_distance, dtype=np.float64)
         monotone = len(rd) < 2 or bool(np.all(np.diff(rd) >= 0))
         self._route = rd if monotone else None  # the confidence neighbourhood along the route
@@ -978,6 +983,50 @@ class Localizer:
         self._neighbourhoods = self._feedback_neighbourhoods() if self._has_feedback and self.smooth_feedback \
             else None
         return self
+
+    def _reset_jump_grid(self, nb: int) -> None:
+        """The jump grid's arrays (two grids over (place, velocity bin), the one the last
+        step wrote and the one the next writes), its sums and the route it moves along."""
+        from .grid import _bin_moves, route_neighbours
+        from ._jump_kernels import JUMP_BLOCK, line_segments, segment_edges
+
+        g, motion = self.graph, self.motion
+        n = g.n_places
+        # velocity-major, (n_bins, n_places): the compiled pass runs along the places
+        self._jumps_buffers = (np.zeros((nb, n)), np.zeros((nb, n)))
+        # J_t = _jumps_unit · _jumps_t (the grid after the frame, before the births take their
+        # share), the jump state after the reweighting _jumps_scale · _jumps_t
+        self._jumps_t = self._jumps_buffers[0]
+        self._jumps_unit = 1.0
+        self._jumps_scale = 0.0
+        self._jumps_total = 0.0  # Σ J_t
+        self._jumps_stored = 0.0  # Σ _jumps_t
+        self._jumps_predicted = np.empty(n)
+        blocks = -(-n // JUMP_BLOCK)
+        self._jumps_bins = np.zeros((blocks, nb))
+        self._jumps_totals = np.empty(blocks)
+        self._jumps_velocity = np.zeros(nb)  # Σ_j J_t[b, j]
+        nbrs = g.__dict__.get("_jump_neighbours")
+        if nbrs is None:
+            nbrs = route_neighbours(g)
+            object.__setattr__(g, "_jump_neighbours", nbrs)
+        self._jumps_neighbours = nbrs
+        self._jumps_moves = _bin_moves(motion._v)
+        whole, frac = self._jumps_moves[:2]
+        self._jumps_reach = int(whole.max()) if len(whole) else 0
+        seg = line_segments(nbrs[0], nbrs[1])
+        hops = int((whole + (frac > 0)).max()) if len(whole) else 0
+        # the route by place index (the compiled pass), or None (catgraph.grid.predict)
+        self._jumps_line = None if seg is None else (seg, segment_edges(seg, hops))
+
+    def jump_state(self) -> np.ndarray | None:
+        """The jump grid's mass over (place, velocity bin) after the latest step, in the
+        units of the particles' normalised weights (``None`` without a jump grid)."""
+        if not getattr(self, "_jump_grid", False):
+            return None
+        if self._jumps_mass == 0.0:
+            return np.zeros(self._jumps_t.shape[::-1])
+        return self._jumps_t.T * self._jumps_scale
 
     def _feedback_neighbourhoods(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
         """Each place's confidence neighbourhood (:func:`confidence_neighbourhoods`)."""
@@ -1163,7 +1212,7 @@ class Localizer:
             g = self.graph
             e, f = self._edge[start:stop], self._fraction[start:stop]
             places = np.where(f < 0.5, g.source[e], g.target[e])
-            at = self._jumps_t[places]
+            at = self._jumps_t[:, places].T
             self._spread[start:stop] = at / at.sum(1, keepdims=True)
             # equal weights after the reweighting adds the frame's ratio: e^{-r} · (J_t / q) = const
             self._log_weight[start:stop] += np.log(self._jumps_predicted[places])
@@ -1173,26 +1222,57 @@ class Localizer:
         v_jump) · e^{r − max r}`` (the grid filter's motion, :func:`catgraph.grid.predict`,
         its lost mass renormalised as the particles'); ``like`` becomes its place marginal's
         cumulative, the births' proposal and the recovery share's exact masses, and the
-        recovery share's log-mass ``log Σ J_t + max r``."""
-        from .grid import predict, route_neighbours
-
+        recovery share's log-mass ``log Σ J_t + max r``. On a route by place index in one
+        compiled pass (:func:`catgraph._jump_kernels.jump_step`), else through
+        :func:`catgraph.grid.predict`."""
         g, motion, eps = self.graph, self.motion, self.recovery_
+        n = g.n_places
         jv = 0.5 * self._velocity_marginal + 0.5 * self._velocity_prior
-        if self._jumps_mass > 0.0:
-            nbrs = g.__dict__.get("_jump_neighbours")
-            if nbrs is None:
-                nbrs = route_neighbours(g)
-                object.__setattr__(g, "_jump_neighbours", nbrs)
-            state = self._jumps_state / self._jumps_mass
-            moved = predict(state, motion._transition, motion._v, nbrs, motion._blur, 0.0, jv, 0.0)
-            total = moved.sum()
-            moved *= (1.0 - eps) * self._jumps_mass / total if total > 0 else 0.0
+        s = self._jumps_t
+        out = self._jumps_buffers[1] if s is self._jumps_buffers[0] else self._jumps_buffers[0]
+        whole, frac, sign, _ = self._jumps_moves
+        kept_mass = (1.0 - eps) * self._jumps_mass
+        if kept_mass < 1e-100 * eps:  # below any float's precision beside the new jump mass
+            kept_mass = 0.0
+        # the stored grid in units of its predicted mass (Σ = kept_mass + ε): its values stay of
+        # order 1 / n however small its mass beside the particles' (far from subnormal floats)
+        unit = 1.0 / (kept_mass + eps) if kept_mass + eps > 0.0 else 1.0
+        c, a = 0.0, eps / n
+        if self._jumps_line is not None:
+            from ._jump_kernels import JUMP_BLOCK, jump_lost, jump_step
+
+            seg, edges = self._jumps_line
+            t_ptr, t_src, t_val = motion._columns
+            if kept_mass > 0.0:
+                kept = self._jumps_stored - jump_lost(s, seg, edges, t_ptr, t_src, t_val, whole, frac, sign)
+                if kept > 0.0:  # what ran past a route end given back to the rest
+                    c = kept_mass / kept
+                else:  # all of it: spread uniformly (as the grid filter's prediction does)
+                    a += kept_mass / (n * float(jv.sum()))
+            jump_step(s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, self._jumps_reach, motion._blur, c, a,
+                      jv, self._e, unit, JUMP_BLOCK, self._jumps_predicted, self._like, self._jumps_bins,
+                      self._jumps_totals)
+            self._jumps_bins.sum(0, out=self._jumps_velocity)
         else:
-            moved = np.zeros_like(self._jumps_state)
-        moved += (eps / g.n_places) * jv[None, :]
-        self._jumps_predicted = moved.sum(1)
-        self._jumps_t = moved * self._e[:, None]
-        np.cumsum(self._jumps_t.sum(1), out=self._like)
+            from .grid import predict
+
+            if kept_mass > 0.0:
+                moved = predict(np.ascontiguousarray(s.T) * (1.0 / s.sum()), motion._transition, motion._v,
+                                self._jumps_neighbours, motion._blur, 0.0, jv, 0.0, moves=self._jumps_moves)
+                total = moved.sum()
+                moved *= kept_mass / total if total > 0 else 0.0
+            else:
+                moved = np.zeros(s.shape[::-1])
+            moved += a * jv[None, :]
+            moved.sum(1, out=self._jumps_predicted)
+            jumps = moved.T * self._e[None, :]
+            np.cumsum(jumps.sum(0), out=self._like)
+            jumps.sum(1, out=self._jumps_velocity)
+            np.multiply(jumps, unit, out=out)
+        self._jumps_t = out
+        self._jumps_unit = 1.0 / unit
+        self._jumps_total = float(self._like[-1])
+        self._jumps_stored = self._jumps_total * unit  # Σ _jumps_t
         self._log_recovery = math.log(self._like[-1]) + self._r_max
 
     def _reweight(self, obs: Observation) -> float:
@@ -1204,16 +1284,16 @@ class Localizer:
                                         self._mass, self._marginal_step, self._r_max, self._marginal_mass,
                                         log_graduate)
         if jump_grid:  # what the births did not take stays in the grid, normalised with the rest
-            np.multiply(self._jumps_t, (1.0 - self.jump_graduation) * math.exp(self._r_max - log_map),
-                        out=self._jumps_state)
-            self._jumps_mass = float(self._jumps_state.sum())
+            kept = (1.0 - self.jump_graduation) * math.exp(self._r_max - log_map)
+            self._jumps_scale = kept * self._jumps_unit
+            self._jumps_mass = kept * self._jumps_total
         elif self._jump_grid:
-            self._jumps_state[:] = 0.0
+            self._jumps_scale = 0.0
             self._jumps_mass = 0.0
         if self._marginal:  # the posterior velocity marginal, for the next jump's velocity
             np.dot(self._weight, self._spread, out=self._velocity_marginal)
             if self._jump_grid and self._jumps_mass > 0.0:
-                self._velocity_marginal += self._jumps_state.sum(0)
+                self._velocity_marginal += (self._jumps_mass / self._jumps_total) * self._jumps_velocity
         if obs.informative and np.isfinite(log_map):
             self._learn_recovery(math.exp(self._log_like_mean - log_map))
             prior = self.new_place_stay * self.new_place_probability_ + self._new_place_prior * (
