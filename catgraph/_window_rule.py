@@ -474,8 +474,12 @@ def _row_moments(rows) -> tuple[np.ndarray, np.ndarray]:
     and the cluster's rows, agree): read once per frame by the horizon and the confidence."""
     n = rows.shape[0]
     centres, spreads = np.empty(n), np.empty(n)
+    whole = isinstance(rows, np.ndarray)
     for t in range(n):
-        centres[t], spreads[t] = rows[t].mean(), rows[t].std()
+        row = rows[t]
+        centres[t] = row.mean()
+        # numpy's std with the mean handed in skips summing the row again: the same floats
+        spreads[t] = row.std(mean=centres[t]) if whole else row.std()
     return centres, spreads
 
 
@@ -554,51 +558,48 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
     lengths = cfg.grid.astype(np.float64)
     shorter = lengths[None, :] < lengths[:, None]  # (G, H)
     recent = shorter & (lengths[None, :] >= cfg.recent_fraction * lengths[:, None])
+    # the common spread (the widest over the velocities) at each sub-window's length, the
+    # sub-windows' lengths and the window's own line's level at them, each formed once
+    common = _common_std(st)[:, :, None, :]  # (n, 1, 1, H)
+    l4 = lengths[None, None, None, :]
+    sub_mean = st.mean[:, :, None, :]  # (n, V, 1, H)
+    level = None
+    if cfg.rule in ("persistent", "challenged", "gated", "contested"):
+        level = (sub_mean - st.best_s[..., None]) / np.where(common > 0, common, 1.0)  # (n, V, G, H)
+    if cfg.rule in HORIZON_RULES:
+        reach = horizon.astype(np.float64)[:, None, None, None]
     # every recent shorter sub-window of the best hypothesis (same line) must lie closer to
     # the window's own score than to the mean of random places at that length
-    mid = 0.5 * (st.best_s[..., None] + st.mean[:, :, None, :])  # (n, V, G, H)
+    mid = 0.5 * (st.best_s[..., None] + sub_mean)  # (n, V, G, H)
     if cfg.rule in ("persistent", "challenged"):
         # only on the sub-windows that span the horizon, where the window's own line is weak,
         # or that hold a break of the rows
-        common = _common_std(st)[:, :, None, :]  # (n, 1, 1, H)
-        l4 = lengths[None, None, None, :]
-        level = (st.mean[:, :, None, :] - st.best_s[..., None]) / np.where(common > 0, common, 1.0)
-        read = (l4 >= horizon.astype(np.float64)[:, None, None, None]) | (level < CONTEST_LINE_SPREADS) | (
-            since.astype(np.float64)[:, None, None, None] < l4)
+        read = (l4 >= reach) | (level < CONTEST_LINE_SPREADS) | (since.astype(np.float64)[:, None, None, None] < l4)
         ok = (st.sub <= mid) | ~(recent[None, None] & read)
     else:
         ok = (st.sub <= mid) | ~recent
     if cfg.rule in ("evident", "unrivalled", "spanning"):
         # and every shorter sub-window must stand out from random places at its length: at
         # least EVIDENT_SPREADS common spreads (the widest over the velocities) below their mean
-        common = _common_std(st)[:, :, None, :]  # (n, 1, 1, H)
-        ok &= (st.sub <= st.mean[:, :, None, :] - EVIDENT_SPREADS * common) | ~shorter
+        ok &= (st.sub <= sub_mean - EVIDENT_SPREADS * common) | ~shorter
     if cfg.rule == "punctuated":
         # the same, on the sub-windows that span half the horizon or hold a break of the rows
-        common = _common_std(st)[:, :, None, :]  # (n, 1, 1, H)
-        l4 = lengths[None, None, None, :]
-        spans = (l4 >= SPREAD_HORIZON_FRACTION * horizon.astype(np.float64)[:, None, None, None]) | (
-            since.astype(np.float64)[:, None, None, None] < l4)
-        ok &= (st.sub <= st.mean[:, :, None, :] - EVIDENT_SPREADS * common) | ~(shorter[None, None] & spans)
+        spans = (l4 >= SPREAD_HORIZON_FRACTION * reach) | (since.astype(np.float64)[:, None, None, None] < l4)
+        ok &= (st.sub <= sub_mean - EVIDENT_SPREADS * common) | ~(shorter[None, None] & spans)
     if cfg.rule in ("gated", "contested", "persistent", "challenged"):
         # the same, on the sub-windows that span the horizon, and on shorter ones where the
         # window's own line is weak
-        common = _common_std(st)[:, :, None, :]  # (n, 1, 1, H)
-        l4 = lengths[None, None, None, :]
-        level = (st.mean[:, :, None, :] - st.best_s[..., None]) / np.where(common > 0, common, 1.0)  # (n, V, G, H)
-        spans = (l4 >= horizon.astype(np.float64)[:, None, None, None]) | (level < WEAK_LINE_SPREADS)
-        ok &= (st.sub <= st.mean[:, :, None, :] - EVIDENT_SPREADS * common) | ~(shorter[None, None] & spans)
+        spans = (l4 >= reach) | (level < WEAK_LINE_SPREADS)
+        ok &= (st.sub <= sub_mean - EVIDENT_SPREADS * common) | ~(shorter[None, None] & spans)
     if cfg.rule == "unrivalled":
         # and no significant line of a recent sub-window's length may beat the window's
         # line over those frames by more than RIVAL_SPREADS common spreads
-        common = _common_std(st)[:, :, None, :]  # (n, 1, 1, H)
         tested = shorter & (lengths[None, :] >= RIVAL_FRACTION * lengths[:, None])
         rival = log_p < -np.log(n_places) - RIVAL_MARGIN  # (n, V, H)
         beaten = st.sub > st.best_s[:, :, None, :] + RIVAL_SPREADS * common  # (n, V, G, H)
         ok &= ~(beaten & rival[:, :, None, :]) | ~tested
     if cfg.rule in HORIZON_RULES:
         # a rival: a significant line of a recent sub-window's length that spans the horizon
-        common = _common_std(st)[:, :, None, :]  # (n, 1, 1, H)
         rival = (log_p < -np.log(n_places) - SPANNING_MARGIN) & (lengths[None, None, :] >= horizon[:, None, None])
         beaten = st.sub > st.best_s[:, :, None, :] + RIVAL_SPREADS * common  # (n, V, G, H)
         ok &= ~(beaten & rival[:, :, None, :]) | ~recent
@@ -606,14 +607,14 @@ def _admissible(st: _Stats, cfg: _Config, log_p: np.ndarray | None = None, n_pla
             # and, where the window's own line is weak at the sub-window's length, a line that
             # spans CONTEST_SPANS horizons and is significant beyond the best of N V random lines
             contender = (log_p < -np.log(float(n_places) * v_count) - CONTEST_MARGIN) & (
-                lengths[None, None, :] >= CONTEST_SPANS * horizon.astype(np.float64)[:, None, None])  # (n, V, H)
+                lengths[None, None, :] >= CONTEST_SPANS * reach[:, :, :, 0])  # (n, V, H)
             weak = level < CONTEST_LINE_SPREADS  # (n, V, G, H), the spread test's level
             ok &= ~(beaten & contender[:, :, None, :] & weak) | ~recent
         elif cfg.rule == "challenged":
             # where the window's own line is weak at the sub-window's length and unproven at its
             # full length, a line that spans CONTEST_SPANS horizons and is beyond chance
             contender = (log_p < -np.log(float(n_places))) & (
-                lengths[None, None, :] >= CONTEST_SPANS * horizon.astype(np.float64)[:, None, None])  # (n, V, H)
+                lengths[None, None, :] >= CONTEST_SPANS * reach[:, :, :, 0])  # (n, V, H)
             unproven = log_p >= -np.log(float(n_places) * v_count) - PROVEN_MARGIN  # (n, V, G), the window's
             weak = level < CONTEST_LINE_SPREADS  # (n, V, G, H)
             ok &= ~(beaten & contender[:, :, None, :] & weak & unproven[..., None]) | ~recent
