@@ -30,9 +30,16 @@ Rao–Blackwellised), for a before/after measured in one code state.
 at single places (``Localizer(smooth_feedback=False)``, the filter before its feedback was
 smoothed over the confidence neighbourhoods), for a before/after in one code state.
 
-``--jump-graduation X``: the particle filter with its jump grid
-(``Localizer(jump_graduation=X)``, not a registry parameter), for a before/after in one
-code state.
+``--jump-graduation X``: the particle filter with its jump grid (the ``filter`` method's
+``jump_graduation=X``, the same as ``--params '{"jump_graduation": X}'``), for a
+before/after in one code state.
+
+``--jump-timing [--before PATH]``: the step time with and without the jump grid
+(``jump_graduation`` 0.2 and 1) at 10⁴ and 10⁵ places (a chain, a fixed log-ratio vector,
+2,000 particles), each measurement in a fresh process, the configurations alternated,
+the one-minute load average beside each; with ``--before``, the same from the checkout
+at PATH alternated with this one; and the jump kernels' compile time in a process with
+an empty numba cache. Writes ``particles_jump_grid_speed.md`` / ``.json``.
 
 ``--diagnose``: where the seeds differ on Nordland, shuffled 0.5–3 % (seed 4): the share of
 frames answered correctly by frames since the last jump, per filter seed, and the frames
@@ -150,6 +157,122 @@ def step_times(repeats: int = 7) -> list[dict]:
     return out
 
 
+_ONE_TIMING = """
+import json, os, statistics, sys, time
+import numpy as np
+sys.path.insert(0, {bench!r})
+from bench_filter import _FixedModel, _time_steps
+from catgraph.graph import PlaceGraph
+from catgraph.localizer import Localizer
+from catgraph.motion import VelocityMotion
+n, lam, steps = {n}, {lam}, {steps}
+rows = np.random.default_rng(0).standard_normal((steps + 10, n))
+g = PlaceGraph.chain(n)
+def make():
+    kw = dict(jump_graduation=lam) if lam < 1 else dict()
+    return Localizer(g, _FixedModel(-rows[0]), 2000, motion=VelocityMotion(), seed=0, **kw)
+_time_steps(make(), rows[:12])  # compiled, warm
+load = os.getloadavg()[0]
+t = _time_steps(make(), rows)
+print(json.dumps({{"ms": 1e3 * t, "load": load}}))
+"""
+
+_COMPILE = """
+import json, sys, time
+import numpy as np
+t0 = time.perf_counter()
+from catgraph._jump_kernels import jump_lost, jump_step, line_segments, segment_edges
+from catgraph.grid import _bin_moves, route_neighbours
+from catgraph.graph import PlaceGraph
+from catgraph.motion import VelocityMotion
+m = VelocityMotion(); g = PlaceGraph.chain(50); m.supports_marginal(g)
+fwd, bwd = route_neighbours(g)[:2]; seg = line_segments(fwd, bwd)
+whole, frac, sign, _ = _bin_moves(m._v); nb = len(m._v)
+s = np.random.default_rng(0).random((nb, 50))
+t1 = time.perf_counter()
+jump_lost(s, seg, segment_edges(seg, 4), *m._columns, whole, frac, sign)
+out = [np.empty((nb, 50)), np.empty(50), np.empty(50), np.empty((1, nb)), np.empty(1)]
+for threads in (1, 2):
+    jump_step(s, out[0], seg, *m._columns, whole, frac, sign, 3, 0.005, 0.9, 1e-3, np.full(nb, 1 / nb),
+              np.ones(50), 1.0, 2048, *out[1:], threads=threads)
+t2 = time.perf_counter()
+print(json.dumps({{"import_s": t1 - t0, "compile_s": t2 - t1}}))
+"""
+
+
+def jump_timing(before: str | None, places=(10_000, 100_000), rounds: int = 5, steps: int = 50) -> dict:
+    """The step with and without the jump grid, each timing in a fresh process, the
+    configurations (and, with ``before``, the two checkouts) alternated round by round;
+    then the jump kernels' cold compile time (an empty numba cache)."""
+    import os
+    import subprocess
+    import tempfile
+
+    here = str(Path(__file__).resolve().parents[1])
+    codes = [("this checkout", here)] + ([("before", str(Path(before).resolve()))] if before else [])
+    out = {"rounds": rounds, "steps": steps, "codes": {k: _commit(v) for k, v in codes}, "rows": []}
+    for n in places:
+        cells = {(code, lam): [] for code, _ in codes for lam in (1.0, 0.2)}
+        for r in range(rounds):
+            for (code, path) in codes:
+                for lam in (1.0, 0.2):
+                    script = _ONE_TIMING.format(bench=str(Path(path) / "benchmarks"), n=n, lam=lam, steps=steps)
+                    env = {**os.environ, "PYTHONPATH": path}
+                    res = subprocess.run([sys.executable, "-c", script], env=env, cwd=path, capture_output=True,
+                                         text=True, check=True)
+                    cells[code, lam].append(json.loads(res.stdout.strip().splitlines()[-1]))
+                    print(n, code, lam, cells[code, lam][-1], flush=True)
+        for (code, lam), ts in cells.items():
+            ms = [t["ms"] for t in ts]
+            out["rows"].append({"places": n, "code": code, "jump_graduation": lam, "ms_median": statistics.median(ms),
+                                "ms": ms, "load": [t["load"] for t in ts]})
+    compile_runs = []
+    for _ in range(2):
+        with tempfile.TemporaryDirectory() as cache:
+            env = {**os.environ, "PYTHONPATH": here, "NUMBA_CACHE_DIR": cache}
+            res = subprocess.run([sys.executable, "-c", _COMPILE.format()], env=env, cwd=here, capture_output=True,
+                                 text=True, check=True)
+            compile_runs.append(json.loads(res.stdout.strip().splitlines()[-1]))
+    out["compile"] = compile_runs
+    return out
+
+
+def _commit(path: str) -> str:
+    import subprocess
+
+    res = subprocess.run(["git", "-C", path, "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    dirty = subprocess.run(["git", "-C", path, "status", "--porcelain", "--untracked-files=no"], capture_output=True,
+                           text=True).stdout.strip()
+    return res.stdout.strip() + (" (with uncommitted changes)" if dirty else "")
+
+
+def _jump_timing_markdown(t: dict) -> str:
+    codes = t["codes"]
+    parts = ["# The particle filter's step with and without its jump grid\n\n",
+             "Generated by `benchmarks/bench_particles.py --jump-timing" + (" --before PATH" if len(codes) > 1 else "") +
+             "`: one step, observation excluded (a fixed log-ratio vector), a chain of places, 2,000 particles, "
+             f"`VelocityMotion`; each timing the mean of {t['steps']} steps in a fresh process (after 12 warm steps), "
+             f"the configurations alternated over {t['rounds']} rounds; median of the rounds, the one-minute load "
+             "average over them beside it. Code: " + "; ".join(f"{k} {v}" for k, v in codes.items()) + ". "
+             f"{platform.machine()}, numpy {np.__version__}.\n\n",
+             "| places | code | without (`jump_graduation` 1) | with (0.2) | with ÷ without | load |\n"
+             "|---|---|---|---|---|---|\n"]
+    rows = t["rows"]
+    for n in dict.fromkeys(r["places"] for r in rows):
+        for code in codes:
+            a = next(r for r in rows if r["places"] == n and r["code"] == code and r["jump_graduation"] == 1.0)
+            b = next(r for r in rows if r["places"] == n and r["code"] == code and r["jump_graduation"] == 0.2)
+            loads = a["load"] + b["load"]
+            parts.append(f"| {n:,} | {code} ({codes[code]}) | {a['ms_median']:.2f} ms | {b['ms_median']:.2f} ms | "
+                         f"{b['ms_median'] / a['ms_median']:.2f} | {min(loads):.1f}–{max(loads):.1f} |\n")
+    c = t["compile"]
+    parts.append("\nCompile time of the jump kernels (`jump_lost`, `jump_step` on one thread and on two: "
+                 "`_jump_blocks`, `_jump_pieces`, `_cumulate_blocks`) in a process with an empty numba cache: " +
+                 ", ".join(f"{r['compile_s']:.2f} s" for r in c) + " (the package's own imports before it: " +
+                 ", ".join(f"{r['import_s']:.2f} s" for r in c) + "); a cached process loads them from disk.\n")
+    return "".join(parts)
+
+
 def convergence(seeds=range(3)) -> list[dict]:
     """Mean (over frames and seeds) total-variation distance between the particle
     filter's and the grid filter's place posteriors on the synthetic world, in order,
@@ -251,17 +374,27 @@ def main(argv=None) -> None:
                     help="the particle filter as before its feedback was smoothed (Localizer(smooth_feedback=False): "
                          "the posterior at single places), for a before/after in one code state")
     ap.add_argument("--jump-graduation", type=float, default=None,
-                    help="the particle filter with its jump grid (Localizer(jump_graduation=X), X in (0, 1)): the "
+                    help="the particle filter with its jump grid (filter method jump_graduation=X, X in (0, 1)): the "
                          "recovery share kept exactly over (place, velocity bin), a share X of it born each step")
+    ap.add_argument("--jump-timing", action="store_true",
+                    help="the step with and without the jump grid at 10^4 and 10^5 places (fresh processes, "
+                         "alternated) and the jump kernels' compile time; writes particles_jump_grid_speed.md")
+    ap.add_argument("--before", default=None, help="with --jump-timing: a second checkout, alternated with this one")
     args = ap.parse_args(argv)
-    if args.jump_graduation is not None:
-        _localizer_default("jump_graduation", args.jump_graduation)
-        args.label = f"jump_graduation={args.jump_graduation}"
+    if args.jump_timing:
+        t = jump_timing(args.before)
+        RESULTS.mkdir(parents=True, exist_ok=True)
+        (RESULTS / "particles_jump_grid_speed.json").write_text(json.dumps({"machine": platform.platform(), **t},
+                                                                           indent=1))
+        (RESULTS / "particles_jump_grid_speed.md").write_text(_jump_timing_markdown(t))
+        return
     if args.sampled_velocity:
         _localizer_default("marginal_velocity", False)
     if args.unsmoothed_feedback:
         _localizer_default("smooth_feedback", False)
     params = json.loads(args.params)
+    if args.jump_graduation is not None:  # a registry parameter of the filter method
+        params["jump_graduation"] = args.jump_graduation
     seeds = [int(s) for s in args.seeds.split(",")]
     if args.diagnose:
         diagnose(params, seeds)
@@ -274,8 +407,7 @@ def main(argv=None) -> None:
     (RESULTS / f"{args.out}.json").write_text(json.dumps({"machine": platform.platform(), "params": params,
                                                           "seeds": seeds, "rows": rows, "step_times": times,
                                                           "convergence": conv}, indent=1))
-    label = {"Localizer": getattr(args, "label", None)} if args.jump_graduation is not None else {}
-    (RESULTS / f"{args.out}.md").write_text(_markdown(rows, times, conv, {**params, **label}, seeds, args.quick))
+    (RESULTS / f"{args.out}.md").write_text(_markdown(rows, times, conv, params, seeds, args.quick))
 
 
 if __name__ == "__main__":

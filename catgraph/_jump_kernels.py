@@ -12,25 +12,24 @@ with ``S`` the stored grid (a scalar multiple of the last ``J``), ``c`` the scal
 renormalises what ran past a route end (:func:`jump_lost` gives that mass) and ``a =
 ε / n``. :func:`jump_step` does it in one pass over the grid on a route whose places
 follow each other by index (``fwd[j] ∈ {j + 1, −1}``: every map built from traverses in
-order; ``seg`` names each place's stretch of unbroken route), block by block, the blocks
-shared among the cores (``prange`` over a fixed split, so the floats do not depend on the
-number of threads), and writes every sum the filter's step reads from the grid: the
-predicted place masses, the cumulative of ``J_t``'s place marginal (the births' proposal)
-and its velocity sums per block.
+order; ``seg`` names each place's stretch of unbroken route), block by block, fixed runs
+of blocks shared among the free cores' threads (the kernel releases the GIL; the floats do
+not depend on the number of threads), and writes every sum the filter's step reads from
+the grid: the predicted place masses, the cumulative of ``J_t``'s place marginal (the
+births' proposal) and its velocity sums per block.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import prange
 
 from ._jit import njit
 
 #: Places per block of :func:`jump_step` (a block's transition rows, shifted rows and
 #: halo stay in the first- and second-level caches).
 JUMP_BLOCK = 2048
-#: Runs of whole blocks :func:`jump_step` shares among the threads (fixed: the floats do
-#: not depend on the number of threads).
+#: Runs of whole blocks :func:`jump_step` hands out to its threads, each to whichever is
+#: free (fixed: the floats do not depend on the number of threads).
 JUMP_PIECES = 8
 
 
@@ -193,17 +192,6 @@ def _jump_blocks(s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, halo, cent
         totals[k] = running
 
 
-@njit(parallel=True)
-def _jump_pieces(s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, halo, centre, side, read, a, jv, e, unit,
-                 block, predicted, like, bins, totals, pieces):  # pragma: no cover - compiled
-    """:func:`_jump_blocks` over ``pieces`` fixed runs of whole blocks, shared among the
-    threads (the same floats on any number of threads)."""
-    blocks = bins.shape[0]
-    for p in prange(pieces):
-        _jump_blocks(s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, halo, centre, side, read, a, jv, e, unit,
-                     block, predicted, like, bins, totals, blocks * p // pieces, blocks * (p + 1) // pieces)
-
-
 @njit
 def _cumulate_blocks(like, totals, block):  # pragma: no cover - compiled
     """Each block's cumulative of :func:`_jump_blocks` made the whole route's: the sums of
@@ -217,16 +205,18 @@ def _cumulate_blocks(like, totals, block):  # pragma: no cover - compiled
         offset += totals[k]
 
 
+_POOL = {}  # worker threads, by their number
+
+
 def jump_threads(n_values: int) -> int:
     """Threads for a pass over ``n_values`` grid values: as many as the work is worth
     (:data:`catgraph.grid.LINE_WORK_PER_THREAD` values each), at most the cores not busy
     with other processes (:func:`catgraph.grid._free_cores`; a thread on a core another
     process holds stalls the pass for whole time slices)."""
-    import numba
-
+    from .differences import _threads_available
     from .grid import LINE_WORK_PER_THREAD, _free_cores
 
-    threads = min(numba.config.NUMBA_NUM_THREADS, n_values // LINE_WORK_PER_THREAD)
+    threads = min(_threads_available(), n_values // LINE_WORK_PER_THREAD)
     return _free_cores(threads) if threads > 1 else 1
 
 
@@ -243,8 +233,9 @@ def jump_step(s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, reach, blur, 
     (``bins`` and ``totals`` have one row per block of ``block`` places). Each block works
     from its own places of ``s`` and a halo of ``reach + 2`` places (the largest hop, one
     more for a split move, one for the blur) in its own buffers and writes its own places;
-    the blocks are cut into :data:`JUMP_PIECES` fixed runs shared among ``threads``
-    threads (default :func:`jump_threads`), so the floats are the same on any number."""
+    the blocks are cut into :data:`JUMP_PIECES` fixed runs, each taken by whichever of
+    ``threads`` threads is free (default :func:`jump_threads`; the kernel releases the
+    GIL), so the floats are the same on any number of threads."""
     nb, n = out.shape
     blocks = bins.shape[0]
     halo = reach + 2
@@ -255,15 +246,25 @@ def jump_step(s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, reach, blur, 
         threads = jump_threads(nb * n)
     args = (s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, halo, centre, side, read, a, jv, e, unit, block,
             predicted, like, bins, totals)
-    if threads <= 1:
+    threads = int(max(1, min(threads, blocks)))
+    if threads == 1:
         _jump_blocks(*args, 0, blocks)
     else:
-        import numba
+        pieces = min(blocks, JUMP_PIECES)
+        queue = iter([(blocks * p // pieces, blocks * (p + 1) // pieces) for p in range(pieces)])
+        if threads - 1 not in _POOL:
+            from concurrent.futures import ThreadPoolExecutor
 
-        before = numba.get_num_threads()
-        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+            _POOL[threads - 1] = ThreadPoolExecutor(max_workers=threads - 1, thread_name_prefix="catgraph-jumps")
+
+        def take():
+            for lo, hi in queue:
+                _jump_blocks(*args, lo, hi)
+
+        jobs = [_POOL[threads - 1].submit(take) for _ in range(threads - 1)]
         try:
-            _jump_pieces(*args, min(blocks, JUMP_PIECES))
+            take()
         finally:
-            numba.set_num_threads(before)
+            for job in jobs:
+                job.result()
     _cumulate_blocks(like, totals, block)
