@@ -97,3 +97,62 @@ def test_standardised_scores_that_are_not_finite_are_refused_as_before():
     bad[7] = np.inf
     with pytest.raises(CatgraphError):
         model._observe_standardised(bad, float(scores.mean()), float(scores.std()), 0.5, np.empty(50))
+
+
+def _combined_run(n_places, rows, mode="grid"):
+    from catgraph.graph import PlaceGraph
+    from catgraph.methods import make_filter, observation_model, resolve_params
+
+    extra = {"n_particles": 300, "seed": 0} if mode == "particles" else {}
+    p = resolve_params("filter", {"model": "combined", "mode": mode, **extra})
+    loc = make_filter(p, PlaceGraph.chain(n_places), observation_model(p, n_places, None))
+    loc.reset()
+    out = []
+    for row in rows:
+        e = loc.step(row)
+        out.append((e.place, e.confidence, e.new_place_probability, e.score, loc.place_posterior_.tobytes()))
+    return out
+
+
+@pytest.mark.parametrize("mode", ["grid", "particles"])
+def test_parts_observed_on_two_threads_are_the_parts_observed_in_turn(monkeypatch, mode):
+    import catgraph.grid
+    import catgraph.observation as observation
+
+    rng = np.random.default_rng(21)
+    n_places = 1500
+    rows = _rows(rng, 40, n_places)
+    rows[np.arange(40), np.arange(300, 340)] -= 3.0
+    in_turn = _combined_run(n_places, rows, mode)
+    threads = []
+    monkeypatch.setattr(observation, "PARALLEL_PARTS_PLACES", 1)
+    monkeypatch.setattr(catgraph.grid, "_free_cores", lambda cores: 2)
+    observe = TemperedObservation.observe
+
+    def observe_noting_thread(self, row):
+        import threading
+
+        threads.append(threading.current_thread().name)
+        return observe(self, row)
+
+    monkeypatch.setattr(TemperedObservation, "observe", observe_noting_thread)
+    assert _combined_run(n_places, rows, mode) == in_turn
+    assert any(name.startswith("catgraph-parts") for name in threads)  # the first part did run on the second thread
+
+
+def test_an_error_of_the_part_on_the_second_thread_reaches_the_caller(monkeypatch):
+    import catgraph.grid
+    import catgraph.observation as observation
+    from catgraph.observation import CombinedObservation, SequenceObservation
+
+    monkeypatch.setattr(observation, "PARALLEL_PARTS_PLACES", 1)
+    monkeypatch.setattr(catgraph.grid, "_free_cores", lambda cores: 2)
+    model = CombinedObservation([TemperedObservation(), SequenceObservation()])
+    model.observe(np.random.default_rng(0).standard_normal(50))
+
+    def broken(row):
+        raise ValueError("the first part failed")
+
+    model.models[0].observe = broken
+    with pytest.raises(ValueError, match="first part failed"):
+        model.observe(np.random.default_rng(1).standard_normal(50))
