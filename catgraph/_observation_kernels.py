@@ -363,10 +363,11 @@ def centred_sums(x, mean, other, out):  # pragma: no cover - compiled
 
 
 @njit(nogil=True)
-def accumulated_levels(total, row, count, level):  # pragma: no cover - compiled
-    """``total += row`` (``np.add`` in place), ``level = total / count`` (``np.divide``)
-    and numpy's ``level.sum()``, in one pass: the online hub levels of the next frame
-    and their sum, formed while the frame is added to the running total."""
+def accumulated_levels(total, row, count, new_total, level):  # pragma: no cover - compiled
+    """``new_total = total + row`` (``np.add``; ``new_total`` may be ``total``: in place),
+    ``level = new_total / count`` (``np.divide``) and numpy's ``level.sum()``, in one
+    pass: the online hub levels of the next frame and their sum, formed while the frame
+    is added to the running total."""
     n = total.shape[0]
     starts = block_starts(n)
     nb = len(starts) - 1
@@ -374,10 +375,10 @@ def accumulated_levels(total, row, count, level):  # pragma: no cover - compiled
     for b in range(nb):
         lo = starts[b]
         w = starts[b + 1] - lo
-        ts, rs, ls = total[lo:lo + w], row[lo:lo + w], level[lo:lo + w]
+        ts, rs, ns, ls = total[lo:lo + w], row[lo:lo + w], new_total[lo:lo + w], level[lo:lo + w]
         for t in range(np.uint64(w)):
             v = ts[t] + rs[t]
-            ts[t] = v
+            ns[t] = v
             ls[t] = v / count
         sums[b] = _block_sum(ls, w)
     return 0.0 + _combine(sums, n)

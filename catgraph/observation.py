@@ -962,12 +962,22 @@ def _observe_parts(models: Sequence[ObservationModel], row) -> list[Observation]
         from concurrent.futures import ThreadPoolExecutor
 
         _PARTS_POOL.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="catgraph-parts"))
-    first = _PARTS_POOL[0].submit(models[0].observe, row)
+    first = _PARTS_POOL[0].submit(_observe_and_prepare, models[0], row)
     try:
         rest = [m.observe(row) for m in models[1:]]
     finally:
         head = first.result()  # waits (and raises the first part's error) whatever the others did
     return [head, *rest]
+
+
+def _observe_and_prepare(model, row) -> Observation:
+    """``model.observe(row)``, then what the model can prepare of its feedback ahead
+    (:meth:`TemperedObservation._prepare_levels`), on the second thread."""
+    obs = model.observe(row)
+    prepare = getattr(model, "_prepare_levels", None)
+    if prepare is not None:
+        prepare()
+    return obs
 
 
 #: The exponents every part after the first may take under ``weights="predictive"``
@@ -1474,15 +1484,39 @@ class TemperedObservation:
         """Add a frame to the online hub levels' running total; with a contiguous float64
         row, also form the next frame's levels ``total / count`` and their mean in the
         same pass (:func:`catgraph._observation_kernels.accumulated_levels`: numpy's
-        floats), so that :meth:`_hub` reads them instead of dividing again."""
+        floats), so that :meth:`_hub` reads them instead of dividing again. Where
+        :meth:`_prepare_levels` has formed them already for this row, they are taken."""
+        prepared = self.__dict__.pop("_prepared", None)
+        if prepared is not None and prepared[0] is row and prepared[1] == self._hub_count + 1:
+            self._hub_sum, self._next_total = self._next_total, self._hub_sum
+            self._level, self._next_level = self._next_level, self._level
+            self._hub_count += 1
+            self._level_ready = (self._hub_count, prepared[2])
+            return
         self._hub_count += 1
         total = self._hub_sum
         if self._hub_count > 1 and _plain_row(row) and len(row) == len(total):
             level = self._buffer("_level", len(total))
-            level_sum = _kernels().accumulated_levels(total, row, float(self._hub_count), level)
+            level_sum = _kernels().accumulated_levels(total, row, float(self._hub_count), total, level)
             self._level_ready = (self._hub_count, level_sum / len(level))
         else:
             total += row
+
+    def _prepare_levels(self) -> None:
+        """Form the running total and the levels that :meth:`feedback` will make of the
+        frame just observed, in spare arrays, ahead of the feedback (the combined model
+        calls this on its second thread while the sequence part still works); the
+        feedback then only swaps them in. The same floats as :meth:`_add_to_levels`."""
+        row = getattr(self, "_row", None)
+        if (row is None or self._hub_map is not None or not isinstance(self.hub, str) or self._hub_count < 1
+                or not _plain_row(row) or len(row) != len(self._hub_sum)):
+            return
+        n = len(row)
+        new_total, level = self._buffer("_next_total", n), self._buffer("_next_level", n)
+        self._buffer("_level", n)  # the array the feedback swaps the prepared levels with
+        count = self._hub_count + 1
+        level_sum = _kernels().accumulated_levels(self._hub_sum, row, float(count), new_total, level)
+        self._prepared = (row, count, level_sum / n)
 
     def _hub_excess(self, level: np.ndarray, level_mean: float | None = None, formed: bool = True):
         """The hub correction from reference levels: ``w · (level − mean level)``.
@@ -1577,6 +1611,7 @@ class TemperedObservation:
         if not hasattr(self, "n_reference_"):
             self._start(row)
         self._best = None
+        self.__dict__.pop("_prepared", None)
         lam = float(self._lams[0])
         if self.likelihood == "linear" and len(self._lams) == 1 and row.flags.c_contiguous and lam in (0.0, 1.0):
             # the single-frame ratios, their tempered product, its maximum and the frame's

@@ -19,13 +19,19 @@ def _rows(rng, n_frames, n_places, hubs=True):
     return rows
 
 
+@pytest.mark.parametrize("prepare", [False, True])
 @pytest.mark.parametrize("n_places", [300, 4099])
-def test_levels_formed_by_the_feedback_are_the_divided_levels(n_places):
+def test_levels_formed_by_the_feedback_are_the_divided_levels(n_places, prepare):
+    """``prepare``: the next levels formed ahead of the feedback (as on the combined
+    model's second thread), the feedback swapping them in."""
     rng = np.random.default_rng(n_places)
     fast, slow = TemperedObservation(), TemperedObservation()
     for k, row in enumerate(_rows(rng, 30, n_places)):
         slow.__dict__.pop("_level_ready", None)  # the levels divided again, their mean by numpy
         a, b = fast.observe(row), slow.observe(row.copy())
+        if prepare:
+            fast._prepare_levels()
+            assert ("_prepared" in fast.__dict__) == (k > 0)
         assert np.array_equal(a.log_ratio, b.log_ratio), k
         assert a.new_place_log_ratio == b.new_place_log_ratio and a.log_ratio_max == b.log_ratio_max
         assert (fast.__dict__.get("n_hubs_"), fast.__dict__.get("hub_shrinkage_")) == (

@@ -44,8 +44,12 @@ def test_accumulated_levels_are_numpy_add_divide_and_sum(n):
     want_total = total + row
     want_level = np.divide(want_total, 7)
     level = np.empty(n)
-    level_sum = kernels.accumulated_levels(total, row, 7.0, level)
+    before, new_total, other_level = total.copy(), np.empty(n), np.empty(n)
+    assert kernels.accumulated_levels(total, row, 7.0, new_total, other_level) == want_level.sum()
+    assert np.array_equal(total, before) and np.array_equal(new_total, want_total)  # into another array
+    level_sum = kernels.accumulated_levels(total, row, 7.0, total, level)  # in place
     assert np.array_equal(total, want_total) and np.array_equal(level, want_level)
+    assert np.array_equal(other_level, want_level)
     assert level_sum == want_level.sum() and level_sum / n == want_level.mean()
 
 
