@@ -156,6 +156,19 @@ def encode(x, unit):
     return np.int64(c)
 
 
+@njit(inline="always")
+def encode_scaled(x, inv):
+    """:func:`encode` with the reciprocal of the quantum: ``x * inv`` is ``x / unit`` exactly
+    where ``unit`` is a power of two whose reciprocal is a float64 (both are ``x 2^-k``,
+    rounded once)."""
+    c = np.rint(x * inv)
+    if c > CODE_MAX:
+        c = CODE_MAX
+    elif c < -CODE_MAX:
+        c = -CODE_MAX
+    return np.int64(c)
+
+
 @njit
 def advance(ring, mring, state, i, d_row):
     """Store query frame ``i``'s row as codes in ``ring[i % R]`` and its mean code in
@@ -167,10 +180,17 @@ def advance(ring, mring, state, i, d_row):
     out = ring[i % r]
     n = d_row.shape[0]
     total = 0
-    for j in range(n):
-        c = encode(d_row[j], unit)
-        out[j] = c
-        total += c
+    inv = 1.0 / unit  # a power of two: d * inv is d / unit, the same float (one multiplication, not a division)
+    if inv < np.inf:
+        for j in range(n):
+            c = encode_scaled(d_row[j], inv)
+            out[j] = c
+            total += c
+    else:  # a row of subnormal differences: 1 / unit is beyond float64
+        for j in range(n):
+            c = encode(d_row[j], unit)
+            out[j] = c
+            total += c
     mring[i % r] = np.int64(np.rint(total / n))
 
 
@@ -1122,7 +1142,7 @@ def smallest_places(row, idx, val):  # pragma: no cover - compiled
     block with no value below the ``k``-th smallest kept is passed over whole (one vectorised
     count): each of its values would have been passed over one by one, as the ``k``-th
     smallest only falls when a value is inserted. The same values are inserted in the same
-    order (NaN is below nothing, and never inserted, as before)."""
+    order (NaN, below nothing, is passed over in a block as it is one by one)."""
     k = idx.shape[0]
     n = row.shape[0]
     filled = 0
