@@ -89,12 +89,13 @@ def case_stream(package: str, n: int, frames: int) -> dict:
     for i in range(1, L_MAX + 1):
         k.advance(m._ring, m._mring, m._state, i, rows[i % 3])
     m.n_steps_ = L_MAX + 1
-    times = []
+    times, cpu = [], []
     for t in range(frames):
         row = rows[t % 3]
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         m.step(row)
         times.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)  # every thread of the process: the work, less sensitive to the load
     floors = []
     for t in range(max(5, min(frames, 20))):
         t0 = time.perf_counter()
@@ -104,6 +105,7 @@ def case_stream(package: str, n: int, frames: int) -> dict:
     return {
         "package": package, "n": n, "frames": frames, "velocities": int(v_count), "lengths": int(g_count),
         "step_ms_median": 1e3 * float(np.median(times)), "step_ms_p99": 1e3 * float(np.percentile(times, 99)),
+        "step_cpu_ms_median": 1e3 * float(np.median(cpu)), "load": os.getloadavg()[0],
         "floor_ms_median": 1e3 * float(np.median(floors)),
         "rss_start_mb": rss_start, "rss_peak_mb": _rss_mb(),
         "ring_mb": m._ring.nbytes / 1e6, "sums_mb": m._sums.nbytes / 1e6,
@@ -223,13 +225,20 @@ def _markdown(res: dict) -> str:
                   "values each step must read and write, in the package's own types), same process, same threads. "
                   "RSS at start: after imports and loading the kernels from the cache a first process filled, "
                   "before the matcher allocates.", "",
-                  "| N | package | step median | step p99 | floor (same process) | step / floor | peak RSS "
-                  "| RSS at start | ring (shared) | running sums | bytes per velocity |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "Step CPU: the process's CPU time per step (every thread), the median; the work itself, "
+                  "less sensitive to the machine's load than the wall time. Load: the 1-minute load average "
+                  "at the end of the process.", "",
+                  "| N | package | step median | step p99 | step CPU | load | floor (same process) | step / floor "
+                  "| peak RSS | RSS at start | ring (shared) | running sums | bytes per velocity |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in st:
+            cpu = f"{r['step_cpu_ms_median']:.2f} ms" if "step_cpu_ms_median" in r else "–"
+            load = f"{r['load']:.1f}" if "load" in r else "–"
+            label = r.get("label", "current") + (f" (round {r['round']})" if "round" in r else "")
             lines.append(
-                f"| {r['n']:,} | {r.get('label', 'current')} | {r['step_ms_median']:.1f} ms | {r['step_ms_p99']:.1f} ms "
-                f"({r['frames']} steps) | {r['floor_ms_median']:.1f} ms | ×{r['step_ms_median'] / r['floor_ms_median']:.1f} "
+                f"| {r['n']:,} | {label} | {r['step_ms_median']:.2f} ms | {r['step_ms_p99']:.1f} ms "
+                f"({r['frames']} steps) | {cpu} | {load} "
+                f"| {r['floor_ms_median']:.1f} ms | ×{r['step_ms_median'] / r['floor_ms_median']:.1f} "
                 f"| {r['rss_peak_mb']:.0f} MiB | {r['rss_start_mb']:.0f} MiB | {r['ring_mb']:.0f} MB "
                 f"({r.get('ring_dtype', 'float32')}) | {r['sums_mb']:.0f} MB ({r.get('sums_dtype', 'float64')}) "
                 f"| {r['bytes_per_velocity'] / 1e6:.2f} MB ({r['bytes_per_velocity'] / r['n']:.0f} B per place) |")
@@ -321,6 +330,7 @@ def main(argv=None) -> None:
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--note", action="append", default=[], help="a note for the results (the machine's load)")
     ap.add_argument("--skip", default="", help="comma-separated: stream,nordland,compile")
+    ap.add_argument("--stream-rounds", type=int, default=1, help="processes per package and N in the stream case")
     ap.add_argument("--out", default="matcher", help="results file name (NAME.md and NAME.json)")
     ap.add_argument("--render", action="store_true", help="only rewrite NAME.md from NAME.json")
     ap.add_argument("--child", nargs="*", default=None, help=argparse.SUPPRESS)
@@ -367,10 +377,13 @@ def main(argv=None) -> None:
             for key, pkg in packages:  # compile into the package's cache first: RSS at start without the compiler
                 _child(["stream", pkg, "1000", "2"], _env(before_path))
             res["stream"] = []
-            for n, f in zip(args.sizes, frames):
-                for key, pkg in packages:
-                    res["stream"].append(dict(_child(["stream", pkg, str(n), str(f)], _env(before_path)), label=key))
-                    print("stream", res["stream"][-1], flush=True)
+            # --stream-rounds processes per package and N, the packages in turn
+            for round_ in range(args.stream_rounds):
+                for n, f in zip(args.sizes, frames):
+                    for key, pkg in packages:
+                        res["stream"].append(dict(_child(["stream", pkg, str(n), str(f)], _env(before_path)), label=key,
+                                                  round=round_ + 1))
+                        print("stream", res["stream"][-1], flush=True)
         if "nordland" not in skip:
             res["nordland"] = {}
             # one run per process, the packages in turn: a change in the machine's load between
