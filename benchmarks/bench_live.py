@@ -11,6 +11,7 @@ cost — so ratios survive a busy machine. Writes ``benchmarks/results/live.md``
     python benchmarks/bench_live.py [--sizes 10000 100000 1000000] [--frames 60]
     python benchmarks/bench_live.py --cold-start
     python benchmarks/bench_live.py --profile --sizes 10000 100000   # the step's pieces (live_profile.md)
+    python benchmarks/bench_live.py --profile-rest --sizes 100000    # the rest's pieces (live_profile_rest.md)
 
 Cases (per N):
 
@@ -496,6 +497,108 @@ def profile_step(n: int, rounds: int = 41, l_max: int = 500) -> dict:
     return {"n": n, "rounds": rounds, "commit": _commit(), "threads": numba.get_num_threads(), "load": load,
             "pieces": {k: {"wall_ms": 1000 * float(np.median(wall[k])), "cpu_ms": 1000 * float(np.median(cpu[k])),
                            "wall_min_ms": 1000 * float(np.min(wall[k]))} for k in pieces}}
+
+
+#: What ``--profile-rest`` times: (module, owner or None, name) of the observation's and
+#: the grid filter's functions, each wrapped in the running process.
+REST_PIECES = (
+    [("catgraph.grid", "GridLocalizer", name) for name in ("step", "_exp_ratio", "_predict", "_update", "_summarise",
+                                                           "_feedback")]
+    + [("catgraph.grid", None, name) for name in ("_line_predict", "_line_setup", "_line_blocks", "_evidence_sums",
+                                                  "_posterior_pass", "_inside_outside")]
+    + [("catgraph.localizer", None, "_smoothed"), ("catgraph.sequence", "SequenceMatcher", "step"),
+       ("catgraph.sequence", "SequenceMatcher", "window_scores")]
+    + [("catgraph.observation", "CombinedObservation", name) for name in ("observe", "feedback")]
+    + [("catgraph.observation", "SequenceObservation", "observe")]
+    + [("catgraph.observation", "TemperedObservation", name) for name in ("observe", "feedback", "_hub", "_novelty",
+                                                                          "_tempered", "_observe_standardised")]
+)
+
+
+def profile_rest(n: int, frames: int = 60, l_max: int = 500) -> dict:
+    """What each function of the live step's rest (the whole-image model, the
+    combination, the grid filter) costs at ``N = n``: the compact live step (combined
+    model), ring filled, every function of :data:`REST_PIECES` and every compiled pass of
+    :mod:`catgraph._observation_kernels` wrapped, ``frames`` frames; per piece the median
+    CPU ms of the calling thread (the work itself, not the waits for a busy core) and wall
+    ms, and how often it runs per frame. A wrapped piece includes the pieces it calls."""
+    import importlib
+
+    from catgraph.graph import PlaceGraph
+    from catgraph.io import CatgraphMap
+    from catgraph.live import LiveLocalizer, LiveMap
+
+    rng = np.random.default_rng(1)
+    the_map = CatgraphMap(_reference(n), "sad", {"size": None, "patch": 4, "metric": None, "normalise": True},
+                          PlaceGraph.chain(n), meta={"kind": "images"})
+    live = LiveLocalizer(LiveMap(the_map, layout="uint8"), model="combined", n_particles=2000, l_max=l_max)
+    del the_map
+    images = rng.uniform(0, 255, (frames + 4, 16, 32)).astype(np.float32)
+    live.step(images[0])
+    matcher = live._sequence.matcher_
+    fill = np.empty(n)
+    for _ in range(l_max):  # the ring filled: steady state
+        matcher.step(rng.standard_normal(out=fill))
+    cpu: dict = {}
+    wall: dict = {}
+    counting = [False]
+
+    def wrap(owner, name, label):
+        fn = getattr(owner, name)
+
+        def timed(*args, **kwargs):
+            c, t = time.thread_time(), time.perf_counter()
+            out = fn(*args, **kwargs)
+            if counting[0]:
+                wall.setdefault(label, []).append(time.perf_counter() - t)
+                cpu.setdefault(label, []).append(time.thread_time() - c)
+            return out
+
+        setattr(owner, name, timed)
+
+    for module, owner, name in REST_PIECES:
+        mod = importlib.import_module(module)
+        wrap(getattr(mod, owner) if owner else mod, name, f"{owner or module.split('.')[-1]}.{name}")
+    kernels = importlib.import_module("catgraph._observation_kernels")
+    for name in [k for k in vars(kernels) if not k.startswith("_") and hasattr(getattr(kernels, k), "py_func")]:
+        wrap(kernels, name, f"_observation_kernels.{name}")
+    for k in range(3):
+        live.step(images[1 + k])
+    load = [os.getloadavg()[0]]
+    counting[0] = True
+    for k in range(frames):
+        live.step(images[4 + k] if 4 + k < len(images) else images[-1])
+    counting[0] = False
+    load.append(os.getloadavg()[0])
+    per = {k: len(v) / frames for k, v in cpu.items()}
+    out = {k: {"cpu_ms": 1e3 * float(np.median(v)), "wall_ms": 1e3 * float(np.median(wall[k])), "per_frame": per[k]}
+           for k, v in cpu.items()}
+    step, match, observe = (np.asarray(cpu[k]) for k in ("GridLocalizer.step", "SequenceMatcher.step",
+                                                        "CombinedObservation.observe"))
+    totals = {"rest (filter step less the matcher)": 1e3 * float(np.median(step - match)),
+              "observation less the matcher": 1e3 * float(np.median(observe - match)),
+              "filter (step less the observation)": 1e3 * float(np.median(step - observe))}
+    return {"n": n, "frames": frames, "commit": _commit(), "load": load, "pieces": out, "totals_cpu_ms": totals,
+            "package": str(Path(importlib.import_module("catgraph").__file__).parent)}
+
+
+def write_profile_rest(results: list[dict], path: Path) -> None:
+    """``live_profile_rest.md``: the rest's pieces, most time per frame first."""
+    lines = ["# The live step's rest, piece by piece", "",
+             "Generated by `benchmarks/bench_live.py --profile-rest`: the compact live step (combined model, the grid "
+             "filter), the matcher's ring filled, every function of the whole-image model, the combination and the "
+             "grid filter wrapped in the running process; per piece the median over the frames of the CPU time of "
+             "the calling thread (the work itself, not the waits for a busy core) and of the wall clock, and the "
+             "calls per frame. A piece includes the pieces it calls. 2 cores shared with other work.", ""]
+    for r in results:
+        lines += [f"## N = {r['n']:,} (commit {r['commit']}, {r['frames']} frames, load {r['load'][0]:.2f} -> "
+                  f"{r['load'][1]:.2f})", "", "| CPU ms of the calling thread, median per frame | |", "|---|---|"]
+        lines += [f"| {k} | {v:.3f} |" for k, v in r["totals_cpu_ms"].items()]
+        lines += ["", "| piece | CPU ms per call | wall ms per call | calls per frame |", "|---|---|---|---|"]
+        for k, v in sorted(r["pieces"].items(), key=lambda kv: -kv[1]["cpu_ms"] * kv[1]["per_frame"]):
+            lines.append(f"| `{k}` | {v['cpu_ms']:.3f} | {v['wall_ms']:.3f} | {v['per_frame']:.0f} |")
+        lines.append("")
+    path.write_text("\n".join(lines))
 
 
 def write_profile(results: list[dict], path: Path) -> None:
@@ -997,6 +1100,8 @@ def main() -> None:
     parser.add_argument("--layout", default="float32", help="with --dask: the shards' layout (float32 or uint8)")
     parser.add_argument("--profile", action="store_true",
                         help="measure only the matcher's and the row's pieces (live_profile.md)")
+    parser.add_argument("--profile-rest", action="store_true",
+                        help="time the whole-image model's, the combination's and the grid filter's pieces")
     parser.add_argument("--case", help=argparse.SUPPRESS)
     parser.add_argument("--n", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--anchor-rows", type=int, default=None, help=argparse.SUPPRESS)
@@ -1004,6 +1109,9 @@ def main() -> None:
     if args.case:  # worker mode: one case, JSON on stdout
         if args.case == "profile":
             print(json.dumps(profile_step(args.n, l_max=args.l_max)))
+            return
+        if args.case == "profile-rest":
+            print(json.dumps(profile_rest(args.n, args.frames, l_max=args.l_max)))
             return
         anchor = args.anchor_rows or (256 if args.n >= 1_000_000 else 1024)
         print(json.dumps(run_case(args.case, args.n, args.frames, args.l_max, anchor)))
@@ -1014,6 +1122,13 @@ def main() -> None:
         (RESULTS / "live_profile.json").write_text(json.dumps(results, indent=1))
         write_profile(results, RESULTS / "live_profile.md")
         print((RESULTS / "live_profile.md").read_text())
+        return
+    if args.profile_rest:
+        results = [_subprocess(["--case", "profile-rest", "--n", str(n), "--frames", str(args.frames), "--l-max",
+                                str(args.l_max)]) for n in args.sizes]
+        (RESULTS / "live_profile_rest.json").write_text(json.dumps(results, indent=1))
+        write_profile_rest(results, RESULTS / "live_profile_rest.md")
+        print((RESULTS / "live_profile_rest.md").read_text())
         return
     store = RESULTS / "live.json"
     previous = json.loads(store.read_text()) if store.exists() else {"results": [], "cold": None}
