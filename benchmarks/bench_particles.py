@@ -267,10 +267,44 @@ def _jump_timing_markdown(t: dict) -> str:
                          f"{b['ms_median'] / a['ms_median']:.2f} | {min(loads):.1f}–{max(loads):.1f} |\n")
     c = t["compile"]
     parts.append("\nCompile time of the jump kernels (`jump_lost`, `jump_step` on one thread and on two: "
-                 "`_jump_blocks`, `_jump_pieces`, `_cumulate_blocks`) in a process with an empty numba cache: " +
+                 "`_jump_blocks`, `_cumulate_blocks`) in a process with an empty numba cache: " +
                  ", ".join(f"{r['compile_s']:.2f} s" for r in c) + " (the package's own imports before it: " +
                  ", ".join(f"{r['import_s']:.2f} s" for r in c) + "); a cached process loads them from disk.\n")
     return "".join(parts)
+
+
+def compare_markdown(without: dict, with_: dict, labels=("without", "with")) -> str:
+    """Per cell, two runs of :func:`accuracy` side by side (the same grid column): mean AUC,
+    spread over the filter seeds, the largest spread of one case; per dataset the means, the
+    largest fall of a cell's mean and of one case's mean (a UJI month), and the cells whose
+    spread is at most 0.02."""
+    a_rows = {(r["dataset"], r["condition"]): r for r in without["rows"]}
+    b_rows = {(r["dataset"], r["condition"]): r for r in with_["rows"]}
+    keys = [k for k in a_rows if k in b_rows]
+    w, v = labels
+    parts = [f"| dataset | condition | grid | mean AUC {w} | {v} | change | spread {w} | {v} | largest spread of one "
+             f"case {w} | {v} | largest fall of one case's mean |\n|---|---|---|---|---|---|---|---|---|---|---|\n"]
+    summary = []
+    for ds in dict.fromkeys(k[0] for k in keys):
+        sub = [(a_rows[k], b_rows[k]) for k in keys if k[0] == ds]
+        for a, b in sub:
+            case_a = np.mean(a["particles"]["auc_by_case"], axis=0)
+            case_b = np.mean(b["particles"]["auc_by_case"], axis=0)
+            parts.append(f"| {ds} | {a['condition']} | {a['grid']['auc']:.3f} | {a['auc_mean']:.3f} | "
+                         f"{b['auc_mean']:.3f} | {b['auc_mean'] - a['auc_mean']:+.3f} | {a['auc_spread']:.3f} | "
+                         f"{b['auc_spread']:.3f} | {a['case_spread']:.3f} | {b['case_spread']:.3f} | "
+                         f"{min(0.0, float(np.min(case_b - case_a))):+.3f} |\n")
+        changes = [b["auc_mean"] - a["auc_mean"] for a, b in sub]
+        case_falls = [float(np.min(np.mean(b["particles"]["auc_by_case"], 0) - np.mean(a["particles"]["auc_by_case"], 0)))
+                      for a, b in sub]
+        summary.append(f"| **{ds}** | all {len(sub)} conditions | mean {np.mean([a['grid']['auc'] for a, _ in sub]):.3f} "
+                       f"| mean {np.mean([a['auc_mean'] for a, _ in sub]):.3f} | {np.mean([b['auc_mean'] for _, b in sub]):.3f} "
+                       f"| smallest {min(changes):+.3f} | worst {max(a['auc_spread'] for a, _ in sub):.3f} | "
+                       f"{max(b['auc_spread'] for _, b in sub):.3f} | worst {max(a['case_spread'] for a, _ in sub):.3f} "
+                       f"| {max(b['case_spread'] for _, b in sub):.3f} | {min(0.0, min(case_falls)):+.3f} |\n")
+        summary.append(f"| | cells with spread ≤ 0.02 | | {sum(a['auc_spread'] <= 0.02 for a, _ in sub)} of {len(sub)} | "
+                       f"{sum(b['auc_spread'] <= 0.02 for _, b in sub)} of {len(sub)} | | | | | | |\n")
+    return "".join(parts + summary)
 
 
 def convergence(seeds=range(3)) -> list[dict]:
@@ -380,7 +414,13 @@ def main(argv=None) -> None:
                     help="the step with and without the jump grid at 10^4 and 10^5 places (fresh processes, "
                          "alternated) and the jump kernels' compile time; writes particles_jump_grid_speed.md")
     ap.add_argument("--before", default=None, help="with --jump-timing: a second checkout, alternated with this one")
+    ap.add_argument("--compare", nargs=2, metavar=("WITHOUT", "WITH"), default=None,
+                    help="print the cells of two results files (stems under benchmarks/results) side by side")
     args = ap.parse_args(argv)
+    if args.compare:
+        runs = [json.loads((RESULTS / f"{stem}.json").read_text()) for stem in args.compare]
+        print(compare_markdown(*runs, labels=tuple(args.compare)))
+        return
     if args.jump_timing:
         t = jump_timing(args.before)
         RESULTS.mkdir(parents=True, exist_ok=True)

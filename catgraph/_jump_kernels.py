@@ -129,15 +129,28 @@ def _jump_blocks(s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, halo, cent
             f1 = frac[b]
             if read:
                 c0 = t_ptr[b]
-                v0 = t_val[c0]
-                r0 = s[t_src[c0], qa:qz]
-                for i in range(width):
-                    q[i] = v0 * r0[i]
-                for cc in range(c0 + 1, t_ptr[b + 1]):
-                    vc = t_val[cc]
-                    rc = s[t_src[cc], qa:qz]
+                kc = t_ptr[b + 1] - c0
+                if kc <= 4:  # velocity_transition's columns: the bin, two neighbours, the mirror
+                    r0 = s[t_src[c0], qa:qz]
+                    r1 = s[t_src[c0 + 1], qa:qz] if kc > 1 else r0
+                    r2 = s[t_src[c0 + 2], qa:qz] if kc > 2 else r0
+                    r3 = s[t_src[c0 + 3], qa:qz] if kc > 3 else r0
+                    v0 = t_val[c0]
+                    v1 = t_val[c0 + 1] if kc > 1 else 0.0
+                    v2 = t_val[c0 + 2] if kc > 2 else 0.0
+                    v3 = t_val[c0 + 3] if kc > 3 else 0.0
                     for i in range(width):
-                        q[i] += vc * rc[i]
+                        q[i] = v0 * r0[i] + v1 * r1[i] + v2 * r2[i] + v3 * r3[i]
+                else:
+                    v0 = t_val[c0]
+                    r0 = s[t_src[c0], qa:qz]
+                    for i in range(width):
+                        q[i] = v0 * r0[i]
+                    for cc in range(c0 + 1, c0 + kc):
+                        vc = t_val[cc]
+                        rc = s[t_src[cc], qa:qz]
+                        for i in range(width):
+                            q[i] += vc * rc[i]
             base = a * jv[b]
             o = out[b, t0:t1]
             acc = 0.0
@@ -151,8 +164,10 @@ def _jump_blocks(s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, halo, cent
                 else:  # taps o0 − 1 .. o0 + 2
                     w0, w1, w2, w3 = f0 * side, f0 * centre + f1 * side, f1 * centre + f0 * side, f1 * side
                     g = o0 - 1
+                # views, so that every index is the loop's own (no negative-index wrap to check)
+                q0, q1, q2, q3 = q[g:g + m], q[g + 1:g + 1 + m], q[g + 2:g + 2 + m], q[g + 3:g + 3 + m]
                 for i in range(m):
-                    v = w0 * q[i + g] + w1 * q[i + g + 1] + w2 * q[i + g + 2] + w3 * q[i + g + 3] + base
+                    v = w0 * q0[i] + w1 * q1[i] + w2 * q2[i] + w3 * q3[i] + base
                     pm[i] += v
                     x = v * eu[i]
                     o[i] = x
