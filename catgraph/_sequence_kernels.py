@@ -48,8 +48,8 @@ is divided; against the float64 score of the same differences it is off by at mo
 
 The streaming and the batch form both call :func:`run_batch` (one row, or blocks of
 rows with a ring a few rows longer), which stores the rows and runs the same compiled
-per-velocity code (:func:`run_velocities`, or :func:`run_velocities_gaussian` for the
-default approximation, compiled without the median and the mixture fit) on the same
+per-velocity code (:func:`run_velocities`, or for the default approximation
+:func:`run_velocities_exact`, compiled without the median and the mixture fit) on the same
 stored codes in the same order, so their results agree bit for bit; the velocities
 are shared among threads, each writing only its own sums and outputs.
 
@@ -99,6 +99,20 @@ it saves); the results are bit-identical. Measured in one run (``bench_matcher.p
 5.3 s, warm load from the cache 0.45 s -> 0.46 s, streaming step at ``N = 10^5``
 9.9 ms -> 10.0 ms (noise); the mixture path, compiled only when asked for, 6.3 s ->
 6.6 s.
+
+Exact moments (the default approximation: :func:`run_velocities_exact`). The moments are
+sums of the integers ``y = S - shift`` and ``y^2``; while the sum of ``y^2`` over a window's
+places stays below ``2^53``, every partial sum is exact in float64 in any order, so
+:func:`_update_stats_exact` adds the int32 sums in int32 lanes (twice as many places per
+vector) and the moments in whatever order the compiler vectorises, and gets the bits of
+:func:`_update_stats`. A window beyond ``2^53`` (long windows of large, alike codes; every
+window of the benchmark rows stays below it) is marked, the kernel returns after that
+frame, and :func:`_settle_window` adds its moments again in the order of
+:func:`_update_stats` from the sums as that frame left them (:func:`_run_exact`), compiled
+only when first needed. Measured (``benchmarks/results/matcher_step.md``): kernel CPU at
+``N = 10^5`` about 8 % less, whole Nordland (in cache) about 25 % less; the cold first
+call as before within 0.5 s (the fallback compiled into the kernel instead cost 2.1 s).
+:func:`run_velocities_gaussian` (the update of :func:`_update_stats`) stays the reference.
 """
 
 from __future__ import annotations
@@ -540,10 +554,13 @@ def _update_stats_exact(sums_g, ring, mring, i, v, length, shift, bmin):
     below ``2^53`` (and ``N < 2^21``, so that ``|sum y| <= sqrt(N sum y^2) < 2^37``), every
     partial sum of both moments was exact, in this order and in the order of
     :func:`_update_stats`, and the two agree bit for bit. That holds for every window measured
-    on normalised rows at ``N = 10^5`` (``y`` a few thousand codes times ``sqrt(L)``). Where it
-    does not (long windows of large, alike codes), the moments are added again from the
-    updated sums in the order of :func:`_update_stats` itself (:func:`_replay_moments`: the
-    same compiled loops adding a row of zeros).
+    on normalised rows at ``N = 10^5`` (``y`` a few thousand codes times ``sqrt(L)``). Returns
+    the sums of ``y`` and ``y^2`` and whether they are exact; where they are not (long windows
+    of large, alike codes) the caller adds the moments again from the updated sums in the
+    order of :func:`_update_stats` itself (:func:`_settle_window`). That fallback is called
+    from Python and compiled only when a window first needs it: compiled into this kernel, the
+    second set of update loops cost 2.1 s more of every cold first call, for a case that
+    normalised rows rarely reach.
 
     The update loops add the int32 sums in int32 lanes (a sum is stored as int32 anyway and
     never overflows it), so a vector holds twice as many places as in :func:`_add_row`, and
@@ -626,9 +643,7 @@ def _update_stats_exact(sums_g, ring, mring, i, v, length, shift, bmin):
                 da, dq = _stretch_exact(sums_g, cur, old, m_old, kind, s_lo, s_hi, sh, off, fshift, bmin)
                 sa += da
                 sq += dq
-    if sq < _EXACT and n < (1 << 21):
-        return sa, sq
-    return _replay_moments(sums_g, i, v, length, shift, e_lo, e_hi, np.zeros(n, dtype=np.int16))
+    return sa, sq, sq < _EXACT and n < (1 << 21)
 
 
 @njit
@@ -911,15 +926,74 @@ def _window(sums_g, ring, mring, i, v, length, unit, radius, bmin, g, best_j, be
     sbase = position(v, i) % n
     shift = np.int64(sums_g[n - sbase if sbase > 0 else 0])
     eff = length if length <= i + 1 else i + 1
-    sy, syy = _update_stats_exact(sums_g, ring, mring, i, v, length, shift, bmin)
-    my = sy / n
-    var = syy / n - my * my
+    sy, syy = _update_stats(sums_g, ring, mring, i, v, length, shift, bmin)
+    _best_out(sums_g, sbase, bmin, radius, unit, eff, g, best_j, best_s, second_s)
+    _moments_out(n, sy, syy, shift, unit, eff, g, mean, std)
+
+
+@njit(inline="always")
+def _best_out(sums_g, sbase, bmin, radius, unit, eff, g, best_j, best_s, second_s):
+    """A window's best place and its best and second-best scores into the outputs at ``g``."""
     jb, vb, v2 = _best_and_second(sums_g, sbase, bmin, radius)
     best_j[g] = jb
     best_s[g] = np.float64(vb) * unit / eff
     second_s[g] = np.inf if v2 == _NONE else np.float64(v2) * unit / eff
+
+
+@njit(inline="always")
+def _moments_out(n, sy, syy, shift, unit, eff, g, mean, std):
+    """A window's mean and spread from the sums ``sy`` and ``syy`` of ``y = S - shift`` and
+    ``y^2`` over its ``n`` places, into the outputs at ``g`` (the one copy of this arithmetic:
+    the kernels and the fallback of :func:`_settle_window` give the same floats)."""
+    my = sy / n
+    var = syy / n - my * my
     mean[g] = (shift + my) * unit / eff
     std[g] = np.sqrt(var) * unit / eff if var > 0.0 else 0.0
+
+
+@njit(inline="always")
+def _window_exact(sums_g, ring, mring, i, v, length, unit, radius, bmin, g, best_j, best_s, second_s, mean, std):
+    """:func:`_window` with the update of :func:`_update_stats_exact`; returns whether the
+    moments were exact and the ``shift`` they were taken about (the mean and the spread
+    written at ``g`` are those of the window only where they were exact)."""
+    n = sums_g.shape[0]
+    sbase = position(v, i) % n
+    shift = np.int64(sums_g[n - sbase if sbase > 0 else 0])
+    eff = length if length <= i + 1 else i + 1
+    sy, syy, exact = _update_stats_exact(sums_g, ring, mring, i, v, length, shift, bmin)
+    _best_out(sums_g, sbase, bmin, radius, unit, eff, g, best_j, best_s, second_s)
+    _moments_out(n, sy, syy, shift, unit, eff, g, mean, std)
+    return exact, shift
+
+
+@njit
+def _settle_window(sums_g, i, v, length, unit, shift, g, mean, std, locs, scales):
+    """The fallback of :func:`_update_stats_exact`: a window's mean and spread (and its Gaussian
+    component) from the moments added again in the order of :func:`_update_stats`, from the
+    sums just updated to frame ``i`` (:func:`_replay_moments`). Called from Python between
+    kernel calls (:func:`_run_exact`), so it compiles only when a window first needs it."""
+    n = sums_g.shape[0]
+    e_lo, e_hi = _entering(v, i, n)
+    sy, syy = _replay_moments(sums_g, i, v, length, shift, e_lo, e_hi, np.zeros(n, dtype=np.int16))
+    eff = length if length <= i + 1 else i + 1
+    _moments_out(n, sy, syy, shift, unit, eff, g, mean, std)
+    locs[g, 0] = mean[g]
+    scales[g, 0] = std[g]
+
+
+@njit(inline="always")
+def _entering(v, i, n):
+    """The places ``[e_lo, e_hi)`` whose line enters the reference at frame ``i``."""
+    if i == 0:
+        return 0, n
+    delta = position(v, i) - position(v, i - 1)
+    if delta >= n or delta <= -n:
+        return 0, n
+    if delta > 0:
+        return 0, delta
+    if delta < 0:
+        return n + delta, n
+    return 0, 0
 
 
 @njit
@@ -1009,6 +1083,68 @@ def run_velocities_gaussian(chosen, c0, c1, start, sums, ring, mring, state, vel
                                      weights[t, vi], locs[t, vi], scales[t, vi], sub[t, vi], s[vi])
 
 
+@njit(inline="always")
+def _velocity_stats_exact(sums_v, ring, mring, i, v, grid, unit, radius, best_j, best_s, second_s, mean, std,
+                          weights, locs, scales, sub, pend, pend_shift):
+    """:func:`_velocity_stats_gaussian` with the update of :func:`_update_stats_exact`: marks in
+    ``pend`` (``(G,)``, with the shift in ``pend_shift``) each window whose moments were not
+    exact; returns how many."""
+    bmin = np.empty((sums_v.shape[1] + CHUNK - 1) // CHUNK, dtype=np.int64)
+    count = 0
+    for g in range(grid.shape[0]):
+        exact, shift = _window_exact(sums_v[g], ring, mring, i, v, grid[g], unit, radius, bmin, g, best_j, best_s,
+                                     second_s, mean, std)
+        weights[g, 0] = 1.0
+        locs[g, 0] = mean[g]
+        scales[g, 0] = std[g]
+        if not exact:
+            pend[g] = 1
+            pend_shift[g] = shift
+            count += 1
+    _sub_scores(sums_v, i, v, grid, unit, best_j, sub)
+    return count
+
+
+@njit(nogil=True)
+def run_velocities_exact(chosen, c0, c1, t_first, start, sums, ring, mring, state, velocities, grid, radius, best_j,
+                         best_s, second_s, mean, std, weights, locs, scales, sub, pend, pend_shift):
+    """:func:`run_velocities_gaussian` on the update of :func:`_update_stats_exact`, the first
+    velocity of ``chosen`` from frame ``start + t_first`` on. Stops after the first frame with a
+    window whose moments were not exact and returns ``(q, t)``, its velocity's position in
+    ``chosen`` and its row (the caller settles the windows marked in ``pend`` from the sums as
+    that frame left them, then goes on); ``(-1, -1)`` once every velocity and frame is done."""
+    for q in range(chosen.shape[0]):
+        vi = chosen[q]
+        for t in range(t_first if q == 0 else c0, c1):
+            if _velocity_stats_exact(sums[vi], ring, mring, start + t, velocities[vi], grid, state[0], radius,
+                                     best_j[t, vi], best_s[t, vi], second_s[t, vi], mean[t, vi], std[t, vi],
+                                     weights[t, vi], locs[t, vi], scales[t, vi], sub[t, vi], pend[vi],
+                                     pend_shift[vi]) > 0:
+                return q, t
+    return -1, -1
+
+
+def _run_exact(chosen, c0, c1, start, sums, ring, mring, state, velocities, grid, radius, best_j, best_s, second_s,
+               mean, std, weights, locs, scales, sub, pend, pend_shift):
+    """:func:`run_velocities_gaussian`'s outputs, bit for bit, from :func:`run_velocities_exact`:
+    where a window's moments were not exact, its mean and spread are settled in the order of
+    :func:`_update_stats` (:func:`_settle_window`) before the velocity goes on to its next frame."""
+    q0, t0 = 0, c0
+    while q0 < chosen.shape[0]:
+        q, t = run_velocities_exact(chosen[q0:], c0, c1, t0, start, sums, ring, mring, state, velocities, grid, radius,
+                                    best_j, best_s, second_s, mean, std, weights, locs, scales, sub, pend, pend_shift)
+        if q < 0:
+            return
+        vi = int(chosen[q0 + q])
+        for g in np.flatnonzero(pend[vi]):
+            _settle_window(sums[vi, g], start + t, float(velocities[vi]), int(grid[g]), state[0],
+                           np.int64(pend_shift[vi, g]), int(g), mean[t, vi], std[t, vi], locs[t, vi], scales[t, vi])
+        pend[vi] = 0
+        q0, t0 = q0 + q, t + 1
+        if t0 >= c1:
+            q0, t0 = q0 + 1, c0
+
+
 #: Window sums updated per thread below which the velocities run on the calling thread
 #: alone (a small map: handing work to a second thread costs more than it saves).
 WORK_PER_THREAD = 1 << 18
@@ -1044,6 +1180,11 @@ def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_it
     ``(V, N)``; ``work`` ``(V, N)`` (robust) and ``resp`` ``(V, K, N)`` (mixtures), else
     empty.
 
+    The Gaussian approximation runs :func:`_run_exact` (the update of
+    :func:`_update_stats_exact`, windows whose moments round settled in the order of
+    :func:`_update_stats`), the others :func:`run_velocities`; the outputs are those of
+    :func:`run_velocities_gaussian`, bit for bit.
+
     The ring holds ``R >= max(grid) + 1`` rows, so ``C = R - max(grid)`` new rows fit
     beside the longest window's history: the rows are stored ``C`` at a time, then the
     velocities are handed out one at a time to ``numba.get_num_threads()`` threads (fewer
@@ -1065,8 +1206,10 @@ def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_it
             locs, scales, sub, s, work, resp)
     run = run_velocities
     if approx == APPROX_GAUSSIAN:
-        run = run_velocities_gaussian
-        rest = (velocities, grid, radius, best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s)
+        run = _run_exact
+        pend = np.zeros((v_count, grid.shape[0]), dtype=np.uint8)  # windows whose moments await settling
+        rest = (velocities, grid, radius, best_j, best_s, second_s, mean, std, weights, locs, scales, sub, pend,
+                np.zeros((v_count, grid.shape[0]), dtype=np.int64))
     if threads == 1:
         every = _velocity_sets(v_count)[-1]
         for c0 in range(0, d.shape[0], chunk):

@@ -27,11 +27,11 @@ def _both(d, v, length, dtype=np.int32):
         k.advance(ring, mring, state, i, d[i])
         shift = np.int64(slow[0])
         m_slow = k._update_stats(slow, ring, mring, i, v, length, shift, b_slow)
-        m_fast = k._update_stats_exact(fast, ring, mring, i, v, length, shift, b_fast)
+        *m_fast, exact = k._update_stats_exact(fast, ring, mring, i, v, length, shift, b_fast)
         # the fallback alone: the moments added again from the updated sums in the slow order
         e_lo, e_hi = _entering(v, i, n)
         m_replay = k._replay_moments(slow, i, v, length, shift, e_lo, e_hi, np.zeros(n, dtype=np.int16))
-        out.append((m_slow, m_fast, slow.copy(), fast.copy(), b_slow.copy(), b_fast.copy(), m_replay))
+        out.append((m_slow, tuple(m_fast), slow.copy(), fast.copy(), b_slow.copy(), b_fast.copy(), m_replay, exact))
     return out
 
 
@@ -50,11 +50,13 @@ def _entering(v, i, n):
 
 
 def _assert_same(out):
-    for m_slow, m_fast, slow, fast, b_slow, b_fast, m_replay in out:
+    for m_slow, m_fast, slow, fast, b_slow, b_fast, m_replay, exact in out:
         np.testing.assert_array_equal(fast, slow)
         np.testing.assert_array_equal(b_fast, b_slow)
-        assert np.array(m_fast).tobytes() == np.array(m_slow).tobytes()  # the moments' bits
+        if exact:  # the moments' bits; where not exact, the fallback's
+            assert np.array(m_fast).tobytes() == np.array(m_slow).tobytes()
         assert np.array(m_replay).tobytes() == np.array(m_slow).tobytes()
+        assert exact == (m_slow[1] < 2.0 ** 53)
 
 
 @pytest.mark.parametrize("v", [1.0, -2.0, 0.5, 3.0])
@@ -80,6 +82,71 @@ def test_exact_update_equals_the_update_where_the_moments_round(v):
     if v == 1.0:  # the case is what it claims: the pattern's own velocity, sums of squares beyond 2^53
         last_slow = out[-1][2].astype(np.int64)
         assert sum(int(y) ** 2 for y in last_slow - last_slow[0]) > 2 ** 53
+        assert not out[-1][-1]  # and the exact update says so
+
+
+def test_run_batch_settles_the_windows_whose_moments_round():
+    """The whole kernel driver on rows whose long windows' moments round: the outputs of the
+    exact update with the settled windows equal those of the update it replaces
+    (:func:`run_velocities_gaussian`), on one thread and on two, and some window was settled."""
+    from catgraph import sequence as seq
+
+    rng = np.random.default_rng(2)
+    n, n_q = 3000, 140
+    base = rng.normal(size=n)
+    d = np.stack([np.roll(base, i) for i in range(n_q)]) + 0.1 * rng.normal(size=(n_q, n))
+    d[0] *= 0.05
+    cfg = seq._config("test", "adaptive", "gaussian", seq.DEFAULT_RULE, "posterior", 5, 130, 6, 10, 0.05,
+                      seq.DEFAULT_VELOCITIES, None)
+    v_count, g = cfg.velocities.shape[0], cfg.grid.shape[0]
+
+    def run(driver, rows_per_call):
+        sums, ring, mring, state, scratch = seq._state(cfg, n, rows_per_call)
+        outs = []
+        for start in range(0, n_q, rows_per_call):
+            block = d[start:start + rows_per_call]
+            st = seq._Stats(block.shape[0], v_count, g, 1, True)
+            driver(block, start, sums, ring, mring, state, st, scratch)
+            outs += [st.best_j, st.best_s, st.second_s, st.mean, st.std, st.locs, st.scales, st.sub]
+        return outs + [sums]
+
+    def reference(block, start, sums, ring, mring, state, st, scratch):
+        every = k._velocity_sets(v_count)[-1]
+        k.store_rows(block, 0, block.shape[0], start, ring, mring, state)
+        k.run_velocities_gaussian(every, 0, block.shape[0], start, sums, ring, mring, state, cfg.velocities, cfg.grid,
+                                  cfg.radius, st.best_j, st.best_s, st.second_s, st.mean, st.std, st.weights, st.locs,
+                                  st.scales, st.sub, scratch[0])
+
+    def exact(block, start, sums, ring, mring, state, st, scratch):
+        k.run_batch(block, start, sums, ring, mring, state, cfg.velocities, cfg.grid, cfg.approx_code, 10, 1,
+                    cfg.radius, st.best_j, st.best_s, st.second_s, st.mean, st.std, st.weights, st.locs, st.scales,
+                    st.sub, *scratch)
+
+    settled = []
+    original = k._settle_window
+
+    def counting(*args):
+        settled.append(args[1])
+        return original(*args)
+
+    k._settle_window = counting
+    try:
+        for rows_per_call in (1, 7):
+            want = run(reference, rows_per_call)
+            got = run(exact, rows_per_call)
+            for a, b in zip(got, want):
+                assert a.tobytes() == b.tobytes()
+        old_work = k.WORK_PER_THREAD
+        k.WORK_PER_THREAD = 1  # both threads, one velocity at a time
+        try:
+            got = run(exact, 7)
+        finally:
+            k.WORK_PER_THREAD = old_work
+        for a, b in zip(got, want):
+            assert a.tobytes() == b.tobytes()
+    finally:
+        k._settle_window = original
+    assert settled  # the case is what it claims: some windows were settled
 
 
 def test_exact_update_with_int64_sums():
