@@ -63,6 +63,31 @@ def segment_edges(seg: np.ndarray, reach: int) -> np.ndarray:
     return np.flatnonzero(near).astype(np.int64)
 
 
+def block_starts(seg: np.ndarray, reach: int, block: int = JUMP_BLOCK) -> np.ndarray:
+    """The blocks of :func:`jump_step`: each stretch of route (``seg``) cut into a small
+    block at either end (the places within ``reach + 3`` of it, whose moves and blur see the
+    end) and blocks of at most ``block`` places between them, whose halo of ``reach + 2``
+    places holds no end (they move by index alone). Returns the first place of every block
+    and ``n`` (int64)."""
+    n = len(seg)
+    if n == 0:
+        return np.zeros(1, dtype=np.int64)
+    first = np.flatnonzero(np.r_[True, seg[1:] != seg[:-1]])
+    last = np.r_[first[1:], n]
+    edge = reach + 3
+    starts = []
+    for a, z in zip(first, last):
+        if z - a <= 2 * edge:
+            starts.append(a)
+            continue
+        starts.append(a)
+        inner = z - a - 2 * edge
+        pieces = -(-inner // block)
+        starts += [a + edge + inner * p // pieces for p in range(pieces)]
+        starts.append(z - edge)
+    return np.array(starts + [n], dtype=np.int64)
+
+
 @njit
 def jump_lost(s, seg, edges, t_ptr, t_src, t_val, whole, frac, sign):  # pragma: no cover - compiled
     """The mass of ``s`` (bins × places) that one prediction moves past a route end: from
@@ -89,7 +114,7 @@ def jump_lost(s, seg, edges, t_ptr, t_src, t_val, whole, frac, sign):  # pragma:
 
 
 @njit(fastmath=True, nogil=True)
-def _jump_blocks(s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, halo, centre, side, read, a, jv, e, unit, block,
+def _jump_blocks(s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, halo, centre, side, read, a, jv, e, unit, starts,
                  predicted, like, bins, totals, k_start, k_stop):  # pragma: no cover - compiled
     """Blocks ``k_start .. k_stop − 1`` of :func:`jump_step` (each block's own places of
     ``out``, ``predicted``, ``like`` (its cumulative within the block), ``bins[k]`` and
@@ -98,12 +123,15 @@ def _jump_blocks(s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, halo, cent
     offsets, one four-point stencil on that row; else the shift with each source's stretch
     checked, then the blur with the route ends' own."""
     nb, n = out.shape
+    block = 0
+    for k in range(k_start, k_stop):
+        block = max(block, starts[k + 1] - starts[k])
     sh_all = np.zeros(block + 2)  # one bin's shifted row over a block and one place either side
     q_all = np.zeros(block + 2 * halo)  # one bin's row of T · s over a block and its halo
     eu_all = np.empty(block)
     for k in range(k_start, k_stop):
-        t0 = k * block
-        t1 = min(n, t0 + block)
+        t0 = starts[k]
+        t1 = starts[k + 1]
         qa = max(0, t0 - halo)
         qz = min(n, t1 + halo)
         width = qz - qa
@@ -208,14 +236,14 @@ def _jump_blocks(s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, halo, cent
 
 
 @njit
-def _cumulate_blocks(like, totals, block):  # pragma: no cover - compiled
+def _cumulate_blocks(like, totals, starts):  # pragma: no cover - compiled
     """Each block's cumulative of :func:`_jump_blocks` made the whole route's: the sums of
     the blocks before it added, in block order."""
     n = like.shape[0]
     offset = 0.0
     for k in range(totals.shape[0]):
         if k > 0:
-            for t in range(k * block, min(n, (k + 1) * block)):
+            for t in range(starts[k], starts[k + 1]):
                 like[t] += offset
         offset += totals[k]
 
@@ -235,7 +263,7 @@ def jump_threads(n_values: int) -> int:
     return _free_cores(threads) if threads > 1 else 1
 
 
-def jump_step(s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, reach, blur, c, a, jv, e, unit, block,
+def jump_step(s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, reach, blur, c, a, jv, e, unit, starts,
               predicted, like, bins, totals, threads=None) -> None:
     """One prediction and update of the jump grid (module docstring), in one pass; the
     grids velocity-major, ``(n_bins, n_places)``.
@@ -245,7 +273,7 @@ def jump_step(s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, reach, blur, 
     ``1 / n`` however small its mass; ``s`` is not read where ``c == 0``); ``predicted[t] = Σ_b (c ·
     blur(shift(T · s))[b, t] + a · jv[b])``; ``like`` the cumulative of ``Σ_b J[b, t]`` over
     ``t``; ``bins[k, b]`` block ``k``'s ``Σ_t J[b, t]``. ``totals``: scratch, one per block
-    (``bins`` and ``totals`` have one row per block of ``block`` places). Each block works
+    (block ``k``: places ``starts[k] .. starts[k + 1] − 1``, :func:`block_starts`). Each block works
     from its own places of ``s`` and a halo of ``reach + 2`` places (the largest hop, one
     more for a split move, one for the blur) in its own buffers and writes its own places;
     the blocks are cut into :data:`JUMP_PIECES` fixed runs, each taken by whichever of
@@ -259,7 +287,7 @@ def jump_step(s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, reach, blur, 
     side = c * blur
     if threads is None:
         threads = jump_threads(nb * n)
-    args = (s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, halo, centre, side, read, a, jv, e, unit, block,
+    args = (s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, halo, centre, side, read, a, jv, e, unit, starts,
             predicted, like, bins, totals)
     threads = int(max(1, min(threads, blocks)))
     if threads == 1:
@@ -282,4 +310,4 @@ def jump_step(s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, reach, blur, 
         finally:
             for job in jobs:
                 job.result()
-    _cumulate_blocks(like, totals, block)
+    _cumulate_blocks(like, totals, starts)

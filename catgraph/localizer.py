@@ -988,7 +988,7 @@ class Localizer:
         """The jump grid's arrays (two grids over (place, velocity bin), the one the last
         step wrote and the one the next writes), its sums and the route it moves along."""
         from .grid import _bin_moves, route_neighbours
-        from ._jump_kernels import JUMP_BLOCK, line_segments, segment_edges
+        from ._jump_kernels import block_starts, line_segments, segment_edges
 
         g, motion = self.graph, self.motion
         n = g.n_places
@@ -1002,9 +1002,6 @@ class Localizer:
         self._jumps_total = 0.0  # Σ J_t
         self._jumps_stored = 0.0  # Σ _jumps_t
         self._jumps_predicted = np.empty(n)
-        blocks = -(-n // JUMP_BLOCK)
-        self._jumps_bins = np.zeros((blocks, nb))
-        self._jumps_totals = np.empty(blocks)
         self._jumps_velocity = np.zeros(nb)  # Σ_j J_t[b, j]
         nbrs = g.__dict__.get("_jump_neighbours")
         if nbrs is None:
@@ -1017,7 +1014,11 @@ class Localizer:
         seg = line_segments(nbrs[0], nbrs[1])
         hops = int((whole + (frac > 0)).max()) if len(whole) else 0
         # the route by place index (the compiled pass), or None (catgraph.grid.predict)
-        self._jumps_line = None if seg is None else (seg, segment_edges(seg, hops))
+        self._jumps_line = None if seg is None else (seg, segment_edges(seg, hops),
+                                                     block_starts(seg, self._jumps_reach))
+        blocks = 1 if seg is None else len(self._jumps_line[2]) - 1
+        self._jumps_bins = np.zeros((blocks, nb))
+        self._jumps_totals = np.empty(blocks)
 
     def jump_state(self) -> np.ndarray | None:
         """The jump grid's mass over (place, velocity bin) after the latest step, in the
@@ -1239,9 +1240,9 @@ class Localizer:
         unit = 1.0 / (kept_mass + eps) if kept_mass + eps > 0.0 else 1.0
         c, a = 0.0, eps / n
         if self._jumps_line is not None:
-            from ._jump_kernels import JUMP_BLOCK, jump_lost, jump_step
+            from ._jump_kernels import jump_lost, jump_step
 
-            seg, edges = self._jumps_line
+            seg, edges, starts = self._jumps_line
             t_ptr, t_src, t_val = motion._columns
             if kept_mass > 0.0:
                 kept = self._jumps_stored - jump_lost(s, seg, edges, t_ptr, t_src, t_val, whole, frac, sign)
@@ -1250,7 +1251,7 @@ class Localizer:
                 else:  # all of it: spread uniformly (as the grid filter's prediction does)
                     a += kept_mass / (n * float(jv.sum()))
             jump_step(s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, self._jumps_reach, motion._blur, c, a,
-                      jv, self._e, unit, JUMP_BLOCK, self._jumps_predicted, self._like, self._jumps_bins,
+                      jv, self._e, unit, starts, self._jumps_predicted, self._like, self._jumps_bins,
                       self._jumps_totals)
             self._jumps_bins.sum(0, out=self._jumps_velocity)
         else:

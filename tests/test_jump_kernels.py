@@ -6,7 +6,7 @@ reference."""
 import numpy as np
 import pytest
 
-from catgraph._jump_kernels import JUMP_BLOCK, jump_lost, jump_step, line_segments, segment_edges
+from catgraph._jump_kernels import JUMP_BLOCK, block_starts, jump_lost, jump_step, line_segments, segment_edges
 from catgraph.graph import PlaceGraph
 from catgraph.grid import _bin_moves, _shift_walk, predict, route_neighbours
 from catgraph.localizer import Localizer
@@ -57,11 +57,11 @@ def _kernel(state, motion, graph, eps, mass, jv, e, unit=1.0, threads=1, block=J
     s = np.ascontiguousarray(state.T)
     lost = jump_lost(s, seg, segment_edges(seg, hops), *motion._columns, whole, frac, sign)
     c = (1.0 - eps) * mass / (s.sum() - lost) if mass > 0 else 0.0
-    blocks = -(-n // block)
+    starts = block_starts(seg, int(whole.max()), block)
     out, predicted, like = np.empty((nb, n)), np.empty(n), np.empty(n)
-    bins, totals = np.empty((blocks, nb)), np.empty(blocks)
+    bins, totals = np.empty((len(starts) - 1, nb)), np.empty(len(starts) - 1)
     jump_step(s, out, seg, *motion._columns, whole, frac, sign, int(whole.max()), motion._blur, c, eps / n, jv, e,
-              unit, block, predicted, like, bins, totals, threads=threads)
+              unit, starts, predicted, like, bins, totals, threads=threads)
     return predicted, out.T / unit, like, bins.sum(0)
 
 
@@ -133,6 +133,30 @@ def test_jump_step_floats_do_not_depend_on_the_threads():
     two = _kernel(state, motion, PlaceGraph.chain(n), 0.01, 0.5, jv, e, threads=2)
     for a, b in zip(one, two):
         np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("block", [7, 64, JUMP_BLOCK])
+def test_jump_step_does_not_depend_on_the_blocks(block):
+    """Small blocks (many of them plain, moving by index alone) against one block per
+    stretch end and the default: the same masses to rounding."""
+    rng = np.random.default_rng(block)
+    n = 700
+    g = _route(n, {250, 251, 600})
+    motion, state, jv, e = _case(rng, n, (-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0), 0.97, 0.02, True)
+    ref = _reference(state, motion, route_neighbours(g), 0.03, 0.7, jv, e)
+    got = _kernel(state, motion, g, 0.03, 0.7, jv, e, block=block)
+    for a, b in zip(got, ref):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-300)
+
+
+def test_block_starts_cut_each_stretch_at_its_ends():
+    seg = np.repeat([0, 1, 2], [100, 5, 3000])
+    starts = block_starts(seg, 3, 1000)
+    assert starts[0] == 0 and starts[-1] == len(seg)
+    assert np.all(np.diff(starts) > 0) and np.max(np.diff(starts)) <= 1000
+    for a in (0, 100, 105):  # every stretch starts a block
+        assert a in starts
+    assert 6 in starts and 94 in starts and 105 + 6 in starts and 3105 - 6 in starts
 
 
 def test_jump_lost_is_the_mass_the_shift_loses():
