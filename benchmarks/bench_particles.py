@@ -181,7 +181,7 @@ _COMPILE = """
 import json, sys, time
 import numpy as np
 t0 = time.perf_counter()
-from catgraph._jump_kernels import jump_lost, jump_step, line_segments, segment_edges
+from catgraph._jump_kernels import block_starts, jump_lost, jump_step, line_segments, segment_edges
 from catgraph.grid import _bin_moves, route_neighbours
 from catgraph.graph import PlaceGraph
 from catgraph.motion import VelocityMotion
@@ -191,10 +191,12 @@ whole, frac, sign, _ = _bin_moves(m._v); nb = len(m._v)
 s = np.random.default_rng(0).random((nb, 50))
 t1 = time.perf_counter()
 jump_lost(s, seg, segment_edges(seg, 4), *m._columns, whole, frac, sign)
-out = [np.empty((nb, 50)), np.empty(50), np.empty(50), np.empty((1, nb)), np.empty(1)]
+starts = block_starts(seg, 3)
+k = len(starts) - 1
+out = [np.empty((nb, 50)), np.empty(50), np.empty(50), np.empty((k, nb)), np.empty(k)]
 for threads in (1, 2):
     jump_step(s, out[0], seg, *m._columns, whole, frac, sign, 3, 0.005, 0.9, 1e-3, np.full(nb, 1 / nb),
-              np.ones(50), 1.0, 2048, *out[1:], threads=threads)
+              np.ones(50), 1.0, starts, *out[1:], threads=threads)
 t2 = time.perf_counter()
 print(json.dumps({{"import_s": t1 - t0, "compile_s": t2 - t1}}))
 """
