@@ -814,7 +814,10 @@ class Localizer:
         and the rest stays in the grid. A jump's particles are then born where several
         frames of evidence already agree, with their mass, instead of where the one frame
         points (see the module docstring). 1: no grid (births from the frame alone).
-        Costs one grid prediction per step, O(n_places · n_bins).
+        Costs one grid prediction per step, O(n_places · n_bins): one compiled pass on a
+        route by place index (about one grid-filter step; the particle step ×1.6 at 10⁴
+        and ×1.85 at 10⁵ places on one thread, ``docs/particle_filter.md``), else
+        :func:`catgraph.grid.predict`.
     seed : int, Generator or None
 
     Attributes
