@@ -11,6 +11,8 @@ Cases, each in its own process, one after another (peak RSS from ``getrusage``):
                 every page of the ring written) without 500 untimed steps. Floor: one
                 parallel pass adding a row to every running sum (the ``V G N`` float64
                 values a step must read and write), same threads, same process.
+``alternate N`` with ``--before`` and ``--current``: both packages' streaming steps in one
+                process, alternated step by step (the same load for both).
 ``nordland``    the whole Nordland 32×16 summer → winter run, adaptive with velocity
                 search (8 velocities) and with ``v = 1`` alone as the in-run reference;
                 the difference matrix timed separately; medians of ``--runs`` runs.
@@ -114,6 +116,41 @@ def case_stream(package: str, n: int, frames: int) -> dict:
         "bytes_per_velocity": int((m._sums.nbytes + m._buffers[0].nbytes) // v_count),
         "threads": numba.get_num_threads(),
     }
+
+
+def case_alternate(n: int, steps: int) -> dict:
+    """Both packages' :meth:`SequenceMatcher.step` in one process, the steps alternated
+    (``catgraph_before``, ``catgraph_current``, then the other way round), so that both
+    meet the same load: the wall and CPU time per step of each, as ``stream`` fills the
+    ring."""
+    rows = np.random.default_rng(0).standard_normal((8, n))
+    matchers = {}
+    for pkg in ("catgraph_before", "catgraph_current"):
+        seq, k = _pkg(pkg + ".sequence"), _pkg(pkg + "._sequence_kernels")
+        warm = seq.SequenceMatcher(l_max=L_MAX)
+        for r in rows[:3, :64]:
+            warm.step(r)  # compile (or load) the kernels on a tiny reference
+        m = seq.SequenceMatcher(l_max=L_MAX)
+        m.step(rows[0])
+        for i in range(1, L_MAX + 1):
+            k.advance(m._ring, m._mring, m._state, i, rows[i % 8])
+        m.n_steps_ = L_MAX + 1
+        for t in range(3):
+            m.step(rows[t % 8])
+        matchers[pkg] = m
+    wall = {pkg: [] for pkg in matchers}
+    cpu = {pkg: [] for pkg in matchers}
+    load = [os.getloadavg()[0]]
+    for t in range(steps):
+        for pkg in (("catgraph_before", "catgraph_current") if t % 2 else ("catgraph_current", "catgraph_before")):
+            w0, c0 = time.perf_counter(), time.process_time()
+            matchers[pkg].step(rows[t % 8])
+            wall[pkg].append(time.perf_counter() - w0)
+            cpu[pkg].append(time.process_time() - c0)
+    load.append(os.getloadavg()[0])
+    return {"n": n, "steps": steps, "load": load, **{
+        pkg: {"wall_ms_median": 1e3 * float(np.median(wall[pkg])), "wall_ms_p10": 1e3 * float(np.percentile(wall[pkg], 10)),
+              "cpu_ms_median": 1e3 * float(np.median(cpu[pkg]))} for pkg in matchers}}
 
 
 def _nordland_differences():
@@ -249,6 +286,23 @@ def _markdown(res: dict) -> str:
                   "2836 B per place. Before that: one float64 prefix ring per velocity, 8·N·501 B = 4008 B per "
                   "place per velocity (3237 MB peak at N = 10⁵ in `benchmarks/results/live.md`; 10⁶ not "
                   "runnable).", ""]
+    alt = res.get("alternate", [])
+    if alt:
+        lines += ["## Streaming step, both packages in one process", "",
+                  "`--current` and `--before` imported side by side in one process per row, each with its "
+                  "own matcher (ring filled as above); their steps alternated (the order swapped every "
+                  "step), so that both meet the same load. Wall: median (10th percentile); CPU: the "
+                  "process's CPU time per step, every thread, median. Load: the 1-minute load average at the "
+                  "start and the end.", "",
+                  "| N | steps each | before: wall | before: CPU | current: wall | current: CPU | current / before (CPU) "
+                  "| load |", "|---|---|---|---|---|---|---|---|"]
+        for r in alt:
+            b, c = r["catgraph_before"], r["catgraph_current"]
+            lines.append(f"| {r['n']:,} | {r['steps']} | {b['wall_ms_median']:.2f} ms ({b['wall_ms_p10']:.2f}) "
+                         f"| {b['cpu_ms_median']:.2f} ms | {c['wall_ms_median']:.2f} ms ({c['wall_ms_p10']:.2f}) "
+                         f"| {c['cpu_ms_median']:.2f} ms | ×{c['cpu_ms_median'] / b['cpu_ms_median']:.2f} "
+                         f"| {r['load'][0]:.1f}–{r['load'][1]:.1f} |")
+        lines.append("")
     nl = res.get("nordland", {})
     if nl:
         lines += ["## Whole Nordland (3576 × 3576), adaptive", "",
@@ -329,7 +383,7 @@ def main(argv=None) -> None:
     ap.add_argument("--repo", default=str(ROOT), help="the git checkout --before is taken from")
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--note", action="append", default=[], help="a note for the results (the machine's load)")
-    ap.add_argument("--skip", default="", help="comma-separated: stream,nordland,compile")
+    ap.add_argument("--skip", default="", help="comma-separated: stream,alternate,nordland,compile")
     ap.add_argument("--stream-rounds", type=int, default=1, help="processes per package and N in the stream case")
     ap.add_argument("--out", default="matcher", help="results file name (NAME.md and NAME.json)")
     ap.add_argument("--render", action="store_true", help="only rewrite NAME.md from NAME.json")
@@ -344,6 +398,8 @@ def main(argv=None) -> None:
             out = case_stream(args.child[1], int(args.child[2]), int(args.child[3]))
         elif kind == "nordland":
             out = case_nordland(args.child[1], int(args.child[2]))
+        elif kind == "alternate":
+            out = case_alternate(int(args.child[1]), int(args.child[2]))
         else:
             out = case_compile(args.child[1])
         print(json.dumps(out))
@@ -384,6 +440,13 @@ def main(argv=None) -> None:
                         res["stream"].append(dict(_child(["stream", pkg, str(n), str(f)], _env(before_path)), label=key,
                                                   round=round_ + 1))
                         print("stream", res["stream"][-1], flush=True)
+        if "alternate" not in skip and args.before and args.current:
+            # both packages in one process, their steps alternated: the same load for both
+            res["alternate"] = []
+            for _ in range(args.stream_rounds):
+                for n, f in zip(args.sizes, frames):
+                    res["alternate"].append(_child(["alternate", str(n), str(2 * f)], _env(before_path)))
+                    print("alternate", res["alternate"][-1], flush=True)
         if "nordland" not in skip:
             res["nordland"] = {}
             # one run per process, the packages in turn: a change in the machine's load between
