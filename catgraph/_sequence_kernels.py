@@ -967,18 +967,27 @@ def _window_exact(sums_g, ring, mring, i, v, length, unit, radius, bmin, g, best
 
 
 @njit
-def _settle_window(sums_g, i, v, length, unit, shift, g, mean, std, locs, scales):
-    """The fallback of :func:`_update_stats_exact`: a window's mean and spread (and its Gaussian
-    component) from the moments added again in the order of :func:`_update_stats`, from the
-    sums just updated to frame ``i`` (:func:`_replay_moments`). Called from Python between
-    kernel calls (:func:`_run_exact`), so it compiles only when a window first needs it."""
+def _settle_window(sums_g, i, v, length, unit, shift, g, approx, n_iter, em_stride, mean, std, weights, locs, scales,
+                   s, resp):
+    """The fallback of :func:`_update_stats_exact`: a window's mean and spread from the moments
+    added again in the order of :func:`_update_stats`, from the sums just updated to frame ``i``
+    (:func:`_replay_moments`), and the approximation that reads them (the Gaussian component;
+    the mixture, fitted again from the window's scores; the median and MAD read neither). Called
+    from Python between kernel calls (:func:`_run_exact`), so it compiles only when a window
+    first needs it."""
     n = sums_g.shape[0]
     e_lo, e_hi = _entering(v, i, n)
     sy, syy = _replay_moments(sums_g, i, v, length, shift, e_lo, e_hi, np.zeros(n, dtype=np.int16))
     eff = length if length <= i + 1 else i + 1
     _moments_out(n, sy, syy, shift, unit, eff, g, mean, std)
-    locs[g, 0] = mean[g]
-    scales[g, 0] = std[g]
+    if approx == APPROX_GAUSSIAN:
+        locs[g, 0] = mean[g]
+        scales[g, 0] = std[g]
+    elif approx == APPROX_GMM:
+        k = weights.shape[1]
+        scores_from_sums(sums_g, i, v, length, unit, s)
+        _gmm_em(s, em_stride, mean[g], std[g], n_iter, weights[g], locs[g], scales[g], resp, np.empty(k),
+                np.empty(k))
 
 
 @njit(inline="always")
@@ -1022,15 +1031,23 @@ def _velocity_stats_gaussian(sums_v, ring, mring, i, v, grid, unit, radius,
 
 @njit
 def _velocity_stats(sums_v, ring, mring, i, v, grid, unit, approx, n_iter, em_stride, radius,
-                    best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
+                    best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp, pend, pend_shift):
     """Advance one velocity's window sums to frame ``i`` and summarise every window
-    (:func:`_window`), then fit the approximation to each window's scores."""
+    (:func:`_window_exact`), then fit the approximation to each window's scores. Marks in
+    ``pend`` (``(G,)``, the shift in ``pend_shift``) each window whose moments were not exact
+    (its mean, spread and mixture are settled by :func:`_settle_window`); returns how many."""
     n_components = weights.shape[1]
     coef = np.empty(n_components)
     inv = np.empty(n_components)
     bmin = np.empty((s.shape[0] + CHUNK - 1) // CHUNK, dtype=np.int64)
+    count = 0
     for g in range(grid.shape[0]):
-        _window(sums_v[g], ring, mring, i, v, grid[g], unit, radius, bmin, g, best_j, best_s, second_s, mean, std)
+        exact, shift = _window_exact(sums_v[g], ring, mring, i, v, grid[g], unit, radius, bmin, g, best_j, best_s,
+                                     second_s, mean, std)
+        if not exact:
+            pend[g] = 1
+            pend_shift[g] = shift
+            count += 1
         if approx != APPROX_GAUSSIAN:
             scores_from_sums(sums_v[g], i, v, grid[g], unit, s)  # the scores themselves, for the median or mixture
         if approx == APPROX_GAUSSIAN:
@@ -1045,6 +1062,7 @@ def _velocity_stats(sums_v, ring, mring, i, v, grid, unit, approx, n_iter, em_st
         else:
             _gmm_em(s, em_stride, mean[g], std[g], n_iter, weights[g], locs[g], scales[g], resp, coef, inv)
     _sub_scores(sums_v, i, v, grid, unit, best_j, sub)
+    return count
 
 
 @njit(nogil=True)
@@ -1055,17 +1073,23 @@ def store_rows(d, c0, c1, start, ring, mring, state):
 
 
 @njit(nogil=True)
-def run_velocities(chosen, c0, c1, start, sums, ring, mring, state, velocities, grid, approx, n_iter, em_stride, radius,
-                   best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
+def run_velocities(chosen, c0, c1, t_first, start, sums, ring, mring, state, velocities, grid, approx, n_iter,
+                   em_stride, radius, best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp,
+                   pend, pend_shift):
     """:func:`_velocity_stats` for the velocities ``chosen`` over frames ``start + c0 ..
-    start + c1 - 1`` (rows already stored); releases the GIL, so threads share the work."""
+    start + c1 - 1`` (rows already stored; the first velocity from ``start + t_first`` on);
+    releases the GIL, so threads share the work. Stops after the first frame with a window whose
+    moments were not exact and returns ``(q, t)`` as :func:`run_velocities_exact`; ``(-1, -1)``
+    once done."""
     for q in range(chosen.shape[0]):
         vi = chosen[q]
-        for t in range(c0, c1):
-            _velocity_stats(sums[vi], ring, mring, start + t, velocities[vi], grid, state[0], approx, n_iter,
-                            em_stride, radius, best_j[t, vi], best_s[t, vi], second_s[t, vi], mean[t, vi],
-                            std[t, vi], weights[t, vi], locs[t, vi], scales[t, vi], sub[t, vi], s[vi],
-                            work[vi], resp[vi])
+        for t in range(t_first if q == 0 else c0, c1):
+            if _velocity_stats(sums[vi], ring, mring, start + t, velocities[vi], grid, state[0], approx, n_iter,
+                               em_stride, radius, best_j[t, vi], best_s[t, vi], second_s[t, vi], mean[t, vi],
+                               std[t, vi], weights[t, vi], locs[t, vi], scales[t, vi], sub[t, vi], s[vi],
+                               work[vi], resp[vi], pend[vi], pend_shift[vi]) > 0:
+                return q, t
+    return -1, -1
 
 
 @njit(nogil=True)
@@ -1124,21 +1148,21 @@ def run_velocities_exact(chosen, c0, c1, t_first, start, sums, ring, mring, stat
     return -1, -1
 
 
-def _run_exact(chosen, c0, c1, start, sums, ring, mring, state, velocities, grid, radius, best_j, best_s, second_s,
-               mean, std, weights, locs, scales, sub, pend, pend_shift):
-    """:func:`run_velocities_gaussian`'s outputs, bit for bit, from :func:`run_velocities_exact`:
-    where a window's moments were not exact, its mean and spread are settled in the order of
-    :func:`_update_stats` (:func:`_settle_window`) before the velocity goes on to its next frame."""
+def _run_exact(kernel, settle, chosen, c0, c1, start, sums, ring, mring, state, *rest):
+    """The outputs of the update of :func:`_update_stats`, bit for bit, from ``kernel``
+    (:func:`run_velocities_exact` or :func:`run_velocities`, whose last two arguments are
+    ``pend`` and ``pend_shift``): where a window's moments were not exact, ``settle(vi, t, g)``
+    settles it in the order of :func:`_update_stats` (:func:`_settle_window`) before the velocity
+    goes on to its next frame."""
+    pend = rest[-2]
     q0, t0 = 0, c0
     while q0 < chosen.shape[0]:
-        q, t = run_velocities_exact(chosen[q0:], c0, c1, t0, start, sums, ring, mring, state, velocities, grid, radius,
-                                    best_j, best_s, second_s, mean, std, weights, locs, scales, sub, pend, pend_shift)
+        q, t = kernel(chosen[q0:], c0, c1, t0, start, sums, ring, mring, state, *rest)
         if q < 0:
             return
         vi = int(chosen[q0 + q])
         for g in np.flatnonzero(pend[vi]):
-            _settle_window(sums[vi, g], start + t, float(velocities[vi]), int(grid[g]), state[0],
-                           np.int64(pend_shift[vi, g]), int(g), mean[t, vi], std[t, vi], locs[t, vi], scales[t, vi])
+            settle(vi, t, int(g))
         pend[vi] = 0
         q0, t0 = q0 + q, t + 1
         if t0 >= c1:
@@ -1180,10 +1204,11 @@ def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_it
     ``(V, N)``; ``work`` ``(V, N)`` (robust) and ``resp`` ``(V, K, N)`` (mixtures), else
     empty.
 
-    The Gaussian approximation runs :func:`_run_exact` (the update of
-    :func:`_update_stats_exact`, windows whose moments round settled in the order of
-    :func:`_update_stats`), the others :func:`run_velocities`; the outputs are those of
-    :func:`run_velocities_gaussian`, bit for bit.
+    The Gaussian approximation runs :func:`run_velocities_exact`, the others
+    :func:`run_velocities`, both on the update of :func:`_update_stats_exact` through
+    :func:`_run_exact` (windows whose moments round settled in the order of
+    :func:`_update_stats`); the outputs are those of the update of :func:`_update_stats`
+    (:func:`run_velocities_gaussian`), bit for bit.
 
     The ring holds ``R >= max(grid) + 1`` rows, so ``C = R - max(grid)`` new rows fit
     beside the longest window's history: the rows are stored ``C`` at a time, then the
@@ -1202,14 +1227,24 @@ def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_it
     v_count = velocities.shape[0]
     updates = min(chunk, d.shape[0]) * sums.shape[2] * grid.shape[0] * v_count  # window sums per kernel round
     threads = max(1, min(v_count, numba.get_num_threads(), updates // WORK_PER_THREAD))
-    rest = (velocities, grid, approx, n_iter, em_stride, radius, best_j, best_s, second_s, mean, std, weights,
-            locs, scales, sub, s, work, resp)
-    run = run_velocities
+    pend = np.zeros((v_count, grid.shape[0]), dtype=np.uint8)  # windows whose moments await settling
+    pend_shift = np.zeros((v_count, grid.shape[0]), dtype=np.int64)
+
+    def settle(vi, t, g):
+        _settle_window(sums[vi, g], start + t, float(velocities[vi]), int(grid[g]), state[0],
+                       np.int64(pend_shift[vi, g]), g, approx, n_iter, em_stride, mean[t, vi], std[t, vi],
+                       weights[t, vi], locs[t, vi], scales[t, vi], s[vi], resp[vi])
+
     if approx == APPROX_GAUSSIAN:
-        run = _run_exact
-        pend = np.zeros((v_count, grid.shape[0]), dtype=np.uint8)  # windows whose moments await settling
-        rest = (velocities, grid, radius, best_j, best_s, second_s, mean, std, weights, locs, scales, sub, pend,
-                np.zeros((v_count, grid.shape[0]), dtype=np.int64))
+        rest = (run_velocities_exact, settle, velocities, grid, radius, best_j, best_s, second_s, mean, std, weights,
+                locs, scales, sub, pend, pend_shift)
+    else:
+        rest = (run_velocities, settle, velocities, grid, approx, n_iter, em_stride, radius, best_j, best_s,
+                second_s, mean, std, weights, locs, scales, sub, s, work, resp, pend, pend_shift)
+
+    def run(chosen, c0, c1, start, sums, ring, mring, state, kernel, settle, *args):
+        _run_exact(kernel, settle, chosen, c0, c1, start, sums, ring, mring, state, *args)
+
     if threads == 1:
         every = _velocity_sets(v_count)[-1]
         for c0 in range(0, d.shape[0], chunk):

@@ -216,3 +216,41 @@ def test_smallest_places_over_blocks_is_the_scan_one_by_one(seed):
         if np.all(np.isfinite(row)):
             order = np.lexsort((np.arange(n), row))[:kept]
             np.testing.assert_array_equal(idx, order)
+
+
+#: ``match_sequences`` on the rows below (l_max 130, 6 lengths, with the curves), recorded from
+#: the matcher before the exact update (9539438): matches, scores, confidences, lengths,
+#: velocities and curves
+_ROUNDING_DIGESTS = {"robust": "3eacb37524bfce08", "gmm2": "797b2fd6a2df2125", "gmm3": "04fc25ef3ac7aed9",
+                     "gaussian": "8fc5e3da960de34a"}
+
+
+@pytest.mark.parametrize("approximation", ["robust", "gmm2", "gmm3", "gaussian"])
+def test_every_approximation_where_the_moments_round_gives_the_answers_before(approximation):
+    """Every approximation on rows whose long windows' moments round: the settled windows' mean
+    and spread (and the mixture fitted again from them) give the answers of the matcher before
+    the exact update, and some window was settled."""
+    from catgraph import sequence as seq
+
+    from .conftest import array_digest
+
+    rng = np.random.default_rng(2)
+    n, n_q = 3000, 140
+    base = rng.normal(size=n)
+    d = np.stack([np.roll(base, i) for i in range(n_q)]) + 0.1 * rng.normal(size=(n_q, n))
+    d[0] *= 0.05
+    settled = []
+    original = k._settle_window
+
+    def counting(*args):
+        settled.append(args[1])
+        return original(*args)
+
+    k._settle_window = counting
+    try:
+        r = seq.match_sequences(d, approximation=approximation, l_max=130, grid=6, return_curves=True)
+    finally:
+        k._settle_window = original
+    assert array_digest([r.match, r.score, r.confidence, r.window_length, r.velocity, r.log_p]) \
+        == _ROUNDING_DIGESTS[approximation]
+    assert settled
