@@ -109,10 +109,13 @@ vector) and the moments in whatever order the compiler vectorises, and gets the 
 window of the benchmark rows stays below it) is marked, the kernel returns after that
 frame, and :func:`_settle_window` adds its moments again in the order of
 :func:`_update_stats` from the sums as that frame left them (:func:`_run_exact`), compiled
-only when first needed. Measured (``benchmarks/results/matcher_step.md``): kernel CPU at
-``N = 10^5`` about 8 % less, whole Nordland (in cache) about 25 % less; the cold first
-call as before within 0.5 s (the fallback compiled into the kernel instead cost 2.1 s).
-:func:`run_velocities_gaussian` (the update of :func:`_update_stats`) stays the reference.
+only when first needed; the robust and mixture approximations (:func:`run_velocities`) run on
+the same update, the mixture fitted again from a settled window's moments. Measured
+(``benchmarks/results/matcher_step.md``): the one-thread step at ``N = 10^5`` 8.15 ->
+6.75 ms, whole Nordland 2.31 -> 1.76 s, but 3-5 % of the CPU where the sums come from
+memory; the cold first call within the spread of before (the fallback compiled into the
+kernel instead cost 2.1 s more). :func:`run_velocities_gaussian` (the update of
+:func:`_update_stats`) stays the reference.
 """
 
 from __future__ import annotations
