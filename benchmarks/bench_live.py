@@ -398,10 +398,7 @@ def profile_step(n: int, rounds: int = 41, l_max: int = 500) -> dict:
     for k in range(l_max + 1):  # the ring filled: steady state
         matcher.step(rows[k % 8])
     cfg, st, buffers = matcher._cfg, matcher._stats, matcher._buffers
-    every = sk._velocity_sets(cfg.velocities.shape[0])[-1]
     sums, ring, mring, state = matcher._sums, matcher._ring, matcher._mring, matcher._state
-    gauss = (cfg.velocities, cfg.grid, cfg.radius, st.best_j, st.best_s, st.second_s, st.mean, st.std, st.weights,
-             st.locs, st.scales, st.sub, buffers[0])
 
     def frame():
         return matcher.n_steps_
@@ -417,10 +414,12 @@ def profile_step(n: int, rounds: int = 41, l_max: int = 500) -> dict:
         matcher.n_steps_ = i + 1
 
     def kernel_one_thread():
-        i = frame()
-        sk.store_rows(rows[i % 8][None, :], 0, 1, i, ring, mring, state)
-        sk.run_velocities_gaussian(every, 0, 1, i, sums, ring, mring, state, *gauss)
-        matcher.n_steps_ = i + 1
+        saved = sk.WORK_PER_THREAD
+        sk.WORK_PER_THREAD = 1 << 62  # every velocity on the calling thread: the step's own kernels, one thread
+        try:
+            run_batch()
+        finally:
+            sk.WORK_PER_THREAD = saved
 
     def store_row():
         i = frame() - 1  # the latest row stored again: the state does not change
