@@ -541,19 +541,22 @@ class SequenceObservation:
             tau = 1.0 / self._longest
         else:
             tau = float(self.temperature)
-        z = self._work("_z", len(s))
         fused = self._tempered is not None and self._tempered._takes_standardised(s)
         if fused:  # the mean and the spread; the centring and the division come with the ratios
             mean = s.mean()
             sd = np.sqrt(_kernels().centred_sums(s, mean, _NOTHING, _NOTHING)[0] / len(s))  # s.std()
             fused = sd > 0
             if not fused:  # every score equal: the standardised scores are all 0
+                z = self._work("_z", len(s))
                 z[...] = 0.0
         else:
-            z = _standardised(s, z, self._work("_square", len(s)))
+            # the squares' scratch is the exponentials' array, written only after z is formed
+            z = _standardised(s, self._work("_z", len(s)), self._work("_exp", len(s)))
         if fused:
             # z = (s − mean) / sd, the tempered ratios and the window temperature in one pass
-            r, top = self._tempered._observe_standardised(s, mean, sd, tau, z)
+            # (z is not formed: its array, the earlier frames', is freed)
+            self.__dict__.pop("_z", None)
+            r, top = self._tempered._observe_standardised(s, mean, sd, tau)
         elif self._tempered is not None:
             r = self._tempered.observe(z).log_ratio
             r *= tau  # the tempered model's array is fresh every frame
@@ -1489,7 +1492,6 @@ class TemperedObservation:
         prepared = self.__dict__.pop("_prepared", None)
         if prepared is not None and prepared[0] is row and prepared[1] == self._hub_count + 1:
             self._hub_sum, self._next_total = self._next_total, self._hub_sum
-            self._level, self._next_level = self._next_level, self._level
             self._hub_count += 1
             self._level_ready = (self._hub_count, prepared[2])
             return
@@ -1506,14 +1508,17 @@ class TemperedObservation:
         """Form the running total and the levels that :meth:`feedback` will make of the
         frame just observed, in spare arrays, ahead of the feedback (the combined model
         calls this on its second thread while the sequence part still works); the
-        feedback then only swaps them in. The same floats as :meth:`_add_to_levels`."""
+        feedback then only swaps the total in. The same floats as :meth:`_add_to_levels`.
+        The levels are written over the frame's own (read by nothing after its
+        observation); until the feedback takes them, they are marked stale, so that a
+        frame observed without that feedback forms its levels from the total again."""
         row = getattr(self, "_row", None)
         if (row is None or self._hub_map is not None or not isinstance(self.hub, str) or self._hub_count < 1
                 or not _plain_row(row) or len(row) != len(self._hub_sum)):
             return
         n = len(row)
-        new_total, level = self._buffer("_next_total", n), self._buffer("_next_level", n)
-        self._buffer("_level", n)  # the array the feedback swaps the prepared levels with
+        new_total, level = self._buffer("_next_total", n), self._buffer("_level", n)
+        self.__dict__.pop("_level_ready", None)
         count = self._hub_count + 1
         level_sum = _kernels().accumulated_levels(self._hub_sum, row, float(count), new_total, level)
         self._prepared = (row, count, level_sum / n)
@@ -1535,8 +1540,8 @@ class TemperedObservation:
         little); the other passes are fused (:mod:`catgraph._observation_kernels`).
         """
         work = self._buffer("_select", len(level))
-        out = self._buffer("_excess", len(level))
         if not level.flags.c_contiguous:  # a strided level map: numpy's passes
+            out = self._buffer("_excess", len(level))
             med = _median(level, work)
             np.subtract(level, med, out=work)
             np.abs(work, out=work)
@@ -1566,6 +1571,7 @@ class TemperedObservation:
             self.n_hubs_ = hubs
             self.hub_shrinkage_ = min(1.0, hubs / (0.01 * len(level)))
             return level, float(mean), self.hub_shrinkage_
+        out = self._buffer("_excess", len(level))  # formed only here (not by the fused pass)
         hubs = int(k.centred_count(level, mean, threshold, out))
         self.n_hubs_ = hubs
         self.hub_shrinkage_ = min(1.0, hubs / (0.01 * len(level)))
@@ -1620,13 +1626,19 @@ class TemperedObservation:
             h = self._hub(formed=False)
             corrected = h is not None and lam != 0.0
             scale = self.temperature_ * self._novelty(row)
-            base = self._buffer("_base0", len(row))
             r = _pool(self).take(len(row))
             if corrected and isinstance(h, tuple):
                 # the single-frame ratios are read again only by a predictive temperature
+                # (not kept: no array for them, the earlier frames' freed)
                 keep = self.temperature == "predictive"
+                if keep:
+                    base = self._buffer("_base0", len(row))
+                else:
+                    base = _NOTHING
+                    self.__dict__.pop("_base0", None)
                 top, self._best = _kernels().hub_tempered_ratios(row, *h, scale, keep, base, r)
                 return self._tempered(row, [base] if keep else None, r, float(top))
+            base = self._buffer("_base0", len(row))
             if isinstance(h, tuple):  # not applied (hub weight 0): formed, as before
                 h = None
             top, self._best = _kernels().tempered_ratios(row, h if corrected else row, corrected, scale, base, r)
@@ -1646,8 +1658,8 @@ class TemperedObservation:
                 and self.likelihood == "linear" and self.hub is None and not self.novelty and len(self._lams) == 1
                 and self.temperature != "predictive")
 
-    def _observe_standardised(self, scores: np.ndarray, mean: float, sd: float, tau: float,
-                              z: np.ndarray) -> tuple[np.ndarray, float]:
+    def _observe_standardised(self, scores: np.ndarray, mean: float, sd: float,
+                              tau: float) -> tuple[np.ndarray, float]:
         """``observe((scores − mean) / sd).log_ratio * tau`` and its maximum, in one
         compiled pass (:func:`catgraph._observation_kernels.standardised_ratios`: the
         centring, the division, the ratios ``temperature_ · −z``, the factor ``tau``, the
@@ -1655,18 +1667,20 @@ class TemperedObservation:
         standardised scores themselves are not stored: with no hub levels and no
         histograms, :meth:`feedback` does not read the frame's values). Only where
         :meth:`_takes_standardised`; scores whose standardised values are not all finite
-        go through :meth:`observe` (which refuses them), formed in ``z``."""
+        go through :meth:`observe` (which refuses them), formed in a new array."""
         n = len(scores)
         r = _pool(self).take(n)
         scale = self.temperature_ * self._novelty(scores)  # 1: no novelty weight
         top, best, finite = _kernels().standardised_ratios(scores, mean, sd, scale, tau, r)
         if not finite:
-            np.divide(np.subtract(scores, mean, out=z), sd, out=z)
+            z = np.subtract(scores, mean)
+            np.divide(z, sd, out=z)
             r = self.observe(z).log_ratio
             r *= tau
             return r, float(r.max())
         self._best = best
         self._bases = None  # read by feedback only for a predictive temperature or several hub weights
+        self.__dict__.pop("_base0", None)  # an earlier frame's single-frame ratios: no longer read
         self._row = scores  # feedback reads only that a frame was observed (no hub levels, no histograms)
         return r, float(top)
 

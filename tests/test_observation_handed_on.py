@@ -50,6 +50,38 @@ def test_levels_formed_by_the_feedback_are_the_divided_levels(n_places, prepare)
             assert count == fast._hub_count and np.array_equal(fast._level, level) and mean == level.mean()
 
 
+def test_levels_prepared_but_not_taken_are_formed_again():
+    """The prepared levels are written over the frame's own: a frame whose feedback never
+    comes is followed by levels divided from the total again, the values of a model that
+    never prepared them."""
+    rng = np.random.default_rng(11)
+    rows = _rows(rng, 16, 1500)
+    fast, slow = TemperedObservation(), TemperedObservation()
+    for k, row in enumerate(rows):
+        a, b = fast.observe(row), slow.observe(row.copy())
+        assert np.array_equal(a.log_ratio, b.log_ratio), k
+        assert a.new_place_log_ratio == b.new_place_log_ratio and a.log_ratio_max == b.log_ratio_max
+        fast._prepare_levels()
+        if k % 3 == 2:  # this frame's feedback does not come
+            continue
+        posterior = np.full(rows.shape[1], 1.0 / rows.shape[1])
+        fast.feedback(FilterFeedback(None, posterior, slice(0, 5)))
+        slow.feedback(FilterFeedback(None, posterior, slice(0, 5)))
+        assert np.array_equal(fast._hub_sum, slow._hub_sum) and fast._hub_count == slow._hub_count, k
+
+
+def test_only_the_arrays_read_are_kept():
+    """A started model whose single-frame ratios nobody reads (no predictive temperature)
+    keeps no array for them, nor for a hub correction formed inside the ratios' pass."""
+    rng = np.random.default_rng(4)
+    model = TemperedObservation()
+    for row in _rows(rng, 6, 700):
+        model.observe(row)
+        model._prepare_levels()
+        model.feedback(FilterFeedback(None, np.full(700, 1.0 / 700), slice(0, 5)))
+    assert not {"_base0", "_excess", "_next_level"} & set(model.__dict__)
+
+
 def test_a_strided_frame_adds_to_the_levels_by_numpy():
     rng = np.random.default_rng(5)
     rows = _rows(rng, 12, 401)
@@ -97,12 +129,12 @@ def test_standardised_scores_that_are_not_finite_are_refused_as_before():
     scores = np.random.default_rng(3).standard_normal(50)
     model.observe(-scores)  # started
     assert model._takes_standardised(scores)
-    r, top = model._observe_standardised(scores, float(scores.mean()), float(scores.std()), 0.5, np.empty(50))
+    r, top = model._observe_standardised(scores, float(scores.mean()), float(scores.std()), 0.5)
     assert np.array_equal(r, model.observe((scores - scores.mean()) / scores.std()).log_ratio * 0.5)
     bad = scores.copy()
     bad[7] = np.inf
     with pytest.raises(CatgraphError):
-        model._observe_standardised(bad, float(scores.mean()), float(scores.std()), 0.5, np.empty(50))
+        model._observe_standardised(bad, float(scores.mean()), float(scores.std()), 0.5)
 
 
 def _combined_run(n_places, rows, mode="grid"):
