@@ -1447,7 +1447,8 @@ class TemperedObservation:
         self.n_reference_ = n
         self._taus, self._lams = taus, lams
         self._hub_map = hub_vector
-        self._hub_sum, self._hub_count = np.zeros(n), 0
+        # the online levels' running total (no array where the levels are not learned)
+        self._hub_sum, self._hub_count = np.zeros(n if hub_vector is None and self.hub is not None else 0), 0
         self.score_ = np.zeros((len(taus), len(lams)))
         self._decay = 0.5 ** (1.0 / float(self.memory))
         self._hits, self._trials = 0.0, 0.0
@@ -1627,22 +1628,20 @@ class TemperedObservation:
             corrected = h is not None and lam != 0.0
             scale = self.temperature_ * self._novelty(row)
             r = _pool(self).take(len(row))
+            # the single-frame ratios are read again only by a predictive temperature; not
+            # kept, they have no array (the fused passes write each place's ratio over them)
+            keep = self.temperature == "predictive"
+            if not keep:
+                self.__dict__.pop("_base0", None)
             if corrected and isinstance(h, tuple):
-                # the single-frame ratios are read again only by a predictive temperature
-                # (not kept: no array for them, the earlier frames' freed)
-                keep = self.temperature == "predictive"
-                if keep:
-                    base = self._buffer("_base0", len(row))
-                else:
-                    base = _NOTHING
-                    self.__dict__.pop("_base0", None)
+                base = self._buffer("_base0", len(row)) if keep else _NOTHING
                 top, self._best = _kernels().hub_tempered_ratios(row, *h, scale, keep, base, r)
                 return self._tempered(row, [base] if keep else None, r, float(top))
-            base = self._buffer("_base0", len(row))
+            base = self._buffer("_base0", len(row)) if keep else r
             if isinstance(h, tuple):  # not applied (hub weight 0): formed, as before
                 h = None
             top, self._best = _kernels().tempered_ratios(row, h if corrected else row, corrected, scale, base, r)
-            return self._tempered(row, [base], r, float(top))
+            return self._tempered(row, [base] if keep else None, r, float(top))
         self._bases = self._base(row)
         i, m = self._pick
         scale = self.temperature_ * self._novelty(row)
@@ -1680,7 +1679,6 @@ class TemperedObservation:
             return r, float(r.max())
         self._best = best
         self._bases = None  # read by feedback only for a predictive temperature or several hub weights
-        self.__dict__.pop("_base0", None)  # an earlier frame's single-frame ratios: no longer read
         self._row = scores  # feedback reads only that a frame was observed (no hub levels, no histograms)
         return r, float(top)
 
