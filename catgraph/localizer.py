@@ -577,8 +577,9 @@ def confidence_neighbourhoods(graph, confidence_radius: int, confidence_radius_m
     -------
     tuple or None
         ``(lo, hi, None)``: places ``lo[j] .. hi[j] − 1`` (both ends non-decreasing in
-        ``j``), or ``(ptr, index, True)``, a CSR list (a metric radius); ``None`` where
-        every neighbourhood is the place alone (nothing to smooth).
+        ``j``; int32 where the places' indices fit it, half the memory of int64), or
+        ``(ptr, index, True)``, a CSR list (a metric radius); ``None`` where every
+        neighbourhood is the place alone (nothing to smooth).
     """
     n = graph.n_places
     j = np.arange(n)
@@ -589,14 +590,15 @@ def confidence_neighbourhoods(graph, confidence_radius: int, confidence_radius_m
         index = np.concatenate([np.asarray(x, dtype=np.int64) for x in lists]) if n else ptr[:0]
         return ptr, index, True
     if route is not None:
-        lo = np.searchsorted(route, route - route_radius, "left").astype(np.int64)
-        hi = np.searchsorted(route, route + route_radius, "right").astype(np.int64)
+        lo = np.searchsorted(route, route - route_radius, "left")
+        hi = np.searchsorted(route, route + route_radius, "right")
     else:
         lo = np.maximum(j - confidence_radius, 0)
         hi = np.minimum(j + confidence_radius + 1, n)
     if np.all(hi - lo == 1):
         return None
-    return lo, hi, None
+    index = np.int32 if n < np.iinfo(np.int32).max else np.int64
+    return lo.astype(index), hi.astype(index), None
 
 
 def neighbourhood_means(mass: np.ndarray, first: np.ndarray, second: np.ndarray, is_list) -> np.ndarray:
