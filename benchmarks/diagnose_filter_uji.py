@@ -13,12 +13,13 @@ repository root::
     python benchmarks/diagnose_filter_uji.py            # months 02-06, summary + runs
     python benchmarks/diagnose_filter_uji.py 6          # one month
     python benchmarks/diagnose_filter_uji.py 6 recovery=0.03   # with a grid filter setting changed
-    python benchmarks/diagnose_filter_uji.py candidate [RATE [FRAMES]]  # the start-up jump rate, every cell
+    python benchmarks/diagnose_filter_uji.py candidate [RATE [FRAMES [JUMP_VELOCITY]]]  # the start-up jump rate
 
 ``candidate`` runs the prototype :class:`StartUpJumps` (a lower jump rate before the
 filter first converges) against the defaults on the condition table of Nordland, UJI
 02–06 and the synthetic world, and on the held-out worlds of ``bench_generalisation.py``
-(all fourteen conditions), and prints per dataset the mean AUC before → after, the cells
+(all fourteen conditions), with the grid filter's defaults or with ``jump_velocity`` as
+given (the registry's ``filter`` method: ``long-run``), and prints per dataset the mean AUC before → after, the cells
 that fall by more than 0.005, and the worst and best cell (several minutes).
 """
 
@@ -125,7 +126,7 @@ class StartUpJumps(GridLocalizer):
             self.recovery_ = rate
 
 
-def candidate(rate: float = 0.01, frames: int | None = int(RECOVERY_PRIOR_FRAMES)) -> None:
+def candidate(rate: float = 0.01, frames: int | None = int(RECOVERY_PRIOR_FRAMES), jump_velocity: str = "current") -> None:
     from bench_filter import _graph
     from bench_generalisation import WORLDS, world_case
 
@@ -146,7 +147,8 @@ def candidate(rate: float = 0.01, frames: int | None = int(RECOVERY_PRIOR_FRAMES
     table: dict = {}
     for group, cell, graph, d, query, gt in runs():
         aucs = []
-        for loc in (GridLocalizer(graph, TemperedObservation()), StartUpJumps(graph, TemperedObservation())):
+        for loc in (GridLocalizer(graph, TemperedObservation(), jump_velocity=jump_velocity),
+                    StartUpJumps(graph, TemperedObservation(), jump_velocity=jump_velocity)):
             if isinstance(loc, StartUpJumps):
                 loc.start_rate, loc.start_frames = rate, frames
             r = loc.run(d, odometry=query.odometry, query_index=query.index)
@@ -166,7 +168,8 @@ def main(argv) -> None:
     if argv and argv[0] == "candidate":
         rest = argv[1:]
         candidate(float(rest[0]) if rest else 0.01,
-                  (None if rest[1] == "none" else int(rest[1])) if len(rest) > 1 else int(RECOVERY_PRIOR_FRAMES))
+                  (None if rest[1] == "none" else int(rest[1])) if len(rest) > 1 else int(RECOVERY_PRIOR_FRAMES),
+                  rest[2] if len(rest) > 2 else "current")
         return
     months = [int(a) for a in argv if "=" not in a] or list(range(2, 7))
     grid = {k: float(v) for k, v in (a.split("=", 1) for a in argv if "=" in a)}
