@@ -32,6 +32,7 @@ from catgraph.conditions import Condition  # noqa: E402
 from catgraph.grid import GridLocalizer  # noqa: E402
 from catgraph.metrics import evaluate  # noqa: E402
 from catgraph.observation import TemperedObservation  # noqa: E402
+from diagnose_filter_misses import _start_up  # noqa: E402  (one definition of the start-up)
 
 RATES = (0.1, 0.01, 0.001, 0.0001)
 CONDITIONS = {"in order": Condition(), "reversed": Condition("reverse")}
@@ -99,15 +100,6 @@ def _runs(values: np.ndarray) -> str:
     values = np.sort(values)
     cut = np.flatnonzero(np.diff(values) != 1) + 1
     return ", ".join(f"{g[0]}–{g[-1]}" if len(g) > 1 else f"{g[0]}" for g in np.split(values, cut))
-
-
-def _start_up(correct: np.ndarray, run: int = 30) -> int:
-    held = 0
-    for i, ok in enumerate(correct):
-        held = held + 1 if ok else 0
-        if held >= run:
-            return i - run + 1
-    return len(correct)
 
 
 def _all():

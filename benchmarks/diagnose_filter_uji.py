@@ -38,15 +38,7 @@ from catgraph.grid import RECOVERY_PRIOR_FRAMES, GridLocalizer  # noqa: E402
 from catgraph.io import place_graph  # noqa: E402
 from catgraph.metrics import evaluate  # noqa: E402
 from catgraph.observation import TemperedObservation  # noqa: E402
-
-
-def _start_up(correct: np.ndarray, run: int = 30) -> int:
-    held = 0
-    for i, ok in enumerate(correct):
-        held = held + 1 if ok else 0
-        if held >= run:
-            return i - run + 1
-    return len(correct)
+from diagnose_filter_misses import _start_up  # noqa: E402  (one definition of the start-up)
 
 
 def _runs(idx: np.ndarray) -> list[tuple[int, int]]:
