@@ -1189,7 +1189,7 @@ def _pool(threads):
 
 
 def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_iter, em_stride, radius,
-              best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp):
+              best_j, best_s, second_s, mean, std, weights, locs, scales, sub, s, work, resp, beside=None):
     """Match the rows of ``d`` in order (row ``t`` is query frame ``start + t``): store
     each (:func:`advance`) and compute everything the selection rules need, per frame,
     velocity and window. The streaming form calls it with one row, the batch form with
@@ -1223,6 +1223,11 @@ def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_it
     other work takes fewer. Each velocity reads the shared ring and writes only its own
     sums and outputs, so the numbers depend neither on ``C``, nor on the thread count,
     nor on which thread ran which velocity.
+
+    ``beside`` (optional, a function of no arguments): work that reads none of the kernels'
+    outputs (the streaming step's reads of its row, :func:`catgraph._window_rule._row_reads`),
+    run once on the calling thread while the other threads take the first velocities (where
+    there are none, before the kernels); the calling thread then takes velocities too.
     """
     import numba
 
@@ -1249,6 +1254,8 @@ def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_it
         _run_exact(kernel, settle, chosen, c0, c1, start, sums, ring, mring, state, *args)
 
     if threads == 1:
+        if beside is not None:
+            beside()
         every = _velocity_sets(v_count)[-1]
         for c0 in range(0, d.shape[0], chunk):
             c1 = min(d.shape[0], c0 + chunk)
@@ -1268,6 +1275,9 @@ def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_it
 
         jobs = [pool.submit(take) for _ in range(threads - 1)]
         try:
+            if beside is not None:
+                beside, once = None, beside
+                once()
             take()
         finally:
             for job in jobs:

@@ -744,18 +744,31 @@ def _on_line_since(z: np.ndarray, counts: np.ndarray, exists: np.ndarray, mu: np
     return keep / (keep + JUMP_ODDS * total)
 
 
+def _row_reads(cfg: _Config, frame_index: np.ndarray, rows_d, record: _Record | None):
+    """What :func:`_decide` reads of the rows alone, before any statistic of the kernels:
+    ``(moments, horizon, since)``, each row's mean and spread (:func:`_row_moments`, read
+    once by the horizon and the confidence; ``None`` where neither reads them) and
+    :func:`_horizons` (the record's clock moved on by these frames). The streaming step
+    forms them while the kernels' other threads work (:func:`_sequence_kernels.run_batch`,
+    ``beside``)."""
+    reads = cfg.rule in HORIZON_RULES or cfg.confidence in WEIGHED_CONFIDENCES
+    moments = _row_moments(rows_d) if reads and not cfg.fixed else None
+    horizon, since = _horizons(cfg, frame_index, rows_d, record, moments)
+    return moments, horizon, since
+
+
 def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool, rows_d: np.ndarray,
-            record: _Record | None = None):
+            record: _Record | None = None, reads=None):
+    """Each frame's answer from the kernels' statistics ``st``: ``(match, score, confidence,
+    length, velocity, log_p)``. ``reads``: :func:`_row_reads` of these frames where already
+    formed (the record's clock moved on once, by whichever call formed them)."""
     n, v_count, g_count = st.best_s.shape
     rows = np.arange(n)
     log_p = _log_p(st)
     # the velocity: the one whose windows are the most significant summed over every length
     v = np.argmin(log_p.sum(axis=2), axis=1)
     lp = log_p[rows, v]  # (n, G)
-    # each row's mean and spread, read once by the horizon and the confidence
-    reads = cfg.rule in HORIZON_RULES or cfg.confidence in WEIGHED_CONFIDENCES
-    moments = _row_moments(rows_d) if reads and not cfg.fixed else None
-    horizon, since = _horizons(cfg, frame_index, rows_d, record, moments)
+    moments, horizon, since = _row_reads(cfg, frame_index, rows_d, record) if reads is None else reads
     every = _admissible(st, cfg, log_p, rows_d.shape[1], horizon, since)  # (n, V, G)
     admissible = every[rows, v]
     masked = np.where(admissible, lp, np.inf)

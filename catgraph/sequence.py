@@ -374,7 +374,7 @@ from typing import Sequence
 import numpy as np
 
 from ._validation import check_array, check_scalar
-from ._window_rule import SUSTAINED_FRACTION, _decide, _needs_sub, _new_record, _Record, _Stats
+from ._window_rule import SUSTAINED_FRACTION, _decide, _needs_sub, _new_record, _Record, _row_reads, _Stats
 from .exceptions import InvalidParameterError, NotFittedError, ShapeMismatchError
 
 __all__ = [
@@ -747,6 +747,25 @@ def match_sequences(
 # streaming form
 
 
+def _checked_row(difference_row) -> np.ndarray:
+    """The streaming step's row as the kernels read it (1-D, float64, contiguous, finite):
+    a row a filter has checked already (:class:`catgraph.observation.CheckedRow`) is not
+    scanned again, a plain contiguous float64 row is scanned by one compiled pass (no
+    temporary), anything else is checked in full (:func:`check_array`, its errors)."""
+    if isinstance(difference_row, np.ndarray) and difference_row.ndim == 1 and difference_row.dtype == np.float64 \
+            and difference_row.flags.c_contiguous and difference_row.size:
+        from .observation import CheckedRow
+
+        if type(difference_row) is CheckedRow:
+            return difference_row.view(np.ndarray)
+        if type(difference_row) is np.ndarray:
+            from .localizer import _all_finite
+
+            if _all_finite(difference_row):
+                return difference_row
+    return np.ascontiguousarray(check_array(difference_row, "difference row", ndim=1))
+
+
 class SequenceMatcher:
     """Streaming sequence matcher: one :meth:`step` per query frame.
 
@@ -874,7 +893,7 @@ class SequenceMatcher:
         -------
         SequenceMatch
         """
-        row = np.ascontiguousarray(check_array(difference_row, "difference row", ndim=1))
+        row = _checked_row(difference_row)
         if not hasattr(self, "_ring"):
             self._start(row.shape[0])
         elif row.shape[0] != self.n_reference_:
@@ -886,12 +905,18 @@ class SequenceMatcher:
         cfg, st, i = self._cfg, self._stats, self.n_steps_
         s, work, resp = self._buffers
         run = _kernels().matcher_kernel(cfg.approx_code)
-        run(row[None, :], i, self._sums, self._ring, self._mring, self._state, cfg.velocities, cfg.grid,
+        frame, rows = np.array([i]), row[None, :]
+        reads = []  # the window rule's reads of the row alone, formed beside the kernels' other threads
+
+        def beside():
+            reads.append(_row_reads(cfg, frame, rows, self._record))
+
+        run(rows, i, self._sums, self._ring, self._mring, self._state, cfg.velocities, cfg.grid,
             cfg.approx_code, EM_ITERATIONS, _em_stride(self.n_reference_), cfg.radius, st.best_j, st.best_s,
-            st.second_s, st.mean, st.std, st.weights, st.locs, st.scales, st.sub, s, work, resp)
+            st.second_s, st.mean, st.std, st.weights, st.locs, st.scales, st.sub, s, work, resp, beside=beside)
         self.n_steps_ = i + 1
-        match, score, conf, length, velocity, log_p = _decide(st, cfg, np.array([i]), return_curve, row[None, :],
-                                                             self._record)
+        match, score, conf, length, velocity, log_p = _decide(st, cfg, frame, return_curve, rows, self._record,
+                                                             reads[0])
         return SequenceMatch(
             match=int(match[0]), score=float(score[0]), confidence=float(conf[0]), window_length=int(length[0]),
             log_p=None if log_p is None else log_p[0].copy(),
