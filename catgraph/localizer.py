@@ -169,7 +169,7 @@ from ._validation import as_generator, check_array, check_scalar
 from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .graph import PlaceGraph
 from .grid import learn_jump_rate
-from .motion import FrameMotion, MotionModel, OdometryMotion, VelocityMotion
+from .motion import FrameMotion, MotionModel, OdometryMotion, PlacesWritten, VelocityMotion
 from .observation import FramePool, Observation, ObservationModel, feedback_reads_prior
 from .particles import ParticleSet, _first_in_edge, get_resampler, normalise_in_place
 
@@ -315,8 +315,15 @@ def _birth_kernel(kind, like, proposal, top, log_keep, log_recovery, start, stop
     j = 0
     for m in range(m_slots):
         pos = (uniform[0] + m) / m_slots * total
-        while j < n - 1 and cumulative[j] <= pos:
-            j += 1
+        # the first place from j on whose cumulative exceeds pos (at most n − 1), by
+        # bisection: the cumulative never decreases, so a scan from j stops at the same place
+        hi = n - 1
+        while j < hi:
+            mid = (j + hi) // 2
+            if cumulative[mid] <= pos:
+                j = mid + 1
+            else:
+                hi = mid
         low = cumulative[j - 1] if j > 0 else 0.0
         width = cumulative[j] - low
         within = (pos - low) / width if width > 0 else 0.0
@@ -346,7 +353,7 @@ def _birth_kernel(kind, like, proposal, top, log_keep, log_recovery, start, stop
 
 @njit
 def _reweight_kernel(edge, fraction, log_weight, source, target, log_ratio, start, stop, log_recovery, like, weight,
-                     mass, marginal, log_scale, marginal_mass, log_graduate=0.0):  # pragma: no cover - compiled
+                     mass, marginal, log_scale, marginal_mass, log_graduate, terms):  # pragma: no cover - compiled
     """Reweight every particle, normalise, and sum the posterior mass per place.
 
     ``log_weight`` holds the prediction (:func:`_birth_kernel`); particle ``i`` gains
@@ -361,8 +368,13 @@ def _reweight_kernel(edge, fraction, log_weight, source, target, log_ratio, star
     ``marginal``: the particles outside the newborn slots already carry the frame's
     evidence in units of ``e^{log_scale}`` (:meth:`VelocityMotion.move_marginal`), and
     their place masses are ``marginal_mass`` (their mixtures before the draw, same
-    units) instead of where they landed."""
+    units) instead of where they landed. The place masses are then left to
+    :func:`_posterior_kernel` (one pass with the place posterior and the answer): ``terms``
+    gets its factors ``(e^{log_scale − log E_map}, share, 1)``, ``share`` the recovery
+    share's mass per unit of ``like``, 0 without; ``terms[2] = 0``: ``mass`` is written
+    here."""
     k = edge.shape[0]
+    terms[2] = 0.0
     for i in range(k):
         if marginal and (i < start or i >= stop):
             log_weight[i] += log_scale
@@ -397,7 +409,8 @@ def _reweight_kernel(edge, fraction, log_weight, source, target, log_ratio, star
         for i in range(start, stop):
             log_weight[i] = -np.inf
     log_map = np.logaddexp(log_rest, log_recovery)
-    mass[:] = 0.0
+    if not (marginal and np.isfinite(log_map)):
+        mass[:] = 0.0
     if not np.isfinite(log_map):  # nothing left: uniform, as normalise_in_place does
         lse, ess = normalise_in_place(log_weight, weight)
         for i in range(k):
@@ -417,21 +430,40 @@ def _reweight_kernel(edge, fraction, log_weight, source, target, log_ratio, star
     scale = np.exp(log_scale - log_map) if marginal else 0.0
     recover = np.isfinite(log_recovery)
     share = np.exp(log_recovery - log_map) / like[like.shape[0] - 1] if recover else 0.0
-    if marginal and recover:
-        below = 0.0
-        for j in range(mass.shape[0]):
-            mass[j] += marginal_mass[j] * scale
-            mass[j] += share * (like[j] - below)
-            below = like[j]
-    elif marginal:
-        for j in range(mass.shape[0]):
-            mass[j] += marginal_mass[j] * scale
+    if marginal:  # left to _posterior_kernel
+        terms[0] = scale
+        terms[1] = share
+        terms[2] = 1.0 if recover else 0.5
     elif recover:
         below = 0.0
         for j in range(like.shape[0]):
             mass[j] += share * (like[j] - below)
             below = like[j]
     return log_map, 1.0 / sq
+
+
+@njit
+def _posterior_kernel(marginal_mass, scale, like, share, recover, mass, posterior, keep):  # pragma: no cover
+    """The marginal step's place masses, the place posterior and the answer in one pass:
+    ``mass[j] = marginal_mass[j] · scale + share · (like[j] − like[j − 1])`` (the recovery
+    share's exact masses, where ``recover``), ``posterior[j] = mass[j] · keep`` (``keep =
+    1 − P(new)``) — the floats of :func:`_reweight_kernel`'s masses and of numpy's product —
+    and returns the first place of the largest mass (``np.argmax``: the first NaN, if any)."""
+    n = mass.shape[0]
+    best = 0
+    top = -np.inf
+    below = 0.0
+    for j in range(n):
+        m = marginal_mass[j] * scale
+        if recover:
+            m += share * (like[j] - below)
+            below = like[j]
+        mass[j] = m
+        posterior[j] = m * keep
+        if m > top or (m != m and top == top) or j == 0:
+            best = j
+            top = m
+    return best
 
 
 @njit
@@ -967,6 +999,10 @@ class Localizer:
         self._pool = FramePool(6)  # the per-frame posteriors and predicted masses handed out
         self._marginal_mass = np.empty(g.n_places)
         self._marginal_prior = np.empty(g.n_places)
+        # the places the marginal motion wrote into the two (0 elsewhere; new arrays: all of them)
+        self._written = PlacesWritten(g.n_places, 0) if self._marginal else None
+        self._deferred = None  # the place masses' terms, where the reweighting left them to _summarise
+        self._terms = np.zeros(3)
         self._marginal_step = False
         # the jump grid (jump_graduation < 1): the recent jumps' exact mass over (place, velocity bin)
         self._jump_grid = self._marginal and self.jump_graduation < 1.0 and self._births > 0
@@ -1149,7 +1185,7 @@ class Localizer:
         if self._jump_grid and stop > start:
             log_keep += math.log1p(-min(self._jumps_mass, 1.0 - 1e-12))
         kept = motion.move_marginal(self.particles_, self._spread, self.graph, self._rng, self._e, log_keep,
-                                    self._newborn, self._marginal_mass, self._marginal_prior)
+                                    self._newborn, self._marginal_mass, self._marginal_prior, self._written)
         if kept == 0.0:  # every particle left the map: start them again from this frame
             self._spread_from_frame(*self._cloud_slots(), log_keep)
 
@@ -1178,6 +1214,7 @@ class Localizer:
         keep = math.exp(log_keep)
         np.multiply(self._e, keep / g.n_places, out=self._marginal_mass)
         self._marginal_prior[:] = keep / g.n_places
+        self._written.dense()
         if last - first < self.n_particles:  # the rest (young generations) as they are: weight 0 here
             rest = np.ones(self.n_particles, dtype=bool)
             rest[first:last] = False
@@ -1288,7 +1325,10 @@ class Localizer:
         log_map, ess = _reweight_kernel(self._edge, self._fraction, self._log_weight, g.source, g.target,
                                         self._log_ratio, *self._newborn, self._log_recovery, self._like, self._weight,
                                         self._mass, self._marginal_step, self._r_max, self._marginal_mass,
-                                        log_graduate)
+                                        log_graduate, self._terms)
+        # the place masses: written, or their terms left for one pass with the posterior (_summarise)
+        self._deferred = (float(self._terms[0]), float(self._terms[1]), self._terms[2] == 1.0) \
+            if self._terms[2] > 0.0 else None
         if jump_grid:  # what the births did not take stays in the grid, normalised with the rest
             kept = (1.0 - self.jump_graduation) * math.exp(self._r_max - log_map)
             self._jumps_scale = kept * self._jumps_unit
@@ -1356,8 +1396,16 @@ class Localizer:
     def _summarise(self, mass: np.ndarray, ess: float, resampled: bool) -> tuple[Estimate, slice | np.ndarray]:
         g = self.graph
         self.__dict__.pop("place_posterior_", None)  # the previous frame's: reusable if no one else holds it
-        self.place_posterior_ = np.multiply(mass, 1.0 - self.new_place_probability_, out=self._pool.take(len(mass)))
-        best = int(np.argmax(mass))
+        posterior = self._pool.take(len(mass))
+        if self._deferred is not None:  # the place masses, the posterior and the answer in one pass
+            scale, share, recover = self._deferred
+            self._deferred = None
+            best = int(_posterior_kernel(self._marginal_mass, scale, self._like, share, recover, mass, posterior,
+                                         1.0 - self.new_place_probability_))
+            self.place_posterior_ = posterior
+        else:
+            self.place_posterior_ = np.multiply(mass, 1.0 - self.new_place_probability_, out=posterior)
+            best = int(np.argmax(mass))
         if self.confidence_radius_m is not None:
             near = np.zeros(g.n_places, dtype=bool)
             near[self._tree.query_ball_point(g.positions[best], self.confidence_radius_m)] = True

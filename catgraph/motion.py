@@ -78,10 +78,10 @@ import numpy as np
 
 from ._jit import njit
 from ._validation import check_scalar
-from .exceptions import DataError, InvalidParameterError
+from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .particles import ParticleSet
 
-__all__ = ["MotionModel", "OdometryMotion", "FrameMotion", "VelocityMotion", "LongRunVelocity", "advance"]
+__all__ = ["MotionModel", "OdometryMotion", "FrameMotion", "VelocityMotion", "LongRunVelocity", "PlacesWritten", "advance"]
 
 
 @njit(inline="always")
@@ -542,7 +542,7 @@ class VelocityMotion(MotionModel):
 
     def move_marginal(self, particles: ParticleSet, velocity: np.ndarray, graph, rng: np.random.Generator,
                       like: np.ndarray, log_keep: float, skip: tuple[int, int], posterior: np.ndarray,
-                      prior: np.ndarray) -> float:
+                      prior: np.ndarray, written: "PlacesWritten | None" = None) -> float:
         """Move particles that carry a velocity *distribution* (Rao–Blackwellised), with
         the frame's evidence (the locally optimal proposal), in place.
 
@@ -575,6 +575,12 @@ class VelocityMotion(MotionModel):
             Slots left alone (they are about to take new particles).
         posterior, prior : ndarray of float64, shape (n_places,)
             Filled with the mixtures (see :func:`_marginal_kernel`).
+        written : PlacesWritten, optional
+            The places the previous call wrote into ``posterior`` and ``prior`` (which hold
+            0 everywhere else): only those are cleared, and only the places this call
+            reaches are rescaled, so the step costs O(occupied places), not O(n_places);
+            the arrays end exactly as the dense clear and rescale leave them. ``None``:
+            clear and rescale every place.
 
         Returns
         -------
@@ -596,11 +602,54 @@ class VelocityMotion(MotionModel):
         members = self.__dict__.get("_members")
         if members is None or len(members) != n:
             members = self._members = np.empty(n, dtype=np.int64)
+        if written is None:
+            written = PlacesWritten(len(posterior), 0)
+        elif len(written.marks) != len(posterior):
+            raise ShapeMismatchError(f"the PlacesWritten record holds {len(written.marks)} places; the place masses "
+                                     f"have {len(posterior)}.")
+        written.reserve(n * (2 * self._reach + 1))
         return float(_marginal_kernel(particles.edge, particles.fraction, particles.log_weight, velocity,
                                       int(skip[0]), int(skip[1]), float(log_keep), buffer, like, self._transition,
                                       whole, frac, sign, self._blur, fwd, bwd, graph.source, graph.target,
                                       graph.out_ptr, first_in, self._reach, posterior, prior, family_of, members,
-                                      self._interior_rows, self._interior_column))
+                                      self._interior_rows, self._interior_column, written.places, written.count,
+                                      written.marks))
+
+
+class PlacesWritten:
+    """Which places a sparse writer (:meth:`VelocityMotion.move_marginal`) wrote into its
+    place-mass arrays, so that the next call clears only those.
+
+    Attributes
+    ----------
+    places : ndarray of int64
+        The places written, ``places[:count[0]]`` (each once).
+    count : ndarray of int64, shape (1,)
+        How many; ``-1``: the arrays were written everywhere (or are new), clear them all.
+    marks : ndarray of uint8, shape (n_places,)
+        0 outside a call (a call's scratch: which places it has listed).
+
+    Call :meth:`dense` after writing the arrays by other means.
+    """
+
+    __slots__ = ("places", "count", "marks")
+
+    def __init__(self, n_places: int, capacity: int) -> None:
+        self.places = np.empty(capacity, dtype=np.int64)
+        self.count = np.full(1, -1, dtype=np.int64)
+        self.marks = np.zeros(n_places, dtype=np.uint8)
+
+    def dense(self) -> None:
+        """The arrays were written at every place: the next call clears them all."""
+        self.count[0] = -1
+
+    def reserve(self, capacity: int) -> None:
+        """Room for ``capacity`` places (keeps what is listed)."""
+        if len(self.places) < capacity:
+            places = np.empty(capacity, dtype=np.int64)
+            k = max(int(self.count[0]), 0)
+            places[:k] = self.places[:k]
+            self.places = places
 
 
 # ---------------------------------------------------------------------- the velocity marginalised
@@ -654,7 +703,7 @@ def _one_place_transition(j, p, transition, whole, frac, sign, blur, fwd, bwd, r
 def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop, log_keep, uniform, like,
                      transition, whole, frac, sign, blur, fwd, bwd, source, target, out_ptr, first_in,
                      reach, posterior, prior, family_of, members, interior,
-                     interior_column):  # pragma: no cover - compiled
+                     interior_column, written, n_written, marks):  # pragma: no cover - compiled
     """One step of :meth:`VelocityMotion.move_marginal` for every particle outside
     ``skip_start .. skip_stop``, in place; returns the particles' predicted mass
     ``K = Σ_i w_i Σ_c π_ic`` before its normalisation (0: every particle left the map).
@@ -678,7 +727,12 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
     ``interior[o, b, a]``: the prediction of bin ``a`` alone away from the route's ends
     (``interior_column[a, o]`` its sum over ``b``); a family there predicts as their
     mixture, and its bins' split is computed only at the places its members draw (the
-    sum over ``a`` runs along contiguous memory, which the compiler vectorises)."""
+    sum over ``a`` runs along contiguous memory, which the compiler vectorises).
+
+    ``written[:n_written[0]]``: the places the previous call wrote (``n_written[0] = -1``:
+    every place may be non-zero); they are cleared, this call's places listed there
+    instead (``marks``, ``(n_places,)`` uint8 of 0, left so), and only they rescaled: the
+    floats of a clear and a rescale of every place, in O(occupied places)."""
     nb = velocity.shape[1]
     width = 2 * reach + 1
     n = edge.shape[0]
@@ -694,11 +748,19 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
     for i in range(n):
         if (i < skip_start or i >= skip_stop) and log_weight[i] > mx:
             mx = log_weight[i]
-    for j in range(posterior.shape[0]):
-        posterior[j] = 0.0
-        prior[j] = 0.0
+    done = n_written[0]
+    if done < 0:
+        for j in range(posterior.shape[0]):
+            posterior[j] = 0.0
+            prior[j] = 0.0
+    else:
+        for k in range(done):
+            posterior[written[k]] = 0.0
+            prior[written[k]] = 0.0
+    n_written[0] = 0
     if not np.isfinite(mx):
         return 0.0
+    listed = 0
     total = 0.0
     scaled = np.empty(n)  # e^{log_weight − max}, computed once
     for i in range(n):
@@ -805,6 +867,10 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
             c = column[o]
             if c > 0.0:
                 t = window[o]
+                if marks[t] == 0:
+                    marks[t] = 1
+                    written[listed] = t
+                    listed += 1
                 stays += c
                 evidence += c * like[t]
                 prior[t] += weight * c
@@ -851,6 +917,9 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
                 edge[i] = first_in[t]
                 fraction[i] = 1.0
             log_weight[i] = log_each
+    n_written[0] = listed
+    for k in range(listed):
+        marks[written[k]] = 0
     if not kept > 0.0:
         return 0.0
     shift = log_keep - np.log(kept)
@@ -858,9 +927,9 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
         if i < skip_start or i >= skip_stop:
             log_weight[i] += shift
     scale = np.exp(shift)
-    for j in range(posterior.shape[0]):
-        posterior[j] *= scale
-        prior[j] *= scale
+    for k in range(listed):  # every other place holds 0, which the rescale leaves 0
+        posterior[written[k]] *= scale
+        prior[written[k]] *= scale
     return kept
 
 

@@ -14,7 +14,7 @@ import pytest
 from catgraph._jit import njit
 from catgraph.graph import PlaceGraph
 from catgraph.localizer import Localizer
-from catgraph.motion import VelocityMotion, _marginal_kernel
+from catgraph.motion import PlacesWritten, VelocityMotion, _marginal_kernel
 
 from .conftest import FixedLogRatio as _Fixed
 from .conftest import survey_graph as _survey_graph
@@ -235,16 +235,29 @@ def _state(graph, motion, rng, n, skip):
     return edge, fraction, log_weight, spread, like, rng.random(n)
 
 
-def _call(kernel, interior, graph, motion, state, skip, log_keep):
+def _call(kernel, interior, graph, motion, state, skip, log_keep, masses=None):
+    """One call; ``masses``: ``(posterior, prior, written)`` the place masses a previous call
+    left and its :class:`PlacesWritten` (the sparse clear), else NaN-filled arrays (the
+    kernel must clear them all)."""
     edge, fraction, log_weight, spread, like, uniform = (a.copy() for a in state)
     fwd, bwd, first_in, _ = motion._route(graph)
-    post, prior = np.full(graph.n_places, np.nan), np.full(graph.n_places, np.nan)
+    if masses is None:
+        post, prior = np.full(graph.n_places, np.nan), np.full(graph.n_places, np.nan)
+        written = PlacesWritten(graph.n_places, len(edge) * (2 * motion._reach + 1))
+    else:
+        post, prior, written = masses
     family = np.full(graph.n_places, -1, dtype=np.int64)
+    extra = () if kernel is _reference_kernel else (written.places, written.count, written.marks)
     kept = kernel(edge, fraction, log_weight, spread, *skip, log_keep, uniform, like, motion._transition,
                   *motion._moves, motion._blur, fwd, bwd, graph.source, graph.target, graph.out_ptr, first_in,
                   motion._reach, post, prior, family, np.empty(len(edge), dtype=np.int64), interior,
-                  motion._interior_column)
-    return kept, edge, fraction, log_weight, spread, post, prior, family
+                  motion._interior_column, *extra)
+    if kernel is not _reference_kernel:
+        listed = written.places[:written.count[0]]
+        assert len(np.unique(listed)) == len(listed) and not written.marks.any()
+        assert np.all(post[np.setdiff1d(np.arange(graph.n_places), listed)] == 0.0)
+        masses = (post, prior, written)
+    return kept, edge, fraction, log_weight, spread, post, prior, family, masses
 
 
 @pytest.mark.parametrize("graph", [PlaceGraph.chain(60), _survey_graph()], ids=["chain", "survey"])
@@ -259,12 +272,15 @@ def test_marginal_kernel_is_bit_identical_to_its_reference(graph, velocities):
     motion = VelocityMotion(**kwargs)
     motion._check()
     rng = np.random.default_rng(3)
-    for n, skip in ((200, (150, 170)), (64, (0, 0)), (300, (280, 300))):
+    masses = None  # the first call clears every place; the later ones only the places the last wrote
+    for n, skip in ((200, (150, 170)), (64, (0, 0)), (300, (280, 300)), (200, (150, 170))):
         state = _state(graph, motion, rng, n, skip)
-        ours = _call(_marginal_kernel, motion._interior_rows, graph, motion, state, skip, np.log(0.95))
+        ours = _call(_marginal_kernel, motion._interior_rows, graph, motion, state, skip, np.log(0.95), masses)
         ref = _call(_reference_kernel, motion._interior, graph, motion, state, skip, np.log(0.95))
+        masses = ours[-1]
+        masses[2].reserve(301 * (2 * motion._reach + 1))
         assert ours[0] == ref[0] and ours[0] > 0.0
-        for a, b in zip(ours[1:], ref[1:]):
+        for a, b in zip(ours[1:-1], ref[1:-1]):
             np.testing.assert_array_equal(a, b)
 
 
@@ -291,8 +307,9 @@ def _digest(seed, proposal):
 
 def _reference_move(*args):
     """:func:`_reference_kernel` called as :func:`catgraph.motion._marginal_kernel` is
-    (``interior`` given ``[o, b, a]``, handed on ``[a, o, b]``)."""
-    args = list(args)
+    (``interior`` given ``[o, b, a]``, handed on ``[a, o, b]``; the record of the places
+    written dropped: the reference clears and rescales every place)."""
+    args = list(args)[:27]
     args[25] = np.ascontiguousarray(args[25].transpose(2, 0, 1))
     return _reference_kernel(*args)
 

@@ -7,7 +7,7 @@ import pytest
 from catgraph.graph import PlaceGraph
 from catgraph.grid import predict, route_neighbours
 from catgraph.localizer import Localizer
-from catgraph.motion import VelocityMotion, _marginal_kernel
+from catgraph.motion import PlacesWritten, VelocityMotion, _marginal_kernel
 from catgraph.traverse import Traverse
 
 from .conftest import FixedLogRatio as _Fixed
@@ -109,7 +109,7 @@ def test_marginal_kernel_matches_a_slow_reference(graph):
     kept = _marginal_kernel(e, f, lw, v, *skip, log_keep, rng.random(n), like, motion._transition, whole, frac, sign,
                             motion._blur, fwd, bwd, graph.source, graph.target, graph.out_ptr, first_in, motion._reach,
                             post, prior, family, np.empty(n, dtype=np.int64), motion._interior_rows,
-                            motion._interior_column)
+                            motion._interior_column, *_written(graph, n, motion))
     assert np.all(family == -1)  # left as it came
     assert kept == pytest.approx(kept_ref, rel=1e-12)
     np.testing.assert_allclose(prior, prior_ref, rtol=1e-10, atol=1e-15)
@@ -127,6 +127,12 @@ def test_marginal_kernel_matches_a_slow_reference(graph):
             np.testing.assert_allclose(v[i], column / column.sum(), rtol=1e-10, atol=1e-15)
     # the weights carry the share log_keep of the whole prediction times the evidence
     assert np.exp(np.logaddexp.reduce(lw[keep])) == pytest.approx(post.sum(), rel=1e-10)
+
+
+def _written(graph, n, motion):
+    """A new record of the places written (the kernel clears every place first)."""
+    w = PlacesWritten(graph.n_places, n * (2 * motion._reach + 1))
+    return w.places, w.count, w.marks
 
 
 def test_a_family_splits_in_proportion_over_its_destinations():
@@ -147,7 +153,7 @@ def test_a_family_splits_in_proportion_over_its_destinations():
     _marginal_kernel(e, f, np.zeros(k), spread, 0, 0, 0.0, np.full(k, 0.37), like, motion._transition, whole, frac,
                      sign, motion._blur, fwd, bwd, g.source, g.target, g.out_ptr, first_in, motion._reach, post, prior,
                      np.full(g.n_places, -1, dtype=np.int64), np.empty(k, dtype=np.int64), motion._interior_rows,
-                     motion._interior_column)
+                     motion._interior_column, *_written(g, k, motion))
     counts = np.bincount(g.source[e], minlength=g.n_places)
     q = post / post.sum()
     assert np.all(counts >= np.floor(k * q) - 1e-9) and np.all(counts <= np.ceil(k * q) + 1e-9)
