@@ -252,6 +252,69 @@ def _likelihood_cumulative(log_ratio, out, known_max):  # pragma: no cover - com
     return r_max
 
 
+@njit(nogil=True)
+def _exp_into(log_ratio, r_max, out, lo, hi):  # pragma: no cover - compiled
+    """``out[j] = e^{r_j − max r}`` for places ``lo .. hi − 1`` (the floats of
+    :func:`_likelihood_cumulative`'s terms)."""
+    for j in range(lo, hi):
+        out[j] = np.exp(log_ratio[j] - r_max)
+
+
+@njit(nogil=True)
+def _cumulate(out):  # pragma: no cover - compiled
+    """``out`` made its own cumulative sum, in place and in order."""
+    acc = 0.0
+    for j in range(out.shape[0]):
+        acc += out[j]
+        out[j] = acc
+
+
+#: Places per thread below which the frame's cumulative likelihood is taken on one thread.
+EXP_WORK_PER_THREAD = 1 << 16
+_POOL = {}  # worker threads, by their number
+
+
+def likelihood_cumulative(log_ratio: np.ndarray, out: np.ndarray, known_max: float = math.nan,
+                          threads: int | None = None) -> float:
+    """``out[j] = Σ_{i ≤ j} e^{r_i − max r}``; returns ``max r`` (``known_max`` where the
+    observation found it, NaN: found here).
+
+    The terms (one ``exp`` per place, most of the step's cost on a large map) are taken
+    on ``threads`` threads (default: as many as the free cores, :func:`catgraph.grid._free_cores`,
+    and the work, :data:`EXP_WORK_PER_THREAD` places each), each on its own places, and
+    summed in order on one: the floats of :func:`_likelihood_cumulative` on any number of
+    threads."""
+    n = log_ratio.shape[0]
+    if not known_max == known_max and n:  # numpy's maximum, unless a NaN hides it (the loop skips NaN)
+        top = float(np.max(log_ratio))
+        known_max = top if top == top else known_max
+    if threads is None:
+        from .differences import _threads_available
+        from .grid import _free_cores
+
+        threads = min(_threads_available(), n // EXP_WORK_PER_THREAD)
+        threads = _free_cores(threads) if threads > 1 else 1
+    if threads <= 1:
+        return float(_likelihood_cumulative(log_ratio, out, known_max))
+    if not known_max == known_max:
+        known_max = float(_likelihood_cumulative(log_ratio, out, known_max))
+        return known_max
+    if threads - 1 not in _POOL:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _POOL[threads - 1] = ThreadPoolExecutor(max_workers=threads - 1, thread_name_prefix="catgraph-evidence")
+    cuts = [n * k // threads for k in range(threads + 1)]
+    jobs = [_POOL[threads - 1].submit(_exp_into, log_ratio, known_max, out, cuts[k], cuts[k + 1])
+            for k in range(1, threads)]
+    try:
+        _exp_into(log_ratio, known_max, out, cuts[0], cuts[1])
+    finally:
+        for job in jobs:
+            job.result()
+    _cumulate(out)
+    return known_max
+
+
 @njit
 def _birth_kernel(kind, like, proposal, top, log_keep, log_recovery, start, stop, edge, fraction, log_weight,
                   velocity, uniform, out_ptr, first_in, normalise):  # pragma: no cover - compiled
@@ -1154,7 +1217,7 @@ class Localizer:
         log_ratio = obs.log_ratio if obs.informative else self._no_ratio
         self._log_ratio = log_ratio = np.ascontiguousarray(log_ratio, dtype=np.float64)
         known = obs.log_ratio_max if obs.informative and obs.log_ratio_max is not None else math.nan
-        self._r_max = r_max = _likelihood_cumulative(log_ratio, self._like, float(known))
+        self._r_max = r_max = likelihood_cumulative(log_ratio, self._like, float(known))
         self._log_like_mean = r_max + math.log(self._like[-1] / g.n_places)  # log mean_j e^{r_j}
         born = self._births > 0 and self.n_steps_ > 0
         self._newborn = self._generation(self.n_steps_ - 1) if born else (0, 0)

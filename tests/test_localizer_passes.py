@@ -156,3 +156,24 @@ def test_posterior_pass_equals_the_reweighting_pass_product_and_argmax(recover):
         np.testing.assert_array_equal(mass, ref_mass)
         np.testing.assert_array_equal(post, ref_post)
         assert best == ref_best
+
+
+@pytest.mark.parametrize("threads", [1, 2, 3])
+def test_likelihood_cumulative_on_threads_equals_the_one_pass(threads):
+    """The frame's cumulative likelihood and its maximum on any number of threads, the
+    maximum found or given, equal to :func:`_likelihood_cumulative`'s, bit for bit (a NaN:
+    the one pass's, which skips it)."""
+    from catgraph.localizer import _likelihood_cumulative, likelihood_cumulative
+
+    rng = np.random.default_rng(6)
+    for n in (1, 7, 1000, 70_001):
+        r = rng.standard_normal(n) * 5
+        for known in (np.nan, float(r.max())):
+            ref, out = np.empty(n), np.full(n, np.nan)
+            top = _likelihood_cumulative(r, ref, known)
+            assert likelihood_cumulative(r, out, known, threads=threads) == top
+            np.testing.assert_array_equal(out, ref)
+    r[5] = np.nan
+    ref, out = np.empty(len(r)), np.empty(len(r))
+    assert likelihood_cumulative(r, out, threads=threads) == _likelihood_cumulative(r, ref, np.nan)
+    np.testing.assert_array_equal(out, ref)
