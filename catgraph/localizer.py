@@ -1059,6 +1059,7 @@ class Localizer:
         self._velocity_prior = np.full(nb, 1.0 / max(nb, 1))
         self._velocity_marginal = self._velocity_prior.copy()
         self._e = np.empty(g.n_places)
+        self._e_dense = False
         self._pool = FramePool(6)  # the per-frame posteriors and predicted masses handed out
         self._marginal_mass = np.empty(g.n_places)
         self._marginal_prior = np.empty(g.n_places)
@@ -1222,8 +1223,24 @@ class Localizer:
         born = self._births > 0 and self.n_steps_ > 0
         self._newborn = self._generation(self.n_steps_ - 1) if born else (0, 0)
         self._log_recovery = math.log(self.recovery_) + self._log_like_mean if born else -math.inf
-        if self._marginal:
-            np.exp(np.subtract(log_ratio, r_max, out=self._e), out=self._e)
+        # e^{r − max r}: where the jump grid reads it, every place now; else the places the
+        # marginal motion reads, when it moves (_frame_ratio)
+        self._e_dense = False
+        if self._jump_grid:
+            self._frame_ratio()
+
+    def _frame_ratio(self, places: np.ndarray | None = None) -> None:
+        """``_e = e^{r − max r}`` at ``places`` (every place: None), numpy's floats (they do not
+        depend on which places a call takes)."""
+        if self._e_dense:
+            return
+        if places is None:
+            np.exp(np.subtract(self._log_ratio, self._r_max, out=self._e), out=self._e)
+            self._e_dense = True
+            return
+        x = self._log_ratio[places]
+        np.exp(np.subtract(x, self._r_max, out=x), out=x)
+        self._e[places] = x
 
     def _move(self, odometry: float | None) -> None:
         """Predict: the motion model moves the particles (not on the first frame). With
@@ -1247,6 +1264,7 @@ class Localizer:
         log_keep = math.log1p(-self.recovery_) if stop > start else 0.0
         if self._jump_grid and stop > start:
             log_keep += math.log1p(-min(self._jumps_mass, 1.0 - 1e-12))
+        self._frame_ratio(motion.reach_places(self.particles_, self.graph, self._newborn, self._written))
         kept = motion.move_marginal(self.particles_, self._spread, self.graph, self._rng, self._e, log_keep,
                                     self._newborn, self._marginal_mass, self._marginal_prior, self._written)
         if kept == 0.0:  # every particle left the map: start them again from this frame
@@ -1264,6 +1282,7 @@ class Localizer:
         mean_j e^{r_j}`` (in units of ``e^{max r}``) and the uniform velocity
         distribution: the exact posterior of a uniform prediction (the first frame)."""
         g, m = self.graph, last - first
+        self._frame_ratio()
         cumulative = self._like / self._like[-1]
         cumulative[-1] = 1.0
         u = (self._rng.random() + np.arange(m)) / m

@@ -540,6 +540,36 @@ class VelocityMotion(MotionModel):
                 out[window[o]] += moved[o]
         return out
 
+    def reach_places(self, particles: ParticleSet, graph, skip: tuple[int, int],
+                     written: "PlacesWritten | None" = None) -> np.ndarray:
+        """The places :meth:`move_marginal` can read ``like`` at: those within one step's
+        reach along the route of a particle outside the slots ``skip``, each once.
+
+        Parameters
+        ----------
+        particles : ParticleSet
+        graph : PlaceGraph
+            A graph :meth:`supports_marginal` accepts.
+        skip : (int, int)
+        written : PlacesWritten, optional
+            Its ``marks`` lend the scratch (left all 0).
+
+        Returns
+        -------
+        ndarray of int64
+        """
+        self._check()
+        fwd, bwd, _, _ = self._route(graph)
+        n = len(particles)
+        marks = written.marks if written is not None else np.zeros(graph.n_places, dtype=np.uint8)
+        out = self.__dict__.get("_reach_buffer")
+        size = min(n * (2 * self._reach + 1), graph.n_places)
+        if out is None or len(out) < size:
+            out = self._reach_buffer = np.empty(size, dtype=np.int64)
+        k = _reach_places(particles.edge, particles.fraction, graph.source, graph.target, fwd, bwd, self._reach,
+                          int(skip[0]), int(skip[1]), marks, out)
+        return out[:k]
+
     def move_marginal(self, particles: ParticleSet, velocity: np.ndarray, graph, rng: np.random.Generator,
                       like: np.ndarray, log_keep: float, skip: tuple[int, int], posterior: np.ndarray,
                       prior: np.ndarray, written: "PlacesWritten | None" = None) -> float:
@@ -568,7 +598,7 @@ class VelocityMotion(MotionModel):
         rng : numpy.random.Generator
             One uniform per particle.
         like : ndarray of float64, shape (n_places,)
-            ``e^{r_j − max r}``.
+            ``e^{r_j − max r}`` (read only at :meth:`reach_places`).
         log_keep : float
             Log of the share of the prediction the particles carry (``log(1 − ε)``).
         skip : (int, int)
@@ -653,6 +683,40 @@ class PlacesWritten:
 
 
 # ---------------------------------------------------------------------- the velocity marginalised
+@njit
+def _reach_places(edge, fraction, source, target, fwd, bwd, reach, skip_start, skip_stop, marks,
+                  out):  # pragma: no cover - compiled
+    """The places within ``reach`` steps along the route (``fwd``, ``bwd``) of the place of
+    a particle outside ``skip_start .. skip_stop`` (the nearer of its edge's two, as
+    :func:`_marginal_kernel` takes it), each once, into ``out``; returns how many.
+    ``marks``: ``(n_places,)`` uint8 of 0, left so."""
+    k = 0
+    for i in range(edge.shape[0]):
+        if skip_start <= i < skip_stop:
+            continue
+        e = edge[i]
+        j = source[e] if fraction[i] < 0.5 else target[e]
+        if marks[j] == 2:
+            continue  # its window is listed already
+        if marks[j] == 0:
+            out[k] = j
+            k += 1
+        marks[j] = 2  # listed, and so is its window (1: listed)
+        for direction in range(2):
+            t = j
+            for o in range(reach):
+                t = fwd[t] if direction == 0 else bwd[t]
+                if t < 0:
+                    break
+                if marks[t] == 0:
+                    marks[t] = 1
+                    out[k] = t
+                    k += 1
+    for m in range(k):
+        marks[out[m]] = 0
+    return k
+
+
 @njit(inline="always")
 def _one_place_transition(j, p, transition, whole, frac, sign, blur, fwd, bwd, reach, window, q,
                           moved):  # pragma: no cover - compiled

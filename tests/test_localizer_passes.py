@@ -177,3 +177,45 @@ def test_likelihood_cumulative_on_threads_equals_the_one_pass(threads):
     ref, out = np.empty(len(r)), np.empty(len(r))
     assert likelihood_cumulative(r, out, threads=threads) == _likelihood_cumulative(r, ref, np.nan)
     np.testing.assert_array_equal(out, ref)
+
+
+def test_reach_places_are_every_place_the_marginal_move_can_read_once():
+    """:meth:`VelocityMotion.reach_places` against a walk along the route from each
+    particle outside the skipped slots: the same set, each place once, the scratch left
+    clear; on a chain with its ends and on a route broken into stretches."""
+    from catgraph.motion import PlacesWritten, VelocityMotion
+    from catgraph.particles import ParticleSet
+
+    from .conftest import survey_graph
+
+    rng = np.random.default_rng(7)
+    for graph in (PlaceGraph.chain(80), survey_graph()):
+        motion = VelocityMotion()
+        assert motion.supports_marginal(graph)
+        fwd, bwd = motion._route(graph)[:2]
+        n = 60
+        places = rng.integers(0, graph.n_places, n)
+        places[:3] = [0, graph.n_places - 1, places[5]]
+        first_in = _first_in_edge(graph)
+        has_out = graph.out_ptr[places + 1] > graph.out_ptr[places]
+        edge = np.where(has_out, graph.out_ptr[places], first_in[places]).astype(np.int64)
+        fraction = np.where(has_out, 0.0, 1.0)
+        particles = ParticleSet(edge, fraction, np.zeros(n))
+        written = PlacesWritten(graph.n_places, 0)
+        for skip in ((0, 0), (10, 30)):
+            got = motion.reach_places(particles, graph, skip, written)
+            want = set()
+            for i in range(n):
+                if skip[0] <= i < skip[1]:
+                    continue
+                j = places[i]
+                want.add(int(j))
+                for nxt in (fwd, bwd):
+                    t = j
+                    for _ in range(motion._reach):
+                        t = nxt[t]
+                        if t < 0:
+                            break
+                        want.add(int(t))
+            assert len(got) == len(set(got.tolist())) and set(got.tolist()) == want
+            assert not written.marks.any()
