@@ -41,8 +41,8 @@ the one-minute load average beside each; with ``--before``, the same from the ch
 at PATH alternated with this one; and the jump kernels' compile time in a process with
 an empty numba cache. Writes ``particles_jump_grid_speed.md`` / ``.json``.
 
-``--large-timing [--before PATH]``: the same at 10⁵ and 10⁶ places (30 steps per
-timing); writes ``particles_step_speed.md`` / ``.json``.
+``--large-timing [--before PATH]``: the same at 3,576 (Nordland's size), 10⁵ and 10⁶
+places (30 steps per timing); writes ``particles_step_speed.md`` / ``.json``.
 
 ``--diagnose``: where the seeds differ on Nordland, shuffled 0.5–3 % (seed 4): the share of
 frames answered correctly by frames since the last jump, per filter seed, and the frames
@@ -424,8 +424,8 @@ def main(argv=None) -> None:
                     help="the step with and without the jump grid at 10^4 and 10^5 places (fresh processes, "
                          "alternated) and the jump kernels' compile time; writes particles_jump_grid_speed.md")
     ap.add_argument("--large-timing", action="store_true",
-                    help="the step with and without the jump grid at 10^5 and 10^6 places (fresh processes, "
-                         "alternated); writes particles_step_speed.md")
+                    help="the step with and without the jump grid at 3,576, 10^5 and 10^6 places (fresh "
+                         "processes, alternated); writes particles_step_speed.md")
     ap.add_argument("--before", default=None,
                     help="with --jump-timing or --large-timing: a second checkout, alternated with this one")
     ap.add_argument("--compare", nargs=2, metavar=("WITHOUT", "WITH"), default=None,
@@ -443,7 +443,7 @@ def main(argv=None) -> None:
         (RESULTS / "particles_jump_grid_speed.md").write_text(_jump_timing_markdown(t))
         return
     if args.large_timing:
-        t = jump_timing(args.before, places=(100_000, 1_000_000), steps=30, compile_time=False)
+        t = jump_timing(args.before, places=(3_576, 100_000, 1_000_000), steps=30, compile_time=False)
         RESULTS.mkdir(parents=True, exist_ok=True)
         (RESULTS / "particles_step_speed.json").write_text(json.dumps({"machine": platform.platform(), **t}, indent=1))
         (RESULTS / "particles_step_speed.md").write_text(_jump_timing_markdown(

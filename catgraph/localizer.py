@@ -288,13 +288,13 @@ def likelihood_cumulative(log_ratio: np.ndarray, out: np.ndarray, known_max: flo
     if not known_max == known_max and n:  # numpy's maximum, unless a NaN hides it (the loop skips NaN)
         top = float(np.max(log_ratio))
         known_max = top if top == top else known_max
-    if threads is None:
+    if threads is None and n >= 2 * EXP_WORK_PER_THREAD:
         from .differences import _threads_available
         from .grid import _free_cores
 
         threads = min(_threads_available(), n // EXP_WORK_PER_THREAD)
         threads = _free_cores(threads) if threads > 1 else 1
-    if threads <= 1:
+    if threads is None or threads <= 1:
         return float(_likelihood_cumulative(log_ratio, out, known_max))
     if not known_max == known_max:
         known_max = float(_likelihood_cumulative(log_ratio, out, known_max))
@@ -1063,8 +1063,11 @@ class Localizer:
         self._pool = FramePool(6)  # the per-frame posteriors and predicted masses handed out
         self._marginal_mass = np.empty(g.n_places)
         self._marginal_prior = np.empty(g.n_places)
-        # the places the marginal motion wrote into the two (0 elsewhere; new arrays: all of them)
-        self._written = PlacesWritten(g.n_places, 0) if self._marginal else None
+        # where the particles' reach can be far smaller than the map (else a pass over every place
+        # is cheaper than listing places): the places the marginal motion wrote into the two (0
+        # elsewhere; new arrays: all of them), and the frame's e^{r − max r} only where it reads
+        self._sparse_ratio = self._marginal and g.n_places > n * (2 * self.motion._reach + 1)
+        self._written = PlacesWritten(g.n_places, 0) if self._sparse_ratio else None
         self._deferred = None  # the place masses' terms, where the reweighting left them to _summarise
         self._terms = np.zeros(3)
         self._marginal_step = False
@@ -1264,7 +1267,8 @@ class Localizer:
         log_keep = math.log1p(-self.recovery_) if stop > start else 0.0
         if self._jump_grid and stop > start:
             log_keep += math.log1p(-min(self._jumps_mass, 1.0 - 1e-12))
-        self._frame_ratio(motion.reach_places(self.particles_, self.graph, self._newborn, self._written))
+        self._frame_ratio(motion.reach_places(self.particles_, self.graph, self._newborn, self._written)
+                          if self._sparse_ratio else None)
         kept = motion.move_marginal(self.particles_, self._spread, self.graph, self._rng, self._e, log_keep,
                                     self._newborn, self._marginal_mass, self._marginal_prior, self._written)
         if kept == 0.0:  # every particle left the map: start them again from this frame
@@ -1296,7 +1300,8 @@ class Localizer:
         keep = math.exp(log_keep)
         np.multiply(self._e, keep / g.n_places, out=self._marginal_mass)
         self._marginal_prior[:] = keep / g.n_places
-        self._written.dense()
+        if self._written is not None:
+            self._written.dense()
         if last - first < self.n_particles:  # the rest (young generations) as they are: weight 0 here
             rest = np.ones(self.n_particles, dtype=bool)
             rest[first:last] = False

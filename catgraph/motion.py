@@ -610,7 +610,8 @@ class VelocityMotion(MotionModel):
             0 everywhere else): only those are cleared, and only the places this call
             reaches are rescaled, so the step costs O(occupied places), not O(n_places);
             the arrays end exactly as the dense clear and rescale leave them. ``None``:
-            clear and rescale every place.
+            clear and rescale every place (cheaper where the particles' reach covers much
+            of the map).
 
         Returns
         -------
@@ -632,12 +633,13 @@ class VelocityMotion(MotionModel):
         members = self.__dict__.get("_members")
         if members is None or len(members) != n:
             members = self._members = np.empty(n, dtype=np.int64)
-        if written is None:
-            written = PlacesWritten(len(posterior), 0)
+        if written is None:  # every place cleared and rescaled
+            written = _EVERY_PLACE
         elif len(written.marks) != len(posterior):
             raise ShapeMismatchError(f"the PlacesWritten record holds {len(written.marks)} places; the place masses "
                                      f"have {len(posterior)}.")
-        written.reserve(n * (2 * self._reach + 1))
+        if written is not _EVERY_PLACE:
+            written.reserve(n * (2 * self._reach + 1))
         return float(_marginal_kernel(particles.edge, particles.fraction, particles.log_weight, velocity,
                                       int(skip[0]), int(skip[1]), float(log_keep), buffer, like, self._transition,
                                       whole, frac, sign, self._blur, fwd, bwd, graph.source, graph.target,
@@ -680,6 +682,10 @@ class PlacesWritten:
             k = max(int(self.count[0]), 0)
             places[:k] = self.places[:k]
             self.places = places
+
+
+#: The record that asks :func:`_marginal_kernel` to clear and rescale every place (no marks).
+_EVERY_PLACE = PlacesWritten(0, 0)
 
 
 # ---------------------------------------------------------------------- the velocity marginalised
@@ -795,7 +801,8 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
 
     ``written[:n_written[0]]``: the places the previous call wrote (``n_written[0] = -1``:
     every place may be non-zero); they are cleared, this call's places listed there
-    instead (``marks``, ``(n_places,)`` uint8 of 0, left so), and only they rescaled: the
+    instead (``marks``, ``(n_places,)`` uint8 of 0, left so; empty: every place cleared
+    and rescaled, ``n_written`` left -1), and only they rescaled: the
     floats of a clear and a rescale of every place, in O(occupied places)."""
     nb = velocity.shape[1]
     width = 2 * reach + 1
@@ -821,7 +828,8 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
         for k in range(done):
             posterior[written[k]] = 0.0
             prior[written[k]] = 0.0
-    n_written[0] = 0
+    track = marks.shape[0] > 0  # else every place is cleared and rescaled (n_written stays -1)
+    n_written[0] = 0 if track else -1
     if not np.isfinite(mx):
         return 0.0
     listed = 0
@@ -931,7 +939,7 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
             c = column[o]
             if c > 0.0:
                 t = window[o]
-                if marks[t] == 0:
+                if track and marks[t] == 0:
                     marks[t] = 1
                     written[listed] = t
                     listed += 1
@@ -981,7 +989,8 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
                 edge[i] = first_in[t]
                 fraction[i] = 1.0
             log_weight[i] = log_each
-    n_written[0] = listed
+    if track:
+        n_written[0] = listed
     for k in range(listed):
         marks[written[k]] = 0
     if not kept > 0.0:
@@ -991,6 +1000,10 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
         if i < skip_start or i >= skip_stop:
             log_weight[i] += shift
     scale = np.exp(shift)
+    if not track:
+        for j in range(posterior.shape[0]):
+            posterior[j] *= scale
+            prior[j] *= scale
     for k in range(listed):  # every other place holds 0, which the rescale leaves 0
         posterior[written[k]] *= scale
         prior[written[k]] *= scale
