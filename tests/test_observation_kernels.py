@@ -71,8 +71,13 @@ def test_bracket_splits_the_values_like_a_sort(absolute):
             work[:] = np.nan
             below, inside = kernels.bracket(x, centre, absolute, mid, radius, k, work)
             assert (below, inside) == (want_below, len(want_inside))
-            if below <= k < below + inside:  # copied only where the k-th value lies inside
-                assert np.array_equal(np.sort(work[:inside]), want_inside)
+            # the values inside, in their order (the same floats whether or not the k-th is among them)
+            assert np.array_equal(work[:inside], v[np.abs(v - mid) <= radius])
+            assert np.array_equal(np.sort(work[:inside]), want_inside)
+        same = x.copy()  # the values' own array as the work array: each written over one already read
+        below, inside = kernels.bracket(same, centre, absolute, mid, radius, 0, same)
+        assert (below, inside) == (want_below, len(want_inside))
+        assert np.array_equal(same[:inside], v[np.abs(v - mid) <= radius])
         lower = v[v - mid < -radius]
         assert kernels.largest_below(x, centre, absolute, mid, radius) == (lower.max() if len(lower) else -np.inf)
 
