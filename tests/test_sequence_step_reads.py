@@ -111,3 +111,67 @@ def test_a_non_finite_row_is_refused(bad):
         m.step(row.astype(np.float32))
     with pytest.raises(DataError, match="dimensions"):
         m.step(np.zeros((2, 300)))
+
+
+def test_one_frame_in_parts_on_two_threads_equals_the_reference_update(monkeypatch):
+    """The streaming step on two threads runs each velocity's windows in two parts, then the
+    sub-window scores: on rows whose long windows' moments round (so that windows are settled
+    inside the parts path), every output equals that of the update the exact kernels replace
+    (:func:`run_velocities_gaussian`, one velocity after another), bit for bit."""
+    from catgraph import _sequence_kernels as k
+
+    rng = np.random.default_rng(2)
+    n, n_q = 3000, 140
+    base = rng.normal(size=n)
+    d = np.stack([np.roll(base, i) for i in range(n_q)]) + 0.1 * rng.normal(size=(n_q, n))
+    d[0] *= 0.05
+    cfg = sequence._config("test", "adaptive", "gaussian", sequence.DEFAULT_RULE, "posterior", 5, 130, 6, 10, 0.05,
+                           sequence.DEFAULT_VELOCITIES, None)
+    v_count, g = cfg.velocities.shape[0], cfg.grid.shape[0]
+
+    def run(driver):
+        sums, ring, mring, state, scratch = sequence._state(cfg, n, 1)
+        outs = []
+        for i in range(n_q):
+            st = sequence._Stats(1, v_count, g, 1, True)
+            driver(d[i:i + 1], i, sums, ring, mring, state, st, scratch)
+            outs.append([st.best_j, st.best_s, st.second_s, st.mean, st.std, st.weights, st.locs, st.scales, st.sub])
+        return outs, sums
+
+    def reference(block, start, sums, ring, mring, state, st, scratch):
+        k.store_rows(block, 0, 1, start, ring, mring, state)
+        k.run_velocities_gaussian(k._velocity_sets(v_count)[-1], 0, 1, start, sums, ring, mring, state,
+                                  cfg.velocities, cfg.grid, cfg.radius, st.best_j, st.best_s, st.second_s, st.mean,
+                                  st.std, st.weights, st.locs, st.scales, st.sub, scratch[0])
+
+    def parts(block, start, sums, ring, mring, state, st, scratch):
+        k.run_batch(block, start, sums, ring, mring, state, cfg.velocities, cfg.grid, cfg.approx_code, 10, 1,
+                    cfg.radius, st.best_j, st.best_s, st.second_s, st.mean, st.std, st.weights, st.locs, st.scales,
+                    st.sub, *scratch)
+
+    settled = []
+    original = k._settle_window
+
+    def counting(*args):
+        settled.append(args[1])
+        return original(*args)
+
+    want, want_sums = run(reference)
+    monkeypatch.setattr(k, "_settle_window", counting)
+    monkeypatch.setattr(k, "WORK_PER_THREAD", 1)  # two threads: the parts path
+    calls = []
+    kernel = k.run_velocities_exact
+
+    def counted(*args):
+        calls.append((int(args[-5]), int(args[-4]), bool(args[-3])))
+        return kernel(*args)
+
+    monkeypatch.setattr(k, "run_velocities_exact", counted)
+    got, got_sums = run(parts)
+    for a, b in zip(got, want):
+        for x, y in zip(a, b):
+            assert x.tobytes() == y.tobytes()
+    assert got_sums.tobytes() == want_sums.tobytes()
+    assert settled  # some windows' moments rounded and were settled in the parts path
+    half = (g + 1) // 2
+    assert (0, half, False) in calls and (half, g, False) in calls and (g, g, True) in calls
