@@ -1112,14 +1112,13 @@ def run_velocities_gaussian(chosen, c0, c1, start, sums, ring, mring, state, vel
 
 @njit(inline="always")
 def _velocity_stats_exact(sums_v, ring, mring, i, v, grid, unit, radius, best_j, best_s, second_s, mean, std,
-                          weights, locs, scales, sub, g_lo, g_hi, subs, pend, pend_shift):
-    """:func:`_velocity_stats_gaussian` with the update of :func:`_update_stats_exact`, on the
-    windows ``g_lo .. g_hi - 1`` (the sub-window scores only with ``subs``, once every window of
-    the velocity is at frame ``i``): marks in ``pend`` (``(G,)``, with the shift in
-    ``pend_shift``) each window whose moments were not exact; returns how many."""
+                          weights, locs, scales, sub, pend, pend_shift):
+    """:func:`_velocity_stats_gaussian` with the update of :func:`_update_stats_exact`: marks in
+    ``pend`` (``(G,)``, with the shift in ``pend_shift``) each window whose moments were not
+    exact; returns how many."""
     bmin = np.empty((sums_v.shape[1] + CHUNK - 1) // CHUNK, dtype=np.int64)
     count = 0
-    for g in range(g_lo, g_hi):
+    for g in range(grid.shape[0]):
         exact, shift = _window_exact(sums_v[g], ring, mring, i, v, grid[g], unit, radius, bmin, g, best_j, best_s,
                                      second_s, mean, std)
         weights[g, 0] = 1.0
@@ -1129,28 +1128,25 @@ def _velocity_stats_exact(sums_v, ring, mring, i, v, grid, unit, radius, best_j,
             pend[g] = 1
             pend_shift[g] = shift
             count += 1
-    if subs:
-        _sub_scores(sums_v, i, v, grid, unit, best_j, sub)
+    _sub_scores(sums_v, i, v, grid, unit, best_j, sub)
     return count
 
 
 @njit(nogil=True)
 def run_velocities_exact(chosen, c0, c1, t_first, start, sums, ring, mring, state, velocities, grid, radius, best_j,
-                         best_s, second_s, mean, std, weights, locs, scales, sub, g_lo, g_hi, subs, pend, pend_shift):
+                         best_s, second_s, mean, std, weights, locs, scales, sub, pend, pend_shift):
     """:func:`run_velocities_gaussian` on the update of :func:`_update_stats_exact`, the first
     velocity of ``chosen`` from frame ``start + t_first`` on. Stops after the first frame with a
     window whose moments were not exact and returns ``(q, t)``, its velocity's position in
     ``chosen`` and its row (the caller settles the windows marked in ``pend`` from the sums as
-    that frame left them, then goes on); ``(-1, -1)`` once every velocity and frame is done.
-    Only the windows ``g_lo .. g_hi - 1``, and the sub-window scores only with ``subs`` (every
-    window: ``0, G, True``; a single frame's windows may be run in parts, then the scores)."""
+    that frame left them, then goes on); ``(-1, -1)`` once every velocity and frame is done."""
     for q in range(chosen.shape[0]):
         vi = chosen[q]
         for t in range(t_first if q == 0 else c0, c1):
             if _velocity_stats_exact(sums[vi], ring, mring, start + t, velocities[vi], grid, state[0], radius,
                                      best_j[t, vi], best_s[t, vi], second_s[t, vi], mean[t, vi], std[t, vi],
-                                     weights[t, vi], locs[t, vi], scales[t, vi], sub[t, vi], g_lo, g_hi, subs,
-                                     pend[vi], pend_shift[vi]) > 0:
+                                     weights[t, vi], locs[t, vi], scales[t, vi], sub[t, vi], pend[vi],
+                                     pend_shift[vi]) > 0:
                 return q, t
     return -1, -1
 
@@ -1247,10 +1243,9 @@ def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_it
                        np.int64(pend_shift[vi, g]), g, approx, n_iter, em_stride, mean[t, vi], std[t, vi],
                        weights[t, vi], locs[t, vi], scales[t, vi], s[vi], resp[vi])
 
-    g_count = grid.shape[0]
     if approx == APPROX_GAUSSIAN:
         rest = (run_velocities_exact, settle, velocities, grid, radius, best_j, best_s, second_s, mean, std, weights,
-                locs, scales, sub, 0, g_count, True, pend, pend_shift)
+                locs, scales, sub, pend, pend_shift)
     else:
         rest = (run_velocities, settle, velocities, grid, approx, n_iter, em_stride, radius, best_j, best_s,
                 second_s, mean, std, weights, locs, scales, sub, s, work, resp, pend, pend_shift)
@@ -1269,35 +1264,6 @@ def run_batch(d, start, sums, ring, mring, state, velocities, grid, approx, n_it
         return
     single = _velocity_sets(v_count)[:-1]
     pool = _pool(threads)
-    if approx == APPROX_GAUSSIAN and d.shape[0] == 1 and g_count > 1:
-        # one frame (the streaming step): each velocity's windows in two parts, each taken by
-        # whichever thread is free (half the work per part: the threads finish closer together),
-        # then every velocity's sub-window scores, once all its windows are at the frame
-        store_rows(d, 0, 1, start, ring, mring, state)
-        half = (g_count + 1) // 2
-        queue = iter([(chosen, lo, hi) for chosen in single for lo, hi in ((0, half), (half, g_count))])
-
-        def take_part():
-            for chosen, lo, hi in queue:
-                run_velocities_exact(chosen, 0, 1, 0, start, sums, ring, mring, state, velocities, grid, radius,
-                                     best_j, best_s, second_s, mean, std, weights, locs, scales, sub, lo, hi, False,
-                                     pend, pend_shift)
-
-        jobs = [pool.submit(take_part) for _ in range(threads - 1)]
-        try:
-            if beside is not None:
-                beside()
-            take_part()
-        finally:
-            for job in jobs:
-                job.result()
-        for vi, g in zip(*np.nonzero(pend)):  # windows whose moments were not exact, settled as the frame left them
-            settle(int(vi), 0, int(g))
-        pend[:] = 0
-        run_velocities_exact(_velocity_sets(v_count)[-1], 0, 1, 0, start, sums, ring, mring, state, velocities, grid,
-                             radius, best_j, best_s, second_s, mean, std, weights, locs, scales, sub, g_count, g_count,
-                             True, pend, pend_shift)
-        return
     for c0 in range(0, d.shape[0], chunk):
         c1 = min(d.shape[0], c0 + chunk)
         store_rows(d, c0, c1, start, ring, mring, state)
