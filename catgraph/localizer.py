@@ -149,10 +149,19 @@ and the landing place were most of the filter's seed-to-seed spread.
 Cost. A step is O(n_particles · hops + n_places), in compiled loops (motion, recovery,
 reweighting with the place masses, systematic resampling) over arrays allocated once in
 :meth:`Localizer.reset`; no per-particle Python and no per-step particle arrays (the
-marginalised motion: O(occupied places · n_bins² + n_particles + n_places), its
-families' scratch allocated per step). Same
-seed, same output: every random draw comes from the one ``numpy.random.Generator`` made
-from ``seed``. The jump grid adds O(n_places · n_bins) per step (its pass, above).
+marginalised motion: O(occupied places · n_bins² + n_particles), its families' scratch
+allocated per step). The O(n_places) part is what the answer and the feedback read: the
+frame's cumulative ``e^{r − max r}`` (one ``exp`` per place, on the free cores,
+:func:`likelihood_cumulative`), the place masses, the posterior and the answer in one
+pass (:func:`_posterior_kernel`), the confidence's two sums and the smoothed posterior
+handed to the model. On a map larger than the particles' reach the marginal motion
+clears and rescales only the places it wrote (:class:`~catgraph.motion.PlacesWritten`)
+and the frame's ratio is taken only where it reads
+(:meth:`~catgraph.motion.VelocityMotion.reach_places`); the births find their places by
+bisection. Each of these gives the floats of the full passes it replaced (tested, and
+whole runs checked bit for bit). Same seed, same output: every random draw comes from
+the one ``numpy.random.Generator`` made from ``seed``. The jump grid adds O(n_places ·
+n_bins) per step (its pass, above). Measured: ``benchmarks/results/particles_step_speed.md``.
 """
 
 from __future__ import annotations
@@ -285,6 +294,8 @@ def likelihood_cumulative(log_ratio: np.ndarray, out: np.ndarray, known_max: flo
     summed in order on one: the floats of :func:`_likelihood_cumulative` on any number of
     threads."""
     n = log_ratio.shape[0]
+    if threads is None and n < 1 << 14:  # a small map: one compiled pass is the cheapest
+        return float(_likelihood_cumulative(log_ratio, out, known_max))
     if not known_max == known_max and n:  # numpy's maximum, unless a NaN hides it (the loop skips NaN)
         top = float(np.max(log_ratio))
         known_max = top if top == top else known_max
@@ -1267,8 +1278,9 @@ class Localizer:
         log_keep = math.log1p(-self.recovery_) if stop > start else 0.0
         if self._jump_grid and stop > start:
             log_keep += math.log1p(-min(self._jumps_mass, 1.0 - 1e-12))
-        self._frame_ratio(motion.reach_places(self.particles_, self.graph, self._newborn, self._written)
-                          if self._sparse_ratio else None)
+        if not self._e_dense:  # (the jump grid took every place)
+            self._frame_ratio(motion.reach_places(self.particles_, self.graph, self._newborn, self._written)
+                              if self._sparse_ratio else None)
         kept = motion.move_marginal(self.particles_, self._spread, self.graph, self._rng, self._e, log_keep,
                                     self._newborn, self._marginal_mass, self._marginal_prior, self._written)
         if kept == 0.0:  # every particle left the map: start them again from this frame
