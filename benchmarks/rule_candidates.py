@@ -924,3 +924,79 @@ ROUNDS["22: rule contested with the midpoint test gated"] = {
 }
 
 CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}
+
+
+# ------------------------------------------------------------------------------------------
+# round 23: the window as the last segment of the best partition of the query into lines
+
+def _partition_gain(st, n_places, gain):
+    """``(n, V, G)``: a segment's gain by its best line: "logp" ``-log p - ln(N V)``; "z" the
+    best line's distance below the random places' mean in common spreads, ``z^2 / 2 - ln(N V)``
+    (the Gaussian tail's log, free of the fitted mixture's floor); "runner-up" ``(z^2 - z_2^2) / 2``
+    with ``z_2`` the best line's rival beyond the exclusion radius."""
+    v_count = st.best_s.shape[1]
+    if gain == "logp":
+        return -wr._log_p(st) - np.log(n_places * v_count)
+    common = wr._common_std(st)
+    safe = np.where(common > 0, common, 1.0)
+    z = np.maximum(0.0, (st.mean - st.best_s) / safe)
+    if gain == "z":
+        return z * z / 2.0 - np.log(n_places * v_count)
+    z2 = np.maximum(0.0, (st.mean - st.second_s) / safe)
+    return (z * z - z2 * z2) / 2.0
+
+
+def partition_choice(st, cfg, n_places, penalty, gain="logp"):
+    """``(g, v)`` per frame: the last segment of the best partition of the frames so far into
+    straight lines (optimal partitioning, computed online). A segment of length ``L`` ending at
+    frame ``i`` gains the significance of its best line beyond chance, ``-log p_i(L, v) - ln(N V)``
+    (the best velocity), less ``penalty`` nats; ``F(i) = max_L F(i - L) + gain_i(L)`` over the
+    window grid, and the window is the ``L`` of the maximum (the frames since the partition's last
+    cut, on the grid). Reads the statistics alone; ``O(G)`` per frame, ``l_max`` values carried."""
+    n, v_count, _ = st.best_s.shape
+    grid = cfg.grid.astype(np.int64)
+    gain_v = _partition_gain(st, n_places, gain)
+    v_best = np.argmax(gain_v, axis=1)  # (n, G)
+    gain = np.take_along_axis(gain_v, v_best[:, None, :], axis=1)[:, 0, :] - penalty
+    total = np.zeros(n + 1)
+    g = np.zeros(n, dtype=np.int64)
+    for i in range(n):
+        cand = total[np.maximum(0, i + 1 - grid)] + gain[i]
+        g[i] = int(np.argmax(cand))
+        total[i + 1] = cand[g[i]]
+    return g, v_best[np.arange(n), g]
+
+
+def partition_rule(penalty, gain="logp"):
+    """The partition's window and velocity with the library's confidence "changepoint" (the
+    support of every shorter window at the chosen velocity whose best place agrees)."""
+    def apply(st, rows_d, cfg):
+        import rule_harness
+
+        c = rule_harness.config("challenged", confidence="changepoint")
+        n = st.best_s.shape[0]
+        frames = np.arange(n)
+        g, v = partition_choice(st, c, rows_d.shape[1], penalty, gain)
+        best, match = st.best_s[frames, v, g], st.best_j[frames, v, g]
+        shorter = c.grid[None, :] <= c.grid[g][:, None]
+        stds = wr._common_std(st)[:, 0, :]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            gaps = np.where(stds > 0, (st.second_s[frames, v] - st.best_s[frames, v]) / stds, 0.0)
+        gaps = np.where(np.isfinite(gaps), gaps, 0.0)
+        agree = shorter & (np.abs(st.best_j[frames, v] - match[:, None]) <= c.radius)
+        conf = np.where(agree, gaps, 0.0).sum(axis=1)
+        moments = wr._row_moments(rows_d)
+        _, mu = wr._current_z(rows_d, match, best, moments)
+        recent = wr._new_record(c).recent
+        conf = conf * wr._on_line_since(*wr._line_z(rows_d, moments, frames, match, c.velocities[v], recent), mu)
+        return match, conf
+    return apply
+
+
+ROUNDS["23: the window as the last segment of the best partition into lines"] = {
+    **{f"23 partition -log p penalty {p:g}": partition_rule(float(p)) for p in (0, 5, 10, 20, 40)},
+    **{f"23 partition z penalty {p:g}": partition_rule(float(p), "z") for p in (0, 5, 20)},
+    **{f"23 partition runner-up penalty {p:g}": partition_rule(float(p), "runner-up")
+       for p in (0, 1, 3, 10)}}
+
+CANDIDATES = {name: f for r in ROUNDS.values() for name, f in r.items()}
