@@ -368,6 +368,7 @@ only its own sums and outputs, so the result does not depend on the thread count
 from __future__ import annotations
 
 import numbers
+import sys
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -750,19 +751,12 @@ def match_sequences(
 def _checked_row(difference_row) -> np.ndarray:
     """The streaming step's row as the kernels read it (1-D, float64, contiguous, finite):
     a row a filter has checked already (:class:`catgraph.observation.CheckedRow`) is not
-    scanned again, a plain contiguous float64 row is scanned by one compiled pass (no
-    temporary), anything else is checked in full (:func:`check_array`, its errors)."""
-    if isinstance(difference_row, np.ndarray) and difference_row.ndim == 1 and difference_row.dtype == np.float64 \
-            and difference_row.flags.c_contiguous and difference_row.size:
-        from .observation import CheckedRow
-
-        if type(difference_row) is CheckedRow:
-            return difference_row.view(np.ndarray)
-        if type(difference_row) is np.ndarray:
-            from .localizer import _all_finite
-
-            if _all_finite(difference_row):
-                return difference_row
+    scanned again; any other row is checked in full (:func:`check_array`, its errors). The
+    observation module is not imported for this: a row can be a ``CheckedRow`` only once it is."""
+    observation = sys.modules.get(__package__ + ".observation")
+    if observation is not None and type(difference_row) is observation.CheckedRow and difference_row.ndim == 1 \
+            and difference_row.dtype == np.float64 and difference_row.flags.c_contiguous and difference_row.size:
+        return difference_row.view(np.ndarray)
     return np.ascontiguousarray(check_array(difference_row, "difference row", ndim=1))
 
 

@@ -111,3 +111,37 @@ def test_a_non_finite_row_is_refused(bad):
         m.step(row.astype(np.float32))
     with pytest.raises(DataError, match="dimensions"):
         m.step(np.zeros((2, 300)))
+
+
+def test_the_streaming_step_imports_no_filter_module():
+    """The matcher alone (no filter) imports neither the observation models nor the filters:
+    their import and compiled checks would lengthen its first step."""
+    import subprocess
+    import sys
+
+    code = ("import sys, numpy as np\n"
+            "import catgraph.sequence as s\n"
+            "m = s.SequenceMatcher(l_max=20)\n"
+            "for r in np.random.default_rng(0).normal(size=(3, 200)):\n"
+            "    m.step(r)\n"
+            "print(sorted(k for k in ('catgraph.observation', 'catgraph.localizer') if k in sys.modules))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+
+
+def test_a_checked_row_is_not_scanned_again(monkeypatch):
+    """A row a filter has checked is handed to the kernels as it is; any other row is checked."""
+    scanned = []
+    original = sequence.check_array
+
+    def counting(*args, **kwargs):
+        scanned.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(sequence, "check_array", counting)
+    d = _rows(n_q=4, n=300)
+    m = sequence.SequenceMatcher(l_max=20)
+    m.step(d[0].view(CheckedRow))
+    assert scanned == []
+    m.step(d[1])
+    assert scanned == [1]
