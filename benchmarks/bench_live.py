@@ -913,7 +913,7 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
                 if r.get("case") == "live-u8" and "frames_two_threads" in r}
     if threaded:
         lines += ["Frames of the compact live step whose whole-image model observed on a second thread beside the "
-                  "matcher (on where the load average leaves a core free): " +
+                  "matcher (on where the load of other processes leaves a core free): " +
                   "; ".join(f"N = {n:,}: {k} of {f}" for n, (k, f) in sorted(threaded.items())) + ".", ""]
     lines += ["| per frame | " + " | ".join(f"N = {n:,}" for n in sizes) + " |",
               "|---|" + "---|" * len(sizes)]
