@@ -676,6 +676,55 @@ def _free_cores(cores: int) -> int:
         _LOAD[0] = now
     return int(max(1, min(cores, math.floor(cores + 1.5 - _LOAD[1]))))
 
+
+#: Seconds over which this process's own CPU use is averaged (the 1-minute load average's).
+OWN_LOAD_SECONDS = 60.0
+_OWN = [math.nan, 0.0, 0.0]  # when this process's CPU time was last read, that time, and its running average
+
+
+def _free_of_others(cores: int) -> int:
+    """The cores not busy with *other* processes: ``cores`` less the 1-minute load average
+    beyond this process's own CPU use, averaged over the same minute (its CPU seconds per
+    second), with half a core of margin; read at every call (once a frame).
+
+    :func:`_free_cores` allows one and a half cores of load for the process itself. At 10⁶
+    places the live step's row and matcher run two threads for two thirds of every frame,
+    so its own load alone is 1.5–2 and that rule keeps the combined model's second thread
+    (:func:`catgraph.observation._observe_parts`) off on an otherwise idle machine, where
+    it was measured to save 4.7–4.8 ms a frame (``docs/live.md``, "The step at 10⁶
+    places"). The average starts from the process's mean use since it started
+    (:func:`_own_use_since_start`)."""
+    now, cpu = time.monotonic(), time.process_time()
+    last, last_cpu, own = _OWN
+    if last == last:  # not the first call: fold the interval's CPU seconds per second into the average
+        span = now - last
+        if span > 0.0:
+            keep = math.exp(-span / OWN_LOAD_SECONDS)
+            own = keep * own + (1.0 - keep) * (cpu - last_cpu) / span
+    else:
+        own = _own_use_since_start(cpu)
+    _OWN[:] = [now, cpu, own]
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):  # pragma: no cover - no load average on this platform
+        return 1
+    return int(max(1, min(cores, math.floor(cores + 0.5 - (load - own)))))
+
+
+def _own_use_since_start(cpu: float) -> float:
+    """This process's CPU seconds per second of its life (``cpu``: its CPU seconds), from
+    its start time in ``/proc`` (0 where that cannot be read)."""
+    try:
+        with open("/proc/self/stat") as f:
+            start_ticks = float(f.read().rsplit(")", 1)[1].split()[19])
+        with open("/proc/uptime") as f:
+            uptime = float(f.read().split()[0])
+        age = uptime - start_ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, AttributeError):
+        return 0.0
+    return cpu / age if age > 1.0 else 0.0
+
+
 _POOL = {}
 
 

@@ -1,6 +1,6 @@
 """When the combined model's second thread runs: the load of other processes, not the step's own.
 
-``observation._free_of_others`` subtracts this process's own CPU use (averaged over the
+``grid._free_of_others`` subtracts this process's own CPU use (averaged over the
 load average's minute) from the load average; the second thread runs where that leaves
 two cores, or where ``grid._free_cores`` does.
 """
@@ -10,6 +10,7 @@ import math
 import numpy as np
 import pytest
 
+import catgraph.grid as grid
 import catgraph.observation as observation
 
 
@@ -28,25 +29,25 @@ class _Clock:
 @pytest.fixture
 def clock(monkeypatch):
     c = _Clock()
-    monkeypatch.setattr(observation.time, "monotonic", lambda: c.wall)
-    monkeypatch.setattr(observation.time, "process_time", lambda: c.cpu)
-    monkeypatch.setattr(observation, "_OWN", [math.nan, 0.0, 0.0])
-    monkeypatch.setattr(observation, "_own_use_since_start", lambda cpu: 0.0)
+    monkeypatch.setattr(grid.time, "monotonic", lambda: c.wall)
+    monkeypatch.setattr(grid.time, "process_time", lambda: c.cpu)
+    monkeypatch.setattr(grid, "_OWN", [math.nan, 0.0, 0.0])
+    monkeypatch.setattr(grid, "_own_use_since_start", lambda cpu: 0.0)
     return c
 
 
 def _load(monkeypatch, value):
-    monkeypatch.setattr(observation.os, "getloadavg", lambda: (value, value, value))
+    monkeypatch.setattr(grid.os, "getloadavg", lambda: (value, value, value))
 
 
 def test_own_use_is_averaged_over_the_minute(clock, monkeypatch):
     _load(monkeypatch, 1.8)
-    assert observation._free_of_others(2) == 1  # no interval yet: the use since the start (none here)
+    assert grid._free_of_others(2) == 1  # no interval yet: the use since the start (none here)
     for _ in range(300):  # five minutes of frames keeping 1.8 cores busy
         clock.run(1.0, 1.8)
-        observation._free_of_others(2)
-    assert observation._OWN[2] == pytest.approx(1.8 * (1.0 - math.exp(-300.0 / observation.OWN_LOAD_SECONDS)), rel=1e-9)
-    assert observation._free_of_others(2) == 2  # the load is the process's own: both cores free of others
+        grid._free_of_others(2)
+    assert grid._OWN[2] == pytest.approx(1.8 * (1.0 - math.exp(-300.0 / grid.OWN_LOAD_SECONDS)), rel=1e-9)
+    assert grid._free_of_others(2) == 2  # the load is the process's own: both cores free of others
 
 
 @pytest.mark.parametrize("load, free", [(1.9, 2), (2.2, 2), (2.4, 1), (3.8, 1), (0.0, 2)])
@@ -54,17 +55,17 @@ def test_cores_left_by_other_processes(clock, monkeypatch, load, free):
     _load(monkeypatch, load)
     for _ in range(300):
         clock.run(1.0, 1.8)
-        observation._free_of_others(2)
-    assert observation._free_of_others(2) == free
-    assert observation._free_of_others(1) == 1
+        grid._free_of_others(2)
+    assert grid._free_of_others(2) == free
+    assert grid._free_of_others(1) == 1
 
 
 def test_an_idle_process_under_others_load_keeps_one_core(clock, monkeypatch):
     _load(monkeypatch, 1.2)
     for _ in range(300):
         clock.run(1.0, 0.0)
-        observation._free_of_others(2)
-    assert observation._free_of_others(2) == 1  # 1.2 cores of other processes: half a core of margin gone
+        grid._free_of_others(2)
+    assert grid._free_of_others(2) == 1  # 1.2 cores of other processes: half a core of margin gone
 
 
 def test_the_second_thread_runs_where_other_processes_leave_a_core(clock, monkeypatch):
@@ -72,11 +73,10 @@ def test_the_second_thread_runs_where_other_processes_leave_a_core(clock, monkey
     load: the whole-image part observes on the second thread, the same floats."""
     import threading
 
-    import catgraph.grid
     from catgraph.observation import CombinedObservation, SequenceObservation, TemperedObservation
 
     monkeypatch.setattr(observation, "PARALLEL_PARTS_PLACES", 1)
-    monkeypatch.setattr(catgraph.grid, "_free_cores", lambda cores: 1)
+    monkeypatch.setattr(grid, "_free_cores", lambda cores: 1)
     rng = np.random.default_rng(4)
     rows = rng.standard_normal((12, 400))
 
@@ -99,7 +99,7 @@ def test_the_second_thread_runs_where_other_processes_leave_a_core(clock, monkey
     _load(monkeypatch, 2.0)
     for _ in range(300):
         clock.run(1.0, 1.8)
-        observation._free_of_others(2)
+        grid._free_of_others(2)
     assert run() == in_turn
     assert all(t.startswith("catgraph-parts") for t in threads)
 
@@ -108,8 +108,8 @@ def test_own_use_since_start_is_the_process_cpu_per_second_of_its_life():
     import time
 
     cpu = time.process_time()
-    use = observation._own_use_since_start(cpu)
+    use = grid._own_use_since_start(cpu)
     assert 0.0 <= use <= 64.0
-    assert observation._own_use_since_start(0.0) == 0.0
+    assert grid._own_use_since_start(0.0) == 0.0
     if use > 0.0:  # /proc readable: twice the CPU seconds, twice the use
-        assert observation._own_use_since_start(2 * cpu) == pytest.approx(2 * use, rel=0.05)
+        assert grid._own_use_since_start(2 * cpu) == pytest.approx(2 * use, rel=0.05)
