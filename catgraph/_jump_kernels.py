@@ -254,13 +254,13 @@ _POOL = {}  # worker threads, by their number
 def jump_threads(n_values: int) -> int:
     """Threads for a pass over ``n_values`` grid values: as many as the work is worth
     (:data:`catgraph.grid.LINE_WORK_PER_THREAD` values each), at most the cores not busy
-    with other processes (:func:`catgraph.grid._free_cores`; a thread on a core another
+    with other processes (:func:`catgraph.grid._cores_free`; a thread on a core another
     process holds stalls the pass for whole time slices)."""
     from .differences import _threads_available
-    from .grid import LINE_WORK_PER_THREAD, _free_cores
+    from .grid import LINE_WORK_PER_THREAD, _cores_free
 
     threads = min(_threads_available(), n_values // LINE_WORK_PER_THREAD)
-    return _free_cores(threads) if threads > 1 else 1
+    return _cores_free(threads) if threads > 1 else 1
 
 
 def jump_step(s, out, seg, t_ptr, t_src, t_val, whole, frac, sign, reach, blur, c, a, jv, e, unit, starts,

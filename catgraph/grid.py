@@ -167,7 +167,7 @@ update's per-place writes — the likelihood, the posterior place masses, the pl
 posterior handed out, and the answer's place — are one compiled pass, run once the
 new-place step has given the map's share (:func:`_posterior_pass`). On a large
 map (:data:`LINE_WORK_PER_THREAD` state values per thread) the blocks are shared among
-the cores not busy with other processes (the load average, :func:`_free_cores`) in
+the cores not busy with other processes (:func:`_cores_free`) in
 runs of whole blocks, each taken by whichever thread is free; every block
 writes its own places and its own velocity sums, added in block order afterwards, so
 the numbers are those of one thread, bit for bit (tested against the one-pass serial
@@ -711,6 +711,19 @@ def _free_of_others(cores: int) -> int:
     return int(max(1, min(cores, math.floor(cores + 0.5 - (load - own)))))
 
 
+def _cores_free(cores: int) -> int:
+    """The cores a pass may put threads on, one rule for every pass that threads (the
+    grid filter's line kernel, the jump grid, the particle filter's ``exp`` terms, the
+    combined model's second part): the cores free by the load average
+    (:func:`_free_cores`) or, where this process's own threads explain the load, the
+    cores free of other processes (:func:`_free_of_others`), whichever is more. On a
+    large map the step's own threads (the difference row, the matcher) keep the load at
+    1.5–2 on two cores, so the first rule alone keeps every later pass on one thread on
+    an otherwise idle machine (``docs/live.md``, "The step at 10⁶ places")."""
+    free = _free_cores(cores)
+    return free if free >= cores else max(free, _free_of_others(cores))
+
+
 def _own_use_since_start(cpu: float) -> float:
     """This process's CPU seconds per second of its life (``cpu``: its CPU seconds), from
     its start time in ``/proc`` (0 where that cannot be read)."""
@@ -741,7 +754,7 @@ def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, fr
 
     The blocks are shared among ``threads`` threads (default: as many as the work is
     worth, :data:`LINE_WORK_PER_THREAD`, at most the cores not busy with other
-    processes, :func:`_free_cores`) in runs of whole blocks
+    processes, :func:`_cores_free`) in runs of whole blocks
     (:data:`LINE_PIECES_PER_THREAD` per thread), each taken by whichever thread is free;
     every block writes its own places and its own velocity sums, which are added in
     block order afterwards, so the result is the same, bit for bit, on any number of
@@ -760,7 +773,7 @@ def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, fr
         threads = _threads_available()
         threads = min(threads, (nb * n) // LINE_WORK_PER_THREAD)
         if threads > 1:
-            threads = min(threads, _free_cores(threads))
+            threads = min(threads, _cores_free(threads))
     threads = int(max(1, min(threads, blocks)))
     args = (p, like, out, mass, t_ptr, t_src, t_val, whole, frac, sign, share0, centre, side, reach,
             velocity_prior, block, e)

@@ -289,7 +289,7 @@ def likelihood_cumulative(log_ratio: np.ndarray, out: np.ndarray, known_max: flo
     observation found it, NaN: found here).
 
     The terms (one ``exp`` per place, most of the step's cost on a large map) are taken
-    on ``threads`` threads (default: as many as the free cores, :func:`catgraph.grid._free_cores`,
+    on ``threads`` threads (default: as many as the free cores, :func:`catgraph.grid._cores_free`,
     and the work, :data:`EXP_WORK_PER_THREAD` places each), each on its own places, and
     summed in order on one: the floats of :func:`_likelihood_cumulative` on any number of
     threads."""
@@ -301,10 +301,10 @@ def likelihood_cumulative(log_ratio: np.ndarray, out: np.ndarray, known_max: flo
         known_max = top if top == top else known_max
     if threads is None and n >= 2 * EXP_WORK_PER_THREAD:
         from .differences import _threads_available
-        from .grid import _free_cores
+        from .grid import _cores_free
 
         threads = min(_threads_available(), n // EXP_WORK_PER_THREAD)
-        threads = _free_cores(threads) if threads > 1 else 1
+        threads = _cores_free(threads) if threads > 1 else 1
     if threads is None or threads <= 1:
         return float(_likelihood_cumulative(log_ratio, out, known_max))
     if not known_max == known_max:

@@ -950,18 +950,16 @@ def _observe_parts(models: Sequence[ObservationModel], row) -> list[Observation]
     one — the whole-image model's passes (about 1.3 ms at 10⁵ places) beside the sequence
     part, whose matcher and window rule leave a core idle for part of the frame — and
     their answers are the same floats as one after the other. Only where a core is free
-    of other processes (:func:`catgraph.grid._free_cores`: the load average decides, as
-    for the grid filter's line kernel, or :func:`catgraph.grid._free_of_others`: the load
-    beyond this process's own use; a thread that must wait for a busy core costs more
-    than it saves) and from :data:`PARALLEL_PARTS_PLACES` places on."""
+    of other processes (:func:`catgraph.grid._cores_free`, the rule of every pass that
+    threads; a thread that must wait for a busy core costs more than it saves) and from
+    :data:`PARALLEL_PARTS_PLACES` places on."""
     n = len(row) if hasattr(row, "__len__") else 0
     if len(models) < 2 or n < PARALLEL_PARTS_PLACES:
         return [m.observe(row) for m in models]
     from .differences import _threads_available
-    from .grid import _free_cores, _free_of_others
+    from .grid import _cores_free
 
-    cores = _threads_available()
-    if _free_cores(cores) < 2 and _free_of_others(cores) < 2:
+    if _cores_free(_threads_available()) < 2:
         return [m.observe(row) for m in models]
     if not _PARTS_POOL:
         from concurrent.futures import ThreadPoolExecutor

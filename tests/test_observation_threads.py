@@ -113,3 +113,47 @@ def test_own_use_since_start_is_the_process_cpu_per_second_of_its_life():
     assert grid._own_use_since_start(0.0) == 0.0
     if use > 0.0:  # /proc readable: twice the CPU seconds, twice the use
         assert grid._own_use_since_start(2 * cpu) == pytest.approx(2 * use, rel=0.05)
+
+
+def test_every_threaded_pass_asks_one_rule(clock, monkeypatch):
+    """The load average says one core, the process's own use explains the load: the jump
+    grid gets two threads, as the combined model's second part does; with other
+    processes holding the load, one. The line kernel and the particle filter's exp terms
+    ask the same rule."""
+    import catgraph.differences as differences
+    from catgraph import _jump_kernels, localizer
+
+    monkeypatch.setattr(grid, "_free_cores", lambda cores: 1)
+    monkeypatch.setattr(differences, "_threads_available", lambda: 2)
+    _load(monkeypatch, 3.0)  # other processes hold the second core
+    for _ in range(300):
+        clock.run(1.0, 0.0)
+        grid._free_of_others(2)
+    assert grid._cores_free(2) == 1
+    assert _jump_kernels.jump_threads(1 << 24) == 1
+    _load(monkeypatch, 2.0)  # the process's own two threads
+    for _ in range(300):
+        clock.run(1.0, 1.8)
+        grid._free_of_others(2)
+    assert grid._cores_free(2) == 2
+    assert _jump_kernels.jump_threads(1 << 24) == 2
+    monkeypatch.setattr(grid, "_free_cores", lambda cores: cores)
+    assert grid._cores_free(2) == 2 and grid._cores_free(1) == 1
+
+    asked = []
+    monkeypatch.setattr(grid, "_cores_free", lambda cores: asked.append(cores) or 1)
+    r = np.random.default_rng(0).standard_normal(4 * localizer.EXP_WORK_PER_THREAD)
+    out = np.empty_like(r)
+    localizer.likelihood_cumulative(r, out)
+    assert asked == [2]
+    asked.clear()
+    from catgraph.graph import PlaceGraph
+    from catgraph.grid import GridLocalizer
+    from catgraph.observation import TemperedObservation
+
+    monkeypatch.setattr(grid, "LINE_WORK_PER_THREAD", 1)
+    monkeypatch.setattr(grid, "_LINE_BLOCK", 64)
+    loc = GridLocalizer(PlaceGraph.chain(600), TemperedObservation(likelihood="linear", hub=None)).reset()
+    for row in np.random.default_rng(2).random((3, 600)):
+        loc.step(row)
+    assert asked and all(c == 2 for c in asked)  # the line kernel asked the same rule
