@@ -700,7 +700,7 @@ def _replay_moments(sums_g, i, v, length, shift, e_lo, e_hi, zeros):
     return sa, sq
 
 
-@njit
+@njit(nogil=True)
 def scores_from_sums(sums_g, i, v, length, unit, s):
     """Scores ``s_ij(L, v) = S u / L_eff`` in place order into ``s``."""
     n = s.shape[0]
@@ -723,7 +723,7 @@ def score_at(sums_g, i, v, length, unit, j):
     return np.float64(sums_g[slot]) * unit / eff
 
 
-@njit
+@njit(nogil=True)
 def direct_scores(ring, mring, i, v, length, unit, s):
     """Scores of any length ``L <= R - 1`` summed term by term from the ring (``O(N L)``).
 

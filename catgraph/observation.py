@@ -654,9 +654,10 @@ class RecentSupport:
     def __len__(self) -> int:
         return len(self._values())
 
-    def _support(self, s: np.ndarray) -> np.ndarray:
-        from scipy.special import log_ndtr
-
+    def form(self) -> "RecentSupport":
+        """Form the window scores and their mean and standard deviation over every place
+        now (what the first read forms; a filter may have them formed on another thread
+        while it works, as long as the matcher does not step meanwhile)."""
         if self._moments is None:
             scores = self._values()
             if _plain_row(scores) and len(scores) > 0:  # numpy's mean and std (its sums), two passes
@@ -665,7 +666,12 @@ class RecentSupport:
             else:
                 sd = scores.std()
                 self._moments = (scores.mean(), sd)
-        mean, sd = self._moments
+        return self
+
+    def _support(self, s: np.ndarray) -> np.ndarray:
+        from scipy.special import log_ndtr
+
+        mean, sd = self.form()._moments
         if not sd > 0:
             return -log_ndtr(-np.zeros_like(s))
         out = np.subtract(mean, s)  # z, then −log Φ(−z), in one fresh array
