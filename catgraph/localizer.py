@@ -168,7 +168,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -281,7 +281,7 @@ def _cumulate(out):  # pragma: no cover - compiled
 #: Places per thread below which the frame's cumulative likelihood is taken on one thread.
 EXP_WORK_PER_THREAD = 1 << 16
 #: Places from which the particle filter forms the joint confidence's support on a worker
-#: thread while it moves and weighs its particles (:meth:`Localizer._form_support_ahead`).
+#: thread while it finishes the frame (:meth:`Localizer._form_support_ahead`).
 SUPPORT_AHEAD_PLACES = 1 << 17
 _SUPPORT_POOL = []  # the worker thread
 _POOL = {}  # worker threads, by their number
@@ -1184,9 +1184,10 @@ class Localizer:
         self._log_ratio = None  # the previous frame's ratios: the model may reuse their array now
         obs = self.model.observe(row)
         self._support = obs.support if obs.informative else None
-        ahead = self._form_support_ahead()
+        ahead = None
         try:
             self._evidence(obs)
+            ahead = self._form_support_ahead()  # after the evidence, whose exp terms take both cores
             self._move(odometry)
             self._inject()
             # the prediction's place masses, where the model's feedback reads them
@@ -1194,15 +1195,16 @@ class Localizer:
             ess = self._reweight(obs)
             mass = self._mass
             resampled = self._resample_if_degenerate(ess)
+            estimate, near = self._summarise(mass, ess, resampled, joint=ahead is None)
+            self._feedback(prior, near)
             if ahead is not None:
                 ahead.result()  # the support's scores and moments (and the worker's error, if any)
-            estimate, near = self._summarise(mass, ess, resampled)
+                estimate = self._joint_score(estimate, near)
         finally:
             if ahead is not None:  # done before the model's matcher can step again
                 from concurrent.futures import wait
 
                 wait([ahead])
-        self._feedback(prior, near)
         self.n_steps_ += 1
         return estimate
 
@@ -1210,8 +1212,9 @@ class Localizer:
         """The joint confidence score reads the recent support at the answer's places,
         whose scores and moments are passes over every place (about 3 ms at 10⁶ places):
         on a large map, with a core free (:func:`catgraph.grid._cores_free`), they are
-        formed on a worker thread while the particles move and are weighed (the future;
-        None: formed where read, as before). The same floats either way."""
+        formed on a worker thread while the particles move and are weighed, the answer is
+        summarised and the model is told (the future; None: formed where read, as
+        before). The same floats either way."""
         from .observation import RecentSupport
 
         support = self._support
@@ -1528,7 +1531,10 @@ class Localizer:
         self._log_weight[:n_out] = math.log(total / n_out) if total > 0 else -math.inf
         return True
 
-    def _summarise(self, mass: np.ndarray, ess: float, resampled: bool) -> tuple[Estimate, slice | np.ndarray]:
+    def _summarise(self, mass: np.ndarray, ess: float, resampled: bool,
+                   joint: bool = True) -> tuple[Estimate, slice | np.ndarray]:
+        """The frame's estimate and the answer's neighbourhood; ``joint=False``: its score
+        is the log-odds until :meth:`_joint_score` reads the support."""
         g = self.graph
         self.__dict__.pop("place_posterior_", None)  # the previous frame's: reusable if no one else holds it
         posterior = self._pool.take(len(mass))
@@ -1555,12 +1561,17 @@ class Localizer:
         w_in, w_out = _inside_outside(mass, near)
         # in log space, so that the new-place mass still ranks frames whose map mass is all inside
         confidence, log_odds = confidence_log_odds(w_in, w_out, self._log_map, self._log_new)
-        score = log_odds
-        if self.confidence_score == "joint" and self._support is not None:
-            score = min(log_odds, float(np.max(self._support[near])))
         position = None if g.positions is None else g.positions[best].copy()
-        return Estimate(best, position, confidence, self.new_place_probability_, ess, resampled, log_odds,
-                        score), near
+        estimate = Estimate(best, position, confidence, self.new_place_probability_, ess, resampled, log_odds,
+                            log_odds)
+        return (self._joint_score(estimate, near) if joint else estimate), near
+
+    def _joint_score(self, estimate: Estimate, near) -> Estimate:
+        """``estimate`` with the joint confidence score: ``min(log-odds, max support near the
+        answer)`` (``confidence_score="joint"`` with a support; else as it is)."""
+        if self.confidence_score == "joint" and self._support is not None:
+            return replace(estimate, score=min(estimate.log_odds, float(np.max(self._support[near]))))
+        return estimate
 
     # ------------------------------------------------------------------ batch
     def run(self, observations, odometry: np.ndarray | None = None, query_index: np.ndarray | None = None,
