@@ -283,24 +283,7 @@ EXP_WORK_PER_THREAD = 1 << 16
 #: Places from which the particle filter forms the joint confidence's support on a worker
 #: thread while it finishes the frame (:meth:`Localizer._form_support_ahead`).
 SUPPORT_AHEAD_PLACES = 1 << 17
-_WORKER = []  # the particle filter's worker thread (the support ahead, half the smoothed posterior)
-
-
-def _worker():
-    """The worker thread's executor (one thread, made on first use)."""
-    if not _WORKER:
-        from concurrent.futures import ThreadPoolExecutor
-
-        _WORKER.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="catgraph-filter"))
-    return _WORKER[0]
-
-
-def _core_free() -> bool:
-    """Whether a second core is free for the worker (:func:`catgraph.grid._cores_free`)."""
-    from .differences import _threads_available
-    from .grid import _cores_free
-
-    return _cores_free(_threads_available()) >= 2
+_SUPPORT_POOL = []  # the worker thread
 _POOL = {}  # worker threads, by their number
 
 
@@ -643,19 +626,11 @@ def _window_means(values, lo, hi, out):  # pragma: no cover - compiled
     """``out[j] = mean(values[lo[j]:hi[j]])`` for windows whose ends never move back
     (``lo``, ``hi`` non-decreasing): a running sum, recomputed from scratch every 64
     places so that round-off cannot build up; returns ``Σ out``."""
-    return _window_means_part(values, lo, hi, out, 0, values.shape[0])
-
-
-@njit(nogil=True)
-def _window_means_part(values, lo, hi, out, j0, j1):  # pragma: no cover - compiled
-    """:func:`_window_means` over places ``j0 .. j1 − 1`` (``j0`` a multiple of 64, where
-    the running sum starts afresh, so every place gets the floats of the whole pass);
-    returns their ``Σ out`` summed in order from 0."""
     total = 0.0
     acc = 0.0
     a = 0
     b = 0
-    for j in range(j0, j1):
+    for j in range(values.shape[0]):
         if j % 64 == 0:
             acc = 0.0
             for k in range(lo[j], hi[j]):
@@ -756,63 +731,14 @@ def neighbourhood_means(mass: np.ndarray, first: np.ndarray, second: np.ndarray,
     return _smoothed(mass, first, second, is_list)[0]
 
 
-@njit(nogil=True)
-def _sum_on(x, j0, j1, total):  # pragma: no cover - compiled
-    """``total + x[j0] + … + x[j1 − 1]``, added in that order."""
-    for j in range(j0, j1):
-        total += x[j]
-    return total
-
-
-@njit(nogil=True)
-def _scale_max(out, c, scale):  # pragma: no cover - compiled
-    """``out *= c`` (where ``scale``) and ``out.max()`` in one pass: numpy's floats (a
-    product rounds the same anywhere; the maximum is exact, NaN if any is NaN)."""
-    top = -np.inf
-    nan = False
-    for j in range(out.shape[0]):
-        v = out[j] * c if scale else out[j]
-        out[j] = v
-        if v > top:
-            top = v
-        elif v != v:
-            nan = True
-    return np.nan if nan else top
-
-
-#: Places from which the smoothed posterior's window means are taken in two halves, the
-#: second on the filter's worker thread, where a core is free (:func:`_smoothed`).
-SMOOTH_THREAD_PLACES = 1 << 18
-
-
 def _smoothed(mass: np.ndarray, first: np.ndarray, second: np.ndarray, is_list,
               out: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """:func:`neighbourhood_means` (into ``out``, float64 of the length of ``mass``, if
     given) and its maximum, taken once for every reader of the feedback (a maximum
     tracked inside the compiled window pass was measured to slow that latency-bound loop
-    by more than a numpy pass costs).
-
-    On a large map with a core free the window means' second half (from a multiple of 64
-    places) is taken on the filter's worker thread while this one takes the first half
-    and the total mass; the halves' sum is then continued in place order and the
-    rescaling and maximum are one pass: the same floats as on one thread."""
+    by more than a numpy pass costs)."""
     values = np.ascontiguousarray(mass, dtype=np.float64)
     out = np.empty_like(values) if out is None else out
-    n = values.shape[0]
-    if not is_list and n >= SMOOTH_THREAD_PLACES and _core_free():
-        m = (n // 2) // 64 * 64
-        half = _worker().submit(_window_means_part, values, first, second, out, m, n)
-        try:
-            total = _window_means_part(values, first, second, out, 0, m)
-            want = float(values.sum())
-        finally:
-            from concurrent.futures import wait
-
-            wait([half])  # the worker writes into out: done before anyone reads it
-        half.result()  # its error, if any (its own sum is not used: the total goes on in order)
-        total = _sum_on(out, m, n, total)
-        scale = total > 0.0 and want > 0.0
-        return out, float(_scale_max(out, want / total if scale else 1.0, scale))
     total = (_list_means if is_list else _window_means)(values, first, second, out)
     want = float(values.sum())
     if total > 0.0 and want > 0.0:
@@ -1295,9 +1221,16 @@ class Localizer:
         if self.confidence_score != "joint" or type(support) is not RecentSupport \
                 or self.graph.n_places < SUPPORT_AHEAD_PLACES:
             return None
-        if not _core_free():
+        from .differences import _threads_available
+        from .grid import _cores_free
+
+        if _cores_free(_threads_available()) < 2:
             return None
-        return _worker().submit(support.form)
+        if not _SUPPORT_POOL:
+            from concurrent.futures import ThreadPoolExecutor
+
+            _SUPPORT_POOL.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="catgraph-support"))
+        return _SUPPORT_POOL[0].submit(support.form)
 
     def _predicted_mass(self) -> np.ndarray:
         """The prediction's place masses, ``(1 − ε) · particles + ε / n_places`` (the

@@ -49,12 +49,12 @@ def test_support_formed_ahead_gives_the_same_floats(monkeypatch, model):
     monkeypatch.setattr(grid, "_cores_free", lambda cores: 2)
     ahead = _run(n_places, rows, model)
     assert ahead == where_read
-    assert any(t.startswith("catgraph-filter") for t in threads)  # the worker did form them
+    assert any(t.startswith("catgraph-support") for t in threads)  # the worker did form them
 
     threads.clear()
     monkeypatch.setattr(grid, "_cores_free", lambda cores: 1)  # no core free: formed where read
     assert _run(n_places, rows, model) == where_read
-    assert threads and not any(t.startswith("catgraph-filter") for t in threads)
+    assert threads and not any(t.startswith("catgraph-support") for t in threads)
 
 
 def test_an_error_of_the_worker_reaches_the_caller(monkeypatch):
