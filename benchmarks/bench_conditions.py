@@ -18,6 +18,11 @@ repository root::
 method can be re-measured after its defaults change without re-running the others.
 
 ``--quick``: in order, shuffled 2–20 % seed 0, shuffled 0.5–3 % seed 0, reversed, speed 2.
+
+``--check``: run the methods, datasets and conditions asked for and compare every cell with
+the committed ``conditions.json`` (AUC, R@100P and MTL, float for float); writes nothing,
+prints the cells that differ or are missing, exits 1 if any does — the table reproduced
+on another checkout or machine with one command.
 """
 
 from __future__ import annotations
@@ -56,14 +61,23 @@ METHODS = {
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--methods", default=",".join(METHODS))
+    ap.add_argument("--methods", default=None,
+                    help="comma-separated labels (default: every method; with --check, the committed table's)")
     ap.add_argument("--datasets", default="nordland,uji,synthetic")
     ap.add_argument("--merge", action="store_true",
                     help="keep the saved rows of every other method and dataset (full table only)")
+    ap.add_argument("--check", action="store_true",
+                    help="compare every cell run with the committed conditions.json; write nothing; exit 1 on a "
+                         "difference")
     args = ap.parse_args(argv)
     if args.merge and args.quick:
         raise SystemExit("--merge keeps rows of the full table; it cannot be combined with --quick")
-    labels = [m.strip() for m in args.methods.split(",")]
+    if args.merge and args.check:
+        raise SystemExit("--check writes nothing; it cannot be combined with --merge")
+    if args.methods is None and args.check and (RESULTS / "conditions.json").is_file():
+        present = {r["method"] for r in json.loads((RESULTS / "conditions.json").read_text())["rows"]}
+        args.methods = ",".join(m for m in METHODS if m in present)
+    labels = [m.strip() for m in (args.methods or ",".join(METHODS)).split(",")]
     unknown = [m for m in labels if m not in METHODS]
     if unknown:
         raise SystemExit(f"unknown methods {unknown}; choose from {list(METHODS)}")
@@ -88,6 +102,8 @@ def main(argv=None) -> None:
                 rows.append(row)
                 print(f"{ds:10s} {condition.label:28s} {label:22s} AUC {row['auc']:.3f} R@100P "
                       f"{row['recall_at_100p']:.3f} MTL {row['mtl']:.0f}  {time.strftime('%X')}", flush=True)
+    if args.check:
+        raise SystemExit(_check(rows, RESULTS / "conditions.json"))
     if args.merge and (RESULTS / "conditions.json").is_file():
         done = {(r["dataset"], r["method"]) for r in rows}
         kept = [r for r in json.loads((RESULTS / "conditions.json").read_text())["rows"]
@@ -99,6 +115,34 @@ def main(argv=None) -> None:
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "conditions.json").write_text(json.dumps({"machine": platform.platform(), "rows": rows}, indent=1))
     (RESULTS / "conditions.md").write_text(_markdown(rows, labels, conditions, args.quick))
+
+
+#: What a row of the table records of a method's result (compared by ``--check``).
+CHECKED = ("auc", "recall_at_100p", "mtl", "mtl_max")
+
+
+def _check(rows: list[dict], committed_path: Path) -> int:
+    """Compare ``rows`` with the committed table cell by cell; 0 where every one is the
+    same, float for float (JSON keeps a float's every bit), else 1."""
+    if not committed_path.is_file():
+        print(f"no committed table at {committed_path}: nothing to check against")
+        return 1
+    committed = {(r["dataset"], r["condition"], r["method"]): r
+                 for r in json.loads(committed_path.read_text())["rows"]}
+    differ = 0
+    for row in rows:
+        key = (row["dataset"], row["condition"], row["method"])
+        old = committed.get(key)
+        if old is None:
+            print(f"not in the committed table: {' / '.join(key)}")
+            differ += 1
+            continue
+        changed = [f"{f} {old.get(f)!r} -> {row[f]!r}" for f in CHECKED if old.get(f) != row[f]]
+        if changed:
+            print(f"differs: {' / '.join(key)}: " + "; ".join(changed))
+            differ += 1
+    print(f"{len(rows) - differ} of {len(rows)} cells as committed" + ("" if differ else ": the table reproduces"))
+    return 1 if differ else 0
 
 
 def _markdown(rows, labels, conditions, quick) -> str:
