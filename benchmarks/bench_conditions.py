@@ -19,10 +19,12 @@ method can be re-measured after its defaults change without re-running the other
 
 ``--quick``: in order, shuffled 2–20 % seed 0, shuffled 0.5–3 % seed 0, reversed, speed 2.
 
-``--check``: run the methods, datasets and conditions asked for and compare every cell with
-the committed ``conditions.json`` (AUC, R@100P and MTL, float for float); writes nothing,
-prints the cells that differ or are missing, exits 1 if any does — the table reproduced
-on another checkout or machine with one command.
+``--check [--tolerance T]``: run the methods, datasets and conditions asked for and compare
+every cell with the committed ``conditions.json`` (AUC, R@100P and MTL; float for float,
+or within ``T``: the compiled kernels that sum with ``fastmath`` round per processor, so on
+another machine a cell may differ in its last digits); writes nothing, prints the cells
+that differ or are missing, exits 1 if any does — the table reproduced on another checkout
+or machine with one command.
 """
 
 from __future__ import annotations
@@ -69,11 +71,15 @@ def main(argv=None) -> None:
     ap.add_argument("--check", action="store_true",
                     help="compare every cell run with the committed conditions.json; write nothing; exit 1 on a "
                          "difference")
+    ap.add_argument("--tolerance", type=float, default=0.0,
+                    help="with --check: the largest difference a cell may have (default 0: float for float)")
     args = ap.parse_args(argv)
     if args.merge and args.quick:
         raise SystemExit("--merge keeps rows of the full table; it cannot be combined with --quick")
     if args.merge and args.check:
         raise SystemExit("--check writes nothing; it cannot be combined with --merge")
+    if not args.tolerance >= 0.0:
+        raise SystemExit(f"--tolerance must be a difference of 0 or more; got {args.tolerance}")
     if args.methods is None and args.check and (RESULTS / "conditions.json").is_file():
         present = {r["method"] for r in json.loads((RESULTS / "conditions.json").read_text())["rows"]}
         args.methods = ",".join(m for m in METHODS if m in present)
@@ -103,7 +109,7 @@ def main(argv=None) -> None:
                 print(f"{ds:10s} {condition.label:28s} {label:22s} AUC {row['auc']:.3f} R@100P "
                       f"{row['recall_at_100p']:.3f} MTL {row['mtl']:.0f}  {time.strftime('%X')}", flush=True)
     if args.check:
-        raise SystemExit(_check(rows, RESULTS / "conditions.json"))
+        raise SystemExit(_check(rows, RESULTS / "conditions.json", args.tolerance))
     if args.merge and (RESULTS / "conditions.json").is_file():
         done = {(r["dataset"], r["method"]) for r in rows}
         kept = [r for r in json.loads((RESULTS / "conditions.json").read_text())["rows"]
@@ -121,9 +127,9 @@ def main(argv=None) -> None:
 CHECKED = ("auc", "recall_at_100p", "mtl", "mtl_max")
 
 
-def _check(rows: list[dict], committed_path: Path) -> int:
-    """Compare ``rows`` with the committed table cell by cell; 0 where every one is the
-    same, float for float (JSON keeps a float's every bit), else 1."""
+def _check(rows: list[dict], committed_path: Path, tolerance: float = 0.0) -> int:
+    """Compare ``rows`` with the committed table cell by cell; 0 where every value is the
+    same, float for float (JSON keeps a float's every bit), or within ``tolerance``; else 1."""
     if not committed_path.is_file():
         print(f"no committed table at {committed_path}: nothing to check against")
         return 1
@@ -137,7 +143,8 @@ def _check(rows: list[dict], committed_path: Path) -> int:
             print(f"not in the committed table: {' / '.join(key)}")
             differ += 1
             continue
-        changed = [f"{f} {old.get(f)!r} -> {row[f]!r}" for f in CHECKED if old.get(f) != row[f]]
+        changed = [f"{f} {old.get(f)!r} -> {row[f]!r}" for f in CHECKED
+                   if old.get(f) is None or not abs(old[f] - row[f]) <= tolerance]
         if changed:
             print(f"differs: {' / '.join(key)}: " + "; ".join(changed))
             differ += 1
