@@ -154,7 +154,9 @@ allocated per step). The O(n_places) part is what the answer and the feedback re
 frame's cumulative ``e^{r − max r}`` (one ``exp`` per place, on the free cores,
 :func:`likelihood_cumulative`), the place masses, the posterior and the answer in one
 pass (:func:`_posterior_kernel`), the confidence's two sums and the smoothed posterior
-handed to the model. On a map larger than the particles' reach the marginal motion
+handed to the model, and the recent support's scores and moments that the joint score
+reads (from 2¹⁷ places formed on a worker thread while the rest of the step runs, where a
+core is free: :meth:`Localizer._form_support_ahead`). On a map larger than the particles' reach the marginal motion
 clears and rescales only the places it wrote (:class:`~catgraph.motion.PlacesWritten`)
 and the frame's ratio is taken only where it reads
 (:meth:`~catgraph.motion.VelocityMotion.reach_places`); the births find their places by
