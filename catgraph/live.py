@@ -703,6 +703,7 @@ BATCH_PLAN = (
     ("histogram", {"learning": "bootstrap"}),
     *(("filter", {"model": model}) for model in FILTER_MODELS),  # mode auto: the grid on these maps
     *(("filter", {"model": model, "mode": "particles", "n_particles": 100}) for model in FILTER_MODELS),
+    ("filter", {"model": "histogram", "mode": "particles", "motion": "frame", "n_particles": 100}),  # the demo's figure
 )
 
 

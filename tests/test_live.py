@@ -265,6 +265,8 @@ def test_batch_warm_up_plan_is_valid_for_the_registry_and_runs_both_inputs():
     filters = [p for m, p in BATCH_PLAN if m == "filter"]
     assert {p["model"] for p in filters} == set(FILTER_MODELS)
     assert {p.get("mode", "auto") for p in filters} == {"auto", "particles"}
+    # both particle motions: the velocity state (the registry's) and the frame motion (the demo's figure)
+    assert {p.get("motion", "velocity") for p in filters if p.get("mode") == "particles"} == {"velocity", "frame"}
     for method, params in BATCH_PLAN:
         resolve_params(method, params)  # a renamed or refused parameter fails here, not at install time
     seconds = warm_up_batch(plan=(("single-frame", {}), ("sequence", {"window": 10})))
