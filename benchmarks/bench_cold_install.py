@@ -121,7 +121,7 @@ def write(results: list[dict], commit: str) -> None:
         lines.append(f"| {r['round']} | "
                      f"{'on' if r['build_cache'] else 'off'} | {r['install_s']:.1f} | {first['process_s']:.2f} "
                      f"({sum(first['compiled_s'].values()):.2f}) | "
-                     f"{', '.join(f'{w['process_s']:.2f}' for w in warm)} | ×{r['first_over_warm']:.2f} | "
+                     f"{', '.join(format(w['process_s'], '.2f') for w in warm)} | ×{r['first_over_warm']:.2f} | "
                      f"{min(loads):.2f}–{max(loads):.2f} |")
     for on in (True, False):
         group = [r["first_over_warm"] for r in results if r["build_cache"] == on]
