@@ -26,14 +26,15 @@ class build_py_with_kernel_cache(build_py):
 
     def run(self):
         super().run()
-        if os.environ.get("CATGRAPH_BUILD_KERNEL_CACHE", "1") == "0" or self.dry_run \
-                or getattr(self, "editable_mode", False):  # an editable install runs the sources in place
+        if self.dry_run or getattr(self, "editable_mode", False):  # an editable install runs the sources in place
             return
         cache = os.path.join(self.build_lib, "catgraph", "__pycache__")
-        if os.path.isdir(cache):  # an earlier build's files: compiled for sources that may have changed
+        if os.path.isdir(cache):  # an earlier build's files (pip builds in the tree): never shipped as they are
             for name in os.listdir(cache):
                 if name.endswith((".nbi", ".nbc")):
                     os.remove(os.path.join(cache, name))
+        if os.environ.get("CATGRAPH_BUILD_KERNEL_CACHE", "1") == "0":
+            return
         env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}  # numba's in-tree cache
         # the built package first; the rest of the path as the build has it (pip's isolated build
         # environment reaches its packages through it)
