@@ -43,7 +43,7 @@ class build_py_with_kernel_cache(build_py):
         try:
             subprocess.run([sys.executable, "-c", "import sys; from catgraph.cli.main import main; "
                             "sys.exit(main(['warm-up', '--quiet']))"],
-                           env=env, check=True, timeout=1800, cwd=os.path.abspath(self.build_lib))
+                           env=env, check=True, timeout=900, cwd=os.path.abspath(self.build_lib))
         except (OSError, subprocess.SubprocessError) as err:
             print(f"catgraph: the kernels were not compiled into the build ({err}); they compile on first use",
                   file=sys.stderr)
