@@ -33,56 +33,19 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
 
-#: One timed demo run: the command's seconds and the compile events' seconds per kernel.
-_RUN = """
-import json, sys, tempfile, time
-from collections import defaultdict
-from numba.core import event
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+# the same timed runs as ``bench_live.py --cold-start`` (numba's compile events counted)
+from bench_live import _COLD_CLI_SCRIPT, _COLD_SCRIPT, COLD_CLI_ARGV  # noqa: E402
 
-compiled, stack = defaultdict(float), []
-
-
-class Compiles(event.Listener):
-    def on_start(self, ev):
-        stack.append(time.perf_counter())
-
-    def on_end(self, ev):
-        seconds = time.perf_counter() - stack.pop()
-        if not stack:
-            f = ev.data["dispatcher"].py_func
-            compiled[f"{f.__module__}.{f.__qualname__}"] += seconds
+#: What each round runs, each command in its own fresh environment: the README's demo, and
+#: the short live run (import, a 288-place image map, the first row, 20 combined steps).
+COMMANDS = ("demo", "live")
 
 
-event.register("numba:compile", Compiles())
-t0 = time.perf_counter()
-from catgraph.cli.main import main
-code = main(["demo", "--particles", "500", "--quiet", "--out", tempfile.mkdtemp()])
-t1 = time.perf_counter()
-import catgraph
-print(json.dumps({"code": code, "command_s": t1 - t0, "compiled_s": dict(compiled),
-                  "package": catgraph.__path__[0]}))
-"""
-
-
-#: The short live run of ``bench_live.py --cold-start``: import, a 288-place image map, the
-#: first difference row, 20 steps of the combined model.
-_LIVE = _RUN.split("t0 = time.perf_counter()")[0] + """
-t0 = time.perf_counter()
-from catgraph.datasets.synthetic import make_world
-from catgraph.live import LiveMap, LiveLocalizer
-world = make_world(seed=1, blocks=(2, 2), as_images=True)
-live_map = LiveMap(world.reference, layout="uint8")
-live_map.reference.row(live_map.describe(world.query.frames[0]), normalise=True)
-live = LiveLocalizer(live_map, model="combined", n_particles=500)
-for f in world.query.frames[:20]:
-    live.step(f)
-t1 = time.perf_counter()
-import catgraph
-print(json.dumps({"code": 0, "command_s": t1 - t0, "compiled_s": dict(compiled), "package": catgraph.__path__[0]}))
-"""
-
-#: What each round runs: the README's demo and the short live run, each in its own fresh environment.
-COMMANDS = {"demo": _RUN, "live": _LIVE}
+def _script(command: str, out_dir: str) -> str:
+    if command == "demo":
+        return _COLD_CLI_SCRIPT.replace("ARGV", repr([out_dir if a == "OUT" else a for a in COLD_CLI_ARGV]))
+    return _COLD_SCRIPT.replace("LAYOUT", repr("uint8"))
 
 
 def _commit() -> str:
@@ -110,10 +73,10 @@ def one_round(build_cache: bool, command: str = "demo") -> dict:
                        stdout=subprocess.DEVNULL)
         install_s = time.perf_counter() - start
         runs = []
-        for _ in range(3):
+        for k in range(3):
             load = _load()
             start = time.perf_counter()
-            proc = subprocess.run([str(venv / "bin" / "python"), "-c", COMMANDS[command]], cwd=tmp,
+            proc = subprocess.run([str(venv / "bin" / "python"), "-c", _script(command, f"{tmp}/out{k}")], cwd=tmp,
                                   capture_output=True, text=True, env=env)
             wall = time.perf_counter() - start
             if proc.returncode != 0:
