@@ -16,6 +16,12 @@ directory (``catgraph-numba-<user>``; set ``NUMBA_CACHE_DIR`` to choose another)
 The compiled code is then reused by every later process on the machine; the first
 process still compiles (measured figures: ``benchmarks/results/live.md``).
 
+A package built by ``pip install .`` carries the kernels compiled at build time in its
+``__pycache__`` (``setup.py``), where numba finds them only while that folder is writable.
+Where it is not (a system ``site-packages``, a container's image run by another user),
+:func:`cache_location` copies them once into numba's folder for the package in the cache
+it chose instead, so the first run there loads them too.
+
 Every kernel module of the package decorates with it::
 
     from ._jit import njit
@@ -53,31 +59,68 @@ def _numba_user_cache() -> Path | None:
     return Path(AppDirs(appname="numba", appauthor=False).user_cache_dir)
 
 
+def _package_cache() -> Path:
+    """The ``__pycache__`` beside the package's modules: numba's in-tree cache, and where a
+    built package carries the kernels compiled at build time."""
+    return Path(__file__).resolve().parent / "__pycache__"
+
+
+def _seed(shipped: Path, cache_root: Path) -> int:
+    """Copy the kernels compiled at build time (``shipped``) into numba's folder for this
+    package's sources under ``cache_root`` — where numba looks once the package's own
+    folder is read-only — each file that is not there yet (data files before their
+    indexes); returns how many. numba loads a copied kernel only where its source, the
+    numba version and the processor are the ones it was compiled for."""
+    import shutil
+
+    try:
+        from numba.core.caching import _CacheLocator
+
+        files = sorted((f for f in shipped.iterdir() if f.suffix in (".nbc", ".nbi")), key=lambda f: f.suffix)
+        target = cache_root / _CacheLocator.get_suitable_cache_subpath(str(Path(__file__).resolve()))
+    except (ImportError, AttributeError, OSError):
+        return 0
+    copied = 0
+    try:
+        for f in files:
+            dest = target / f.name
+            if not dest.exists():
+                target.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(f, dest)
+                copied += 1
+    except OSError:  # a full or vanished folder: the kernels compile as they would have
+        pass
+    return copied
+
+
 def cache_location() -> Path:
     """The folder the package's compiled kernels are cached in (made writable first).
 
     ``NUMBA_CACHE_DIR`` when set; else ``catgraph/__pycache__`` when writable; else
     numba's user cache folder when writable; else a private folder in the system's
-    temporary directory, which is then handed to numba.
+    temporary directory, which is then handed to numba. In the last two the kernels the
+    package was built with are copied in first (:func:`_seed`).
     """
     global _CHECKED
     import numba
 
     if numba.config.CACHE_DIR:
         return Path(numba.config.CACHE_DIR)
-    beside = Path(__file__).resolve().parent / "__pycache__"
+    beside = _package_cache()
     if _writable(beside):
         _CHECKED = True
         return beside
     user = _numba_user_cache()
     if user is not None and _writable(user):
         _CHECKED = True
+        _seed(beside, user)
         return user
     uid = os.getuid() if hasattr(os, "getuid") else "user"
     private = Path(tempfile.gettempdir()) / f"catgraph-numba-{uid}"
     private.mkdir(mode=0o700, parents=True, exist_ok=True)
     numba.config.CACHE_DIR = str(private)
     _CHECKED = True
+    _seed(beside, private)
     return private
 
 

@@ -263,6 +263,7 @@ def test_jit_cache_falls_back_to_a_private_folder_when_nothing_is_writable(tmp_p
     # the folder beside the package and numba's user folder both read-only
     monkeypatch.setattr(_jit, "_writable", lambda folder: False)
     monkeypatch.setattr(_jit.tempfile, "gettempdir", lambda: str(tmp_path))
+    monkeypatch.setattr(_jit, "_package_cache", lambda: tmp_path / "no-build-cache")  # nothing shipped to copy
     where = _jit.cache_location()
     assert where.parent == tmp_path and where.name.startswith("catgraph-numba-")
     assert numba.config.CACHE_DIR == str(where)
@@ -273,6 +274,46 @@ def test_jit_cache_falls_back_to_a_private_folder_when_nothing_is_writable(tmp_p
 
     assert twice(21) == 42
     assert any(where.rglob("*.nbi")), "the compiled kernel is cached in the private folder"
+
+
+def _shipped(folder, names):
+    folder.mkdir(parents=True)
+    for name in names:
+        (folder / name).write_bytes(name.encode())
+    return folder
+
+
+def test_jit_copies_the_kernels_built_with_the_package_where_its_folder_is_read_only(tmp_path, monkeypatch):
+    """The package's own __pycache__ read-only: its build-time kernels are copied into
+    numba's folder for the package's sources in the cache chosen instead (the user's, or
+    the private one), files already there kept, nothing else copied."""
+    import numba
+    from numba.core.caching import _CacheLocator
+
+    from catgraph import _jit
+
+    shipped = _shipped(tmp_path / "pkg" / "__pycache__", ["k.f-10.py311.nbi", "k.f-10.py311.1.nbc", "m.cpython-311.pyc"])
+    monkeypatch.setattr(numba.config, "CACHE_DIR", "")
+    monkeypatch.setattr(_jit, "_CHECKED", False)
+    monkeypatch.setattr(_jit, "_package_cache", lambda: shipped)
+    user = tmp_path / "user-cache"
+    monkeypatch.setattr(_jit, "_numba_user_cache", lambda: user)
+    monkeypatch.setattr(_jit, "_writable", lambda folder: folder == user)
+    assert _jit.cache_location() == user
+    target = user / _CacheLocator.get_suitable_cache_subpath(_jit.__file__)
+    assert sorted(f.name for f in target.iterdir()) == ["k.f-10.py311.1.nbc", "k.f-10.py311.nbi"]
+    assert (target / "k.f-10.py311.nbi").read_bytes() == b"k.f-10.py311.nbi"
+    (target / "k.f-10.py311.nbi").write_bytes(b"numba's own, newer")  # a later index is never overwritten
+    assert _jit._seed(shipped, user) == 0 and (target / "k.f-10.py311.nbi").read_bytes() == b"numba's own, newer"
+
+    # nothing writable but the private folder: the copy goes there, under numba's layout for NUMBA_CACHE_DIR
+    monkeypatch.setattr(_jit, "_CHECKED", False)
+    monkeypatch.setattr(_jit, "_writable", lambda folder: False)
+    monkeypatch.setattr(_jit.tempfile, "gettempdir", lambda: str(tmp_path / "tmp"))
+    private = _jit.cache_location()
+    assert numba.config.CACHE_DIR == str(private)
+    assert (private / _CacheLocator.get_suitable_cache_subpath(_jit.__file__) / "k.f-10.py311.1.nbc").is_file()
+    assert _jit._seed(tmp_path / "absent", user) == 0  # no build cache: nothing to do
 
 
 def test_jit_uses_numba_locations_when_writable(tmp_path, monkeypatch):
