@@ -77,7 +77,7 @@ def _seed(shipped: Path, cache_root: Path) -> int:
         from numba.core.caching import _CacheLocator
 
         files = sorted((f for f in shipped.iterdir() if f.suffix in (".nbc", ".nbi")), key=lambda f: f.suffix)
-        target = cache_root / _CacheLocator.get_suitable_cache_subpath(str(Path(__file__).resolve()))
+        target = cache_root / _CacheLocator.get_suitable_cache_subpath(__file__)  # numba: the module path as imported
     except (ImportError, AttributeError, OSError):
         return 0
     copied = 0
