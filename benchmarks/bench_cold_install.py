@@ -151,8 +151,8 @@ def main(argv=None) -> None:
             r = one_round(on, command)
             r["round"] = k + 1
             results.append(r)
-            print(f"round {k + 1}, {command}, build cache {'on' if on else 'off'}: install {r['install_s']:.1f} s, first "
-                  f"{r['runs'][0]['process_s']:.2f} s, warm {r['runs'][1]['process_s']:.2f} / "
+            print(f"round {k + 1}, {command}, build cache {'on' if on else 'off'}: install {r['install_s']:.1f} s, "
+                  f"first {r['runs'][0]['process_s']:.2f} s, warm {r['runs'][1]['process_s']:.2f} / "
                   f"{r['runs'][2]['process_s']:.2f} s: x{r['first_over_warm']:.2f}", flush=True)
     write(results, _commit())
 
