@@ -156,11 +156,11 @@ frame's cumulative ``e^{r − max r}`` (one ``exp`` per place, on the free cores
 pass (:func:`_posterior_kernel`), the confidence's two sums and the smoothed posterior
 handed to the model, and the recent support's scores and moments that the joint score
 reads (from 2¹⁷ places formed on a worker thread while the rest of the step runs, where a
-core is free: :meth:`Localizer._form_support_ahead`). On a map larger than the particles' reach the marginal motion
-clears and rescales only the places it wrote (:class:`~catgraph.motion.PlacesWritten`)
-and the frame's ratio is taken only where it reads
-(:meth:`~catgraph.motion.VelocityMotion.reach_places`); the births find their places by
-bisection. Each of these gives the floats of the full passes it replaced (tested, and
+core is free: :meth:`Localizer._form_support_ahead`). On a map larger than the particles'
+reach the marginal motion clears and rescales only the places it wrote
+(:class:`~catgraph.motion.PlacesWritten`) and the frame's ratio is taken only where it
+reads (:meth:`~catgraph.motion.VelocityMotion.reach_places`); the births find their places
+by bisection. Each of these gives the floats of the full passes it replaced (tested, and
 whole runs checked bit for bit). Same seed, same output: every random draw comes from
 the one ``numpy.random.Generator`` made from ``seed``. The jump grid adds O(n_places ·
 n_bins) per step (its pass, above). Measured: ``benchmarks/results/particles_step_speed.md``.

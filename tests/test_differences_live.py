@@ -292,7 +292,8 @@ def test_jit_copies_the_kernels_built_with_the_package_where_its_folder_is_read_
 
     from catgraph import _jit
 
-    shipped = _shipped(tmp_path / "pkg" / "__pycache__", ["k.f-10.py311.nbi", "k.f-10.py311.1.nbc", "m.cpython-311.pyc"])
+    shipped = _shipped(tmp_path / "pkg" / "__pycache__",
+                       ["k.f-10.py311.nbi", "k.f-10.py311.1.nbc", "m.cpython-311.pyc"])
     monkeypatch.setattr(numba.config, "CACHE_DIR", "")
     monkeypatch.setattr(_jit, "_CHECKED", False)
     monkeypatch.setattr(_jit, "_package_cache", lambda: shipped)
