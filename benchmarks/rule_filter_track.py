@@ -12,7 +12,9 @@ graph, as `bench_filter.py` runs it) on the same frames:
 * **posterior track** (`θ`): from the filter's answer at frame ``t``, the longest line of
   one of the matcher's velocities back in time along which the filter's place posterior of
   every earlier frame holds at least ``θ / N`` within ±3 places (``θ`` times the uniform
-  mass), at most 5 frames in a row below it.
+  mass), at most 5 frames in a row below it;
+* **with the default rule**: the longer, or the shorter, of the default rule's window
+  (``"challenged"``) and the posterior track's run length + 1 (``θ`` = 10).
 
 In every variant the window of frame ``t`` is the longest of the matcher's window lengths
 (``cfg.grid``) at most the run length + 1 (at least ``l_min``); the velocity is the most
@@ -132,7 +134,8 @@ def capped(st: wr._Stats, run_length: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 def methods() -> list[str]:
     return (["default rule (\"challenged\")", "grid filter itself", "cap: oracle run length (diagnosis)",
-             "cap: answer continuity"] + [f"cap: posterior track, θ = {t:g}" for t in THETAS])
+             "cap: answer continuity"] + [f"cap: posterior track, θ = {t:g}" for t in THETAS]
+            + ["cap: the longer of the default's window and the track's (θ = 10)", "cap: the shorter of the two"])
 
 
 def measure(datasets: tuple[str, ...]) -> list[dict]:
@@ -169,8 +172,13 @@ def measure(datasets: tuple[str, ...]) -> list[dict]:
                 answers = {methods()[0]: default(st, rows, None), methods()[1]: (place, score),
                            methods()[2]: capped(st, oracle_run_length(qi)),
                            methods()[3]: capped(st, continuity_run_length(place))}
+                tracks = {t: track_run_length(posterior, place, velocities, t, k_max) for t in THETAS}
                 for theta, m in zip(THETAS, methods()[4:]):
-                    answers[m] = capped(st, track_run_length(posterior, place, velocities, theta, k_max))
+                    answers[m] = capped(st, tracks[theta])
+                cfg = H.config("challenged", confidence="changepoint")
+                length = wr._decide(st, cfg, np.arange(rows.shape[0]), False, rows, wr._new_record(cfg))[3]
+                answers[methods()[-2]] = capped(st, np.maximum(length, tracks[10.0] + 1) - 1)
+                answers[methods()[-1]] = capped(st, np.minimum(length, tracks[10.0] + 1) - 1)
                 for m, (match, conf) in answers.items():
                     aucs[m].append(evaluate(qi, match, conf, truth).metrics.auc)
             cell = {"dataset": name, "condition": condition.label, "best_fixed": best[(name, condition.label)],
