@@ -422,6 +422,29 @@ _PARTICLE_KEYS = ("n_particles", "resampler", "ess_threshold", "redraw_fraction"
 GRID_MAX_PLACES = 100_000
 
 
+#: the particle filter's ``jump_graduation`` where the method leaves it unset, on maps of at most
+#: :data:`JUMP_GRID_MAX_PLACES` places (above: 1, no jump grid). Measured on the whole condition
+#: table, filter seeds 0–4 (``benchmarks/results/particles_jump_grid.md``; docs/particle_filter.md,
+#: "Twelfth round" and "The jump grid by default on small maps"): the seed spread ≤ 0.02 in 10 of
+#: 14 Nordland cells against 1 without it, no cell lower by more than 0.001.
+JUMP_GRADUATION = 0.2
+#: the largest map on which the jump grid is on by default: its pass over places × velocity
+#: bins costs a step ×1.36 at 3,576 places, ×1.40 at 5,000 and ×1.55 at 8,192 (2,000 particles,
+#: fresh processes alternated; docs/particle_filter.md), and a default is held to ×1.5
+JUMP_GRID_MAX_PLACES = 5_000
+
+
+def jump_graduation(params: dict, n_places: int) -> float:
+    """The particle filter's ``jump_graduation`` on a map of ``n_places``: the method's
+    parameter where set, else :data:`JUMP_GRADUATION` up to :data:`JUMP_GRID_MAX_PLACES`
+    places with the likelihood proposal (the grid's births need it), else 1."""
+    if params.get("jump_graduation") is not None:
+        return float(params["jump_graduation"])
+    if n_places <= JUMP_GRID_MAX_PLACES and params.get("proposal", "likelihood") == "likelihood":
+        return JUMP_GRADUATION
+    return 1.0
+
+
 def filter_mode(params: dict, n_places: int) -> str:
     """``"grid"`` or ``"particles"``: what ``mode`` means on a map of ``n_places``."""
     if params["mode"] != "auto":
@@ -445,7 +468,9 @@ def make_filter(params: dict, graph, model):
     from .motion import VelocityMotion
 
     motion = VelocityMotion() if params["motion"] == "velocity" else None
-    return Localizer(graph, model, motion=motion, **common, **{k: params[k] for k in _PARTICLE_KEYS})
+    particles = {k: params[k] for k in _PARTICLE_KEYS}
+    particles["jump_graduation"] = jump_graduation(params, graph.n_places)
+    return Localizer(graph, model, motion=motion, **common, **particles)
 
 
 def _filter(params: dict, inputs: "MethodInputs") -> RunResult:
@@ -530,9 +555,10 @@ def _filter_params() -> tuple[Param, ...]:
               "a fraction of the particles (0: no recovery)", low=0.0, high=0.99),
         Param("proposal", "str", PROPOSALS[0], "where the recovery particles born each step are drawn",
               choices=PROPOSALS),
-        Param("jump_graduation", "float", 1.0, "particles: share of the exact jump grid born as particles each "
+        Param("jump_graduation", "float", None, "particles: share of the exact jump grid born as particles each "
               "step (1: no grid, births only; smaller: a steadier recovery after jumps, at about twice the "
-              "step's cost on a route of 10^5 places)", low=0.0, high=1.0),
+              "step's cost on a route of 10^5 places; default: 0.2 on maps of at most 5,000 places, 1 above)",
+              low=0.0, high=1.0, optional=True),
         Param("new_place_prior", "float", None, "per-step probability of entering unmapped space (default: the "
               "filter's own, 0.05 for the grid)",
               low=0.0, high=0.99, optional=True),

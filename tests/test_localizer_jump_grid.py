@@ -99,7 +99,15 @@ def test_registry_filter_passes_the_jump_graduation():
 
     graph = PlaceGraph.chain(5)
     params = methods.resolve_params("filter", {"mode": "particles"})
-    assert params["jump_graduation"] == 1.0
+    assert params["jump_graduation"] is None  # unset: the map's size decides
+    assert methods.make_filter(params, graph, _Fixed(1.0)).jump_graduation == methods.JUMP_GRADUATION == 0.2
+    assert methods.jump_graduation(params, methods.JUMP_GRID_MAX_PLACES) == 0.2
+    assert methods.jump_graduation(params, methods.JUMP_GRID_MAX_PLACES + 1) == 1.0  # above: no jump grid
+    best = methods.resolve_params("filter", {"mode": "particles", "proposal": "best"})
+    assert methods.make_filter(best, graph, _Fixed(1.0)).jump_graduation == 1.0  # the grid needs 'likelihood'
+    params = methods.resolve_params("filter", {"mode": "particles", "jump_graduation": 1.0})
+    assert methods.make_filter(params, graph, _Fixed(1.0)).jump_graduation == 1.0
+    assert methods.jump_graduation(params, 10) == 1.0  # set: kept at any size
     params = methods.resolve_params("filter", {"mode": "particles", "jump_graduation": 0.2})
     assert methods.make_filter(params, graph, _Fixed(1.0)).jump_graduation == 0.2
     with pytest.raises(InvalidParameterError, match="jump_graduation"):
