@@ -139,7 +139,7 @@ def methods() -> list[str]:
 
 
 def measure(datasets: tuple[str, ...]) -> list[dict]:
-    from datasets import conditioned, nordland, synthetic, uji_months
+    from datasets import conditioned
 
     from catgraph.conditions import condition_table
     from catgraph.hubs import hub_offsets
@@ -147,13 +147,7 @@ def measure(datasets: tuple[str, ...]) -> list[dict]:
     from catgraph.pipeline import differences
 
     best = H._best_fixed_table()
-    groups = []
-    if "Nordland" in datasets:
-        groups.append(("Nordland", [nordland()]))
-    if "UJI" in datasets:
-        groups.append(("UJI Wi-Fi (months 02–06)", uji_months()))
-    if "synthetic" in datasets:
-        groups.append(("synthetic (seed 0)", [synthetic(0)]))
+    groups = H.dataset_groups(datasets)
     default = H.library_rule("challenged", confidence="changepoint")
     velocities = np.asarray(H.config().velocities)
     k_max = int(H.config().grid[-1])
@@ -195,6 +189,8 @@ def summary(cells: list[dict], method: str, dataset: str) -> tuple[float, float,
 
 
 def write(cells: list[dict], seconds: float) -> None:
+    from bench_cold_install import _commit  # the checkout's commit (git), "unknown" outside one
+
     datasets = list(dict.fromkeys(c["dataset"] for c in cells))
     (RESULTS / "window_filter_track.json").write_text(json.dumps({"cells": cells}, indent=1))
     lines = ["# The adaptive window capped by a tracker's run length (measured; not a rule)", "",
@@ -214,16 +210,6 @@ def write(cells: list[dict], seconds: float) -> None:
         lines.append(f"| {c['dataset']} | {c['condition']} | {c['best_fixed']:.3f} | "
                      + " | ".join(f"{c['auc'][m]:.3f}" for m in methods()) + " |")
     (RESULTS / "window_filter_track.md").write_text("\n".join(lines) + "\n")
-
-
-def _commit() -> str:
-    import subprocess
-
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
-                              check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
 
 
 def main(argv=None) -> None:

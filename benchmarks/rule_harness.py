@@ -190,14 +190,11 @@ def _best_fixed_table() -> dict:
     return out
 
 
-def table_cells(datasets=("Nordland", "UJI", "synthetic")) -> list[Cell]:
-    from datasets import conditioned, nordland, synthetic, uji_months
+def dataset_groups(datasets=("Nordland", "UJI", "synthetic")) -> list[tuple[str, list]]:
+    """``[(name, cases)]`` of the table's datasets (UJI: its five months, one cell each
+    condition)."""
+    from datasets import nordland, synthetic, uji_months
 
-    from catgraph.conditions import condition_table
-    from catgraph.hubs import hub_offsets
-    from catgraph.pipeline import differences
-
-    best = _best_fixed_table()
     groups = []
     if "Nordland" in datasets:
         groups.append(("Nordland", [nordland()]))
@@ -205,8 +202,19 @@ def table_cells(datasets=("Nordland", "UJI", "synthetic")) -> list[Cell]:
         groups.append(("UJI Wi-Fi (months 02–06)", uji_months()))
     if "synthetic" in datasets:
         groups.append(("synthetic (seed 0)", [synthetic(0)]))
+    return groups
+
+
+def table_cells(datasets=("Nordland", "UJI", "synthetic")) -> list[Cell]:
+    from datasets import conditioned
+
+    from catgraph.conditions import condition_table
+    from catgraph.hubs import hub_offsets
+    from catgraph.pipeline import differences
+
+    best = _best_fixed_table()
     cells = []
-    for name, cases in groups:
+    for name, cases in dataset_groups(datasets):
         offsets = hub_offsets(differences(cases[0].reference, cases[0].reference))
         for condition in condition_table(seeds=range(5)):
             parts = []
