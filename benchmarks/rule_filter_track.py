@@ -53,6 +53,7 @@ from catgraph import _window_rule as wr  # noqa: E402
 from catgraph.metrics import evaluate  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
+ORACLE_PLACES = 3  # a speed-2 query moves 2 places a frame; a jump moves more
 CONTINUITY_PLACES = 5
 TRACK_PLACES = 3
 TRACK_MISSES = 5
@@ -75,19 +76,13 @@ def filter_run(key: str, graph, d: np.ndarray, query_index: np.ndarray) -> tuple
     return r.place, r.score, r.posterior
 
 
-def oracle_run_length(query_index: np.ndarray) -> np.ndarray:
-    """Frames since the query's index last moved by more than 3 (diagnosis only)."""
-    q = np.asarray(query_index, dtype=np.int64)
+def run_length(sequence: np.ndarray, places: int) -> np.ndarray:
+    """Frames since ``sequence`` last moved by more than ``places`` from one frame to the
+    next: the query's own index (the oracle, diagnosis only) or the filter's answers."""
+    q = np.asarray(sequence, dtype=np.int64)
     r = np.zeros(len(q), dtype=np.int64)
     for t in range(1, len(q)):
-        r[t] = r[t - 1] + 1 if abs(q[t] - q[t - 1]) <= 3 else 0
-    return r
-
-
-def continuity_run_length(place: np.ndarray) -> np.ndarray:
-    r = np.zeros(len(place), dtype=np.int64)
-    for t in range(1, len(place)):
-        r[t] = r[t - 1] + 1 if abs(int(place[t]) - int(place[t - 1])) <= CONTINUITY_PLACES else 0
+        r[t] = r[t - 1] + 1 if abs(q[t] - q[t - 1]) <= places else 0
     return r
 
 
@@ -164,8 +159,8 @@ def measure(datasets: tuple[str, ...]) -> list[dict]:
                 place, score, posterior = filter_run(key, graph, c.differences, c.query.index)
                 qi, truth = c.query.index, c.ground_truth
                 answers = {methods()[0]: default(st, rows, None), methods()[1]: (place, score),
-                           methods()[2]: capped(st, oracle_run_length(qi)),
-                           methods()[3]: capped(st, continuity_run_length(place))}
+                           methods()[2]: capped(st, run_length(qi, ORACLE_PLACES)),
+                           methods()[3]: capped(st, run_length(place, CONTINUITY_PLACES))}
                 tracks = {t: track_run_length(posterior, place, velocities, t, k_max) for t in THETAS}
                 for theta, m in zip(THETAS, methods()[4:]):
                     answers[m] = capped(st, tracks[theta])
