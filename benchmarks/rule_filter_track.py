@@ -16,7 +16,13 @@ graph, as `bench_filter.py` runs it) on the same frames:
 * **with the default rule**: the longer, or the shorter, of the default rule's window
   (``"challenged"``) and the posterior track's run length + 1 (``θ`` = 10).
 
-In every variant the window of frame ``t`` is the longest of the matcher's window lengths
+Two more rows choose the window instead of capping it: **the window chosen by the
+filter's posterior** is, of the grid's lengths (each at its most significant velocity),
+the one whose best place holds the most of the filter's place posterior within
+±``TRACK_PLACES`` places (the longest of equals). Its confidence is either the gaps of the
+agreeing windows (as below) or that mass as log-odds.
+
+In every capped variant the window of frame ``t`` is the longest of the matcher's window lengths
 (``cfg.grid``) at most the run length + 1 (at least ``l_min``); the velocity is the most
 significant at that length, the match its best place, and the confidence the sum of the
 gaps of the windows up to it whose best place agrees within the exclusion radius (the
@@ -113,9 +119,33 @@ def track_run_length(posterior: np.ndarray, place: np.ndarray, velocities: np.nd
 
 def capped(st: wr._Stats, run_length: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Match and confidence with each frame's window capped at its run length + 1."""
+    grid = H.config().grid
+    g = np.clip(np.searchsorted(grid, np.maximum(run_length + 1, grid[0]), side="right") - 1, 0, len(grid) - 1)
+    return at_window(st, g)
+
+
+def chosen_by_posterior(st: wr._Stats, posterior: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each frame's window chosen by the filter: of the grid's lengths (each at its most
+    significant velocity), the one whose best place holds the most place posterior within
+    ±TRACK_PLACES (the longest of equals). Returns the window's index and that mass."""
+    rows = np.arange(st.best_s.shape[0])
+    v = np.argmin(wr._log_p(st), axis=1)                      # (n, G)
+    j = np.take_along_axis(st.best_j, v[:, None, :], axis=1)[:, 0, :]
+    n_places = posterior.shape[1]
+    cum = np.concatenate([np.zeros((len(rows), 1)), np.cumsum(posterior, axis=1)], axis=1)
+    j = np.clip(j, 0, n_places - 1)
+    lo = np.clip(j - TRACK_PLACES, 0, n_places)
+    hi = np.clip(j + TRACK_PLACES + 1, 0, n_places)
+    mass = np.take_along_axis(cum, hi, axis=1) - np.take_along_axis(cum, lo, axis=1)
+    g = mass.shape[1] - 1 - np.argmax(mass[:, ::-1], axis=1)
+    return g, mass[rows, g]
+
+
+def at_window(st: wr._Stats, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Match and confidence of each frame at window index ``g`` (its most significant
+    velocity; the gaps of the agreeing windows up to it summed)."""
     cfg = H.config()
     grid, rows = cfg.grid, np.arange(st.best_s.shape[0])
-    g = np.clip(np.searchsorted(grid, np.maximum(run_length + 1, grid[0]), side="right") - 1, 0, len(grid) - 1)
     v = np.argmin(wr._log_p(st)[rows, :, g], axis=1)
     match = st.best_j[rows, v, g]
     std = wr._common_std(st)[:, 0, :]
@@ -130,7 +160,8 @@ def capped(st: wr._Stats, run_length: np.ndarray) -> tuple[np.ndarray, np.ndarra
 def methods() -> list[str]:
     return (["default rule (\"challenged\")", "grid filter itself", "cap: oracle run length (diagnosis)",
              "cap: answer continuity"] + [f"cap: posterior track, θ = {t:g}" for t in THETAS]
-            + ["cap: the longer of the default's window and the track's (θ = 10)", "cap: the shorter of the two"])
+            + ["cap: the longer of the default's window and the track's (θ = 10)", "cap: the shorter of the two",
+               "window chosen by the filter's posterior, gaps", "window chosen by the filter's posterior, its mass"])
 
 
 def measure(datasets: tuple[str, ...]) -> list[dict]:
@@ -166,8 +197,12 @@ def measure(datasets: tuple[str, ...]) -> list[dict]:
                     answers[m] = capped(st, tracks[theta])
                 cfg = H.config("challenged", confidence="changepoint")
                 length = wr._decide(st, cfg, np.arange(rows.shape[0]), False, rows, wr._new_record(cfg))[3]
-                answers[methods()[-2]] = capped(st, np.maximum(length, tracks[10.0] + 1) - 1)
-                answers[methods()[-1]] = capped(st, np.minimum(length, tracks[10.0] + 1) - 1)
+                answers[methods()[-4]] = capped(st, np.maximum(length, tracks[10.0] + 1) - 1)
+                answers[methods()[-3]] = capped(st, np.minimum(length, tracks[10.0] + 1) - 1)
+                g, mass = chosen_by_posterior(st, posterior)
+                answers[methods()[-2]] = at_window(st, g)
+                with np.errstate(divide="ignore"):
+                    answers[methods()[-1]] = (at_window(st, g)[0], np.log(mass) - np.log1p(-np.minimum(mass, 1 - 1e-12)))
                 for m, (match, conf) in answers.items():
                     aucs[m].append(evaluate(qi, match, conf, truth).metrics.auc)
             cell = {"dataset": name, "condition": condition.label, "best_fixed": best[(name, condition.label)],
