@@ -44,6 +44,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import expit, log_ndtr, ndtr
 
+from .exceptions import InvalidParameterError
+
 #: with rule "sustained": the longest admitted window at least this fraction as significant
 SUSTAINED_FRACTION = 0.5
 
@@ -170,8 +172,70 @@ HORIZON_RULES = ("spanning", "punctuated", "gated", "contested", "persistent", "
 BREAK_RULES = ("punctuated", "persistent", "challenged")
 
 
+#: rule "tracked": a window's best place counts the filter's place posterior within this many
+#: places either side (a speed-3 query moves 3 places a frame)
+TRACK_PLACES = 3
+
+
 def _needs_sub(cfg: _Config) -> bool:
-    return not cfg.fixed and cfg.rule not in ("literal",) + RECORD_RULES and cfg.grid.shape[0] > 1
+    return not cfg.fixed and cfg.rule not in ("literal", "tracked") + RECORD_RULES and cfg.grid.shape[0] > 1
+
+
+class _Tracker:
+    """Rule "tracked": an exact grid filter over the reference's places, run beside the
+    matcher on the same difference rows (before the matcher's hub correction: the filter's
+    model corrects hubs itself).
+
+    The filter is the library's :class:`~catgraph.grid.GridLocalizer` with its defaults and
+    the :class:`~catgraph.observation.TemperedObservation` model, on the chain of the
+    reference's places in order (both directions: the lines the matcher searches); it is
+    made at the first frame, when ``N`` is known. Per frame: one filter step, and each
+    candidate window's mass, the place posterior summed within ±:data:`TRACK_PLACES` of
+    the window's best place. Memory and time are the filter's: ``O(N)`` per frame.
+    """
+
+    def __init__(self):
+        self.filter = None
+
+    def masses(self, raw_row: np.ndarray, places: np.ndarray) -> np.ndarray:
+        """Step the filter on one row; ``(len(places),)`` posterior mass near each place."""
+        if self.filter is None:
+            from .graph import PlaceGraph
+            from .grid import GridLocalizer
+            from .observation import TemperedObservation
+
+            self.filter = GridLocalizer(PlaceGraph.chain(raw_row.shape[0]), TemperedObservation())
+        self.filter.step(raw_row)
+        posterior = self.filter.place_posterior_
+        out = np.empty(places.shape[0])
+        for k, j in enumerate(places):
+            out[k] = posterior[max(int(j) - TRACK_PLACES, 0):int(j) + TRACK_PLACES + 1].sum()
+        return out
+
+
+def _tracked(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool, raw_rows: np.ndarray | None,
+             record: _Record):
+    """Rule "tracked": of the candidate lengths, each at its own most significant velocity,
+    the one whose best place holds the most of the tracking filter's place posterior
+    (:class:`_Tracker`; the longest of equals); confidence "tracked", that mass as
+    log-odds. Frames in order, one filter step each."""
+    if raw_rows is None:
+        raise InvalidParameterError("rule 'tracked' runs a filter on the difference rows beside the matcher; it runs "
+                                    "in match_sequences and SequenceMatcher only. Choose another rule here.")
+    n, _, g_count = st.best_s.shape
+    rows = np.arange(n)
+    log_p = _log_p(st)
+    v_each = np.argmin(log_p, axis=1)  # (n, G): each length's most significant velocity
+    places = np.take_along_axis(st.best_j, v_each[:, None, :], axis=1)[:, 0, :]
+    mass = np.stack([record.tracker.masses(raw_rows[t], places[t]) for t in range(n)])
+    g = g_count - 1 - np.argmax(mass[:, ::-1], axis=1)
+    v = v_each[rows, g]
+    held = np.clip(mass[rows, g], 1e-300, 1.0)
+    with np.errstate(divide="ignore"):
+        conf = np.log(held) - np.log1p(-np.minimum(held, 1.0 - 1e-16))
+    length = np.minimum(cfg.grid[g], frame_index + 1)
+    return (st.best_j[rows, v, g], st.best_s[rows, v, g], conf, length, cfg.velocities[v],
+            log_p[rows, v] if want_curves else None)
 
 
 def _position(v: float, i) -> np.ndarray:
@@ -401,6 +465,10 @@ def _new_record(cfg: _Config) -> _Record | None:
     rows in the record's :class:`_Recent`, whatever the rule)."""
     if cfg.fixed:
         return None
+    if cfg.rule == "tracked":
+        record = _Record(cfg.grid.shape[0])
+        record.tracker = _Tracker()
+        return record
     recent = _Recent() if cfg.confidence == "changepoint" else None
     if cfg.rule in BREAK_RULES:
         record = _Record(cfg.grid.shape[0], clock=_Breaks())
@@ -758,10 +826,13 @@ def _row_reads(cfg: _Config, frame_index: np.ndarray, rows_d, record: _Record | 
 
 
 def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool, rows_d: np.ndarray,
-            record: _Record | None = None, reads=None):
+            record: _Record | None = None, reads=None, raw_rows: np.ndarray | None = None):
     """Each frame's answer from the kernels' statistics ``st``: ``(match, score, confidence,
     length, velocity, log_p)``. ``reads``: :func:`_row_reads` of these frames where already
-    formed (the record's clock moved on once, by whichever call formed them)."""
+    formed (the record's clock moved on once, by whichever call formed them). ``raw_rows``:
+    the rows before the hub correction (rule "tracked" only)."""
+    if cfg.rule == "tracked" and not cfg.fixed:
+        return _tracked(st, cfg, frame_index, want_curves, raw_rows, record)
     n, v_count, g_count = st.best_s.shape
     rows = np.arange(n)
     log_p = _log_p(st)

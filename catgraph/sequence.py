@@ -275,6 +275,18 @@ best fixed window over the 42 cells −0.0392 ("persistent" −0.0431), Nordland
 (:data:`DEFAULT_RULE`); the cluster matcher (:mod:`catgraph.distributed`) runs it exactly (it
 reads what "punctuated" reads).
 
+``rule="tracked"`` lets a tracker choose the window: an exact grid filter
+(:class:`~catgraph.grid.GridLocalizer` with its defaults and the
+:class:`~catgraph.observation.TemperedObservation` model, on the chain of the reference's
+places) runs beside the matcher on the same rows (before the hub correction, which its model
+makes itself). Of the candidate lengths, each at its own most significant velocity, the
+window is the one whose best place holds the most of the filter's place posterior within ±3
+places (the longest of equals), and its confidence (``"tracked"``, the only one this rule
+reads) is that mass as log-odds. A window therefore ends where the filter's track began: it
+does not reach back across a jump the filter has followed. Cost: one filter step per frame,
+``O(N)`` time and memory on top of the matcher's. Not the default (``docs/sequence.md``,
+"the window chosen by a tracking filter"); the cluster matcher does not run it.
+
 Hub references (flat, textureless frames close to every query) are corrected before
 matching when ``hub_offsets`` (from :func:`catgraph.hubs.hub_offsets`, computed from the
 reference map alone) are given: each row has the offsets subtracted and is normalised
@@ -350,8 +362,9 @@ seeds) but 0.77 → 0.72 in order, 0.80 → 0.75 reversed, 0.82 → 0.77 at spee
 
 With a fixed window ``"support"``, ``"posterior"`` and ``"changepoint"`` are SeqSLAM's gap
 (no factor), so that a fixed window gives the classic method's numbers. ``"neglogp"`` is
-``-log p_i(L_i, v_i)``; ``"z"`` is ``(mean - s_best) / std``. Larger is more confident
-for all six.
+``-log p_i(L_i, v_i)``; ``"z"`` is ``(mean - s_best) / std``. ``"tracked"`` (rule
+"tracked" only) is the log-odds of the tracking filter's place posterior within ±3 places of
+the match. Larger is more confident for all seven.
 
 Two forms
 ---------
@@ -395,11 +408,11 @@ __all__ = [
 
 APPROXIMATIONS = ("gaussian", "robust", "gmm2", "gmm3")
 RULES = ("unrivalled", "evident", "consistent", "sustained", "literal", "predictive", "decorrelated", "spanning",
-         "punctuated", "gated", "contested", "persistent", "challenged")
+         "punctuated", "gated", "contested", "persistent", "challenged", "tracked")
 #: the window rule of the adaptive window when none is named (the one owner: the matcher, the
 #: registry and the cluster read it from here)
 DEFAULT_RULE = "challenged"
-CONFIDENCES = ("changepoint", "posterior", "support", "gap", "neglogp", "z")
+CONFIDENCES = ("changepoint", "posterior", "support", "gap", "neglogp", "z", "tracked")
 #: the confidence of the adaptive window when none is named (the one owner: the matcher, the
 #: registry and the cluster read it from here)
 DEFAULT_CONFIDENCE = "changepoint"
@@ -568,10 +581,18 @@ def _config(owner, window, approximation, rule, confidence, l_min, l_max, grid, 
         )
     if rule not in RULES:
         raise InvalidParameterError(f"The 'rule' parameter of {owner} must be one of {RULES}. Got {rule!r} instead.")
+    tracked = rule == "tracked" and isinstance(window, str)
+    if confidence is None:  # the rule's own
+        confidence = "tracked" if tracked else DEFAULT_CONFIDENCE
     if confidence not in CONFIDENCES:
         raise InvalidParameterError(
             f"The 'confidence' parameter of {owner} must be one of {CONFIDENCES}. Got {confidence!r} instead."
         )
+    if tracked != (confidence == "tracked"):
+        raise InvalidParameterError(
+            f"{owner}: confidence 'tracked' (the tracking filter's mass) and the adaptive window's rule 'tracked' go "
+            f"together; got rule {rule!r}, window {window!r}, confidence {confidence!r}. Leave the confidence unset "
+            "(None: the rule's own) or name both.")
     check_scalar(radius, "radius", owner, int, 0)
     check_scalar(recent_fraction, "recent_fraction", owner, float, 0.0, 1.0)
     if isinstance(window, str):
@@ -659,7 +680,7 @@ def match_sequences(
     window: int | str = "adaptive",
     approximation: str = "gaussian",
     rule: str = DEFAULT_RULE,
-    confidence: str = DEFAULT_CONFIDENCE,
+    confidence: str | None = None,
     l_min: int = 5,
     l_max: int = 500,
     grid: str | int | Sequence[int] = DEFAULT_GRID,
@@ -683,11 +704,12 @@ def match_sequences(
     rule : str
         Window choice, one of :data:`RULES` ("unrivalled", "evident", "consistent", "sustained",
         "literal", "predictive", "decorrelated", "spanning", "punctuated", "gated", "contested",
-        "persistent", "challenged"), see the module
+        "persistent", "challenged", "tracked"), see the module
         docstring (default :data:`DEFAULT_RULE`).
-    confidence : {"changepoint", "posterior", "support", "gap", "neglogp", "z"}
-        Confidence given to each match (see the module docstring; default
-        :data:`DEFAULT_CONFIDENCE`).
+    confidence : {"changepoint", "posterior", "support", "gap", "neglogp", "z", "tracked"}, optional
+        Confidence given to each match (see the module docstring). Default ``None``: the
+        rule's own, "tracked" for rule "tracked" (which reads no other), else
+        :data:`DEFAULT_CONFIDENCE`.
     l_min, l_max : int
         Range of candidate window lengths (adaptive only).
     grid : "geometric", "all", int or sequence of int
@@ -717,8 +739,8 @@ def match_sequences(
     """
     cfg = _config("match_sequences", window, approximation, rule, confidence, l_min, l_max, grid, radius,
                   recent_fraction, velocities, hub_offsets)
-    d = np.ascontiguousarray(check_array(differences, "difference matrix", ndim=2))
-    d = _prepare_rows(d, cfg)
+    raw = np.ascontiguousarray(check_array(differences, "difference matrix", ndim=2))
+    d = _prepare_rows(raw, cfg)
     n_q, n = d.shape
     run = _kernels().matcher_kernel(cfg.approx_code)
     g = cfg.grid.shape[0]
@@ -736,7 +758,8 @@ def match_sequences(
         run(d[start:stop], start, sums, ring, mring, state, cfg.velocities, cfg.grid, cfg.approx_code,
             EM_ITERATIONS, _em_stride(n), cfg.radius, st.best_j, st.best_s, st.second_s, st.mean, st.std,
             st.weights, st.locs, st.scales, st.sub, *scratch)
-        parts.append(_decide(st, cfg, np.arange(start, stop), return_curves, d[start:stop], record))
+        parts.append(_decide(st, cfg, np.arange(start, stop), return_curves, d[start:stop], record,
+                             raw_rows=raw[start:stop]))
     match, score, conf, length, velocity = (np.concatenate([p[c] for p in parts]) for c in range(5))
     log_p = np.concatenate([p[5] for p in parts]) if return_curves else None
     return SequenceResult(match=match, score=score, confidence=conf, window_length=length,
@@ -801,7 +824,7 @@ class SequenceMatcher:
         window: int | str = "adaptive",
         approximation: str = "gaussian",
         rule: str = DEFAULT_RULE,
-        confidence: str = DEFAULT_CONFIDENCE,
+        confidence: str | None = None,
         l_min: int = 5,
         l_max: int = 500,
         grid: str | int | Sequence[int] = DEFAULT_GRID,
@@ -895,7 +918,7 @@ class SequenceMatcher:
                 f"difference row has {row.shape[0]} reference places but the matcher was started with "
                 f"{self.n_reference_}; call reset() before matching against another reference."
             )
-        row = _prepare_rows(row, self._cfg)
+        raw, row = row, _prepare_rows(row, self._cfg)
         cfg, st, i = self._cfg, self._stats, self.n_steps_
         s, work, resp = self._buffers
         run = _kernels().matcher_kernel(cfg.approx_code)
@@ -910,7 +933,7 @@ class SequenceMatcher:
             st.second_s, st.mean, st.std, st.weights, st.locs, st.scales, st.sub, s, work, resp, beside=beside)
         self.n_steps_ = i + 1
         match, score, conf, length, velocity, log_p = _decide(st, cfg, frame, return_curve, rows, self._record,
-                                                             reads[0])
+                                                             reads[0], raw[None, :])
         return SequenceMatch(
             match=int(match[0]), score=float(score[0]), confidence=float(conf[0]), window_length=int(length[0]),
             log_p=None if log_p is None else log_p[0].copy(),

@@ -16,7 +16,10 @@ import pytest
 from catgraph.graph import PlaceGraph
 from catgraph.grid import GridLocalizer
 from catgraph.observation import CombinedObservation, SequenceObservation, TemperedObservation
-from catgraph.sequence import CONFIDENCES
+from catgraph.sequence import CONFIDENCES as ALL_CONFIDENCES
+
+#: every confidence the default rule reads ("tracked" is rule "tracked"'s own, refused with any other)
+CONFIDENCES = tuple(c for c in ALL_CONFIDENCES if c != "tracked")
 
 
 def _rows(n_frames: int, n_places: int, seed: int) -> np.ndarray:
