@@ -173,8 +173,9 @@ BREAK_RULES = ("punctuated", "persistent", "challenged")
 
 
 #: rule "tracked": a window's best place counts the filter's place posterior within this many
-#: places either side (a speed-3 query moves 3 places a frame)
-TRACK_PLACES = 3
+#: places either side (1: the place and its neighbours, which a fractional speed splits mass
+#: between; 0, 1, 2, 3 and 5 measured in ``docs/sequence.md``)
+TRACK_PLACES = 1
 
 
 def _needs_sub(cfg: _Config) -> bool:

@@ -280,8 +280,8 @@ reads what "punctuated" reads).
 :class:`~catgraph.observation.TemperedObservation` model, on the chain of the reference's
 places) runs beside the matcher on the same rows (before the hub correction, which its model
 makes itself). Of the candidate lengths, each at its own most significant velocity, the
-window is the one whose best place holds the most of the filter's place posterior within ±3
-places (the longest of equals), and its confidence (``"tracked"``, the only one this rule
+window is the one whose best place holds the most of the filter's place posterior within ±1
+place (the longest of equals), and its confidence (``"tracked"``, the only one this rule
 reads) is that mass as log-odds. A window therefore ends where the filter's track began: it
 does not reach back across a jump the filter has followed. Cost: one filter step per frame,
 ``O(N)`` time and memory on top of the matcher's. Not the default (``docs/sequence.md``,
@@ -363,7 +363,7 @@ seeds) but 0.77 → 0.72 in order, 0.80 → 0.75 reversed, 0.82 → 0.77 at spee
 With a fixed window ``"support"``, ``"posterior"`` and ``"changepoint"`` are SeqSLAM's gap
 (no factor), so that a fixed window gives the classic method's numbers. ``"neglogp"`` is
 ``-log p_i(L_i, v_i)``; ``"z"`` is ``(mean - s_best) / std``. ``"tracked"`` (rule
-"tracked" only) is the log-odds of the tracking filter's place posterior within ±3 places of
+"tracked" only) is the log-odds of the tracking filter's place posterior within ±1 place of
 the match. Larger is more confident for all seven.
 
 Two forms

@@ -10,7 +10,7 @@ from catgraph.hubs import hub_offsets
 from catgraph.observation import TemperedObservation
 from catgraph.sequence import DEFAULT_CONFIDENCE, SequenceMatcher, match_sequences, window_grid
 
-TRACK_PLACES = 3  # the rule's neighbourhood, stated here again as the reference reads it
+TRACK_PLACES = 1  # the rule's neighbourhood, stated here again as the reference reads it
 
 
 def _route(seed: int = 0, n_places: int = 120, n_query: int = 70, jump_at: int = 40):
