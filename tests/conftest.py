@@ -130,6 +130,25 @@ def write_uji(prefix: Path, rss, crd=None, tms=None, ids=None):
     return prefix
 
 
+def host_processor() -> str:
+    """This processor as llvmlite names it: kernels compiled with ``fastmath`` may round
+    otherwise on another processor (AVX-512 fuses other multiply-adds)."""
+    import llvmlite.binding
+
+    return llvmlite.binding.get_host_cpu_name()
+
+
+#: processors whose fastmath kernels round otherwise than the machines the digests were first
+#: recorded on (several Intel processors gave those bits)
+ROUNDS_OTHERWISE = ("znver4",)
+
+
+def digest_for(digests: dict, per_processor: dict, name) -> str:
+    """The digest ``name`` as recorded, or as recorded on this processor where it rounds
+    otherwise (``per_processor[host_processor()]``)."""
+    return per_processor.get(host_processor(), digests)[name]
+
+
 def array_digest(arrays) -> str:
     """A short digest of arrays' dtypes, shapes and bytes: answers recorded from a reference
     version of a kernel, compared bit for bit after it is made faster."""

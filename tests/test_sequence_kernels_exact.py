@@ -223,6 +223,9 @@ def test_smallest_places_over_blocks_is_the_scan_one_by_one(seed):
 #: velocities and curves
 _ROUNDING_DIGESTS = {"robust": "3eacb37524bfce08", "gmm2": "797b2fd6a2df2125", "gmm3": "04fc25ef3ac7aed9",
                      "gaussian": "8fc5e3da960de34a"}
+#: the same on processors that round otherwise, recorded on them (at f19e3aa)
+_OWN_ROUNDING_DIGESTS = {"znver4": {"robust": "e14f0bae91dbe420", "gmm2": "6c4b709041589328",
+                                    "gmm3": "b25eb8f52a6a7596", "gaussian": "0b40d94350322d0a"}}
 
 
 @pytest.mark.parametrize("approximation", ["robust", "gmm2", "gmm3", "gaussian"])
@@ -232,7 +235,7 @@ def test_every_approximation_where_the_moments_round_gives_the_answers_before(ap
     the exact update, and some window was settled."""
     from catgraph import sequence as seq
 
-    from .conftest import array_digest
+    from .conftest import array_digest, digest_for
 
     rng = np.random.default_rng(2)
     n, n_q = 3000, 140
@@ -252,5 +255,5 @@ def test_every_approximation_where_the_moments_round_gives_the_answers_before(ap
     finally:
         k._settle_window = original
     assert array_digest([r.match, r.score, r.confidence, r.window_length, r.velocity, r.log_p]) \
-        == _ROUNDING_DIGESTS[approximation]
+        == digest_for(_ROUNDING_DIGESTS, _OWN_ROUNDING_DIGESTS, approximation)
     assert settled
