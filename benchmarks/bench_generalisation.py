@@ -52,7 +52,7 @@ METHODS = {
     "single-frame": ("single-frame", {}),
     **{f"fixed L={w}": ("sequence", {"window": w}) for w in FIXED},
     "adaptive": ("sequence", {"window": "adaptive"}),
-    "adaptive (rule tracked)": ("sequence", {"window": "adaptive", "rule": "tracked"}),
+    "adaptive (rule challenged)": ("sequence", {"window": "adaptive", "rule": "challenged"}),
     "filter (default)": ("filter", {}),
 }
 

@@ -15,8 +15,8 @@ applied. Methods:
 * every fixed window L ∈ {5, 10, 20, 50, 100, 200, 500}, with the default velocity search;
 * the classic SeqSLAM fixed windows (the same lengths, forward diagonal v = 1 only, the
   same hub-corrected rows), so that "the best fixed window" is the better of the two;
-* the default adaptive matcher (``match_sequences`` defaults: rule "punctuated",
-  confidence "changepoint");
+* the default adaptive matcher (``match_sequences`` defaults: rule "tracked", the window
+  chosen by a grid filter's place posterior, with its confidence "tracked");
 * the same matches ranked by confidence "support" (the default before "posterior");
 * the adaptive matcher with rule "evident" (the default before the rival test);
 * the adaptive matcher with rule "consistent" and every shorter sub-window tested (the
@@ -34,8 +34,8 @@ applied. Methods:
   "punctuated": the spread test read on every shorter sub-window);
 * the adaptive matcher with rule "unrivalled" (the default before "spanning"), the reference
   of the rule tables (the rule rows, "support" apart, with confidence "posterior");
-* the adaptive matcher with rule "tracked" (the window chosen by a grid filter's place
-  posterior, confidence "tracked"; not the default), with a goal table of its own;
+* the adaptive matcher with rule "challenged" and confidence "changepoint" (the default
+  before "tracked"), with a goal table of its own;
 * for reference, the previous default (rule "sustained", forward diagonal only, L in
   [10, 500] on 32 lengths, sub-windows from L/8, no hub offsets).
 
@@ -111,7 +111,7 @@ GATED = "adaptive, rule gated"
 CONTESTED = "adaptive, rule contested"
 PERSISTENT = "adaptive, rule persistent"
 UNRIVALLED = "adaptive, rule unrivalled"
-TRACKED = "adaptive, rule tracked"
+CHALLENGED = "adaptive, rule challenged"
 PREVIOUS = "previous default"
 SINGLE = "single frame"
 PREVIOUS_KWARGS = dict(rule="sustained", velocities=(1.0,), l_min=10, l_max=500, grid=32, recent_fraction=0.125,
@@ -134,8 +134,8 @@ CONTESTED_KWARGS = dict(rule="contested", confidence="changepoint")
 # the default before rule "challenged"
 PERSISTENT_KWARGS = dict(rule="persistent", confidence="changepoint")
 UNRIVALLED_KWARGS = dict(rule="unrivalled", confidence="posterior")
-# the window chosen by a grid filter's place posterior (its own confidence, "tracked")
-TRACKED_KWARGS = dict(rule="tracked")
+# the default before rule "tracked"
+CHALLENGED_KWARGS = dict(rule="challenged", confidence="changepoint")
 GROUPS = ("in order", "shuffled 2–20 %", "shuffled 0.5–3 %", "reversed", "speed 2", "speed 0.5")
 
 
@@ -161,7 +161,7 @@ def _methods(quick: bool):
     yield GATED, GATED_KWARGS, True
     yield CONTESTED, CONTESTED_KWARGS, True
     yield PERSISTENT, PERSISTENT_KWARGS, True
-    yield TRACKED, TRACKED_KWARGS, True
+    yield CHALLENGED, CHALLENGED_KWARGS, True
     if not quick:
         yield SUPPORT, dict(confidence="support"), True
         yield EVIDENT, EVIDENT_KWARGS, True
@@ -322,9 +322,9 @@ def markdown(table: dict, timing_: dict | None, quick: bool) -> str:
             lines.append(f"| {method} | " + " | ".join(cells) + " |")
         lines += _goal_lines(rows, ADAPTIVE, "Goal per condition (adaptive AUC ≥ best fixed − 0.01; adaptive MTL ≤ "
                              "best fixed MTL):")
-        if TRACKED in rows[0]["methods"]:
-            lines += _goal_lines(rows, TRACKED, "The same goal for rule \"tracked\" (the window chosen by a grid "
-                                 "filter's place posterior; not the default):")
+        if CHALLENGED in rows[0]["methods"]:
+            lines += _goal_lines(rows, CHALLENGED, "The same goal for rule \"challenged\" (the default before "
+                                 "\"tracked\"):")
         for method, rule in ((PREDICTIVE, "predictive"), (DECORRELATED, "decorrelated"), (SPANNING, "spanning")):
             if method in rows[0]["methods"]:
                 lines += _predictive_lines(rows, wifi, method, rule)

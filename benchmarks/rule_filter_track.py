@@ -20,7 +20,9 @@ Two more rows choose the window instead of capping it: **the window chosen by th
 filter's posterior** is, of the grid's lengths (each at its most significant velocity),
 the one whose best place holds the most of the filter's place posterior within
 ±``TRACK_PLACES`` places (the longest of equals). Its confidence is either the gaps of the
-agreeing windows (as below) or that mass as log-odds.
+agreeing windows (as below) or that mass as log-odds; four more rows count the mass
+within ±0, 1, 2 and 5 places instead (the library's rule "tracked" is the ±1 row, on the
+chain of the reference's places rather than the registry's map graph).
 
 In every capped variant the window of frame ``t`` is the longest of the matcher's window lengths
 (``cfg.grid``) at most the run length + 1 (at least ``l_min``); the velocity is the most
@@ -64,6 +66,7 @@ CONTINUITY_PLACES = 5
 TRACK_PLACES = 3
 TRACK_MISSES = 5
 THETAS = (10.0, 100.0)
+CHOICE_RADII = (0, 1, 2, 5)  # ±TRACK_PLACES (3) is the row before them
 
 
 def filter_run(key: str, graph, d: np.ndarray, query_index: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -124,21 +127,27 @@ def capped(st: wr._Stats, run_length: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return at_window(st, g)
 
 
-def chosen_by_posterior(st: wr._Stats, posterior: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def chosen_by_posterior(st: wr._Stats, posterior: np.ndarray, radius: int = TRACK_PLACES
+                        ) -> tuple[np.ndarray, np.ndarray]:
     """Each frame's window chosen by the filter: of the grid's lengths (each at its most
     significant velocity), the one whose best place holds the most place posterior within
-    ±TRACK_PLACES (the longest of equals). Returns the window's index and that mass."""
+    ±``radius`` places (the longest of equals). Returns the window's index and that mass."""
     rows = np.arange(st.best_s.shape[0])
     v = np.argmin(wr._log_p(st), axis=1)                      # (n, G)
     j = np.take_along_axis(st.best_j, v[:, None, :], axis=1)[:, 0, :]
     n_places = posterior.shape[1]
     cum = np.concatenate([np.zeros((len(rows), 1)), np.cumsum(posterior, axis=1)], axis=1)
     j = np.clip(j, 0, n_places - 1)
-    lo = np.clip(j - TRACK_PLACES, 0, n_places)
-    hi = np.clip(j + TRACK_PLACES + 1, 0, n_places)
+    lo = np.clip(j - radius, 0, n_places)
+    hi = np.clip(j + radius + 1, 0, n_places)
     mass = np.take_along_axis(cum, hi, axis=1) - np.take_along_axis(cum, lo, axis=1)
     g = mass.shape[1] - 1 - np.argmax(mass[:, ::-1], axis=1)
     return g, mass[rows, g]
+
+
+def log_odds(mass: np.ndarray) -> np.ndarray:
+    held = np.clip(mass, 1e-300, 1.0 - 1e-16)
+    return np.log(held) - np.log1p(-held)
 
 
 def at_window(st: wr._Stats, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -161,7 +170,8 @@ def methods() -> list[str]:
     return (["default rule (\"challenged\")", "grid filter itself", "cap: oracle run length (diagnosis)",
              "cap: answer continuity"] + [f"cap: posterior track, θ = {t:g}" for t in THETAS]
             + ["cap: the longer of the default's window and the track's (θ = 10)", "cap: the shorter of the two",
-               "window chosen by the filter's posterior, gaps", "window chosen by the filter's posterior, its mass"])
+               "window chosen by the filter's posterior, gaps", "window chosen by the filter's posterior, its mass"]
+            + [f"chosen by the posterior within ±{r}, its mass" for r in CHOICE_RADII])
 
 
 def measure(datasets: tuple[str, ...]) -> list[dict]:
@@ -197,12 +207,14 @@ def measure(datasets: tuple[str, ...]) -> list[dict]:
                     answers[m] = capped(st, tracks[theta])
                 cfg = H.config("challenged", confidence="changepoint")
                 length = wr._decide(st, cfg, np.arange(rows.shape[0]), False, rows, wr._new_record(cfg))[3]
-                answers[methods()[-4]] = capped(st, np.maximum(length, tracks[10.0] + 1) - 1)
-                answers[methods()[-3]] = capped(st, np.minimum(length, tracks[10.0] + 1) - 1)
+                answers[methods()[6]] = capped(st, np.maximum(length, tracks[10.0] + 1) - 1)
+                answers[methods()[7]] = capped(st, np.minimum(length, tracks[10.0] + 1) - 1)
                 g, mass = chosen_by_posterior(st, posterior)
-                answers[methods()[-2]] = at_window(st, g)
-                with np.errstate(divide="ignore"):
-                    answers[methods()[-1]] = (at_window(st, g)[0], np.log(mass) - np.log1p(-np.minimum(mass, 1 - 1e-12)))
+                answers[methods()[-2 - len(CHOICE_RADII)]] = at_window(st, g)
+                answers[methods()[-1 - len(CHOICE_RADII)]] = (at_window(st, g)[0], log_odds(mass))
+                for r, m in zip(CHOICE_RADII, methods()[-len(CHOICE_RADII):]):
+                    g, mass = chosen_by_posterior(st, posterior, r)
+                    answers[m] = (at_window(st, g)[0], log_odds(mass))
                 for m, (match, conf) in answers.items():
                     aucs[m].append(evaluate(qi, match, conf, truth).metrics.auc)
             cell = {"dataset": name, "condition": condition.label, "best_fixed": best[(name, condition.label)],
@@ -223,7 +235,7 @@ def write(cells: list[dict], seconds: float) -> None:
 
     datasets = list(dict.fromkeys(c["dataset"] for c in cells))
     (RESULTS / "window_filter_track.json").write_text(json.dumps({"cells": cells}, indent=1))
-    lines = ["# The adaptive window capped by a tracker's run length (measured; not a rule)", "",
+    lines = ["# The adaptive window and a tracker: capped by its run length, or chosen by its posterior", "",
              f"Measured at commit `{_commit()}`. Generated by `benchmarks/rule_filter_track.py` (module docstring: "
              "the variants) in "
              f"{seconds / 60:.1f} minutes. AUC per cell (UJI: mean of months 02–06); *best fixed*: the committed "

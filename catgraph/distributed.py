@@ -69,7 +69,10 @@ block are computed *where the shards live*, and only per-frame summaries travel 
    and the largest mean ``y²`` per place (UJI month 02, ``L = 100``) would reach
    ``2^53`` at about 2.6 × 10⁵ places (8 × 10⁵ at ``L = 50``), so larger maps of such
    data are in the bounded regime.
-6. **Adaptive window** (:func:`match_adaptive_window`; the library's default matcher).
+6. **Adaptive window** (:func:`match_adaptive_window`; the library's matcher with the rules that
+   read its statistics alone, default :data:`catgraph.sequence.DEFAULT_LINE_RULE`; the local
+   default rule "tracked" runs a filter over the whole map beside the matcher, which no shard
+   holds, and is refused here).
    The same summaries for every candidate length ``L`` of the grid (the block carries
    ``l_max`` earlier rows, the halos reach ``l_max`` frames back), and, per length
    ``g``, the sums of every length ``h`` at the shard's own best place of length ``g``:
@@ -235,7 +238,7 @@ from ._window_rule import (CHANGE_POINT_FRAMES, RECORD_RULES, WEIGHED_CONFIDENCE
                            _new_record, _position, _Record, _Stats)
 from .differences import LAYOUTS, METRICS, PreparedReference, _combine, _zero_spread, code_scale
 from .exceptions import InvalidParameterError, MissingDependencyError
-from .sequence import DEFAULT_CONFIDENCE, DEFAULT_GRID, DEFAULT_RULE, DEFAULT_VELOCITIES, _config, _velocity_set
+from .sequence import DEFAULT_CONFIDENCE, DEFAULT_GRID, DEFAULT_LINE_RULE, DEFAULT_VELOCITIES, _config, _velocity_set
 
 #: Shards hold a whole multiple of this many places (the normalisation's sum chunk);
 #: a window may not be longer (its sums' squares then stay exact in int64).
@@ -1328,14 +1331,28 @@ def match_fixed_window(query, ref: ShardedReference, window: int, radius: int = 
     return _match(query, ref, cfg, block_rows, no_information, "match_fixed_window", hub_offsets)
 
 
-def match_adaptive_window(query, ref: ShardedReference, rule: str = DEFAULT_RULE,
+def check_cluster_rule(rule: str, owner: str) -> None:
+    """Refuse a window rule the cluster does not reproduce exactly, naming the fix."""
+    if rule == "tracked":
+        raise InvalidParameterError(
+            f"{owner}: rule 'tracked' (the local default) runs a grid filter over every place of the map beside the "
+            f"matcher, which no shard holds; on the cluster choose rule {DEFAULT_LINE_RULE!r} (the default among the "
+            "rules it reproduces exactly), or run match_sequences on one machine.")
+    if rule not in EXACT_RULES:
+        raise InvalidParameterError(
+            f"The 'rule' parameter of {owner} must be one of {EXACT_RULES} (the rules the cluster reproduces "
+            f"exactly). Got {rule!r} instead; run match_sequences on one machine for it.")
+
+
+def match_adaptive_window(query, ref: ShardedReference, rule: str = DEFAULT_LINE_RULE,
                           confidence: str = DEFAULT_CONFIDENCE,
                           l_min: int = 5, l_max: int = 500, grid=DEFAULT_GRID, radius: int = 10,
                           recent_fraction: float = 0.05, velocities=DEFAULT_VELOCITIES,
                           approximation: str = "gaussian", block_rows: int = 512,
                           no_information: np.ndarray | None = None,
                           hub_offsets: np.ndarray | None = None) -> ShardedMatches:
-    """Adaptive-window sequence matching on the cluster (paper 2, the library's default).
+    """Adaptive-window sequence matching on the cluster (paper 2; default rule
+    :data:`catgraph.sequence.DEFAULT_LINE_RULE`, the local default "tracked" excepted).
 
     The answers of :func:`catgraph.sequence.match_sequences` with ``window="adaptive"``
     and the same parameters on the normalised difference matrix (Gaussian approximation,
@@ -1365,7 +1382,7 @@ def match_adaptive_window(query, ref: ShardedReference, rule: str = DEFAULT_RULE
     ref : ShardedReference
     rule, confidence, l_min, l_max, grid, radius, recent_fraction, velocities, approximation
         As :func:`catgraph.sequence.match_sequences` (``rule`` one of
-        :data:`EXACT_RULES`, i.e. any; ``l_max`` at most :data:`SHARD_UNIT`; ``approximation``
+        :data:`EXACT_RULES`, every rule but "tracked"; ``l_max`` at most :data:`SHARD_UNIT`; ``approximation``
         "gaussian" only).
     block_rows : int
         Query rows per round.
@@ -1377,10 +1394,7 @@ def match_adaptive_window(query, ref: ShardedReference, rule: str = DEFAULT_RULE
         raise InvalidParameterError(
             f"The 'approximation' parameter of {owner} must be 'gaussian' (the others need every score of a "
             f"window in one place). Got {approximation!r} instead; run match_sequences on one machine for it.")
-    if rule not in EXACT_RULES:
-        raise InvalidParameterError(
-            f"The 'rule' parameter of {owner} must be one of {EXACT_RULES} (the rules the cluster reproduces "
-            f"exactly). Got {rule!r} instead; run match_sequences on one machine for it.")
+    check_cluster_rule(rule, owner)
     check_scalar(l_max, "l_max", owner, int, 1, SHARD_UNIT)
     cfg = _config(owner, "adaptive", approximation, rule, confidence, l_min, l_max, grid, radius, recent_fraction,
                   velocities, None)

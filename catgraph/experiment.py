@@ -479,7 +479,7 @@ def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
     """
     import time
 
-    from .distributed import _client, match_adaptive_window, match_fixed_window, shard_reference
+    from .distributed import _client, check_cluster_rule, match_adaptive_window, match_fixed_window, shard_reference
     from .hubs import map_hub_offsets
     from .methods import _WINDOW_ADAPTIVE, check_sequence_length, sequence_run_name
     from .io import describe_query
@@ -493,6 +493,8 @@ def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
         query = exp.condition.apply(query)
     adaptive = params["window"] == "adaptive"
     check_sequence_length(params, len(query))
+    if adaptive:
+        check_cluster_rule(params["rule"], "a cluster run")
     q, informative = describe_query(the_map, query)
     start = time.perf_counter()
     client = _client(scheduler)

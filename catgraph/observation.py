@@ -422,7 +422,10 @@ class SequenceObservation:
         Fixed window length, or the adaptive choice of paper 1.
     matcher_params : dict, optional
         Further :class:`~catgraph.sequence.SequenceMatcher` parameters
-        (``approximation``, ``rule``, ``l_min``, ``l_max``, ``grid`` …).
+        (``approximation``, ``rule``, ``l_min``, ``l_max``, ``grid`` …). The rule, unless
+        given, is :data:`~catgraph.sequence.DEFAULT_LINE_RULE` (the filter that reads
+        these scores is the tracker; the matcher's default rule "tracked" would run
+        another one inside the model).
     n_init : int
         Frames of online initialisation of the score histograms (ratios 0 meanwhile).
     exclusion_radius : int
@@ -496,7 +499,7 @@ class SequenceObservation:
 
     def _start(self) -> None:
         from .likelihood import HistogramPlaceRecogniser
-        from .sequence import SequenceMatcher
+        from .sequence import DEFAULT_LINE_RULE, SequenceMatcher
 
         owner = type(self).__name__
         if self.temperature not in ("window", "longest"):
@@ -506,7 +509,8 @@ class SequenceObservation:
             raise InvalidParameterError(f"The 'calibration' parameter of {owner} must be 'online' or 'agreement'. "
                                         f"Got {self.calibration!r} instead.")
         check_scalar(self.agreement_scale, "agreement_scale", owner, float, 0.0, low_inclusive=False)
-        self.matcher_ = SequenceMatcher(window=self.window, **(self.matcher_params or {}))
+        params = {"rule": DEFAULT_LINE_RULE, **(self.matcher_params or {})}
+        self.matcher_ = SequenceMatcher(window=self.window, **params)
         self.recogniser_ = HistogramPlaceRecogniser(n_init=self.n_init, exclusion_radius=self.exclusion_radius)
         self._tempered = (TemperedObservation(hub=None, novelty=False, temperature_scale=self.agreement_scale)
                           if self.calibration == "agreement" else None)

@@ -6,7 +6,7 @@ import pytest
 from catgraph.conditions import Condition
 from catgraph.differences import difference_matrix
 from catgraph.exceptions import InvalidParameterError
-from catgraph.sequence import DEFAULT_VELOCITIES, fixed_window_scores, match_sequences
+from catgraph.sequence import DEFAULT_LINE_RULE, DEFAULT_VELOCITIES, fixed_window_scores, match_sequences
 from .conftest import hub_map
 
 distributed = pytest.importorskip("distributed")
@@ -164,8 +164,9 @@ def test_halos_from_several_shards_equal_local(client):
 
 @pytest.mark.parametrize("condition", [Condition("in-order"), Condition("reverse"), Condition("speed", factor=2.0)])
 def test_adaptive_window_equals_the_local_matcher(client, route, condition):
-    # the library's default matcher (rule sequence.DEFAULT_RULE, confidence sequence.DEFAULT_CONFIDENCE,
-    # every velocity),
+    # the library's matcher with the cluster's default rule (sequence.DEFAULT_LINE_RULE; the local
+    # default "tracked" runs a filter the shards cannot), confidence sequence.DEFAULT_CONFIDENCE,
+    # every velocity,
     # on a shorter grid so that the test stays fast; the route also jumps (a second stretch)
     q, r = route
     q = q[condition.order(len(q))]
@@ -173,21 +174,22 @@ def test_adaptive_window_equals_the_local_matcher(client, route, condition):
     local = difference_matrix(q, r, "sad", normalise=True)
     params = {"l_max": 64, "grid": 6}
     res = dd.match_adaptive_window(q, ref, block_rows=100, **params)
-    out = match_sequences(local, **params)
+    out = match_sequences(local, rule=DEFAULT_LINE_RULE, **params)
     for name in ("match", "score", "velocity", "window_length", "confidence"):
         assert np.array_equal(getattr(res, name), getattr(out, name)), name
     assert len(np.unique(out.window_length[70:])) > 2  # not trivial: several lengths chosen
 
 
 def test_adaptive_window_with_every_default_equals_local(client, route):
-    # match_sequences' defaults as they are (13 lengths from 5 to 500, every velocity) on a
-    # query whose frames are fewer than the longest window
+    # match_sequences' defaults as they are (13 lengths from 5 to 500, every velocity) but the
+    # rule, the cluster's (sequence.DEFAULT_LINE_RULE), on a query whose frames are fewer than the
+    # longest window
     q, r = route
     q = q[60:]  # a jump to the map's end at frame 140
     ref = dd.shard_reference(r, "sad", client, shard_places=4096)
     local = difference_matrix(q, r, "sad", normalise=True)
     res = dd.match_adaptive_window(q, ref)
-    out = match_sequences(local)
+    out = match_sequences(local, rule=DEFAULT_LINE_RULE)
     for name in ("match", "score", "velocity", "window_length", "confidence"):
         assert np.array_equal(getattr(res, name), getattr(out, name)), name
 
@@ -214,7 +216,7 @@ def test_adaptive_window_with_frames_without_information(client, route):
     local = difference_matrix(q, r, "sad", normalise=True)
     local[blank] = 0.0
     res = dd.match_adaptive_window(q, ref, l_max=30, grid=4, block_rows=128, no_information=blank)
-    out = match_sequences(local, l_max=30, grid=4)
+    out = match_sequences(local, l_max=30, grid=4, rule=DEFAULT_LINE_RULE)
     for name in ("match", "score", "velocity", "window_length", "confidence"):
         assert np.array_equal(getattr(res, name), getattr(out, name)), name
 
@@ -232,8 +234,8 @@ def test_hub_correction_equals_local(client, window):
     assert np.count_nonzero(offsets) == 3
     if window == "adaptive":
         res = dd.match_adaptive_window(q, ref, l_max=60, grid=5, block_rows=100, hub_offsets=offsets)
-        out = match_sequences(local, l_max=60, grid=5, hub_offsets=offsets)
-        plain = match_sequences(local, l_max=60, grid=5)
+        out = match_sequences(local, l_max=60, grid=5, hub_offsets=offsets, rule=DEFAULT_LINE_RULE)
+        plain = match_sequences(local, l_max=60, grid=5, rule=DEFAULT_LINE_RULE)
     else:
         res = dd.match_fixed_window(q, ref, window, block_rows=64, hub_offsets=offsets)
         out = match_sequences(local, window=window, hub_offsets=offsets)
@@ -368,8 +370,8 @@ def test_cluster_experiment_equals_the_local_run(client, data, condition, veloci
     params = {"window": window, "hub_correction": window == 12, "exclusion": 5}  # both, corrected or not
     if velocities is not None:  # else the registry's default velocities
         params["velocities"] = velocities
-    if window == "adaptive":  # a shorter grid than the default, for speed
-        params.update({"l_max": 50, "grid": 6})
+    if window == "adaptive":  # a shorter grid than the default, for speed; the cluster's rule
+        params.update({"l_max": 50, "grid": 6, "rule": DEFAULT_LINE_RULE})
     exp = Experiment(query=query, reference=reference, method="sequence", params=params,
                      frontend={"metric": "sad"}, condition=Condition(condition))
     with warnings.catch_warnings():
@@ -391,10 +393,15 @@ def test_cluster_experiment_refuses_what_it_cannot_match_locally(client, data):
     kw = {"query": Traverse(q, meta={"kind": "descriptors"}), "reference": Traverse(r, meta={"kind": "descriptors"})}
     with pytest.raises(InvalidParameterError, match="approximation.*gaussian"):
         run_on_cluster(Experiment(method="sequence", params={"window": "adaptive", "approximation": "robust",
-                                                             "hub_correction": False}, **kw), client)
+                                                             "rule": DEFAULT_LINE_RULE, "hub_correction": False},
+                                  **kw), client)
+    with pytest.raises(InvalidParameterError, match="rule 'tracked'.*challenged"):  # the local default
+        run_on_cluster(Experiment(method="sequence", params={"window": "adaptive", "hub_correction": False}, **kw),
+                       client)
     with pytest.raises(InvalidParameterError, match="l_min.*longer than the query"):
         run_on_cluster(Experiment(method="sequence", params={"window": "adaptive", "l_min": 400, "l_max": 500,
-                                                             "hub_correction": False}, **kw), client)
+                                                             "rule": DEFAULT_LINE_RULE, "hub_correction": False},
+                                  **kw), client)
     with pytest.raises(InvalidParameterError, match="does sequence matching"):
         run_on_cluster(Experiment(method="single-frame", **kw), client)
 
@@ -417,8 +424,11 @@ def test_match_command_with_scheduler_writes_the_local_results(client, data, tmp
     assert cluster["metrics"] == local["metrics"]
     common[common.index("12")] = "adaptive"
     assert main(["match", *common, "--l-max", "20", "--scheduler", client.scheduler.address, "--approximation",
-                 "robust"]) == 1
+                 "robust", "--rule", DEFAULT_LINE_RULE]) == 1
     assert "gaussian" in capsys.readouterr().err
+    # the local default rule: refused, the cluster's rule named
+    assert main(["match", *common, "--l-max", "20", "--scheduler", client.scheduler.address]) == 1
+    assert f"choose rule {DEFAULT_LINE_RULE!r}" in capsys.readouterr().err
 
 
 def test_uint8_shards_equal_the_local_compact_reference(client, data):

@@ -254,14 +254,20 @@ def _with_rule_default(monkeypatch, fn, rule):
     monkeypatch.setattr(fn, "__defaults__", tuple(defaults))
 
 
-def test_default_rule_is_the_local_default_and_runs_exactly(client, alike):
+def test_default_rule_is_the_libraries_line_rule_and_runs_exactly(client, alike):
     import inspect
 
     from catgraph import sequence
 
     rule = inspect.signature(dd.match_adaptive_window).parameters["rule"].default
-    assert rule == sequence.DEFAULT_RULE == inspect.signature(match_sequences).parameters["rule"].default
+    assert rule == sequence.DEFAULT_LINE_RULE
     assert rule in dd.EXACT_RULES
+    # the local default (a filter beside the matcher) is refused, naming the cluster's rule
+    assert sequence.DEFAULT_RULE == inspect.signature(match_sequences).parameters["rule"].default == "tracked"
+    q, r = alike
+    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
+    with pytest.raises(InvalidParameterError, match="rule 'tracked'.*'challenged'"):
+        dd.match_adaptive_window(q, ref, rule=sequence.DEFAULT_RULE, l_max=30, grid=4)
 
 
 @pytest.mark.parametrize("rule", ["spanning", "punctuated", "gated", "contested", "persistent", "challenged",

@@ -22,7 +22,7 @@ from .conftest import array_digest as _digest
 
 def _kernel_run(d, l_max=40):
     """Every frame's kernel outputs (best places, scores, moments, sub-window scores)."""
-    cfg = seq._config("test", "adaptive", "gaussian", seq.DEFAULT_RULE, "posterior", 5, l_max, seq.DEFAULT_GRID, 10,
+    cfg = seq._config("test", "adaptive", "gaussian", seq.DEFAULT_LINE_RULE, "posterior", 5, l_max, seq.DEFAULT_GRID, 10,
                       0.05, seq.DEFAULT_VELOCITIES, None)
     n_q, n = d.shape
     sums, ring, mring, state, scratch = seq._state(cfg, n)

@@ -96,7 +96,7 @@ def test_run_batch_settles_the_windows_whose_moments_round():
     base = rng.normal(size=n)
     d = np.stack([np.roll(base, i) for i in range(n_q)]) + 0.1 * rng.normal(size=(n_q, n))
     d[0] *= 0.05
-    cfg = seq._config("test", "adaptive", "gaussian", seq.DEFAULT_RULE, "posterior", 5, 130, 6, 10, 0.05,
+    cfg = seq._config("test", "adaptive", "gaussian", seq.DEFAULT_LINE_RULE, "posterior", 5, 130, 6, 10, 0.05,
                       seq.DEFAULT_VELOCITIES, None)
     v_count, g = cfg.velocities.shape[0], cfg.grid.shape[0]
 
@@ -251,7 +251,8 @@ def test_every_approximation_where_the_moments_round_gives_the_answers_before(ap
 
     k._settle_window = counting
     try:
-        r = seq.match_sequences(d, approximation=approximation, l_max=130, grid=6, return_curves=True)
+        r = seq.match_sequences(d, approximation=approximation, l_max=130, grid=6, return_curves=True,
+                                rule=seq.DEFAULT_LINE_RULE)
     finally:
         k._settle_window = original
     assert array_digest([r.match, r.score, r.confidence, r.window_length, r.velocity, r.log_p]) \

@@ -77,8 +77,9 @@ def test_beside_runs_once_on_the_calling_thread(threads, monkeypatch):
 
 def test_row_reads_move_the_clock_once():
     d = _rows(n_q=40)
-    a = sequence.SequenceMatcher(l_max=40)
-    b = sequence.SequenceMatcher(l_max=40)
+    # a rule with the horizon's clock (rule "tracked", the default, reads no clock)
+    a = sequence.SequenceMatcher(l_max=40, rule=sequence.DEFAULT_LINE_RULE)
+    b = sequence.SequenceMatcher(l_max=40, rule=sequence.DEFAULT_LINE_RULE)
     for r in d[:20]:
         a.step(r)
         b.step(r)
@@ -114,14 +115,15 @@ def test_a_non_finite_row_is_refused(bad):
 
 
 def test_the_streaming_step_imports_no_filter_module():
-    """The matcher alone (no filter) imports neither the observation models nor the filters:
-    their import and compiled checks would lengthen its first step."""
+    """The matcher alone (no filter: a rule other than "tracked") imports neither the
+    observation models nor the filters: their import and compiled checks would lengthen its
+    first step."""
     import subprocess
     import sys
 
     code = ("import sys, numpy as np\n"
             "import catgraph.sequence as s\n"
-            "m = s.SequenceMatcher(l_max=20)\n"
+            "m = s.SequenceMatcher(l_max=20, rule=s.DEFAULT_LINE_RULE)\n"
             "for r in np.random.default_rng(0).normal(size=(3, 200)):\n"
             "    m.step(r)\n"
             "print(sorted(k for k in ('catgraph.observation', 'catgraph.localizer') if k in sys.modules))\n")

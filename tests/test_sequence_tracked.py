@@ -8,7 +8,8 @@ from catgraph.graph import PlaceGraph
 from catgraph.grid import GridLocalizer
 from catgraph.hubs import hub_offsets
 from catgraph.observation import TemperedObservation
-from catgraph.sequence import DEFAULT_CONFIDENCE, SequenceMatcher, match_sequences, window_grid
+from catgraph.sequence import (DEFAULT_CONFIDENCE, DEFAULT_LINE_RULE, DEFAULT_RULE, SequenceMatcher,
+                               match_sequences, window_grid)
 
 TRACK_PLACES = 1  # the rule's neighbourhood, stated here again as the reference reads it
 
@@ -41,6 +42,10 @@ def _reference_rule(d: np.ndarray, l_min: int, l_max: int, grid):
         conf.append(np.log(mass[g]) - np.log1p(-mass[g]))
         length.append(min(int(lengths[g]), t + 1))
     return np.array(match), np.array(conf), np.array(length)
+
+
+def test_tracked_is_the_default_rule():
+    assert DEFAULT_RULE == "tracked"
 
 
 def test_tracked_rule_matches_its_definition():
@@ -83,16 +88,17 @@ def test_tracked_confidence_is_finite_and_rises_on_the_track():
 def test_confidence_left_unset_is_the_rules_own():
     d, _ = _route(seed=3)
     kw = dict(l_min=3, l_max=40, grid=6)
-    default = match_sequences(d, **kw)
-    named = match_sequences(d, confidence=DEFAULT_CONFIDENCE, **kw)
-    np.testing.assert_array_equal(default.confidence, named.confidence)
-    tracked = match_sequences(d, rule="tracked", **kw)
+    line = match_sequences(d, rule=DEFAULT_LINE_RULE, **kw)
+    named = match_sequences(d, rule=DEFAULT_LINE_RULE, confidence=DEFAULT_CONFIDENCE, **kw)
+    np.testing.assert_array_equal(line.confidence, named.confidence)
+    default = match_sequences(d, **kw)  # rule "tracked"
     np.testing.assert_array_equal(match_sequences(d, rule="tracked", confidence="tracked", **kw).confidence,
-                                  tracked.confidence)
+                                  default.confidence)
+    assert not np.array_equal(default.confidence, line.confidence)
 
 
-@pytest.mark.parametrize("kwargs", [dict(rule="tracked", confidence="gap"), dict(confidence="tracked"),
-                                    dict(rule="tracked", confidence="tracked", window=5)])
+@pytest.mark.parametrize("kwargs", [dict(rule="tracked", confidence="gap"), dict(rule="challenged", confidence="tracked"),
+                                    dict(confidence="changepoint"), dict(rule="tracked", confidence="tracked", window=5)])
 def test_tracked_rule_and_confidence_go_together(kwargs):
     d, _ = _route()
     with pytest.raises(InvalidParameterError, match="tracked"):
