@@ -190,16 +190,20 @@ class _Tracker:
     The filter is the library's :class:`~catgraph.grid.GridLocalizer` with its defaults and
     the :class:`~catgraph.observation.TemperedObservation` model, on the chain of the
     reference's places in order (both directions: the lines the matcher searches); it is
-    made at the first frame, when ``N`` is known. Per frame: one filter step, and each
-    candidate window's mass, the place posterior summed within ±:data:`TRACK_PLACES` of
-    the window's best place. Memory and time are the filter's: ``O(N)`` per frame.
+    made at the first frame, when ``N`` is known. Per frame: one filter step (in the
+    streaming step, on the calling thread while the matcher's kernels run on the others),
+    and each candidate window's mass, the place posterior summed within
+    ±:data:`TRACK_PLACES` of the window's best place. Memory and time are the filter's:
+    ``O(N)`` per frame.
     """
 
     def __init__(self):
         self.filter = None
+        self.stepped = False  # the filter has taken the current frame's row (the streaming step's ``beside``)
 
-    def masses(self, raw_row: np.ndarray, places: np.ndarray) -> np.ndarray:
-        """Step the filter on one row; ``(len(places),)`` posterior mass near each place."""
+    def step(self, raw_row: np.ndarray) -> None:
+        """Step the filter on the current frame's row (it reads nothing of the matcher, so the
+        streaming step runs it beside the matcher's kernels)."""
         if self.filter is None:
             from .graph import PlaceGraph
             from .grid import GridLocalizer
@@ -207,6 +211,11 @@ class _Tracker:
 
             self.filter = GridLocalizer(PlaceGraph.chain(raw_row.shape[0]), TemperedObservation())
         self.filter.step(raw_row)
+        self.stepped = True
+
+    def masses(self, places: np.ndarray) -> np.ndarray:
+        """``(len(places),)``: the current frame's posterior mass near each place."""
+        self.stepped = False
         posterior = self.filter.place_posterior_
         out = np.empty(places.shape[0])
         for k, j in enumerate(places):
@@ -228,7 +237,12 @@ def _tracked(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: boo
     log_p = _log_p(st)
     v_each = np.argmin(log_p, axis=1)  # (n, G): each length's most significant velocity
     places = np.take_along_axis(st.best_j, v_each[:, None, :], axis=1)[:, 0, :]
-    mass = np.stack([record.tracker.masses(raw_rows[t], places[t]) for t in range(n)])
+    tracker = record.tracker
+    mass = np.empty((n, g_count))
+    for t in range(n):
+        if not tracker.stepped:  # else the streaming step has stepped it on this row already
+            tracker.step(raw_rows[t])
+        mass[t] = tracker.masses(places[t])
     g = g_count - 1 - np.argmax(mass[:, ::-1], axis=1)
     v = v_each[rows, g]
     held = np.clip(mass[rows, g], 1e-300, 1.0)

@@ -932,9 +932,12 @@ class SequenceMatcher:
         run = _kernels().matcher_kernel(cfg.approx_code)
         frame, rows = np.array([i]), row[None, :]
         reads = []  # the window rule's reads of the row alone, formed beside the kernels' other threads
+        tracker = getattr(self._record, "tracker", None)
 
         def beside():
             reads.append(_row_reads(cfg, frame, rows, self._record))
+            if tracker is not None:  # rule "tracked": its filter reads the row alone
+                tracker.step(raw)
 
         run(rows, i, self._sums, self._ring, self._mring, self._state, cfg.velocities, cfg.grid,
             cfg.approx_code, EM_ITERATIONS, _em_stride(self.n_reference_), cfg.radius, st.best_j, st.best_s,

@@ -61,7 +61,12 @@ def test_tracked_rule_matches_its_definition():
     assert np.mean(np.abs(r.match[50:] - truth[50:]) <= 2) > 0.9
 
 
-def test_tracked_streaming_is_batch_bit_for_bit():
+@pytest.mark.parametrize("threaded", [False, True])
+def test_tracked_streaming_is_batch_bit_for_bit(monkeypatch, threaded):
+    if threaded:  # the kernels on two threads, the filter stepped beside them on the calling one
+        from catgraph import _sequence_kernels
+
+        monkeypatch.setattr(_sequence_kernels, "WORK_PER_THREAD", 1)
     d, ref = _route(seed=1)
     offsets = hub_offsets(np.abs(ref[:, None, :] - ref[None, :, :]).sum(axis=2))
     kw = dict(rule="tracked", l_min=3, l_max=40, grid=8, hub_offsets=offsets)
