@@ -245,9 +245,8 @@ def _tracked(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: boo
         mass[t] = tracker.masses(places[t])
     g = g_count - 1 - np.argmax(mass[:, ::-1], axis=1)
     v = v_each[rows, g]
-    held = np.clip(mass[rows, g], 1e-300, 1.0)
-    with np.errstate(divide="ignore"):
-        conf = np.log(held) - np.log1p(-np.minimum(held, 1.0 - 1e-16))
+    held = np.clip(mass[rows, g], 1e-300, 1.0 - 1e-16)
+    conf = np.log(held) - np.log1p(-held)
     length = np.minimum(cfg.grid[g], frame_index + 1)
     return (st.best_j[rows, v, g], st.best_s[rows, v, g], conf, length, cfg.velocities[v],
             log_p[rows, v] if want_curves else None)
@@ -477,7 +476,7 @@ def _new_record(cfg: _Config) -> _Record | None:
     """The state a rule carries from frame to frame (rules "predictive" and "decorrelated";
     rules "spanning", "gated" and "contested" read only the record's clock, rules "punctuated",
     "persistent" and "challenged" only the clock that also marks the breaks, :class:`_Breaks`; confidence "changepoint" keeps the latest
-    rows in the record's :class:`_Recent`, whatever the rule)."""
+    rows in the record's :class:`_Recent`, whatever the rule; rule "tracked" keeps its filter, a :class:`_Tracker`)."""
     if cfg.fixed:
         return None
     if cfg.rule == "tracked":

@@ -529,7 +529,6 @@ def _filter_not_applicable(params: dict) -> dict[str, str]:
 def _filter_params() -> tuple[Param, ...]:
     from .localizer import PROPOSALS
     from .particles import RESAMPLERS
-
     from .sequence import DEFAULT_LINE_RULE, RULES
 
     seq = {p.name: p for p in _sequence_params(None, window_optional=True)}

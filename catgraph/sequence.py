@@ -421,8 +421,8 @@ DEFAULT_RULE = "tracked"
 #: of the filter's sequence models (a filter already weighs their scores)
 DEFAULT_LINE_RULE = "challenged"
 CONFIDENCES = ("changepoint", "posterior", "support", "gap", "neglogp", "z", "tracked")
-#: the confidence of the adaptive window when none is named (the one owner: the matcher, the
-#: registry and the cluster read it from here)
+#: the confidence of the adaptive window's line rules (every rule but "tracked", which has its
+#: own) when none is named (the one owner: the matcher, the registry and the cluster read it from here)
 DEFAULT_CONFIDENCE = "changepoint"
 #: reference places per query frame searched by default: driven backwards or forwards, 0.5x to 3x
 DEFAULT_VELOCITIES = (-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0)
