@@ -182,19 +182,27 @@ def _needs_sub(cfg: _Config) -> bool:
     return not cfg.fixed and cfg.rule not in ("literal", "tracked") + RECORD_RULES and cfg.grid.shape[0] > 1
 
 
+def tracking_filter(n_places: int):
+    """Rule "tracked"'s filter: the registry's ``filter`` method with its defaults (the
+    whole-image model "tempered"), as the exact grid filter at any size, on the chain of the
+    ``n_places`` reference places in order (both directions: the lines the matcher searches)."""
+    from .graph import PlaceGraph
+    from .methods import make_filter, observation_model, resolve_params
+
+    params = resolve_params("filter", {"mode": "grid"})
+    return make_filter(params, PlaceGraph.chain(n_places), observation_model(params, n_places, None))
+
+
 class _Tracker:
     """Rule "tracked": an exact grid filter over the reference's places, run beside the
     matcher on the same difference rows (before the matcher's hub correction: the filter's
     model corrects hubs itself).
 
-    The filter is the library's :class:`~catgraph.grid.GridLocalizer` with its defaults and
-    the :class:`~catgraph.observation.TemperedObservation` model, on the chain of the
-    reference's places in order (both directions: the lines the matcher searches); it is
-    made at the first frame, when ``N`` is known. Per frame: one filter step (in the
-    streaming step, on the calling thread while the matcher's kernels run on the others),
-    and each candidate window's mass, the place posterior summed within
-    ±:data:`TRACK_PLACES` of the window's best place. Memory and time are the filter's:
-    ``O(N)`` per frame.
+    The filter is :func:`tracking_filter`, made at the first frame, when ``N`` is known.
+    Per frame: one filter step (in the streaming step, on the calling thread while the
+    matcher's kernels run on the others), and each candidate window's mass, the place
+    posterior summed within ±:data:`TRACK_PLACES` of the window's best place. Memory and
+    time are the filter's: ``O(N)`` per frame.
     """
 
     def __init__(self):
@@ -205,11 +213,7 @@ class _Tracker:
         """Step the filter on the current frame's row (it reads nothing of the matcher, so the
         streaming step runs it beside the matcher's kernels)."""
         if self.filter is None:
-            from .graph import PlaceGraph
-            from .grid import GridLocalizer
-            from .observation import TemperedObservation
-
-            self.filter = GridLocalizer(PlaceGraph.chain(raw_row.shape[0]), TemperedObservation())
+            self.filter = tracking_filter(raw_row.shape[0])
         self.filter.step(raw_row)
         self.stepped = True
 

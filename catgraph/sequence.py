@@ -276,10 +276,10 @@ best fixed window over the 42 cells −0.0392 ("persistent" −0.0431), Nordland
 (:data:`DEFAULT_LINE_RULE`: the cluster matcher's, :mod:`catgraph.distributed`, which runs it
 exactly, reading what "punctuated" reads; and the filter's sequence models').
 
-``rule="tracked"`` lets a tracker choose the window: an exact grid filter
-(:class:`~catgraph.grid.GridLocalizer` with its defaults and the
-:class:`~catgraph.observation.TemperedObservation` model, on the chain of the reference's
-places) runs beside the matcher on the same rows (before the hub correction, which its model
+``rule="tracked"`` lets a tracker choose the window: an exact grid filter (the registry's
+``filter`` method with its defaults, as the grid at any size: the
+:class:`~catgraph.observation.TemperedObservation` model, the long-run jump velocity; on the
+chain of the reference's places) runs beside the matcher on the same rows (before the hub correction, which its model
 makes itself). Of the candidate lengths, each at its own most significant velocity, the
 window is the one whose best place holds the most of the filter's place posterior within ±1
 place (the longest of equals), and its confidence (``"tracked"``, the only one this rule

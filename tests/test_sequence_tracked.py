@@ -31,7 +31,8 @@ def _reference_rule(d: np.ndarray, l_min: int, l_max: int, grid):
     each; the longest length of the largest mass; confidence its log-odds."""
     lengths = window_grid(l_min, l_max, grid)
     best = np.stack([match_sequences(d, window=int(L), velocities=(1.0,)).match for L in lengths], axis=1)
-    filt = GridLocalizer(PlaceGraph.chain(d.shape[1]), TemperedObservation())
+    # the registry's default filter method, as the grid: its model and the long-run jump velocity
+    filt = GridLocalizer(PlaceGraph.chain(d.shape[1]), TemperedObservation(), jump_velocity="long-run")
     match, conf, length = [], [], []
     for t, row in enumerate(d):
         filt.step(row)
