@@ -139,14 +139,16 @@ def host_processor() -> str:
 
 
 #: processors whose fastmath kernels round otherwise than the machines the digests were first
-#: recorded on (several Intel processors gave those bits)
-ROUNDS_OTHERWISE = ("znver4",)
+#: recorded on (several Intel processors gave those bits), each named with the processor whose
+#: digests it gives (Zen 5 gives Zen 4's bits: the same AVX-512 fusions)
+ROUNDS_LIKE = {"znver4": "znver4", "znver5": "znver4"}
+ROUNDS_OTHERWISE = tuple(ROUNDS_LIKE)
 
 
 def digest_for(digests: dict, per_processor: dict, name) -> str:
-    """The digest ``name`` as recorded, or as recorded on this processor where it rounds
-    otherwise (``per_processor[host_processor()]``)."""
-    return per_processor.get(host_processor(), digests)[name]
+    """The digest ``name`` as recorded, or as recorded on a processor that rounds like this
+    one where this one rounds otherwise (``per_processor[ROUNDS_LIKE[host_processor()]]``)."""
+    return per_processor.get(ROUNDS_LIKE.get(host_processor(), host_processor()), digests)[name]
 
 
 def array_digest(arrays) -> str:
