@@ -11,8 +11,10 @@ hold, the step's time and memory are what is read here, not answers. Run from th
 repository root::
 
     python benchmarks/bench_tracked_step.py [--places 10000,100000,1000000] [--rounds 3] [--steps 20]
+                                           [--before CHECKOUT]
 
-Prints a markdown table.
+Prints a markdown table. ``--before``: a checkout of an earlier commit (``git worktree
+add``) whose rule "tracked" is timed as a third column, alternated with the other two.
 """
 
 from __future__ import annotations
@@ -57,27 +59,33 @@ def main(argv=None) -> None:
     ap.add_argument("--places", default="10000,100000,1000000")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--steps", type=int, default=20)
+    ap.add_argument("--before", default=None, help="a checkout of an earlier commit: its rule 'tracked' as well")
     ap.add_argument("--child", nargs=2, metavar=("N", "RULE"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child:
         print(json.dumps(_one(int(args.child[0]), args.child[1], args.steps)))
         return
-    rules = ("tracked", "challenged")
+    runs = {"tracked": (__file__, "tracked"), "challenged": (__file__, "challenged")}
+    if args.before:
+        runs["tracked before"] = (str(Path(args.before).resolve() / "benchmarks" / "bench_tracked_step.py"), "tracked")
     print(f"load average at the start: {os.getloadavg()[0]:.1f}; {os.cpu_count()} cpu; {args.rounds} rounds "
           f"alternated, {args.steps} steps each\n")
-    print("| places | rule \"challenged\" (ms/step) | rule \"tracked\" (ms/step) | ratio | peak RSS challenged / tracked |")
-    print("|---|---|---|---|---|")
+    before = " | rule \"tracked\" before (ms/step) | ratio to it" if args.before else ""
+    print(f"| places | rule \"challenged\" (ms/step) | rule \"tracked\" (ms/step) | ratio{before} | peak RSS challenged "
+          f"/ tracked{' / before' if args.before else ''} |")
+    print("|---|---|---|---|---|" + ("---|---|" if args.before else ""))
     for n in (int(x) for x in args.places.split(",")):
-        got = {r: [] for r in rules}
+        got = {r: [] for r in runs}
         for _ in range(args.rounds):
-            for rule in rules:
-                out = subprocess.run([sys.executable, __file__, "--steps", str(args.steps), "--child", str(n), rule],
+            for label, (script, rule) in runs.items():
+                out = subprocess.run([sys.executable, script, "--steps", str(args.steps), "--child", str(n), rule],
                                      check=True, capture_output=True, text=True).stdout
-                got[rule].append(json.loads(out.strip().splitlines()[-1]))
-        ms = {r: float(np.median([g["ms"] for g in got[r]])) for r in rules}
-        rss = {r: max(g["rss_mib"] for g in got[r]) for r in rules}
-        print(f"| {n:,} | {ms['challenged']:.1f} | {ms['tracked']:.1f} | ×{ms['tracked'] / ms['challenged']:.2f} | "
-              f"{rss['challenged']:.0f} / {rss['tracked']:.0f} MiB |", flush=True)
+                got[label].append(json.loads(out.strip().splitlines()[-1]))
+        ms = {r: float(np.median([g["ms"] for g in got[r]])) for r in runs}
+        rss = {r: max(g["rss_mib"] for g in got[r]) for r in runs}
+        extra = (f" {ms['tracked before']:.1f} | ×{ms['tracked'] / ms['tracked before']:.2f} |" if args.before else "")
+        print(f"| {n:,} | {ms['challenged']:.1f} | {ms['tracked']:.1f} | ×{ms['tracked'] / ms['challenged']:.2f} |{extra} "
+              f"{' / '.join(f'{rss[r]:.0f}' for r in ('challenged', 'tracked', 'tracked before') if r in rss)} MiB |", flush=True)
 
 
 if __name__ == "__main__":

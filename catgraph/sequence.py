@@ -278,17 +278,20 @@ exactly, reading what "punctuated" reads; and the filter's sequence models').
 
 ``rule="tracked"`` lets a tracker choose the window: an exact grid filter (the registry's
 ``filter`` method with its defaults, as the grid at any size: the
-:class:`~catgraph.observation.TemperedObservation` model, the long-run jump velocity; on the
-chain of the reference's places) runs beside the matcher on the same rows (before the hub correction, which its model
+:class:`~catgraph.observation.TemperedObservation` model, the long-run jump velocity, and a
+rigid line beside its motion, prior 0.05, which holds a track through a stretch where the
+frames say little as a long window does; on the chain of the reference's places) runs beside
+the matcher on the same rows (before the hub correction, which its model
 makes itself). Of the candidate lengths, each at its own most significant velocity, the
 window is the one whose best place holds the most of the filter's place posterior within ±1
 place (the longest of equals), and its confidence (``"tracked"``, the only one this rule
 reads) is that mass as log-odds. A window therefore ends where the filter's track began: it
 does not reach back across a jump the filter has followed. Cost: one filter step per frame,
 ``O(N)`` time and memory on top of the matcher's. The default rule (:data:`DEFAULT_RULE`;
-``docs/sequence.md``, "the window chosen by a tracking filter": on the condition table of
-Nordland, UJI and the synthetic world its AUC is within 0.01 of the best fixed window in 39
-of 42 cells, against 13 for "challenged"); the cluster matcher does not run it.
+``docs/sequence.md``, "the window chosen by a tracking filter" and "a rigid line beside the
+tracker": on the condition table of Nordland, UJI and the synthetic world its AUC is within
+0.01 of the best fixed window in all 42 cells, against 13 for "challenged"); the cluster
+matcher does not run it.
 
 Hub references (flat, textureless frames close to every query) are corrected before
 matching when ``hub_offsets`` (from :func:`catgraph.hubs.hub_offsets`, computed from the
