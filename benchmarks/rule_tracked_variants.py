@@ -48,6 +48,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import rule_harness as H  # noqa: E402
+from rule_filter_track import log_odds, summary  # noqa: E402
 
 from catgraph import _window_rule as wr  # noqa: E402
 from catgraph.metrics import evaluate  # noqa: E402
@@ -99,11 +100,6 @@ def window_masses(st: wr._Stats, posterior: np.ndarray, radius: int = wr.TRACK_P
 
 def longest_argmax(x: np.ndarray) -> np.ndarray:
     return x.shape[1] - 1 - np.argmax(x[:, ::-1], axis=1)
-
-
-def log_odds(mass: np.ndarray) -> np.ndarray:
-    held = np.clip(mass, 1e-300, 1.0 - 1e-16)
-    return np.log(held) - np.log1p(-held)
 
 
 def methods() -> list[str]:
@@ -179,11 +175,6 @@ def measure(datasets: tuple[str, ...]) -> list[dict]:
                   + " ".join(f"{a:.3f}" for a in cell["auc"].values()), flush=True)
             cells.append(cell)
     return cells
-
-
-def summary(cells: list[dict], method: str, dataset: str) -> tuple[float, float, int, int]:
-    m = np.array([c["auc"][method] - c["best_fixed"] for c in cells if c["dataset"] == dataset])
-    return float(m.mean()), float(m.min()), int(np.sum(m >= -0.01)), int(m.size)
 
 
 def write(cells: list[dict], seconds: float, out: str) -> None:
