@@ -649,7 +649,7 @@ def shard_reference(descriptors, metric: str, scheduler, shard_places: int | Non
     workers, shards = [], []
     for s, (lo, hi) in enumerate(bounds):
         where = addresses[s % len(addresses)]
-        block = client.scatter(np.ascontiguousarray(ref[lo:hi]), workers=[where], direct=False)
+        block = client.scatter(np.ascontiguousarray(ref[lo:hi]), workers=[where], direct=False, hash=False)
         shards.append(client.submit(_prepare_shard, block, metric, layout, scale, workers=[where],
                                     allow_other_workers=False, pure=False))
         workers.append(where)
@@ -667,7 +667,9 @@ def _normalised_blocks(ref: ShardedReference, q: np.ndarray, normalise: bool, bl
     ``blank`` is true become zeros (a frame with no information, as locally); with
     ``hubs`` (each shard's hub offsets, :func:`_hub_futures`), hub-corrected."""
     c = ref.client
-    q_fut = c.scatter(q, broadcast=True, direct=False)
+    # every scatter under a key of its own (hash=False): the same rows scattered again while the
+    # scheduler still releases their last copy, under the same content key, race there
+    q_fut = c.scatter(q, broadcast=True, direct=False, hash=False)
     raw = [ref.submit(s, _raw, shard, q_fut) for s, shard in enumerate(ref.shards)]
     if not normalise:
         return raw
@@ -707,7 +709,8 @@ def _hub_futures(ref: ShardedReference, hub_offsets, owner: str) -> list | None:
         raise InvalidParameterError(f"The 'hub_offsets' parameter of {owner} must have one offset per reference "
                                     f"place ({ref.n_places}); got shape {offsets.shape}. Compute them from the "
                                     "same map (catgraph.hubs.map_hub_offsets).")
-    return [ref.client.scatter(np.ascontiguousarray(offsets[lo:hi]), workers=[ref.workers[s]], direct=False)
+    return [ref.client.scatter(np.ascontiguousarray(offsets[lo:hi]), workers=[ref.workers[s]], direct=False,
+                               hash=False)
             for s, (lo, hi) in enumerate(ref.bounds)]
 
 
