@@ -177,26 +177,19 @@ BREAK_RULES = ("punctuated", "persistent", "challenged")
 #: between; 0, 1, 2, 3 and 5 measured in ``docs/sequence.md``)
 TRACK_PLACES = 1
 
-#: rule "tracked": the prior weight of the rigid line beside the tracking filter's motion (the
-#: grid filter's ``rigid_prior``, ``catgraph.grid``): a stretch where the frames say little
-#: keeps the track a long window keeps (the value of the filter's eleventh round,
-#: ``docs/particle_filter.md``; 0.05 and 0.01 measured in ``docs/sequence.md``)
-TRACK_RIGID_PRIOR = 0.05
-
-
 def _needs_sub(cfg: _Config) -> bool:
     return not cfg.fixed and cfg.rule not in ("literal", "tracked") + RECORD_RULES and cfg.grid.shape[0] > 1
 
 
 def tracking_filter(n_places: int):
     """Rule "tracked"'s filter: the registry's ``filter`` method with its defaults (the
-    whole-image model "tempered"), as the exact grid filter at any size, with a rigid line
-    beside its motion (prior :data:`TRACK_RIGID_PRIOR`), on the chain of the ``n_places``
-    reference places in order (both directions: the lines the matcher searches)."""
+    whole-image model "tempered", the rigid line beside its motion), as the exact grid filter at
+    any size, on the chain of the ``n_places`` reference places in order (both directions: the
+    lines the matcher searches)."""
     from .graph import PlaceGraph
     from .methods import make_filter, observation_model, resolve_params
 
-    params = resolve_params("filter", {"mode": "grid", "rigid_prior": TRACK_RIGID_PRIOR})
+    params = resolve_params("filter", {"mode": "grid"})
     return make_filter(params, PlaceGraph.chain(n_places), observation_model(params, n_places, None))
 
 

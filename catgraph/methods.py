@@ -434,6 +434,12 @@ JUMP_GRADUATION = 0.2
 #: fresh processes alternated; docs/particle_filter.md), and a default is held to ×1.5
 JUMP_GRID_MAX_PLACES = 5_000
 
+#: the grid filter's rigid line (``GridLocalizer(rigid_prior=...)``), prior weight: the query is one
+#: unbroken line at one speed with this prior probability. It keeps a long traverse through a
+#: stretch where the frames say little, as a long window does, and costs the shuffles a few frames
+#: after a jump (``docs/particle_filter.md``, eleventh round and "The rigid line by default")
+RIGID_PRIOR = 0.05
+
 
 def jump_graduation(params: dict, n_places: int) -> float:
     """The particle filter's ``jump_graduation`` on a map of ``n_places``: the method's
@@ -569,8 +575,8 @@ def _filter_params() -> tuple[Param, ...]:
         Param("jump_velocity", "str", "long-run", "grid: the velocity a jump lands with: 'long-run' (the query's "
               "long-run velocity distribution) or 'current' (half the current marginal, half uniform)",
               choices=("long-run", "current")),
-        Param("rigid_prior", "float", 0.0, "grid: prior probability that the query is one unbroken line at one "
-              "speed (a rigid-line motion averaged with the filter's by Bayes' rule; 0: off). It holds long "
+        Param("rigid_prior", "float", RIGID_PRIOR, "grid: prior probability that the query is one unbroken line "
+              "at one speed (a rigid-line motion averaged with the filter's by Bayes' rule; 0: off). It holds long "
               "unbroken traverses through weak stretches and is slower to follow real jumps",
               low=0.0, high=0.99),
         *seq.values(),

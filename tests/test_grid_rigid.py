@@ -208,7 +208,9 @@ def test_registry_filter_passes_the_rigid_prior():
 
     graph = PlaceGraph.chain(5)
     params = methods.resolve_params("filter", {"mode": "grid"})
-    assert params["rigid_prior"] == 0.0
+    assert params["rigid_prior"] == methods.RIGID_PRIOR == 0.05  # on by default
+    assert methods.make_filter(params, graph, _Ratios()).rigid_prior == 0.05
+    params = methods.resolve_params("filter", {"mode": "grid", "rigid_prior": 0.0})
     assert methods.make_filter(params, graph, _Ratios()).rigid_prior == 0.0
     params = methods.resolve_params("filter", {"mode": "grid", "rigid_prior": PRIOR})
     assert methods.make_filter(params, graph, _Ratios()).rigid_prior == PRIOR
