@@ -4,6 +4,7 @@ Usage (from the project root)::
 
     python benchmarks/bench_grid_speed.py                       # -> results/grid_speed.md (+ .json)
     python benchmarks/bench_grid_speed.py --trees OLD NEW ...   # -> results/grid_speed_trees.md: several trees
+    python benchmarks/bench_grid_speed.py --rigid 0.05          # -> results/grid_speed_rigid.md: with a rigid line
 
 One step of :class:`catgraph.grid.GridLocalizer` (the default 8 velocities in 10 state
 bins, line graph: the fast path) at 100,000 places, the observation precomputed (a
@@ -17,6 +18,10 @@ that what the step is made of can be read off.
 ``--trees`` runs the step in one fresh process per tree and run (``PYTHONPATH`` set to
 the tree), the trees alternated run after run, so that the load falls on each alike:
 the before/after comparison of a change. The load average is recorded with every run.
+
+``--rigid P`` runs the step without and with the rigid line beside the motion
+(``GridLocalizer(rigid_prior=P)``, the registry's ``filter`` method's default), one fresh
+process each, alternated.
 """
 
 from __future__ import annotations
@@ -42,12 +47,12 @@ from bench_filter import _FixedModel  # noqa: E402  (observation precomputed)
 from bench_filter import _memory_reference as _floor  # noqa: E402  (one np.add, the floor)
 
 
-def _localizer(n: int = N_PLACES):
+def _localizer(n: int = N_PLACES, rigid_prior: float = 0.0):
     from catgraph.graph import PlaceGraph
     from catgraph.grid import GridLocalizer
 
     rows = np.random.default_rng(0).standard_normal((N_ROWS, n))
-    loc = GridLocalizer(PlaceGraph.chain(n), _FixedModel(-rows[0])).reset()
+    loc = GridLocalizer(PlaceGraph.chain(n), _FixedModel(-rows[0]), rigid_prior=rigid_prior).reset()
     return loc, rows
 
 
@@ -66,9 +71,9 @@ def _one_run(loc, rows, cpu: list | None = None) -> float:
     return (time.perf_counter() - start) / (len(rows) - N_WARM)
 
 
-def measure(runs: int = 7) -> dict:
+def measure(runs: int = 7, rigid_prior: float = 0.0) -> dict:
     """Step and floor, ``runs`` times alternated; medians in milliseconds."""
-    loc, rows = _localizer()
+    loc, rows = _localizer(rigid_prior=rigid_prior)
     _one_run(loc, rows)  # compile, fault the buffers in
     step, floor, cpu = [], [], []
     for _ in range(runs):
@@ -156,16 +161,18 @@ def threads(runs: int = 9) -> dict:
             "floor_ms": 1e3 * _floor(8 * N_PLACES)}
 
 
-def compare(trees: list[str], runs: int = 5) -> dict:
-    """One fresh process per tree and run, trees alternated; per tree the runs' results."""
-    results: dict = {tree: [] for tree in trees}
+def compare(trees: list[str], runs: int = 5, priors: tuple = (0.0,)) -> dict:
+    """One fresh process per tree (and rigid prior) and run, alternated; per tree the runs'
+    results (several priors: keyed ``tree, rigid_prior=P``)."""
+    keys = {(tree, p): tree if len(priors) == 1 else f"{tree}, rigid_prior={p:g}" for tree in trees for p in priors}
+    results: dict = {k: [] for k in keys.values()}
     for _ in range(runs):
-        for tree in trees:
+        for (tree, p), key in keys.items():
             env = dict(os.environ, PYTHONPATH=str(Path(tree).resolve()))
-            out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--one"], env=env, check=True,
-                                 capture_output=True, text=True, cwd=str(Path(tree).resolve())).stdout
-            results[tree].append(json.loads(out.strip().splitlines()[-1]))
-            print(tree, results[tree][-1], flush=True)
+            out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--one", str(p)], env=env,
+                                 check=True, capture_output=True, text=True, cwd=str(Path(tree).resolve())).stdout
+            results[key].append(json.loads(out.strip().splitlines()[-1]))
+            print(key, results[key][-1], flush=True)
     return results
 
 
@@ -185,7 +192,19 @@ def _table(results: dict) -> str:
 
 def main(argv: list[str]) -> None:
     if argv and argv[0] == "--one":
-        print(json.dumps(measure()))
+        print(json.dumps(measure(rigid_prior=float(argv[1]) if len(argv) > 1 else 0.0)))
+        return
+    if argv and argv[0] == "--rigid":
+        results = compare([str(ROOT)], priors=(0.0, float(argv[1])))
+        text = ["# Grid filter step at 100,000 places: without and with the rigid line", "",
+                f"`python benchmarks/bench_grid_speed.py --rigid {argv[1]}`: one fresh process per setting and run, "
+                "alternated; in each process the step (8 velocities in 10 state bins, line graph, observation "
+                f"precomputed) as the median of 7 runs of {N_ROWS - N_WARM} steps beside one `np.add` over 8 × "
+                "places float64; the table gives the medians over the processes.", "", _table(results)]
+        RESULTS.mkdir(exist_ok=True)
+        (RESULTS / "grid_speed_rigid.md").write_text("\n".join(text) + "\n")
+        (RESULTS / "grid_speed_rigid.json").write_text(json.dumps(results, indent=1) + "\n")
+        print("\n".join(text))
         return
     if argv and argv[0] == "--trees":
         results = compare(argv[1:])
