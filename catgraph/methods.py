@@ -434,11 +434,17 @@ JUMP_GRADUATION = 0.2
 #: fresh processes alternated; docs/particle_filter.md), and a default is held to ×1.5
 JUMP_GRID_MAX_PLACES = 5_000
 
-#: the grid filter's rigid line (``GridLocalizer(rigid_prior=...)``), prior weight: the query is one
+#: the grid filter's rigid line (``GridLocalizer(rigid_prior=...)``), prior weight, where the method
+#: leaves ``rigid_prior`` unset on maps of at most :data:`RIGID_MAX_PLACES` places: the query is one
 #: unbroken line at one speed with this prior probability. It keeps a long traverse through a
 #: stretch where the frames say little, as a long window does, and costs the shuffles a few frames
 #: after a jump (``docs/particle_filter.md``, eleventh round and "The rigid line by default")
 RIGID_PRIOR = 0.05
+#: the largest map on which the rigid line is on by default: it doubles the grid's state and
+#: step. Measured in the live step (compact map, combined model): at 10⁴ places 1.4 ms and a
+#: 201 MB streaming peak with it; at 10⁵ a 416 MB peak against the 400 MB the live step is
+#: held to (398 MB without it; ``docs/particle_filter.md``)
+RIGID_MAX_PLACES = 10_000
 
 
 def jump_graduation(params: dict, n_places: int) -> float:
@@ -450,6 +456,14 @@ def jump_graduation(params: dict, n_places: int) -> float:
     if n_places <= JUMP_GRID_MAX_PLACES and params.get("proposal", "likelihood") == "likelihood":
         return JUMP_GRADUATION
     return 1.0
+
+
+def rigid_prior(params: dict, n_places: int) -> float:
+    """The grid filter's ``rigid_prior`` on a map of ``n_places``: the method's parameter
+    where set, else :data:`RIGID_PRIOR` up to :data:`RIGID_MAX_PLACES` places, else 0."""
+    if params.get("rigid_prior") is not None:
+        return float(params["rigid_prior"])
+    return RIGID_PRIOR if n_places <= RIGID_MAX_PLACES else 0.0
 
 
 def filter_mode(params: dict, n_places: int) -> str:
@@ -470,7 +484,7 @@ def make_filter(params: dict, graph, model):
 
         common.pop("seed", None)
         return GridLocalizer(graph, model, jump_velocity=params["jump_velocity"],
-                             rigid_prior=params["rigid_prior"], **common)
+                             rigid_prior=rigid_prior(params, graph.n_places), **common)
     from .localizer import Localizer
     from .motion import VelocityMotion
 
@@ -575,10 +589,11 @@ def _filter_params() -> tuple[Param, ...]:
         Param("jump_velocity", "str", "long-run", "grid: the velocity a jump lands with: 'long-run' (the query's "
               "long-run velocity distribution) or 'current' (half the current marginal, half uniform)",
               choices=("long-run", "current")),
-        Param("rigid_prior", "float", RIGID_PRIOR, "grid: prior probability that the query is one unbroken line "
+        Param("rigid_prior", "float", None, "grid: prior probability that the query is one unbroken line "
               "at one speed (a rigid-line motion averaged with the filter's by Bayes' rule; 0: off). It holds long "
-              "unbroken traverses through weak stretches and is slower to follow real jumps",
-              low=0.0, high=0.99),
+              "unbroken traverses through weak stretches and is slower to follow real jumps (default: 0.05 on "
+              "maps of at most 10,000 places, 0 above: it doubles the grid's state and step)",
+              low=0.0, high=0.99, optional=True),
         *seq.values(),
         hist["n_init"], hist["exclusion_radius"], hist["gap"], hist["max_different"],
     )

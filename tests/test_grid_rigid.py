@@ -208,10 +208,13 @@ def test_registry_filter_passes_the_rigid_prior():
 
     graph = PlaceGraph.chain(5)
     params = methods.resolve_params("filter", {"mode": "grid"})
-    assert params["rigid_prior"] == methods.RIGID_PRIOR == 0.05  # on by default
-    assert methods.make_filter(params, graph, _Ratios()).rigid_prior == 0.05
+    assert params["rigid_prior"] is None  # unset: on by default on small maps
+    assert methods.make_filter(params, graph, _Ratios()).rigid_prior == methods.RIGID_PRIOR == 0.05
+    assert methods.rigid_prior(params, methods.RIGID_MAX_PLACES) == 0.05
+    assert methods.rigid_prior(params, methods.RIGID_MAX_PLACES + 1) == 0.0  # off on large maps
     params = methods.resolve_params("filter", {"mode": "grid", "rigid_prior": 0.0})
     assert methods.make_filter(params, graph, _Ratios()).rigid_prior == 0.0
+    assert methods.rigid_prior(methods.resolve_params("filter", {"rigid_prior": 0.01}), 10**6) == 0.01
     params = methods.resolve_params("filter", {"mode": "grid", "rigid_prior": PRIOR})
     assert methods.make_filter(params, graph, _Ratios()).rigid_prior == PRIOR
     with pytest.raises(InvalidParameterError, match="particle filter has none"):
