@@ -177,14 +177,15 @@ BREAK_RULES = ("punctuated", "persistent", "challenged")
 #: between; 0, 1, 2, 3 and 5 measured in ``docs/sequence.md``)
 TRACK_PLACES = 1
 
+
 def _needs_sub(cfg: _Config) -> bool:
     return not cfg.fixed and cfg.rule not in ("literal", "tracked") + RECORD_RULES and cfg.grid.shape[0] > 1
 
 
 def tracking_filter(n_places: int):
     """Rule "tracked"'s filter: the registry's ``filter`` method with its defaults (the
-    whole-image model "tempered", the rigid line beside its motion), as the exact grid filter at
-    any size, on the chain of the ``n_places`` reference places in order (both directions: the
+    whole-image model "tempered"; the rigid line beside its motion on maps of at most
+    ``methods.RIGID_MAX_PLACES`` places), as the exact grid filter at any size, on the chain of the ``n_places`` reference places in order (both directions: the
     lines the matcher searches)."""
     from .graph import PlaceGraph
     from .methods import make_filter, observation_model, resolve_params
@@ -202,7 +203,7 @@ class _Tracker:
     Per frame: one filter step (in the streaming step, on the calling thread while the
     matcher's kernels run on the others), and each candidate window's mass, the place
     posterior summed within ±:data:`TRACK_PLACES` of the window's best place. Memory and
-    time are the filter's: ``O(N)`` per frame (the rigid line doubles its grid).
+    time are the filter's: ``O(N)`` per frame (the rigid line, on small maps, doubles its grid).
     """
 
     def __init__(self):

@@ -92,7 +92,8 @@ Every jump lands uniformly over places with the mixture's jump velocity. Time an
 memory ``× K``.
 
 A rigid line beside the filter's motion (``rigid_prior``; off in this class by default, on in
-the registry's ``filter`` method, ``catgraph.methods.RIGID_PRIOR``). A long fixed
+the registry's ``filter`` method on maps of at most 10,000 places, ``catgraph.methods.RIGID_PRIOR``
+and ``RIGID_MAX_PLACES``). A long fixed
 window compares whole lines of one slope and never considers a jump or a change of
 speed; a filter whose motion allows both (any jump rate, any ``velocity_stay < 1``) lets
 a wrong track that out-scores the true one over a hard stretch take the answer, because
@@ -1085,8 +1086,8 @@ class GridLocalizer:
         The prior probability that the query is one unbroken line at one speed: the
         filter's motion averaged by Bayes' rule with a rigid line (velocity kept, no blur,
         jump rate :data:`RIGID_JUMP_RATE`) of this prior weight (module docstring). Default
-        0: off (the registry's ``filter`` method: 0.05). Not with ``jump_rates``. Time and
-        memory per frame × 2.
+        0: off (the registry's ``filter`` method: 0.05 on maps of at most 10,000 places).
+        Not with ``jump_rates``. Time and memory per frame × 2.
 
     Attributes
     ----------

@@ -279,10 +279,10 @@ exactly, reading what "punctuated" reads; and the filter's sequence models').
 ``rule="tracked"`` lets a tracker choose the window: an exact grid filter (the registry's
 ``filter`` method with its defaults, as the grid at any size: the
 :class:`~catgraph.observation.TemperedObservation` model, the long-run jump velocity, and a
-rigid line beside its motion, prior 0.05, which holds a track through a stretch where the
-frames say little as a long window does; on the chain of the reference's places) runs beside
-the matcher on the same rows (before the hub correction, which its model
-makes itself). Of the candidate lengths, each at its own most significant velocity, the
+rigid line beside its motion, prior 0.05 on maps of at most 10,000 places, which holds a track
+through a stretch where the frames say little as a long window does; on the chain of the
+reference's places) runs beside the matcher on the same rows (before the hub correction,
+which its model makes itself). Of the candidate lengths, each at its own most significant velocity, the
 window is the one whose best place holds the most of the filter's place posterior within ±1
 place (the longest of equals), and its confidence (``"tracked"``, the only one this rule
 reads) is that mass as log-odds. A window therefore ends where the filter's track began: it
