@@ -217,12 +217,17 @@ def measure(datasets: tuple[str, ...]) -> list[dict]:
                     answers[m] = (at_window(st, g)[0], log_odds(mass))
                 for m, (match, conf) in answers.items():
                     aucs[m].append(evaluate(qi, match, conf, truth).metrics.auc)
-            cell = {"dataset": name, "condition": condition.label, "best_fixed": best[(name, condition.label)],
-                    "auc": {m: float(np.mean(a)) for m, a in aucs.items()}}
-            print(f"{name[:10]:10s} {condition.label:28s} best fixed {cell['best_fixed']:.3f} "
-                  + " ".join(f"{a:.3f}" for a in cell["auc"].values()), flush=True)
-            cells.append(cell)
+            cells.append(cell_of(name, condition.label, best[(name, condition.label)], aucs))
     return cells
+
+
+def cell_of(dataset: str, condition: str, best_fixed: float, aucs: dict) -> dict:
+    """One cell of the table (each method's mean AUC over the cell's cases), printed as it is made."""
+    cell = {"dataset": dataset, "condition": condition, "best_fixed": best_fixed,
+            "auc": {m: float(np.mean(a)) for m, a in aucs.items()}}
+    print(f"{dataset[:10]:10s} {condition:28s} best fixed {best_fixed:.3f} "
+          + " ".join(f"{a:.3f}" for a in cell["auc"].values()), flush=True)
+    return cell
 
 
 def summary(cells: list[dict], method: str, dataset: str) -> tuple[float, float, int, int]:

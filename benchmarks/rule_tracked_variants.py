@@ -47,7 +47,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import rule_harness as H  # noqa: E402
-from rule_filter_track import log_odds, write_tables  # noqa: E402
+from rule_filter_track import cell_of, log_odds, write_tables  # noqa: E402
 
 from catgraph import _window_rule as wr  # noqa: E402
 from catgraph.metrics import evaluate  # noqa: E402
@@ -168,11 +168,7 @@ def measure(datasets: tuple[str, ...]) -> list[dict]:
                 rigid = [tracker_posterior(key, np.ascontiguousarray(c.differences), r) for r in RIGIDS]
                 for m, (match, conf) in answers(st, c.differences, rows, posterior, rigid).items():
                     aucs[m].append(evaluate(c.query.index, match, conf, c.ground_truth).metrics.auc)
-            cell = {"dataset": name, "condition": condition.label, "best_fixed": best[(name, condition.label)],
-                    "auc": {m: float(np.mean(a)) for m, a in aucs.items()}}
-            print(f"{name[:10]:10s} {condition.label:28s} best fixed {cell['best_fixed']:.3f} "
-                  + " ".join(f"{a:.3f}" for a in cell["auc"].values()), flush=True)
-            cells.append(cell)
+            cells.append(cell_of(name, condition.label, best[(name, condition.label)], aucs))
     return cells
 
 
