@@ -185,8 +185,9 @@ def _needs_sub(cfg: _Config) -> bool:
 def tracking_filter(n_places: int):
     """Rule "tracked"'s filter: the registry's ``filter`` method with its defaults (the
     whole-image model "tempered"; the rigid line beside its motion on maps of at most
-    ``methods.RIGID_MAX_PLACES`` places), as the exact grid filter at any size, on the chain of the ``n_places`` reference places in order (both directions: the
-    lines the matcher searches)."""
+    ``methods.RIGID_MAX_PLACES`` places), as the exact grid filter at any size, on the chain
+    of the ``n_places`` reference places in order (both directions: the lines the matcher
+    searches)."""
     from .graph import PlaceGraph
     from .methods import make_filter, observation_model, resolve_params
 
