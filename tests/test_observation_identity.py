@@ -21,8 +21,7 @@ from catgraph.graph import PlaceGraph
 from catgraph.localizer import _smoothed, neighbourhood_means
 from catgraph.methods import make_filter, observation_model, resolve_params
 
-#: the processor the digests were recorded on (llvmlite's host CPU name)
-RECORDED_ON = "cascadelake"
+from .conftest import RECORDED_ON, host_processor
 
 DIGESTS = {
     ("grid", False): "6e7a5aa2951a2cb855057bd41c6c8faa99474a9309d3cbe31af437bde6a0d406",
@@ -74,9 +73,7 @@ def _digest(mode: str, hubs: bool, seed: int = 0, n_places: int = 3000, n_frames
 
 @pytest.mark.parametrize("mode, hubs", sorted(DIGESTS))
 def test_combined_filter_runs_are_the_bits_recorded_before_the_fusion(mode, hubs):
-    import llvmlite.binding
-
-    if llvmlite.binding.get_host_cpu_name() != RECORDED_ON:
+    if host_processor() != RECORDED_ON:
         pytest.skip("the digests were recorded on another processor (fastmath kernels round per machine)")
     assert _digest(mode, hubs) == DIGESTS[(mode, hubs)]
 
