@@ -312,7 +312,9 @@ def threshold() -> str:
     cases = [c for c in _cases() if not c.name.startswith("synthetic")]
     sequences = {"sequence score, fixed L=50": 50, "sequence score, fixed L=100": 100,
                  "sequence score, adaptive": "adaptive"}
-    runs: dict[str, list] = {"grid filter score (the filter method's ranking)": [],
+    registry = _methods()["filter method (registry defaults, grid)"]
+    runs: dict[str, list] = {"filter method (registry defaults, grid): its score": [],
+                             "grid filter score (the filter method's ranking)": [],
                              "grid filter posterior log-odds": [], "raw difference (−d_min)": [],
                              "single-frame margin": [], **{k: [] for k in sequences}}
     names = []
@@ -324,7 +326,9 @@ def threshold() -> str:
             names.append(f"{case.name} {cond.label}")
             res = GridLocalizer(graph, TemperedObservation()).run(c.differences, query_index=c.query.index)
             best, margin = _single_frame(c.differences)
-            scored = [("grid filter score (the filter method's ranking)", res.place, res.score),
+            place, score, _ = registry(c, graph)
+            scored = [("filter method (registry defaults, grid): its score", place, score),
+                      ("grid filter score (the filter method's ranking)", res.place, res.score),
                       ("grid filter posterior log-odds", res.place, res.log_odds),
                       ("raw difference (−d_min)", best, -c.differences.min(1)),
                       ("single-frame margin", best, margin)]
@@ -339,9 +343,12 @@ def threshold() -> str:
              "`python benchmarks/bench_filter.py threshold`. Traverses: UJI months 02–06 in order and Nordland in "
              f"all 14 conditions ({len(names)} traverses). For each score, the one threshold that holds the pooled "
              "precision at P is applied to every traverse; the table gives the worst and the mean per-traverse "
-             "recall (recall = correct frames above the threshold / frames with a true match). The grid filter "
-             "runs on the registry's map graph (`catgraph.io.place_graph`); its score is the log-odds less the "
-             "unconverged penalty (`GridLocalizer`, module docstring).", "",
+             "recall (recall = correct frames above the threshold / frames with a true match). The filter method is "
+             "the registry's `filter` as `catgraph localize` runs it (`bench_filter.py conditions`' row of that name: "
+             "the grid, the long-run jump velocity, the rigid line on these maps); the grid filter is "
+             "`GridLocalizer(graph, TemperedObservation())`, its own defaults. Both run on the registry's map graph "
+             "(`catgraph.io.place_graph`); their score is the log-odds less the unconverged penalty "
+             "(`GridLocalizer`, module docstring).", "",
              "| score | P | threshold | worst recall | mean recall |", "|---|---|---|---|---|"]
     for key, pooled in runs.items():
         for precision in (1.0, 0.99, 0.9):
