@@ -1088,6 +1088,14 @@ class GridLocalizer:
         jump rate :data:`RIGID_JUMP_RATE`) of this prior weight (module docstring). Default
         0: off (the registry's ``filter`` method: 0.05 on maps of at most 10,000 places).
         Not with ``jump_rates``. Time and memory per frame × 2.
+    home_speed_odds : float > 0
+        The prior odds of the reference's own speed, one place per frame forwards or
+        backwards (``velocities`` ``±1``), against each other velocity: the velocity prior
+        of the start and of the recovery share where a jump lands (with ``"long-run"``, the
+        prior its learning starts from). Default 1: uniform (the registry's ``filter``
+        method: :data:`catgraph.methods.HOME_SPEED_ODDS`; a traverse is most often driven
+        at about the reference's speed, and a weak start-up otherwise holds a neighbouring
+        speed, ``docs/particle_filter.md``, "The reference's own speed").
 
     Attributes
     ----------
@@ -1121,7 +1129,7 @@ class GridLocalizer:
                  learn_recovery: bool = True, converged_log_odds: float = 1.0, converged_frames: int = 8,
                  unconverged_penalty: float = 1.0, max_phases: int = 4, smooth_feedback: bool = True,
                  jump_rates=None, jump_rate_scope: str = "query", jump_velocity: str = "current",
-                 rigid_prior: float = 0.0) -> None:
+                 rigid_prior: float = 0.0, home_speed_odds: float = 1.0) -> None:
         self.graph = graph
         self.model = model
         self.velocities = velocities
@@ -1144,6 +1152,7 @@ class GridLocalizer:
         self.jump_rate_scope = jump_rate_scope
         self.jump_velocity = jump_velocity
         self.rigid_prior = rigid_prior
+        self.home_speed_odds = home_speed_odds
 
     @property
     def state_(self) -> np.ndarray:
@@ -1205,6 +1214,7 @@ class GridLocalizer:
             raise InvalidParameterError(f"The 'jump_rate_scope' parameter of {owner} must be one of "
                                         f"{JUMP_RATE_SCOPES}. Got {self.jump_rate_scope!r} instead.")
         check_scalar(self.rigid_prior, "rigid_prior", owner, float, 0.0, 1.0, True, False)
+        check_scalar(self.home_speed_odds, "home_speed_odds", owner, float, 0.0, 1e6, False)
         if self.rigid_prior > 0 and self.jump_rates is not None:
             raise InvalidParameterError(f"The 'rigid_prior' and 'jump_rates' parameters of {owner} cannot be combined: "
                                         "give one of them (rigid_prior=0 or jump_rates=None).")
@@ -1238,8 +1248,13 @@ class GridLocalizer:
         self._neighbours = None if self._line else neighbours
         del neighbours, idx
         self._t_sparse = _sparse_columns(self._transition)
-        # a uniform prior over velocities, each shared evenly by its phases
-        self._velocity_prior = 1.0 / (len(self._v) * np.bincount(owner)[owner])
+        # a prior over velocities (uniform, or ``home_speed_odds`` to one on ±1), each shared
+        # evenly by its phases
+        if self.home_speed_odds == 1.0:
+            self._velocity_prior = 1.0 / (len(self._v) * np.bincount(owner)[owner])
+        else:
+            weights = np.where(np.abs(np.abs(self._v) - 1.0) < 1e-12, float(self.home_speed_odds), 1.0)
+            self._velocity_prior = (weights / weights.sum())[owner] / np.bincount(owner)[owner]
         self._velocity = self._velocity_prior.copy()
         from .motion import LongRunVelocity
 

@@ -447,6 +447,13 @@ RIGID_PRIOR = 0.05
 RIGID_MAX_PLACES = 10_000
 
 
+#: the grid filter's prior odds of the reference's own speed (``GridLocalizer(home_speed_odds=...)``):
+#: ``±1`` place per frame three times as likely as each other velocity at the start and where a
+#: jump lands. A weak start-up (UJI 06: the first 37 frames held at half speed) follows the speed
+#: a traverse most often has (``docs/particle_filter.md``, "The reference's own speed")
+HOME_SPEED_ODDS = 3.0
+
+
 def jump_graduation(params: dict, n_places: int) -> float:
     """The particle filter's ``jump_graduation`` on a map of ``n_places``: the method's
     parameter where set, else :data:`JUMP_GRADUATION` up to :data:`JUMP_GRID_MAX_PLACES`
@@ -484,7 +491,8 @@ def make_filter(params: dict, graph, model):
 
         common.pop("seed", None)
         return GridLocalizer(graph, model, jump_velocity=params["jump_velocity"],
-                             rigid_prior=rigid_prior(params, graph.n_places), **common)
+                             rigid_prior=rigid_prior(params, graph.n_places),
+                             home_speed_odds=params["home_speed_odds"], **common)
     from .localizer import Localizer
     from .motion import VelocityMotion
 
@@ -522,6 +530,7 @@ def _filter_not_applicable(params: dict) -> dict[str, str]:
     if params["mode"] == "particles":
         out["jump_velocity"] = "it sets the grid filter's jumps; the particle filter's recovery particles are drawn"
         out["rigid_prior"] = "the rigid line is the grid filter's; the particle filter has none"
+        out["home_speed_odds"] = "it sets the grid filter's velocity prior; the particle filter's is uniform"
     if model not in sequence_models:
         for k in ("window", *_WINDOW_ADAPTIVE):
             out[k] = f"model {model!r} has no sequence matcher"
@@ -594,6 +603,9 @@ def _filter_params() -> tuple[Param, ...]:
               "unbroken traverses through weak stretches and is slower to follow real jumps (default: 0.05 on "
               "maps of at most 10,000 places, 0 above: it doubles the grid's state and step)",
               low=0.0, high=0.99, optional=True),
+        Param("home_speed_odds", "float", HOME_SPEED_ODDS, "grid: prior odds of the reference's own speed (one "
+              "place per frame, either direction) against each other velocity, at the start and where a jump lands "
+              "(1: uniform)", low=1.0, high=1000.0),
         *seq.values(),
         hist["n_init"], hist["exclusion_radius"], hist["gap"], hist["max_different"],
     )

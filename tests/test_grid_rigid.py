@@ -1,4 +1,5 @@
-"""The grid filter's motion averaged with a rigid line (``GridLocalizer(rigid_prior=p)``)
+"""The grid filter's motion averaged with a rigid line (``GridLocalizer(rigid_prior=p)``),
+and its velocity prior with odds on the reference's own speed (``home_speed_odds``),
 against a plain dense-matrix Bayes filter over (motion model, place, velocity) on a tiny
 route."""
 
@@ -18,23 +19,26 @@ PRIOR = 0.2
 RECOVERY = 0.1
 
 
-def _reference(rows, learn, jump_velocity):
+def _reference(rows, learn, jump_velocity, home_speed_odds=1.0):
     """Two filters as vectors over (place, velocity), each with its motion as one matrix:
     the settings' (``velocity_stay``, ``reverse_probability``, ``blur``, jump rate
     ``RECOVERY``, learned from its own evidence when ``learn``) and the rigid line's
     (velocity kept, no blur, ``RIGID_JUMP_RATE``); each jump uniform over places with the
     mixture's jump velocity (``"current"``: half the previous posterior velocity marginal
-    and half uniform; ``"long-run"``: the discounted mean of the posterior marginals so
-    far and the uniform prior, written out as a weighted mean); the two weighed by their
-    evidence (Bayes' rule), starting at ``1 − PRIOR`` and ``PRIOR``. Returns per frame the
-    place posterior, ``P(new)`` and the weights."""
+    and half the velocity prior; ``"long-run"``: the discounted mean of the posterior
+    marginals so far and the velocity prior, written out as a weighted mean); the two
+    weighed by their evidence (Bayes' rule), starting at ``1 − PRIOR`` and ``PRIOR``. The
+    velocity prior (the start, the landing's prior part) gives each of ``±1``
+    ``home_speed_odds`` times each other velocity's weight (1: uniform). Returns per frame
+    the place posterior, ``P(new)`` and the weights."""
     n = rows.shape[1]
     nb = len(VELOCITIES)
     motion = [_motion(n, VELOCITIES, SETTINGS["velocity_stay"], SETTINGS["reverse_probability"], SETTINGS["blur"]),
               _motion(n, VELOCITIES, 1.0, 0.0, 0.0)]
     eps = [RECOVERY, RIGID_JUMP_RATE]
     jumps, frames = 0.0, 0.0
-    vprior = np.full(nb, 1.0 / nb)
+    vprior = np.array([home_speed_odds if abs(v) == 1.0 else 1.0 for v in VELOCITIES])
+    vprior /= vprior.sum()
     x = [np.tile(vprior / n, n) for _ in range(2)]
     w = np.array([1.0 - PRIOR, PRIOR])
     marginals = []
@@ -87,6 +91,57 @@ def test_rigid_line_equals_dense_reference(kind, learn, jump_velocity):
         assert est.new_place_probability == pytest.approx(p_new, rel=1e-9, abs=1e-15)
         np.testing.assert_allclose(loc.rate_weights_, w, rtol=1e-9, atol=1e-15)
         assert est.place == int(np.argmax(mass))
+
+
+@pytest.mark.parametrize("jump_velocity", ["long-run", "current"])
+@pytest.mark.parametrize("kind", [_Float64, _General])
+def test_home_speed_odds_equal_dense_reference(kind, jump_velocity):
+    n = 11
+    rows = _rows(n, 17, seed=8)
+    loc = kind(PlaceGraph.chain(n), _Ratios(), rigid_prior=PRIOR, recovery=RECOVERY, jump_velocity=jump_velocity,
+               home_speed_odds=4.0, **SETTINGS).reset()
+    reference = _reference(rows, True, jump_velocity, home_speed_odds=4.0)
+    plain = _reference(rows, True, jump_velocity)
+    # the case is what it claims: the odds move the posterior
+    assert not np.allclose(reference[1][0], plain[1][0], rtol=1e-6, atol=0)
+    for row, (mass, p_new, w) in zip(rows, reference):
+        est = loc.step(row)
+        np.testing.assert_allclose(loc.place_posterior_, mass, rtol=1e-9, atol=1e-15)
+        assert est.new_place_probability == pytest.approx(p_new, rel=1e-9, abs=1e-15)
+        np.testing.assert_allclose(loc.rate_weights_, w, rtol=1e-9, atol=1e-15)
+
+
+@pytest.mark.parametrize("odds", [1.0, 3.0, 0.25])
+def test_home_speed_odds_set_the_velocity_prior(odds):
+    """Before the first frame the velocity marginal is the prior: each of ``±1`` ``odds``
+    times each other velocity (``±0.5`` share theirs between two phases)."""
+    from catgraph.grid import DEFAULT_VELOCITIES
+
+    loc = GridLocalizer(PlaceGraph.chain(50), _Ratios(), home_speed_odds=odds).reset()
+    per_velocity = loc.state_.sum(0)
+    assert per_velocity.shape == (len(DEFAULT_VELOCITIES),)
+    home = np.abs(np.abs(np.asarray(DEFAULT_VELOCITIES)) - 1.0) < 1e-12
+    assert home.sum() == 2
+    np.testing.assert_allclose(per_velocity.sum(), 1.0, rtol=1e-6)
+    np.testing.assert_allclose(per_velocity[home] / per_velocity[~home][0], odds, rtol=1e-6)
+    np.testing.assert_allclose(per_velocity[~home], per_velocity[~home][0], rtol=1e-6)
+
+
+@pytest.mark.parametrize("bad", [0.0, -2.0, float("nan"), "3", True])
+def test_home_speed_odds_validated(bad):
+    with pytest.raises(InvalidParameterError, match="home_speed_odds"):
+        GridLocalizer(PlaceGraph.chain(10), _Ratios(), home_speed_odds=bad).reset()
+
+
+def test_registry_filter_passes_the_home_speed_odds():
+    from catgraph.methods import HOME_SPEED_ODDS, make_filter, observation_model, resolve_params
+
+    for given, expected in (({}, HOME_SPEED_ODDS), ({"home_speed_odds": 1.0}, 1.0)):
+        params = resolve_params("filter", {"mode": "grid", **given})
+        loc = make_filter(params, PlaceGraph.chain(40), observation_model(params, 40, None))
+        assert loc.home_speed_odds == expected
+    with pytest.raises(InvalidParameterError, match="home_speed_odds"):
+        resolve_params("filter", {"mode": "particles", "home_speed_odds": 2.0})
 
 
 def test_float32_line_path_agrees_with_float64():

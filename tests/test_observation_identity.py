@@ -57,6 +57,8 @@ def _digest(mode: str, hubs: bool, seed: int = 0, n_places: int = 3000, n_frames
     if mode == "grid":
         loc.blur = 0.01  # the grid filter's blur then (the default is now 0.005)
         loc.jump_velocity = "current"  # a jump's velocity then (the registry's is now "long-run")
+        loc.rigid_prior = 0.0  # no rigid line then (the registry's is now 0.05 on maps of this size)
+        loc.home_speed_odds = 1.0  # a uniform velocity prior then (the registry's now favours ±1)
     else:
         loc.motion.blur = 0.01  # the particles follow the grid's blur unless given one
     loc.reset()
