@@ -38,9 +38,9 @@ Candidates:
     ``GridLocalizer(rigid_prior=0.05)`` (the same answers and scores, bit for bit).
 
 ``home-speed``
-    A velocity prior with odds ``HOME_ODDS`` (3) on the reference's own speed, one place per
-    frame forwards or backwards, against each other velocity, where the registry's was
-    uniform: the start-up and every jump's landing read it. Now the registry's default
+    A velocity prior with odds ``methods.HOME_SPEED_ODDS`` (3) on the reference's own
+    speed, one place per frame forwards or backwards, against each other velocity, where the
+    registry's was uniform: the start-up and every jump's landing read it. Now the registry's default
     (``methods.HOME_SPEED_ODDS``, ``GridLocalizer(home_speed_odds=...)``); the candidate's
     "before" is the same filter with a uniform prior (``home_speed_odds=1``), so the table
     is reproduced as it was measured.
@@ -71,6 +71,7 @@ from datasets import benchmark_conditions  # noqa: E402
 
 import catgraph.grid as grid  # noqa: E402
 from catgraph.experiment import run_method  # noqa: E402
+from catgraph.methods import HOME_SPEED_ODDS  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 _REGISTERED = grid.GridLocalizer
@@ -171,10 +172,6 @@ class RigidLine(_REGISTERED):
         self._new_place(math.log(total) + ratio[1], ratio[2])
 
 
-#: the prior odds of the reference's own speed against each other velocity (``home-speed``)
-HOME_ODDS = 3.0
-
-
 def _speed_odds(odds: float):
     """The registered grid filter with ``home_speed_odds`` set to ``odds`` whatever the method passes."""
 
@@ -188,7 +185,7 @@ def _speed_odds(odds: float):
 
 #: candidate → its grid filter, or (the "before" filter, the candidate's)
 CANDIDATES = {"jump-velocity-mean": JumpVelocityMean, "jump-velocity-mean-half": JumpVelocityMeanHalf,
-              "rigid-line": RigidLine, "home-speed": (_speed_odds(1.0), _speed_odds(HOME_ODDS))}
+              "rigid-line": RigidLine, "home-speed": (_speed_odds(1.0), _speed_odds(HOME_SPEED_ODDS))}
 
 
 def _run(params, prepared, cls):

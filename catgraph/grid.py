@@ -1248,13 +1248,10 @@ class GridLocalizer:
         self._neighbours = None if self._line else neighbours
         del neighbours, idx
         self._t_sparse = _sparse_columns(self._transition)
-        # a prior over velocities (uniform, or ``home_speed_odds`` to one on ±1), each shared
+        # a prior over velocities (``home_speed_odds`` to one on ±1; 1: uniform), each shared
         # evenly by its phases
-        if self.home_speed_odds == 1.0:
-            self._velocity_prior = 1.0 / (len(self._v) * np.bincount(owner)[owner])
-        else:
-            weights = np.where(np.abs(np.abs(self._v) - 1.0) < 1e-12, float(self.home_speed_odds), 1.0)
-            self._velocity_prior = (weights / weights.sum())[owner] / np.bincount(owner)[owner]
+        weights = np.where(np.abs(np.abs(self._v) - 1.0) < 1e-12, float(self.home_speed_odds), 1.0)
+        self._velocity_prior = weights[owner] / (weights.sum() * np.bincount(owner)[owner])
         self._velocity = self._velocity_prior.copy()
         from .motion import LongRunVelocity
 
