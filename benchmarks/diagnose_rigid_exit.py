@@ -86,22 +86,8 @@ def _run_step(rigid_jumps: bool):
             share = pi * jump / predicted
         else:
             predicted, share = w.copy(), np.zeros(len(w))
-        velocity = self._velocity
-        totals, means = np.zeros(len(w)), np.zeros(len(w))
-        fields = self._COMPONENT_FIELDS
-        for k, (component, (transition, sparse, blur)) in enumerate(zip(self._components, self._motions)):
-            for f in fields:
-                setattr(self, f, component[f])
-            self._velocity = velocity
-            self._transition, self._t_sparse, self.blur = transition, sparse, blur
-            self.recovery_ = float(share[k])
-            self._predict(odometry, ratio)
-            if ratio is not None:
-                totals[k], means[k] = self._likelihood(ratio[0])
-            for f in fields:
-                component[f] = getattr(self, f)
-        self._transition, self._t_sparse, self.blur = self._motions[0]
-        self._pool = self._own_pool
+        velocity = self._velocity  # the mixture's: every component's jump lands with it
+        totals, means = self._step_components(odometry, ratio, velocity, share)
         components = self._components
         n = self.graph.n_places
         self.prior_ = G._weighted_sum(predicted, [c["prior_"] for c in components], self._pool.take(n))

@@ -1501,20 +1501,7 @@ class GridLocalizer:
         else:
             predicted, share = w.copy(), np.zeros(len(w))
         velocity = self._velocity  # the mixture's: every component's jump lands with it
-        totals = np.zeros(len(w))
-        fields = self._COMPONENT_FIELDS
-        for k, component in enumerate(self._components):
-            for f in fields:
-                setattr(self, f, component[f])
-            self._velocity = velocity
-            jump_rate, self.recovery_ = self.recovery_, float(share[k])
-            self._predict(odometry, ratio)
-            self.recovery_ = jump_rate
-            if ratio is not None:
-                totals[k] = self._likelihood(ratio[0])[0]
-            for f in fields:
-                component[f] = getattr(self, f)
-        self._pool = self._own_pool
+        totals = self._step_components(odometry, ratio, velocity, share)[0]
         components = self._components
         self.prior_ = _weighted_sum(predicted, [c["prior_"] for c in components], self._pool.take(self.graph.n_places))
         evidence = predicted * totals
@@ -1539,6 +1526,40 @@ class GridLocalizer:
                                        np.empty(len(self._owner)))
         self._new_place(math.log(total) + ratio[1], ratio[2])
 
+    def _step_components(self, odometry: float | None, ratio, velocity: np.ndarray,
+                         recoveries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Predict and update every component on its own arrays (swapped in while the
+        shared step code runs on it), component ``k`` with the jump share
+        ``recoveries[k]``, its jumps landing with ``velocity``, and with its own motion
+        where the components have motions of their own (``rigid_prior``).
+
+        Returns
+        -------
+        totals, means : ndarray of float64, shape (n_components,)
+            Each component's evidence ``Σ_j prior_kj e^{r_j}`` and ``mean_j e^{r_j}``
+            (zeros for an uninformative frame).
+        """
+        totals, means = np.zeros(len(self._components)), np.zeros(len(self._components))
+        fields = self._COMPONENT_FIELDS
+        jump_rate = self.recovery_
+        for k, component in enumerate(self._components):
+            for f in fields:
+                setattr(self, f, component[f])
+            self._velocity = velocity
+            if self._motions is not None:
+                self._transition, self._t_sparse, self.blur = self._motions[k]
+            self.recovery_ = float(recoveries[k])
+            self._predict(odometry, ratio)
+            if ratio is not None:
+                totals[k], means[k] = self._likelihood(ratio[0])
+            for f in fields:
+                component[f] = getattr(self, f)
+        self.recovery_ = jump_rate
+        if self._motions is not None:
+            self._transition, self._t_sparse, self.blur = self._motions[0]
+        self._pool = self._own_pool
+        return totals, means
+
     def _rigid_step(self, odometry: float | None, ratio) -> None:
         """Predict and update both motion models' components (``rigid_prior``), then
         their mixture (module docstring, "A rigid line beside the filter's motion").
@@ -1550,22 +1571,8 @@ class GridLocalizer:
         filter learns it."""
         w = self.rate_weights_
         velocity = self._velocity  # the mixture's: every component's jump lands with it
-        totals, means = np.zeros(len(w)), np.zeros(len(w))
-        fields = self._COMPONENT_FIELDS
-        for k, (component, (transition, sparse, blur)) in enumerate(zip(self._components, self._motions)):
-            for f in fields:
-                setattr(self, f, component[f])
-            self._velocity = velocity
-            self._transition, self._t_sparse, self.blur = transition, sparse, blur
-            self.recovery_ = float(self._rates[k])
-            self._predict(odometry, ratio)
-            if ratio is not None:
-                totals[k], means[k] = self._likelihood(ratio[0])
-            for f in fields:
-                component[f] = getattr(self, f)
-        self._transition, self._t_sparse, self.blur = self._motions[0]
+        totals, means = self._step_components(odometry, ratio, velocity, self._rates)
         self.recovery_ = float(w @ self._rates)
-        self._pool = self._own_pool
         components = self._components
         self.prior_ = _weighted_sum(w, [c["prior_"] for c in components], self._pool.take(self.graph.n_places))
         evidence = w * totals
