@@ -23,7 +23,7 @@ to the committed code for the run only (a patch of ``GridLocalizer``, undone aft
   (Nordland's ``64x32`` folder) instead of 32 × 16 with 4.
 
 Writes ``benchmarks/results/rigid_exit.md`` and ``rigid_exit.json``. Run from the repository
-root (about 4 minutes a variant on 2 cores)::
+root (about a minute and a half a variant on 2 cores; the whole run took about 10 minutes)::
 
     python benchmarks/diagnose_rigid_exit.py [--variants NAME,...]
 """
