@@ -846,13 +846,36 @@ def _row_reads(cfg: _Config, frame_index: np.ndarray, rows_d, record: _Record | 
 
 
 def _decide(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool, rows_d: np.ndarray,
-            record: _Record | None = None, reads=None, raw_rows: np.ndarray | None = None):
+            record: _Record | None = None, reads=None, raw_rows: np.ndarray | None = None,
+            blank: np.ndarray | None = None):
     """Each frame's answer from the kernels' statistics ``st``: ``(match, score, confidence,
     length, velocity, log_p)``. ``reads``: :func:`_row_reads` of these frames where already
     formed (the record's clock moved on once, by whichever call formed them). ``raw_rows``:
-    the rows before the hub correction (rule "tracked" only)."""
+    the rows before the hub correction (rule "tracked" only).
+
+    A frame whose own row has no information (constant: a blank frame,
+    :mod:`catgraph.matching`) gets no output, match :data:`~catgraph.matching.NO_MATCH` and
+    confidence :data:`~catgraph.matching.NO_OUTPUT_CONFIDENCE`, as with a single frame;
+    the window's statistics go on as computed. ``blank``: those frames, where ``rows_d``
+    is not an array of the rows (a cluster's, which knows them from its normalisation)."""
     if cfg.rule == "tracked" and not cfg.fixed:
-        return _tracked(st, cfg, frame_index, want_curves, raw_rows, record)
+        answer = _tracked(st, cfg, frame_index, want_curves, raw_rows, record)
+    else:
+        answer = _decide_window(st, cfg, frame_index, want_curves, rows_d, record, reads)
+    if blank is None:
+        blank = np.ptp(rows_d, axis=1) == 0
+    if blank.any():
+        from .matching import NO_MATCH, NO_OUTPUT_CONFIDENCE
+
+        match, score, conf, *rest = answer
+        match, conf = np.where(blank, NO_MATCH, match), np.where(blank, NO_OUTPUT_CONFIDENCE, conf)
+        answer = (match, score, conf, *rest)
+    return answer
+
+
+def _decide_window(st: _Stats, cfg: _Config, frame_index: np.ndarray, want_curves: bool, rows_d: np.ndarray,
+                   record: _Record | None = None, reads=None):
+    """:func:`_decide` for every rule but "tracked"."""
     n, v_count, g_count = st.best_s.shape
     rows = np.arange(n)
     log_p = _log_p(st)

@@ -662,10 +662,12 @@ def shard_reference(descriptors, metric: str, scheduler, shard_places: int | Non
 
 
 def _normalised_blocks(ref: ShardedReference, q: np.ndarray, normalise: bool, blank: np.ndarray | None = None,
-                       hubs: list | None = None) -> list:
+                       hubs: list | None = None, flat: np.ndarray | None = None) -> list:
     """Futures of each shard's (normalised) columns for query rows ``q``; rows where
     ``blank`` is true become zeros (a frame with no information, as locally); with
-    ``hubs`` (each shard's hub offsets, :func:`_hub_futures`), hub-corrected."""
+    ``hubs`` (each shard's hub offsets, :func:`_hub_futures`), hub-corrected. ``flat``
+    (bool, one per row of ``q``; normalised rows only) is set to the rows that come out as
+    zeros (no spread, or blank): those local matching gives no output."""
     c = ref.client
     # every scatter under a key of its own (hash=False): the same rows scattered again while the
     # scheduler still releases their last copy, under the same content key, race there
@@ -680,18 +682,24 @@ def _normalised_blocks(ref: ShardedReference, q: np.ndarray, normalise: bool, bl
     std[_zero_spread(std, mean)] = 0.0
     if blank is not None:
         std[blank] = 0.0
+    if flat is not None:
+        flat[:] = std == 0.0
     scaled = [ref.submit(s, _scale, b, mean, std) for s, b in enumerate(raw)]
     if hubs is None:
         return scaled
     # the hub correction (catgraph.hubs.apply_hub_offsets): the offsets subtracted, each row
-    # normalised again with its numpy mean and std (two rounds, numpy's summation order)
-    shifted = [ref.submit(s, _subtract, b, o) for s, (b, o) in enumerate(zip(scaled, hubs))]
+    # normalised again with its numpy mean and std (two rounds, numpy's summation order);
+    # a row of zeros (no spread, or no information) is left as it is
+    flat = std == 0.0
+    shifted = [ref.submit(s, _subtract, b, o, flat) for s, (b, o) in enumerate(zip(scaled, hubs))]
     mean, std = _row_moments(ref, shifted)
     return [ref.submit(s, _renormalise, b, mean, std) for s, b in enumerate(shifted)]
 
 
-def _subtract(block: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    return block - offsets
+def _subtract(block: np.ndarray, offsets: np.ndarray, flat: np.ndarray) -> np.ndarray:
+    out = block - offsets
+    out[flat] = block[flat]
+    return out
 
 
 def _renormalise(block: np.ndarray, mean: np.ndarray, std: np.ndarray) -> np.ndarray:
@@ -756,7 +764,8 @@ def _line_blocks(ref: ShardedReference, q: np.ndarray, start: int, stop: int, wi
                  velocities: np.ndarray, unit: float | None, radius: int, want_sums: bool = False,
                  blank: np.ndarray | None = None, want_sub: bool = False,
                  keep_rows: bool = False, hubs: list | None = None,
-                 at_best: bool | None = None, back: int = 0) -> tuple[list, float, list | None]:
+                 at_best: bool | None = None, back: int = 0,
+                 flat: np.ndarray | None = None) -> tuple[list, float, list | None]:
     """Futures of each shard's window sums and summaries (:func:`_shard_lines`) for query
     rows ``[start, stop)``, every velocity and every length in ``windows``; the quantum
     (fixed by the first block when ``unit`` is ``None``); with ``keep_rows``, the futures
@@ -764,12 +773,17 @@ def _line_blocks(ref: ShardedReference, q: np.ndarray, start: int, stop: int, wi
     each shard's row values at its best places come back with the summaries; with ``back``,
     the kept rows begin up to ``back`` frames before ``start`` (the latest rows the confidence
     "changepoint" reads), as ``(rows, earlier)``: the rows from ``start`` and those from
-    ``start - min(back, start)``."""
+    ``start - min(back, start)``; ``flat`` (bool, one per row ``[start, stop)``) is set to the
+    rows that are zeros once normalised (:func:`_normalised_blocks`)."""
     c = ref.client
     at_best = keep_rows if at_best is None else at_best
     longest = int(windows[-1])
     first = max(0, start - max(longest, back))
-    blocks = _normalised_blocks(ref, q[first:stop], True, None if blank is None else blank[first:stop], hubs)
+    zeros = None if flat is None else np.zeros(stop - first, dtype=bool)
+    blocks = _normalised_blocks(ref, q[first:stop], True, None if blank is None else blank[first:stop], hubs,
+                                zeros)
+    if flat is not None:
+        flat[:] = zeros[start - first:]
     if unit is None:  # the first block starts at query frame 0
         unit = _quantum(ref, blocks)
     coded = [ref.submit(s, _codes, b, unit) for s, b in enumerate(blocks)]
@@ -1227,9 +1241,10 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
     unit = None
     for start in range(0, n_q, block_rows):
         stop = min(n_q, start + block_rows)
+        flat = np.zeros(stop - start, dtype=bool)
         futs, unit, rows = _line_blocks(ref, q, start, stop, windows, cfg.velocities, unit, cfg.radius, blank=blank,
                                         want_sub=with_sub, keep_rows=current or record is not None, hubs=hubs,
-                                        at_best=current, back=back)
+                                        at_best=current, back=back, flat=flat)
         lines = None
         if back:
             rows, earlier = rows
@@ -1282,7 +1297,7 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
             rows_d = _Rows(n, row_mean, row_std, places, values, lines=lines)
         else:  # the rule reads the rows' width only (and, rule "spanning", hands them to the replayed clock)
             rows_d = _Rows(n, rows=stop - start)
-        m, s, k, w, v, _ = _decide(st, cfg, np.arange(start, stop), False, rows_d, record)
+        m, s, k, w, v, _ = _decide(st, cfg, np.arange(start, stop), False, rows_d, record, blank=flat)
         match[start:stop], score[start:stop], conf[start:stop], length[start:stop], velocity[start:stop] = m, s, k, w, v
     return ShardedMatches(match, score, conf, velocity, length)
 

@@ -144,8 +144,12 @@ def apply_hub_offsets(differences: np.ndarray, offsets: np.ndarray, renormalise:
     offsets : ndarray, shape (N,)
         From :func:`hub_offsets`.
     renormalise : bool
-        Give each corrected row mean 0 and standard deviation 1 again (a constant row
-        stays constant, shifted to 0).
+        Give each corrected row mean 0 and standard deviation 1 again.
+
+    A row with no information (constant: a frame that tells no places apart, such as a
+    blank frame's zeros, :mod:`catgraph.matching`) is not corrected: it stays constant
+    (shifted to 0 with ``renormalise``), where the offsets alone would rank the map's
+    hubs first for it.
 
     Returns
     -------
@@ -157,7 +161,11 @@ def apply_hub_offsets(differences: np.ndarray, offsets: np.ndarray, renormalise:
         raise ShapeMismatchError(
             f"the difference matrix has {d.shape[-1] if d.ndim else 0} reference places but there are "
             f"{o.shape[0]} hub offsets; compute the offsets from the same reference map.")
-    out = np.asarray(d, dtype=np.float64) - o
+    values = np.asarray(d, dtype=np.float64)
+    out = values - o
+    flat = np.ptp(values.reshape(-1, values.shape[-1]), axis=1) == 0
+    if flat.any():
+        out.reshape(-1, out.shape[-1])[flat] = values.reshape(-1, values.shape[-1])[flat]
     if renormalise:  # in place, in blocks of rows: one copy of a large matrix, not four
         rows = out.reshape(-1, out.shape[-1])
         step = max(1, RENORMALISE_VALUES // rows.shape[1])

@@ -17,6 +17,7 @@ from scipy.special import logsumexp
 from ._validation import as_generator, check_array, check_scalar
 from .exceptions import DataError, InvalidParameterError, NotFittedError, ShapeMismatchError
 from .histogram import HistogramLikelihood
+from .matching import NO_MATCH, NO_OUTPUT_CONFIDENCE
 from .samples import OnlineSamples, online_samples
 
 __all__ = ["Recognition", "Recognitions", "HistogramPlaceRecogniser"]
@@ -29,10 +30,12 @@ class Recognition:
     Attributes
     ----------
     match : int
-        Best reference index (smallest difference).
+        Best reference index (smallest difference); :data:`~catgraph.matching.NO_MATCH`
+        for a frame with no information (every place equally far), which also teaches
+        the model nothing.
     confidence : float
         Posterior probability (eq. 2) that the frame is within ``± confidence_radius``
-        of ``match``; 0 while initialising.
+        of ``match``; 0 while initialising or with no match.
     new_place_probability : float
         Posterior probability of the new-place hypothesis; 0 while initialising.
     prob_same : float
@@ -61,6 +64,11 @@ class Recognitions:
     prob_same: np.ndarray
     d_min: np.ndarray
     initialising: np.ndarray
+
+
+def _blank(row: np.ndarray) -> bool:
+    """A row with no information: every place equally far (a blank frame, :mod:`catgraph.matching`)."""
+    return bool(row.max() == row.min())
 
 
 class HistogramPlaceRecogniser:
@@ -258,7 +266,7 @@ class HistogramPlaceRecogniser:
         best = int(np.argmin(row))
         same_place = self._same_location(best)
         samples = online_samples(row, self.exclusion_radius, same_place)
-        if self.learn:
+        if self.learn and not _blank(row):  # a frame with no information teaches nothing
             if self.n_steps_ < self.n_init:
                 self.model_.partial_fit(None, [samples.d_min])
             else:
@@ -293,6 +301,8 @@ class HistogramPlaceRecogniser:
         row = self._row(differences)
         was_initialising = self.n_steps_ < self.n_init
         samples = self._update(row)
+        if _blank(row):  # no information: no output (catgraph.matching)
+            return Recognition(NO_MATCH, NO_OUTPUT_CONFIDENCE, 0.0, 0.0, samples.d_min, was_initialising)
         if was_initialising:
             return Recognition(samples.best, 0.0, 0.0, 0.0, samples.d_min, True)
         log_post, log_new = self.model_.log_posterior(row, new_place_prior=self.new_place_prior)

@@ -109,8 +109,11 @@ def test_apply_in_blocks_equals_the_whole_matrix_formula_bit_for_bit(monkeypatch
     whole = d - offsets
     mean, std = whole.mean(axis=-1, keepdims=True), whole.std(axis=-1, keepdims=True)
     want = (whole - mean) / np.where(std > 0, std, 1.0)
+    want[4] = 0.0  # the constant row (no information) is not corrected
     for values in (1, 700, 1 << 22):  # one row per block, a few rows, everything at once
         monkeypatch.setattr(hubs, "RENORMALISE_VALUES", values)
         assert np.array_equal(apply_hub_offsets(d, offsets), want)
         assert np.array_equal(apply_hub_offsets(d[7], offsets), want[7])
+        assert np.array_equal(apply_hub_offsets(d[4], offsets), np.zeros(300))
+    assert np.array_equal(apply_hub_offsets(d, offsets, renormalise=False)[4], d[4])
     assert np.array_equal(d, before)  # the input is not modified
