@@ -44,9 +44,31 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
     return Path(path)
 
 
-def check_writable(path: str | os.PathLike, what: str = "output") -> Path:
+def _spellings(path: str | os.PathLike) -> set[Path]:
+    """``path`` as written (absolute) and with every link resolved."""
+    return {Path(os.path.abspath(path)), Path(os.path.realpath(path))}
+
+
+def _overwrites_input(path: Path, inputs) -> str | None:
+    """The input that writing ``path`` would destroy: ``path`` is that input file, or an
+    existing file inside that input folder (a frame, a CSV of the traverse); else None."""
+    out = _spellings(path)
+    for given in inputs:
+        if given is None or not os.path.exists(given):
+            continue  # not a path (``synthetic:0``) or not there: nothing to destroy
+        for source in _spellings(given):
+            if source in out:
+                return str(given)
+            if source.is_dir() and path.exists() and any(source in o.parents for o in out):
+                return str(given)
+    return None
+
+
+def check_writable(path: str | os.PathLike, what: str = "output", inputs=()) -> Path:
     """Check, before any work is done, that ``path`` can be written (its folder exists or can
-    be created, is writable, and ``path`` is not a folder); return it.
+    be created, is writable, ``path`` is not a folder) without destroying one of the
+    command's ``inputs`` (the file itself, or an existing file inside an input folder);
+    return it.
 
     Raises :class:`~catgraph.exceptions.InvalidParameterError` naming the problem.
     """
@@ -55,6 +77,11 @@ def check_writable(path: str | os.PathLike, what: str = "output") -> Path:
     path = Path(path)
     if path.is_dir():
         raise InvalidParameterError(f"the {what} {path} is a folder; give a file name.")
+    source = _overwrites_input(path, inputs)
+    if source is not None:
+        inside = "" if Path(source).is_file() else " (a file inside that folder)"
+        raise InvalidParameterError(f"the {what} {path} would overwrite the input {source}{inside}; write it "
+                                    "elsewhere.")
     folder = path.parent
     while not folder.exists() and folder != folder.parent:
         folder = folder.parent
@@ -64,4 +91,12 @@ def check_writable(path: str | os.PathLike, what: str = "output") -> Path:
         raise InvalidParameterError(f"cannot write the {what} {path}: no permission to write in {folder}.")
     if path.exists() and not os.access(path, os.W_OK) and not os.access(folder, os.W_OK):
         raise InvalidParameterError(f"cannot write the {what} {path}: the file is read-only.")
+    if folder == path.parent:  # the folder is there: a trial file says what permissions may not (/proc, a full disk)
+        try:
+            fd, trial = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+        except OSError as exc:
+            raise InvalidParameterError(f"cannot write the {what} {path}: {exc.strerror or exc} in {folder}.") \
+                from None
+        os.close(fd)
+        os.unlink(trial)
     return path

@@ -43,6 +43,10 @@ __all__ = ["Condition", "CONDITION_KINDS", "condition_table", "segment_order"]
 
 CONDITION_KINDS = ("in-order", "shuffle", "reverse", "speed")
 
+#: The range of speed factors (``kind="speed"``): a query driven at most 100 times slower
+#: (each frame 100 times) or faster (every 100th frame).
+MIN_SPEED, MAX_SPEED = 0.01, 100.0
+
 #: frames further apart (as loaded) than this are a jump, not motion
 _MAX_STEP = 3
 
@@ -70,7 +74,8 @@ class Condition:
     segment_range : (float, float)
         Shuffle segment lengths as fractions of the query length (``kind="shuffle"``).
     factor : float
-        Speed relative to the recorded query (``kind="speed"``), in ``(0, 100]``.
+        Speed relative to the recorded query (``kind="speed"``), in ``[0.01, 100]``
+        (:data:`MIN_SPEED`, :data:`MAX_SPEED`).
     """
 
     kind: str = "in-order"
@@ -91,8 +96,10 @@ class Condition:
             object.__setattr__(self, "segment_range", (lo, hi))
         if self.kind == "speed":
             f = float(self.factor)
-            if not (math.isfinite(f) and 0.0 < f <= 100.0):
-                raise InvalidParameterError(f"the speed factor must be in (0, 100]; got {self.factor!r}.")
+            if not (math.isfinite(f) and MIN_SPEED <= f <= MAX_SPEED):
+                raise InvalidParameterError(
+                    f"the speed factor must be in [{MIN_SPEED:g}, {MAX_SPEED:g}] (at slowest each frame {1 / MIN_SPEED:g} "
+                    f"times, at fastest every {MAX_SPEED:g}th frame); got {self.factor!r}.")
             object.__setattr__(self, "factor", f)
 
     # -- construction ---------------------------------------------------------------

@@ -266,7 +266,30 @@ def _as_descriptors(x, name: str, metric: str, single: bool = False, convert: bo
             _check_finite(out, name)
         except DataError:
             raise DataError(f"{name} hold values too large for float32 (|x| > 3.4e38); rescale them.") from None
+    _check_sums_fit(out, name, metric)
     return out
+
+
+def _check_sums_fit(x: np.ndarray, name: str, metric: str, rows: int = 8192) -> None:
+    """The kernels sum a descriptor's ``d`` terms in float32: ``|x|`` (SAD) or ``x²`` (SSD,
+    cosine's products and norms). Refuse values whose sum could overflow (an infinite sum
+    would turn every difference to NaN): ``d · 2|x|_max`` resp. ``d · |x|_max²`` must stay
+    below float32's largest value."""
+    d = x.shape[1]
+    big = 0.0
+    for start in range(0, x.shape[0], rows):
+        part = x[start : start + rows]
+        big = max(big, abs(float(part.max())), abs(float(part.min())))
+    largest = float(np.finfo(np.float32).max)
+    if metric in ("ssd", "cosine"):
+        fits = big * big * d < largest
+        what = f"their squares summed over {d} values"
+    else:
+        fits = 2.0 * big * d < largest
+        what = f"their differences summed over {d} values"
+    if not fits:
+        raise DataError(f"{name} hold values up to {big:.3g}: {what} overflow float32 (3.4e38) under the "
+                        f"{metric} metric; rescale them (e.g. divide by their largest value).")
 
 
 class PreparedReference:

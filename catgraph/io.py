@@ -423,6 +423,12 @@ def _read_members(path: Path) -> dict[str, np.ndarray]:
 
 
 def _read_open_members(fh, path: Path) -> dict[str, np.ndarray]:
+    from .datasets.loaders import numpy_file_kind
+
+    kind = numpy_file_kind(fh)
+    if kind != "npz":
+        raise MapFileError(f"{path} is not a catgraph map: " + ("it holds a single array (.npy)" if kind == "npy" else
+                           "it is not a .npz archive") + "; build one with `catgraph build-map`.")
     try:
         archive = np.load(fh, allow_pickle=False)
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
@@ -514,9 +520,14 @@ def _decode(metadata: dict, arrays: dict[str, np.ndarray], path: Path) -> Catgra
         for name, info in (metadata.get("histograms") or {}).items():
             state = {k: arrays[f"histogram.{name}.{k}"] for k in info.get("arrays", [])}
             histograms[name] = _histogram_from_state(info, state, name)
-        return CatgraphMap(arrays["descriptors"], metadata["metric"], metadata["frontend"], graph,
-                           arrays.get("positions"), arrays.get("floors"), arrays.get("ids"), histograms,
-                           metadata.get("name", ""), metadata.get("meta") or {})
+        if not isinstance(metadata["frontend"], dict) or not isinstance(metadata["metric"], str):
+            raise MapFileError(f"{path} holds an inconsistent map: its front-end settings or metric are not those "
+                               "of a map (a settings table and a metric name); rebuild it with `catgraph build-map`.")
+        the_map = CatgraphMap(arrays["descriptors"], metadata["metric"], metadata["frontend"], graph,
+                              arrays.get("positions"), arrays.get("floors"), arrays.get("ids"), histograms,
+                              metadata.get("name", ""), metadata.get("meta") or {})
+        the_map.frontend_settings()  # a map whose settings make no front-end could describe no query
+        return the_map
     except MapFileError:
         raise
     except KeyError as exc:

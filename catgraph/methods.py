@@ -503,6 +503,8 @@ def make_filter(params: dict, graph, model):
 
 
 def _filter(params: dict, inputs: "MethodInputs") -> RunResult:
+    if params.get("window") is not None:  # a sequence model's window, as the matcher's own run checks it
+        check_sequence_length(params, len(inputs.differences))
     graph = inputs.graph()
     obs = observation_model(params, inputs.map.n_places, inputs.bootstrap_samples)
     loc = make_filter(params, graph, obs)

@@ -126,6 +126,7 @@ def load_results(results: Sequence[Mapping[str, Any] | str | os.PathLike]) -> li
 def _check_payload(payload: dict, source: str) -> None:
     if not isinstance(payload.get("frames"), Mapping):
         raise DataError(f"{source}: 'frames' must be an object of per-frame lists.")
+    _check_frames(payload["frames"], source)
     if payload.get("params") is not None and not isinstance(payload["params"], Mapping):
         raise DataError(f"{source}: 'params' must be an object.")
     metrics = payload.get("metrics")
@@ -135,8 +136,34 @@ def _check_payload(payload: dict, source: str) -> None:
         raise DataError(f"{source}: 'metrics' must be an object or null.")
     for key, *_ in COLUMNS:
         value = metrics.get(key)
-        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
-            raise DataError(f"{source}: metric '{key}' must be a number; got {value!r}.")
+        if value is not None and not _finite_number(value):
+            raise DataError(f"{source}: metric '{key}' must be a finite number; got {value!r}.")
+
+
+def _finite_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+#: What each per-frame list the report reads may hold (``null``: no output, or not evaluated).
+_FRAME_VALUES = (
+    ("correct", lambda v: v is None or isinstance(v, bool), "true, false or null"),
+    ("match", lambda v: v is None or (isinstance(v, int) and not isinstance(v, bool) and v >= 0),
+     "a reference index (≥ 0) or null"),
+    ("confidence", lambda v: v is None or _finite_number(v), "a finite number or null"),
+)
+
+
+def _check_frames(frames: Mapping[str, Any], source: str) -> None:
+    for key, allowed, what in _FRAME_VALUES:
+        values = frames.get(key)
+        if values is None:
+            continue
+        if not isinstance(values, list):
+            raise DataError(f"{source}: frames '{key}' must be a list, one value per query frame.")
+        bad = next((k for k, v in enumerate(values) if not allowed(v)), None)
+        if bad is not None:
+            raise DataError(f"{source}: frames '{key}' must hold {what} per frame; frame {bad} holds "
+                            f"{values[bad]!r}.")
 
 
 # ---------------------------------------------------------------------------- table

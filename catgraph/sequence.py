@@ -516,6 +516,10 @@ class SequenceResult:
 # parameters
 
 
+#: The most lengths a geometric grid may be asked for (``"all"`` gives every length).
+MAX_GRID_COUNT = 100_000
+
+
 def window_grid(l_min: int = 10, l_max: int = 500, grid: str | int | Sequence[int] = "geometric") -> np.ndarray:
     """Candidate window lengths, ascending, unique, ``(G,) int64``.
 
@@ -525,7 +529,8 @@ def window_grid(l_min: int = 10, l_max: int = 500, grid: str | int | Sequence[in
         Range of window lengths (inclusive).
     grid : "geometric", "all", int or sequence of int
         ``"geometric"``: 32 lengths spaced geometrically from ``l_min`` to ``l_max``
-        (rounded, duplicates removed); an int ``G``: ``G`` geometric lengths; ``"all"``:
+        (rounded, duplicates removed); an int ``G`` (at most :data:`MAX_GRID_COUNT`): ``G``
+        geometric lengths; ``"all"``:
         every integer in ``[l_min, l_max]``; a sequence: those lengths.
 
     Examples
@@ -545,7 +550,7 @@ def window_grid(l_min: int = 10, l_max: int = 500, grid: str | int | Sequence[in
             )
         grid = 32
     if isinstance(grid, numbers.Integral) and not isinstance(grid, bool):
-        check_scalar(grid, "grid", owner, int, 1)
+        check_scalar(grid, "grid", owner, int, 1, MAX_GRID_COUNT)
         if grid == 1 or l_min == l_max:
             return np.array([l_min] if grid == 1 else [l_min], dtype=np.int64)
         values = np.rint(np.geomspace(l_min, l_max, int(grid))).astype(np.int64)

@@ -226,7 +226,8 @@ class FrameTolerance(GroundTruth):
 
     def __post_init__(self) -> None:
         check_scalar(self.n_reference, "n_reference", "FrameTolerance", int, 1)
-        check_scalar(self.tolerance, "tolerance", "FrameTolerance", int, 0)
+        # at most 2^62, so that an index plus or minus the tolerance stays inside int64
+        check_scalar(self.tolerance, "tolerance", "FrameTolerance", int, 0, 2 ** 62)
         check_scalar(self.offset, "offset", "FrameTolerance", int)
 
     def correct(self, query_index, match):

@@ -74,6 +74,12 @@ def files(tmp_path_factory) -> dict[str, str]:
     f["truncated"] = root / "truncated.npz"
     (root / "notes.txt").write_text("not data\n")
     f["text"] = root / "notes.txt"
+    for name in ("text.npy", "text.npz"):
+        (root / name).write_text("not data\n")
+    f["text_npy"], f["text_npz"] = root / "text.npy", root / "text.npz"
+    data = (root / "ref.npy").read_bytes()
+    (root / "truncated.npy").write_bytes(data[: len(data) // 2])
+    f["truncated_npy"] = root / "truncated.npy"
 
     images = rng.integers(0, 255, (40, 16, 32)).astype(np.uint8)
     noisy = np.clip(images + rng.normal(0, 20, images.shape), 0, 255).astype(np.uint8)
@@ -87,6 +93,10 @@ def files(tmp_path_factory) -> dict[str, str]:
     f["empty_dir"] = root / "empty_dir"
     f["corrupt_img"] = write_images(root / "corrupt_img", images[:3])
     (root / "corrupt_img" / "img-00040.png").write_bytes(b"not a png")
+    f["twice_numbered_img"] = write_images(root / "twice_numbered_img", images[:3],
+                                           names=["img-00010.png", "img-10.png", "img-00020.png"])
+    f["unnumbered_img"] = write_images(root / "unnumbered_img", images[:3],
+                                       names=["img-00010.png", "img-00020.png", "cover.png"])
     f["mixed_img"] = write_images(root / "mixed_img", images[:2])
     write_images(root / "mixed_img", [np.zeros((8, 8))], names=["img-00099.png"])
 
@@ -102,6 +112,20 @@ def files(tmp_path_factory) -> dict[str, str]:
     (root / "uji" / "rag01rss.csv").write_text("100,-60,-70\n-50,100\n")
     f["uji_missing"] = root / "uji" / "none01"
     f["uji_undetected"] = write_uji(root / "uji" / "und01", np.full((30, 8), 100), crd=crd)
+
+    # inputs that a refused output must not overwrite (copies: a regression must not spoil the others)
+    np.save(root / "victim.npy", base)
+    f["victim"] = root / "victim.npy"
+    f["victim_img"] = write_images(root / "victim_img", images[:3])
+    f["victim_uji"] = write_uji(root / "uji" / "vic01", rss, crd=crd)
+    f["victim_uji_rss"] = Path(f"{f['victim_uji']}rss.csv")
+    f["uji_nan_ids"] = write_uji(root / "uji" / "nid01", rss, crd=crd, ids=np.arange(30))
+    (root / "uji" / "nid01ids.csv").write_text("0\n1\nnan\n" + "".join(f"{k}\n" for k in range(3, 30)))
+    np.save(root / "big32.npy", base * np.float32(1e30))  # finite float32; squares summed overflow
+    f["big32"] = root / "big32.npy"
+    (root / "gt_big.csv").write_text("0,100000000000000000000\n")
+    (root / "gt_outside.csv").write_text("query,reference\n0,0\n1,60\n")
+    f["gt_big"], f["gt_outside"] = root / "gt_big.csv", root / "gt_outside.csv"
 
     (root / "bad.json").write_text("{not json")
     f["bad_json"] = root / "bad.json"
@@ -128,7 +152,26 @@ def files(tmp_path_factory) -> dict[str, str]:
     with redirect_stdout(io.StringIO()), redirect_stderr(io.StringIO()):
         main(["match", str(f["ref"]), str(f["qry"]), "--tolerance", "2", "-o", str(f["valid_json"]), "--quiet"])
         main(["build-map", str(f["ref"]), "--out", str(f["map"]), "--quiet"])
+    f["map_bad_frontend"] = root / "bad_frontend.npz"
+    _with_metadata(f["map"], f["map_bad_frontend"], frontend="hello")
     return {k: str(v) for k, v in f.items()}
+
+
+def _with_metadata(source: Path, target: Path, **changes) -> None:
+    """A copy of a saved map with metadata entries changed and a valid checksum: a map that
+    passes every check of its file and is still not a map."""
+    import json
+
+    from catgraph.io import _digest, _read_members
+
+    members = _read_members(source)
+    metadata = json.loads(members["__metadata__"].tobytes().decode())
+    metadata.update(changes)
+    raw = np.frombuffer(json.dumps(metadata).encode(), dtype=np.uint8)
+    arrays = {k: v for k, v in members.items() if not k.startswith("__")}
+    version = int(members["__version__"])
+    members.update(__metadata__=raw, __sha256__=np.array(_digest(version, raw.tobytes(), arrays)))
+    np.savez(target, **members)
 
 
 @pytest.fixture
@@ -195,6 +238,9 @@ CASES = [
     E("one-path", "match", "{ref}", "--tolerance", "2", message="REFERENCE and QUERY"),
     E("map-and-two-paths", "match", "--map", "{map}", "{ref}", "{qry}", "--tolerance", "2", message="only QUERY"),
     E("reference-is-text", "match", "{text}", "{qry}", "--tolerance", "2", message="notes.txt"),
+    E("npy-is-text", "match", "{text_npy}", "{qry}", "--tolerance", "2", message="not a .npy or .npz file"),
+    E("map-is-text", "localize", "--map", "{text_npz}", "{qry}", "--tolerance", "2", message="not a .npz archive"),
+    E("npy-truncated", "match", "{truncated_npy}", "{qry}", "--tolerance", "2", message="truncated or corrupt"),
     # --- descriptor arrays
     E("npy-0d-inf", "match", "{zero_d_inf}", "{qry}", "--tolerance", "2", message="shape"),
     E("npy-0d", "match", "{ref}", "{zero_d}", "--tolerance", "2", message="shape"),
@@ -204,6 +250,7 @@ CASES = [
     E("npy-empty", "match", "{ref}", "{empty}", "--tolerance", "2", message="empty"),
     E("npy-strings", "match", "{strings}", "{qry}", "--tolerance", "2", message="numeric"),
     E("npy-pickled-objects", "match", "{object}", "{qry}", "--tolerance", "2", message="pickle"),
+    E("npy-float32-sums-overflow", "match", "{big32}", "{big32}", "--tolerance", "2", message="overflow float32"),
     E("npz-truncated", "match", "{truncated}", "{qry}", "--tolerance", "2", message="truncated.npz"),
     E("npz-unnamed-arrays", "match", "{twoarrays}", "{qry}", "--tolerance", "2", message="descriptors"),
     E("dimension-mismatch", "match", "{ref}", "{qry20}", "--tolerance", "2", message="16.*20|20.*16"),
@@ -216,6 +263,10 @@ CASES = [
     E("folder-corrupt-image", "match", "{corrupt_img}", "{qry_img}", "--tolerance", "2", message="img-00040.png"),
     E("folder-mixed-sizes", "match", "{mixed_img}", "{qry_img}", "--tolerance", "2", message="differ in size"),
     E("black-reference", "match", "{black_img}", "{qry_img}", "--tolerance", "2", message="information"),
+    W("folder-one-number-twice", "match", "{twice_numbered_img}", "{twice_numbered_img}",
+      message="the same frame number 10"),
+    W("folder-image-without-number", "match", "{unnumbered_img}", "{unnumbered_img}",
+      message="without a frame number.*cover.png"),
     W("black-query-frames", "match", "{ref_img}", "{qry_some_black}", "--tolerance", "2",
       message="5 of 40 query frames carry no information"),
     # --- UJI Wi-Fi
@@ -224,6 +275,7 @@ CASES = [
     E("uji-positive-dbm", "match", "{uji_positive}", "{uji_qry}", "--tolerance-m", "3", message="dBm"),
     OK("uji-14-digit-timestamps", "match", "{uji_ref}", "{uji_qry}", "--tolerance-m", "3"),
     W("uji-bad-timestamps", "match", "{uji_badtms}", "{uji_qry}", "--tolerance-m", "3", message="bad01tms.csv"),
+    W("uji-nan-ids", "match", "{uji_nan_ids}", "{uji_qry}", "--tolerance-m", "3", message="nid01ids.csv.*Ignoring"),
     W("uji-query-all-undetected", "match", "{uji_ref}", "{uji_undetected}", "--tolerance-m", "3",
       message="information"),
     E("uji-reference-all-undetected", "match", "{uji_undetected}", "{uji_qry}", "--tolerance-m", "3",
@@ -239,12 +291,20 @@ CASES = [
     E("tolerance-m-without-positions", "match", "{ref}", "{qry}", "--tolerance-m", "3", message="positions"),
     OK("no-ground-truth", "match", "{ref}", "{qry}"),
     E("ground-truth-file-missing", "match", "{ref}", "{qry}", "--ground-truth", "{outdir}/gt.csv", message="gt.csv"),
+    E("ground-truth-is-a-folder", "match", "{ref}", "{qry}", "--ground-truth", "{outdir}", message="is a folder"),
+    E("ground-truth-index-beyond-int64", "match", "{ref}", "{qry}", "--ground-truth", "{gt_big}",
+      message="gt_big.csv: row 1"),
+    E("ground-truth-index-outside", "match", "{ref}", "{qry}", "--ground-truth", "{gt_outside}",
+      message="gt_outside.csv: row 3, pair 1,60, lies outside"),
+    E("tolerance-beyond-int64", *M[:3], "--tolerance", "1" + "0" * 21, message="--tolerance"),
+    E("tolerance-beyond-2-62", *M[:3], "--tolerance", str(2**62 + 1), message="tolerance"),
     # --- traversal conditions
     E("shuffle-negative", *M, "--shuffle", "-1", message="seed|shuffle"),
     E("shuffle-not-int", *M, "--shuffle", "abc", message="abc"),
     E("speed-zero", *M, "--speed", "0", message="speed|factor"),
     E("speed-negative", *M, "--speed", "-2", message="speed|factor"),
     E("speed-nan", *M, "--speed", "nan", message="speed|factor|nan"),
+    E("speed-tiny", *M, "--speed", "1e-9", message=r"speed factor must be in \[0.01, 100\]"),
     E("reverse-and-shuffle", *M, "--reverse", "--shuffle", "1", message="not allowed|--reverse|--shuffle"),
     E("segment-range-inverted", *M, "--shuffle", "1", "--segment-range", "0.5:0.1", message="segment"),
     E("segment-range-alone", *M, "--segment-range", "0.02:0.2", message="--shuffle"),
@@ -275,6 +335,9 @@ CASES = [
       message="approximation"),
     E("init-frames-on-sequence", *M, "--init-frames", "20", message="--init-frames"),
     OK("match-adaptive", *M, "--window", "adaptive", "--l-min", "2", "--l-max", "20"),
+    E("grid-beyond-int64", *M, "--window", "adaptive", "--grid", "1" + "0" * 21, message="--grid"),
+    E("grid-count-huge", *M, "--window", "adaptive", "--grid", "1000000000", message="grid.*100000"),
+    E("window-beyond-int64", *M, "--window", "1" + "0" * 21, message="--window"),
     # --- localize
     E("particles-zero", *L[:5], "--particles", "0", message="particles"),
     E("particles-negative", *L[:5], "--particles", "-5", message="particles"),
@@ -285,6 +348,9 @@ CASES = [
     E("junction-radius-negative", "localize", "{refpos}", "{qrypos}", "--tolerance-m", "3", "--particles", "200",
       "--junction-radius-m", "-1", message="junction"),
     E("filter-model-unknown", *L, "--model", "oracle", message="oracle"),
+    E("filter-window-longer-than-query", *L, "--model", "sequence", "--window", "1000", message="1000.*60"),
+    E("l-max-below-l-min-in-option-terms", *M, "--window", "adaptive", "--l-min", "50", "--l-max", "10",
+      message="^catgraph: error: --l-max must be"),
     EITHER("two-frame-reference", "localize", "{two}", "{qry}", "--tolerance", "2", "--particles", "200",
            message="two|2 frames|reference"),
     E("map-and-junction-radius", "localize", "--map", "{map}", "{qry}", "--tolerance", "2", "--junction-radius-m", "5",
@@ -292,6 +358,8 @@ CASES = [
     E("map-truncated", "localize", "--map", "{truncated}", "{qry}", "--tolerance", "2", message="truncated.npz"),
     E("map-missing", "localize", "--map", "{outdir}/nomap.npz", "{qry}", "--tolerance", "2", message="nomap.npz"),
     E("map-not-a-map", "localize", "--map", "{twoarrays}", "{qry}", "--tolerance", "2", message="twoarrays.npz"),
+    E("map-front-end-not-settings", "localize", "--map", "{map_bad_frontend}", "{qry}", "--tolerance", "2",
+      message="bad_frontend.npz holds an inconsistent map"),
     OK("localize-small", *L),
     # --- compare
     E("compare-particles-zero", *C[:5], "--particles", "0", message="particles"),
@@ -303,6 +371,14 @@ CASES = [
     EITHER("output-folder-missing", *M, "-o", "{missing_dir_out}", message="no/such/dir|does not exist"),
     E("compare-output-under-a-file", *C, "-o", "{blocked}", message="afile"),
     E("localize-output-under-a-file", *L, "-o", "{blocked}", message="afile"),
+    E("output-is-the-query", "match", "{ref}", "{victim}", "--tolerance", "2", "-o", "{victim}",
+      message="would overwrite the input"),
+    E("output-is-a-file-of-a-uji-set", "match", "{victim_uji}", "{uji_qry}", "--tolerance-m", "3", "-o",
+      "{victim_uji_rss}", message="would overwrite the input"),
+    E("build-map-over-a-reference-frame", "build-map", "{victim_img}", "--out", "{victim_img}/img-00010.png",
+      message="would overwrite the input.*inside that folder"),
+    E("localize-output-is-the-map", "localize", "--map", "{map}", "{qry}", "--tolerance", "2", "-o", "{map}",
+      message="would overwrite the input"),
     # --- build-map
     E("build-map-missing-reference", "build-map", "{outdir}/nope", "--out", "{existing_map}", message="nope"),
     E("build-map-patch-negative", "build-map", "{ref_img}", "--out", "{existing_map}", "--patch", "-1",
@@ -402,6 +478,49 @@ def test_black_query_frames_get_no_match(fresh):
     frames = json.loads(target.read_text())["frames"]
     assert all(frames["match"][k] is None and frames["confidence"][k] is None for k in range(5, 10))
     assert all(frames["match"][k] is not None for k in range(10, 40))
+
+
+def test_sequence_and_histogram_frames_without_information_get_no_match(fresh):
+    """A blank frame has no match of its own under every recogniser (not the first place, which
+    the tied scores, or the map's hub offsets, used to give it), and teaches a histogram nothing."""
+    import json
+
+    target = Path(fresh["outdir"]) / "blank.json"
+    for extra in (["--window", "5"], ["--window", "adaptive"], ["--model", "histogram", "--init-frames", "5"]):
+        code, _, stderr = run_cli(["match", fresh["ref"], fresh["zeros"], "--tolerance", "2", "-o", str(target),
+                                   *extra])
+        assert code == 0, stderr
+        frames = json.loads(target.read_text())["frames"]
+        assert set(frames["match"]) == {None} and set(frames["confidence"]) == {None}, extra
+
+
+def test_a_refused_output_leaves_the_inputs_as_they_were(files):
+    victims = [Path(files[k]) for k in ("victim", "victim_uji_rss")] + sorted(Path(files["victim_img"]).iterdir())
+    before = [v.read_bytes() for v in victims]
+    for case in CASES:
+        if "overwrite the input" in case.message or case.id == "localize-output-is-the-map":
+            code, _, _ = run_cli(_argv(case, files))
+            assert code == 1, case.id
+    assert [v.read_bytes() for v in victims] == before
+    assert Path(files["map"]).read_bytes()[:2] == b"PK"  # still a map
+
+
+def test_sixteen_bit_frames_are_brought_to_eight_bits(tmp_path):
+    from PIL import Image
+
+    from catgraph.datasets import load_traverse
+
+    rng = np.random.default_rng(1)
+    deep = rng.integers(0, 65536, (3, 8, 12)).astype(np.uint16)
+    deep[0, 0, :3] = (0, 65535, 257 * 100 + 129)  # the ends of the scale, and a value that rounds up
+    (tmp_path / "deep").mkdir()
+    for k, frame in enumerate(deep):
+        Image.fromarray(frame).save(tmp_path / "deep" / f"f-{k}.png")
+    assert Image.open(tmp_path / "deep" / "f-0.png").mode.startswith("I")
+    frames = load_traverse(tmp_path / "deep").frames
+    assert frames.dtype == np.uint8
+    np.testing.assert_array_equal(frames, np.rint(deep / 257.0).astype(np.uint8))
+    assert tuple(frames[0, 0, :3]) == (0, 255, 101)
 
 
 def test_quiet_still_prints_the_results(fresh):

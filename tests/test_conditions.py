@@ -53,11 +53,12 @@ def test_odometry_is_route_distance():
 
 
 def test_parse_round_trip_and_errors():
-    for text in ("in-order", "reverse", "speed:2", "speed:0.5", "shuffle:3", "shuffle:1:0.005:0.03"):
+    for text in ("in-order", "reverse", "speed:2", "speed:0.5", "speed:0.01", "speed:100", "shuffle:3",
+                 "shuffle:1:0.005:0.03"):
         c = Condition.parse(text)
         assert Condition.from_dict(c.as_dict()) == c
-    for bad in ("sideways", "speed:0", "speed:-1", "speed:x", "shuffle", "shuffle:-1", "shuffle:1:0.3:0.1",
-                "shuffle:1:0:0.1", "reverse:2"):
+    for bad in ("sideways", "speed:0", "speed:-1", "speed:x", "speed:1e-9", "speed:0.009", "speed:101", "speed:inf",
+                "shuffle", "shuffle:-1", "shuffle:1:0.3:0.1", "shuffle:1:0:0.1", "reverse:2"):
         with pytest.raises(InvalidParameterError):
             Condition.parse(bad)
 

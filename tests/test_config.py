@@ -152,7 +152,7 @@ def test_method_and_run_errors(tmp_path, extra, needle):
     ('name = "d"\nmap = "m.npz"\nquery = "q"\njunction_radius_m = 2.0', "'junction_radius_m' with a saved 'map'"),
     ('name = "d"\nreference = "r"\nmap = "m.npz"\nquery = "q"', "exactly one of 'reference'"),
     ('name = "d"\nreference = "r"\nquery = "q"\nconditions = ["sideways"]', "cannot read condition 'sideways'"),
-    ('name = "d"\nreference = "r"\nquery = "q"\nconditions = ["speed:0"]', "speed factor must be in (0, 100]"),
+    ('name = "d"\nreference = "r"\nquery = "q"\nconditions = ["speed:0"]', "speed factor must be in [0.01, 100]"),
     ('name = "d"\nreference = "r"\nquery = "q"\nconditions = ["reverse", "reverse"]', "lists a condition twice"),
     ('name = "d"\nreference = "r"\nquery = "q"\nconditions = ["reverse"]\nshuffle = 0', "both 'shuffle' and"),
     ('name = "d"\nreference = "r"\nquery = "q"\ntolerance = 1.5', "'tolerance' must be an int ≥ 0 (frames), got 1.5"),

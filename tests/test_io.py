@@ -162,7 +162,7 @@ def test_not_a_map(tmp_path):
     with pytest.raises(MapFileError, match="single array"):
         load_map(tmp_path / "single.npy")
     (tmp_path / "text.npz").write_text("hello")
-    with pytest.raises(MapFileError, match="not a readable map"):
+    with pytest.raises(MapFileError, match="not a catgraph map: it is not a .npz archive"):
         load_map(tmp_path / "text.npz")
 
 

@@ -141,8 +141,18 @@ def test_unreadable_inputs_raise_typed_errors(tmp_path, payloads):
         load_results([tmp_path / "other.json"])
     with pytest.raises(DataError, match="folder"):
         load_results([tmp_path])
-    with pytest.raises(DataError, match="must be a number"):
+    with pytest.raises(DataError, match="must be a finite number"):
         load_results([dict(payloads[0], metrics=dict(payloads[0]["metrics"], auc="high"))])
+    with pytest.raises(DataError, match="metric 'auc' must be a finite number; got nan"):
+        load_results([dict(payloads[0], metrics=dict(payloads[0]["metrics"], auc=float("nan")))])
+    frames = payloads[0]["frames"]
+    n = len(frames["correct"])
+    with pytest.raises(DataError, match="frames 'correct' must hold true, false or null per frame; frame 1 holds 'yes'"):
+        load_results([dict(payloads[0], frames=dict(frames, correct=[True, "yes"] + [True] * (n - 2)))])
+    with pytest.raises(DataError, match="frames 'match' must hold a reference index"):
+        load_results([dict(payloads[0], frames=dict(frames, match=[-3] * n))])
+    with pytest.raises(DataError, match="frames 'confidence' must hold a finite number or null"):
+        load_results([dict(payloads[0], frames=dict(frames, confidence=[float("inf")] * n))])
     (tmp_path / "file").write_text("")
     with pytest.raises(InvalidParameterError, match="is a file"):
         write_report(payloads, tmp_path / "file")

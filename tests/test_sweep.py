@@ -164,3 +164,21 @@ def test_bench_list_and_errors(tiny_config, tmp_path, capsys):
     assert "1 of 10 runs failed" in err and "gone" in err
     assert len([p for p in out.glob("*.json") if p.name != "summary.json"]) == 9
     assert "gone" in (out / "summary.md").read_text()
+
+
+def test_bench_into_an_earlier_output_keeps_no_stale_result(tiny_config, tmp_path, capsys):
+    """A run that fails now leaves no earlier bench's result under its name, and a bench with
+    no result leaves no earlier report, so the folder says only what this bench found."""
+    from catgraph.cli.main import main
+
+    out = tmp_path / "out"
+    assert main(["bench", str(tiny_config), "--out", str(out), "--processes", "1", "-q"]) == 0
+    assert (out / "index.html").exists() and (out / "a__sf__exclusion=1__in-order.json").exists()
+    gone = tmp_path / "tiny_gone.toml"  # the same runs, whose references have gone
+    gone.write_text(CONFIG.replace("/ref.npz", "/gone.npz"))
+    assert main(["bench", str(gone), "--out", str(out), "--processes", "1", "-q"]) == 1
+    assert "9 of 9 runs failed" in capsys.readouterr().err
+    rows = json.loads((out / "summary.json").read_text())["runs"]
+    assert len(rows) == 9 and all("error" in r for r in rows)
+    assert [p.name for p in out.glob("*.json")] == ["summary.json"]
+    assert not (out / "index.html").exists() and not (out / "results.md").exists()

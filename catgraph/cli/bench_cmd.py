@@ -84,12 +84,14 @@ def cmd_bench(args) -> int:
                         progress=not args.quiet, errors="record")
     payloads, failed, rows = [], [], []
     for spec, result in zip(config.specs, results):
+        file = f"{run_file_name(spec['name'])}.json"
         if "error" in result:
             failed.append(result)
             rows.append({"name": spec["name"], "error": result["error"], "spec": spec})
+            # an earlier bench's result under this run's name is not this run's: it goes
+            (out / file).unlink(missing_ok=True)
             continue
         result = dict(result, name=spec["name"], spec=spec)
-        file = f"{run_file_name(spec['name'])}.json"
         write_json_atomic(out / file, result)
         payloads.append(result)
         rows.append({"name": spec["name"], "file": file, "metrics": result["metrics"],
@@ -106,6 +108,9 @@ def cmd_bench(args) -> int:
             write_report = None
         if write_report is not None:
             report = write_report(payloads, out, title=config.name)
+    else:  # no run to report: an earlier bench's report would read as this one's
+        for stale in ("index.html", "results.md"):
+            (out / stale).unlink(missing_ok=True)
     if not args.quiet:
         print_metrics_table([(p["name"], p["metrics"], p.get("seconds", float("nan"))) for p in payloads])
         print(f"wrote {len(payloads)} results, summary.md" + (f" and {report.name}" if report else "") + f" to {out}")

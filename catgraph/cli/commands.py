@@ -37,6 +37,18 @@ def load_command_modules() -> None:
 
 
 # ---------------------------------------------------------------------------- option types
+#: The largest magnitude an integer option takes (int64, what the kernels index with).
+_INT_LIMIT = 2 ** 63 - 1
+
+
+def _int(text: str) -> int:
+    """An integer option's value; one that no int64 holds is refused here, where its option is named."""
+    value = int(text)
+    if abs(value) > _INT_LIMIT:
+        raise argparse.ArgumentTypeError(f"expected an integer of at most {_INT_LIMIT} in magnitude, got {text!r}")
+    return value
+
+
 def _size(text: str) -> tuple[int, int]:
     try:
         w, h = text.lower().split("x")
@@ -52,7 +64,7 @@ def _window(text: str):
     if text == "adaptive":
         return text
     try:
-        return int(text)
+        return _int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number of frames or 'adaptive', got {text!r}") from None
 
@@ -61,7 +73,7 @@ def _grid(text: str):
     if text in ("geometric", "all"):
         return text
     try:
-        values = [int(v) for v in text.split(",")]
+        values = [_int(v) for v in text.split(",")]
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected 'geometric', 'all', a count or a list such as 10,20,50; "
                                          f"got {text!r}") from None
@@ -71,7 +83,7 @@ def _grid(text: str):
 def _number(kind):
     def parse(text: str):
         try:
-            return kind(text)
+            return _int(text) if kind is int else kind(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected {'an integer' if kind is int else 'a number'}, "
                                              f"got {text!r}") from None
@@ -99,8 +111,12 @@ def _floats(text: str) -> list[float]:
 _TYPES = {"int": _number(int), "float": _number(float), "window": _window, "grid": _grid, "floats": _floats}
 
 
-def add_method_options(p: argparse.ArgumentParser, methods: tuple[str, ...], skip: tuple[str, ...] = ()) -> None:
-    """One option per parameter of ``methods`` (each once), from the registry's declarations."""
+def add_method_options(p: argparse.ArgumentParser, methods: tuple[str, ...], skip: tuple[str, ...] = (),
+                       shown_defaults: dict[str, str] | None = None) -> None:
+    """One option per parameter of ``methods`` (each once), from the registry's declarations;
+    ``shown_defaults``: the default a command's help gives instead of the declared one, where
+    the command's own choice of method decides it (``match``: no ``--window``, one frame)."""
+    shown_defaults = shown_defaults or {}
     from ..methods import METHODS
 
     group = p.add_argument_group("method options")
@@ -110,7 +126,8 @@ def add_method_options(p: argparse.ArgumentParser, methods: tuple[str, ...], ski
             if param.name in seen:
                 continue
             seen.add(param.name)
-            help_text = param.help + ("" if param.default is None else f" (default {param.default})")
+            default = shown_defaults.get(param.name, param.default)
+            help_text = param.help + ("" if default is None else f" (default {default})")
             kwargs = {"dest": f"param_{param.name}", "default": argparse.SUPPRESS, "help": help_text}
             if param.kind == "bool":
                 group.add_argument(param.option, action=argparse.BooleanOptionalAction, **kwargs)
@@ -231,8 +248,11 @@ def experiment_from(args, method: str, params: dict):
                                     "it is built (catgraph build-map --junction-radius-m).")
     if args.output is not None:
         from .._atomic import check_writable
+        from ..datasets.loaders import source_paths
 
-        check_writable(args.output, "output file")
+        read = [path for source in args.inputs for path in source_paths(source)]
+        read += [path for path in (args.map, args.ground_truth) if path is not None and Path(path).is_file()]
+        check_writable(args.output, "output file", inputs=read)
     return Experiment(query=args.inputs[-1], method=method, params=params,
                       reference=None if args.map is not None else args.inputs[0], map=args.map,
                       tolerance=args.tolerance, tolerance_m=args.tolerance_m, ground_truth=args.ground_truth,
@@ -302,7 +322,7 @@ def register_match(sub) -> None:
     add_common_inputs(p)
     p.add_argument("--model", choices=("sequence", "histogram"), default="sequence",
                    help="'sequence' (SeqSLAM; --window 1 = single frame) or 'histogram' (P(d|L), P(d|¬L) model)")
-    add_method_options(p, ("sequence", "single-frame", "histogram"))
+    add_method_options(p, ("sequence", "single-frame", "histogram"), shown_defaults={"window": "1: single frame"})
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="run on a Dask cluster (tcp://host:8786), the map sharded over its workers: sequence matching; "
                         "needs pip install \"catgraph[dask]\"")

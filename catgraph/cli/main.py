@@ -53,6 +53,23 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     print(f"catgraph: warning: {prefix}{text}", file=sys.stderr)
 
 
+#: The commands whose method parameters are command-line options (``bench`` takes them from
+#: a configuration, where they keep their names).
+_FLAG_COMMANDS = ("match", "localize", "compare")
+
+
+def _in_option_terms(message: str) -> str:
+    """An error about a method parameter (``The 'l_max' parameter of match_sequences …``) in
+    the terms of the command line (``--l-max …``), from the method registry's options."""
+    import re
+
+    from ..methods import METHODS
+
+    options = {param.name: param.option for method in METHODS.values() for param in method.params}
+    return re.sub(r"The '(\w+)' parameter of [\w.' ]+? must",
+                  lambda m: f"{options[m.group(1)]} must" if m.group(1) in options else m.group(0), message)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the exit code."""
     parser = build_parser()
@@ -67,7 +84,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             warnings.showwarning = _show_warning
             return int(args.func(args) or 0)
     except CatgraphError as exc:
-        print(f"catgraph: error: {exc}", file=sys.stderr)
+        message = _in_option_terms(str(exc)) if args.command in _FLAG_COMMANDS else str(exc)
+        print(f"catgraph: error: {message}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("catgraph: interrupted", file=sys.stderr)

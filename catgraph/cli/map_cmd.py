@@ -43,13 +43,14 @@ def cmd_build_map(args) -> int:
     from ..pipeline import FrontEnd
 
     from .._atomic import check_writable
+    from ..datasets.loaders import source_paths
 
     if args.junction_radius_m is not None and args.no_graph:
         raise InvalidParameterError("--junction-radius-m adds edges to the place graph; drop --no-graph.")
     if args.junction_radius_m is not None and not 0 < args.junction_radius_m < float("inf"):
         raise InvalidParameterError(f"--junction-radius-m must be > 0 metres; got {args.junction_radius_m}.")
     frontend = FrontEnd(size=args.size, patch=args.patch, metric=args.metric)
-    check_writable(args.out, "map file")
+    check_writable(args.out, "map file", inputs=source_paths(args.reference))
     reference = load_input(args.reference, "reference")
     if args.junction_radius_m is not None and reference.positions is None:
         raise InvalidParameterError("--junction-radius-m joins places by position, but the reference has no "

@@ -40,7 +40,7 @@ from ..traverse import ExplicitGroundTruth
 __all__ = ["load_ground_truth"]
 
 
-def _pairs_from_csv(path: Path) -> np.ndarray:
+def _pairs_from_csv(path: Path, n_query: int, n_reference: int) -> np.ndarray:
     rows = []
     try:
         with path.open(newline="", encoding="utf-8") as fh:
@@ -58,6 +58,10 @@ def _pairs_from_csv(path: Path) -> np.ndarray:
                 if len(values) != 2:
                     raise DataError(f"{path}: row {k + 1} has {len(values)} values; each row is one "
                                     "'query,reference' pair.")
+                if not (0 <= values[0] < n_query and 0 <= values[1] < n_reference):
+                    raise DataError(f"{path}: row {k + 1}, pair {values[0]},{values[1]}, lies outside the "
+                                    f"{n_query} query × {n_reference} reference frames as loaded (indices from "
+                                    "0); give 0-based indices of this query and reference.")
                 rows.append(values)
     except UnicodeDecodeError:
         raise DataError(f"{path} is not a text file of 'query,reference' pairs.") from None
@@ -101,12 +105,15 @@ def load_ground_truth(path: str | Path, n_query: int, n_reference: int) -> Expli
     ExplicitGroundTruth
     """
     path = Path(path)
+    if path.is_dir():
+        raise DataError(f"ground-truth file {path} is a folder; give a .csv of query,reference pairs or a "
+                        ".npy/.npz matrix.")
     if not path.is_file():
         raise DataNotFoundError(f"ground-truth file {path} does not exist; give a .csv of query,reference pairs "
                                 "or a .npy/.npz matrix.")
     suffix = path.suffix.lower()
     if suffix in (".csv", ".txt"):
-        return ExplicitGroundTruth.from_pairs(_pairs_from_csv(path), n_query, n_reference)
+        return ExplicitGroundTruth.from_pairs(_pairs_from_csv(path, n_query, n_reference), n_query, n_reference)
     if suffix not in (".npy", ".npz"):
         raise DataError(f"{path}: a ground-truth file is a .csv of query,reference pairs or a .npy/.npz matrix.")
     m = _matrix(path)

@@ -34,9 +34,12 @@ import numpy as np
 from ..exceptions import CatgraphWarning, DataError, DataNotFoundError, InvalidParameterError
 from ..traverse import Traverse
 
-__all__ = ["IMAGE_SUFFIXES", "load_image_folder", "load_uji", "load_array", "load_traverse"]
+__all__ = ["IMAGE_SUFFIXES", "load_image_folder", "load_uji", "load_array", "load_traverse", "source_paths",
+           "uji_files"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+#: The files of a UJI Wi-Fi set, ``PREFIX + part + ".csv"``.
+UJI_PARTS = ("rss", "crd", "tms", "ids")
 _NUMBER = re.compile(r"(\d+)")
 
 
@@ -62,6 +65,8 @@ def _as_path(source, owner: str) -> Path:
 
 def load_image_folder(path: str | Path, progress: bool = False) -> Traverse:
     """Load every PNG/JPG image of a folder, sorted by the number in the file name.
+
+    16-bit greyscale frames are brought to the 8-bit scale (``round(v / 257)``).
 
     Returns
     -------
@@ -90,7 +95,10 @@ def load_image_folder(path: str | Path, progress: bool = False) -> Traverse:
         try:
             with Image.open(file) as img:
                 img.load()
-                mode = "L" if img.mode in ("L", "I", "I;16", "1", "P") and _is_grey(img) else "RGB"
+                if img.mode == "I" or img.mode.startswith("I;16"):
+                    arrays.append(_eight_bits(np.asarray(img)))
+                    continue
+                mode = "L" if img.mode in ("L", "1", "P") and _is_grey(img) else "RGB"
                 arrays.append(np.asarray(img.convert(mode)))
         except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
             raise DataError(f"cannot read image {file}: {exc}. Remove or replace the corrupt file.") from None
@@ -108,9 +116,38 @@ def load_image_folder(path: str | Path, progress: bool = False) -> Traverse:
     if frames.ndim == 4 and np.array_equal(frames[..., 0], frames[..., 1]) and np.array_equal(frames[..., 1], frames[..., 2]):
         frames = np.ascontiguousarray(frames[..., 0])  # grey stored as RGB
     numbers = [_NUMBER.findall(f.stem) for f in files]
+    _warn_ambiguous_order(folder, files, numbers)
     ids = np.array([int(n[-1]) if n else k for k, n in enumerate(numbers)], dtype=np.int64)
     return Traverse(frames, ids=ids, name=folder.name, meta={"kind": "images", "source": str(folder),
                                                               "files": [f.name for f in files]})
+
+
+def _warn_ambiguous_order(folder: Path, files: list[Path], numbers: list[list[str]]) -> None:
+    """Frames are ordered by the last number in their names: say so where that order is a
+    guess (two files with one number, or files without a number beside numbered ones)."""
+    seen: dict[int, str] = {}
+    for file, found in zip(files, numbers):
+        if not found:
+            continue
+        number = int(found[-1])
+        if number in seen:
+            warnings.warn(f"{folder}: {seen[number]} and {file.name} carry the same frame number {number}; their "
+                          "order is by name. Rename one if they are not the same frame.", CatgraphWarning, stacklevel=3)
+            break
+        seen[number] = file.name
+    unnumbered = [file.name for file, found in zip(files, numbers) if not found]
+    if unnumbered and len(unnumbered) < len(files):
+        warnings.warn(f"{folder}: {len(unnumbered)} image(s) without a frame number in the name (first: "
+                      f"{unnumbered[0]}) are loaded after the numbered frames; move them out if they are not frames.",
+                      CatgraphWarning, stacklevel=3)
+
+
+def _eight_bits(grey: np.ndarray) -> np.ndarray:
+    """A 16-bit greyscale frame (Pillow's ``I;16`` modes, or ``I`` as 16-bit PNGs open in
+    some versions) on the 8-bit scale of every other frame: ``round(v / 257)``, so 65535 is
+    255 (Pillow's own ``convert("L")`` clips every value above 255 to white)."""
+    values = np.clip(grey.astype(np.float64), 0.0, 65535.0)
+    return np.rint(values / 257.0).astype(np.uint8)
 
 
 def _is_grey(img) -> bool:
@@ -154,7 +191,7 @@ def load_uji(prefix: str | Path) -> Traverse:
         ``meta = {"kind": "wifi", ...}``.
     """
     prefix = _as_path(prefix, "load_uji")
-    rss_file = Path(f"{prefix}rss.csv")
+    rss_file, crd_file, tms_file, ids_file = uji_files(prefix).values()
     if not rss_file.exists():
         raise DataNotFoundError(
             f"no UJI Wi-Fi set at {prefix}: {rss_file.name} not found in {rss_file.parent}. "
@@ -163,7 +200,6 @@ def load_uji(prefix: str | Path) -> Traverse:
     rss = _read_csv(rss_file, "RSS")
     n = rss.shape[0]
     kwargs: dict = {}
-    crd_file = Path(f"{prefix}crd.csv")
     if crd_file.exists():
         crd = _read_csv(crd_file, "coordinate (x, y, floor)", columns=3)
         _check_rows(crd, n, crd_file)
@@ -171,18 +207,39 @@ def load_uji(prefix: str | Path) -> Traverse:
             raise DataError(f"{crd_file} holds NaN, infinite or out-of-range coordinates; fix or drop those rows.")
         kwargs["positions"] = crd[:, :2]
         kwargs["floors"] = np.rint(crd[:, 2]).astype(np.int64)
-    tms_file = Path(f"{prefix}tms.csv")
     if tms_file.exists():
         seconds = _optional_metadata(lambda: _uji_seconds(_read_stamps(tms_file), tms_file), n, tms_file)
         if seconds is not None:
             kwargs["timestamps"] = seconds
-    ids_file = Path(f"{prefix}ids.csv")
     if ids_file.exists():
-        ids = _optional_metadata(lambda: _read_csv(ids_file, "id", columns=1)[:, 0], n, ids_file)
+        ids = _optional_metadata(lambda: _read_ids(ids_file), n, ids_file)
         if ids is not None:
-            kwargs["ids"] = ids.astype(np.int64)
+            kwargs["ids"] = ids
     return Traverse(rss, name=prefix.name, meta={"kind": "wifi", "source": str(prefix), "not_detected": 100.0},
                     **kwargs)
+
+
+def uji_files(prefix: str | Path) -> dict[str, Path]:
+    """The files of the UJI Wi-Fi set at ``prefix`` (whether or not they exist), by part."""
+    return {part: Path(f"{prefix}{part}.csv") for part in UJI_PARTS}
+
+
+def source_paths(source: str | Path) -> list[Path]:
+    """The existing files and folders that :func:`load_traverse` reads for ``source`` (the
+    path itself, or the files of a UJI prefix); none for a name that is not a path
+    (``synthetic:SEED``). What a command that writes must never overwrite."""
+    path = Path(source)
+    if path.exists():
+        return [path]
+    return [file for file in uji_files(path).values() if file.exists()]
+
+
+def _read_ids(file: Path) -> np.ndarray:
+    """A UJI ``ids`` column as int64; whole numbers only."""
+    values = _read_csv(file, "id", columns=1)[:, 0]
+    if not (np.all(np.isfinite(values)) and np.all(values == np.rint(values)) and np.all(np.abs(values) < 2**62)):
+        raise DataError(f"{file} holds ids that are not whole numbers (NaN, fractions or out of range).")
+    return values.astype(np.int64)
 
 
 def _check_rows(values: np.ndarray, n: int, file: Path) -> None:
@@ -260,11 +317,28 @@ def load_array(path: str | Path) -> Traverse:
     return Traverse(frames, name=path.stem, meta={"kind": "descriptors", "source": str(path)}, **fields)
 
 
+def numpy_file_kind(fh) -> str | None:
+    """``"npy"`` or ``"npz"`` by the first bytes of an open binary file (left at its start),
+    ``None`` for anything else (which numpy would try to unpickle)."""
+    head = fh.read(6)
+    fh.seek(0)
+    if head.startswith(b"\x93NUMPY"):
+        return "npy"
+    if head.startswith((b"PK\x03\x04", b"PK\x05\x06")):
+        return "npz"
+    return None
+
+
 def _read_arrays(fh, path: Path) -> tuple[np.ndarray, dict, str | None]:
     """``(frames, optional fields, name of the frames array)`` from an open .npy/.npz file."""
+    if numpy_file_kind(fh) is None:
+        raise DataError(f"{path} is not a .npy or .npz file (it does not begin as one); save descriptors with "
+                        "numpy.save or numpy.savez.")
     try:
         loaded = np.load(fh, allow_pickle=False)
     except ValueError as exc:
+        if "pickle" not in str(exc).lower():
+            raise DataError(f"{path} is truncated or corrupt ({exc}); write the file again.") from None
         raise DataError(f"{path} cannot be loaded without pickle ({exc}); save plain numeric arrays.") from None
     except (OSError, zipfile.BadZipFile, EOFError) as exc:
         raise DataError(f"{path} is not a readable .npy/.npz file: {exc}") from None
@@ -297,7 +371,7 @@ def load_traverse(source: str | Path, progress: bool = False) -> Traverse:
         return load_array(path)
     if path.is_dir():
         return load_image_folder(path, progress=progress)
-    if Path(f"{path}rss.csv").exists():
+    if uji_files(path)["rss"].exists():
         return load_uji(path)
     if path.exists():
         raise DataError(f"{path} is not a folder of images, a UJI prefix or a .npy/.npz file.")
