@@ -160,7 +160,7 @@ def test_filter_options_reach_the_filter_from_the_cli_and_a_sweep(tmp_path):
     (["localize", "QRY", "--map", "MAP", "--junction-radius-m", "3"], "--junction-radius-m does not apply"),
     (["localize", "REF", "QRY", "--junction-radius-m", "3"], "the reference has no positions"),
     (["match", "REF", "QRY", "--segment-range", "0.1:0.2"], "add --shuffle SEED"),
-    (["match", "REF", "QRY", "--speed", "0"], "speed factor must be in (0, 100]"),
+    (["match", "REF", "QRY", "--speed", "0"], "speed factor must be in [0.01, 100]"),
     (["match", "REF", "QRY", "--shuffle", "1", "--segment-range", "0.3:0.1"], "0 < MIN ≤ MAX ≤ 1"),
     (["match", "REF", "QRY", "--reverse", "--speed", "2"], "not allowed with argument"),
     (["match", "REF", "QRY", "--ground-truth", "NOPE.csv"], "does not exist"),

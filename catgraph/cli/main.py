@@ -74,7 +74,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the exit code."""
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args, extra = parser.parse_known_args(argv)
+        # ``match REFERENCE --window 5 QUERY``: argparse ends the paths at the first option;
+        # the paths after it are the same paths
+        if extra and hasattr(args, "inputs") and not any(a.startswith("-") for a in extra):
+            args.inputs = [*args.inputs, *extra]
+        elif extra:
+            parser.error(f"unrecognized arguments: {' '.join(extra)}")
     except _UsageError as exc:
         print(f"catgraph: error: {exc}", file=sys.stderr)
         return 1
