@@ -158,6 +158,9 @@ class PlaceGraph:
         if kinds is None:
             kd = np.zeros(n_edges, dtype=np.int8)
         else:
+            names = [k for k in kinds if isinstance(k, str) and k not in EDGE_KINDS]
+            if names:
+                raise DataError(f"edge kind {names[0]!r} is not one of {EDGE_KINDS}.")
             kd = np.array([EDGE_KINDS.index(k) if isinstance(k, str) else int(k) for k in kinds], dtype=np.int8)
             if len(kd) != n_edges or (n_edges and (kd.min() < 0 or kd.max() >= len(EDGE_KINDS))):
                 raise DataError(f"edge kinds must be one per edge, each one of {EDGE_KINDS}.")
@@ -189,6 +192,8 @@ class PlaceGraph:
             pos = check_array(positions, "place positions", ndim=2)
             if len(pos) != n_places:
                 raise DataError(f"{len(pos)} positions given for {n_places} places; give one per place.")
+            if pos.shape[1] not in (2, 3):
+                raise DataError(f"place positions have {pos.shape[1]} coordinates; give (x, y) or (x, y, z) per place.")
         if route_distance is None:
             rd = np.arange(n_places, dtype=np.float64) * scale
         else:
@@ -201,6 +206,7 @@ class PlaceGraph:
     def chain(cls, n_places: int, bidirectional: bool = True, spacing: float = 1.0) -> "PlaceGraph":
         """A plain route ``0 → 1 → … → N-1`` with edges of length ``spacing``."""
         check_scalar(n_places, "n_places", "PlaceGraph.chain", int, 1)
+        check_scalar(spacing, "spacing", "PlaceGraph.chain", float, 0.0, low_inclusive=False)
         i = np.arange(n_places - 1)
         edges = [np.stack([i, i + 1], 1)]
         kinds = [np.full(len(i), _CHAIN)]

@@ -1288,6 +1288,9 @@ class GridLocalizer:
         self.n_steps_ = 0
         self.converged_ = self.converged_frames == 0
         self._held = 0
+        from .observation import claim_model
+
+        claim_model(self.model, self)
         self.model.reset()
         rd = np.asarray(g.route_distance, dtype=np.float64)
         # the confidence neighbourhood by route distance (a slice where the route is monotone)
@@ -1691,7 +1694,9 @@ class GridLocalizer:
             odometry = check_array(odometry, "odometry", ndim=1)
             if len(odometry) != n:
                 raise ShapeMismatchError(f"odometry has {len(odometry)} entries for {n} query frames; give one per frame.")
-        qi = np.arange(n) if query_index is None else np.asarray(query_index, dtype=np.int64)
+        from .localizer import check_query_index
+
+        qi = np.arange(n) if query_index is None else check_query_index(query_index, n)
         if d.shape[1] != self.graph.n_places:
             raise ShapeMismatchError(
                 f"the difference matrix has {d.shape[1]} places but the graph has {self.graph.n_places}; "

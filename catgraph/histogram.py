@@ -43,7 +43,9 @@ def _smallest_exponent(lo: float, hi: float, n_bins: int, start: int) -> int:
     """
     e = max(start, math.frexp(max(abs(lo), abs(hi)))[1] - 60)
     span = hi - lo
-    if span / n_bins > 0:
+    if not math.isfinite(span):  # values near ±float max: the span in halves (the same exponent)
+        e = max(e, math.floor(math.log2((hi / 2 - lo / 2) / n_bins)) + 1)
+    elif span / n_bins > 0:
         e = max(e, math.floor(math.log2(span / n_bins)))
     while _scaled_floor(hi, e) - _scaled_floor(lo, e) > n_bins - 1:
         e += 1
@@ -201,7 +203,8 @@ class HistogramLikelihood:
     def _update_edges(self) -> None:
         if self.range is None:
             m, e = self.bin_offset_, self.bin_exponent_
-            self.bin_edges_ = np.ldexp(np.arange(m, m + self.n_bins + 1, dtype=np.float64), e)
+            with np.errstate(over="ignore"):  # samples near ±float max: an edge beyond it is ±inf
+                self.bin_edges_ = np.ldexp(np.arange(m, m + self.n_bins + 1, dtype=np.float64), e)
         else:
             self.bin_edges_ = np.linspace(float(self.range[0]), float(self.range[1]), self.n_bins + 1)
 
@@ -434,6 +437,9 @@ class HistogramLikelihood:
                 )
             if np.isnan(prior).any() or np.isposinf(prior).any():
                 raise DataError("log_prior contains NaN or +inf; give finite log-probabilities (−inf allowed).")
+            if np.isneginf(prior).all(axis=-1).any():
+                raise DataError("log_prior gives no place any mass (every entry −inf in a row); give at least one "
+                                "finite log-probability per row.")
             prior = prior - logsumexp(prior, axis=-1, keepdims=True)
         log_w = log_w + prior
         if new_place_prior:

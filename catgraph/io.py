@@ -141,9 +141,16 @@ class CatgraphMap:
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        from .differences import METRICS, _check_finite
+
         d = np.asarray(self.descriptors)
         if d.ndim != 2:
             raise DataError(f"map descriptors must have shape (N, D), one row per place; got shape {d.shape}.")
+        if d.dtype.kind not in "biuf":
+            raise DataError(f"map descriptors must be numeric or boolean; got dtype {d.dtype}.")
+        _check_finite(d, "map descriptors")
+        if self.metric not in METRICS:
+            raise DataError(f"map metric {self.metric!r} is not one of {METRICS}.")
         object.__setattr__(self, "descriptors", d)
         n = d.shape[0]
         for key in ("positions", "floors", "ids"):
@@ -206,8 +213,13 @@ def build_map(reference: "Traverse", frontend: "FrontEnd | None" = None, *, junc
     """
     from .pipeline import FrontEnd, _kind, describe
 
+    from .exceptions import InvalidParameterError
     from .frontends import check_information
+    from .traverse import Traverse
 
+    if not isinstance(reference, Traverse):
+        raise InvalidParameterError(f"build_map describes a Traverse (catgraph.datasets.load_traverse, or "
+                                    f"Traverse(frames) for an array); got a {type(reference).__name__}.")
     frontend = FrontEnd() if frontend is None else frontend
     descriptors, metric = describe(reference, frontend)
     check_information(descriptors, "reference")
@@ -397,7 +409,13 @@ def save_map(path: str | os.PathLike, catgraph_map: CatgraphMap, compress: bool 
     Path
         The path written.
     """
-    path = Path(path)
+    from ._atomic import check_writable
+    from .exceptions import InvalidParameterError
+
+    if not isinstance(catgraph_map, CatgraphMap):
+        raise InvalidParameterError(f"save_map writes a CatgraphMap (from build_map); got a "
+                                    f"{type(catgraph_map).__name__}.")
+    path = check_writable(path, "map file")
     metadata, arrays = _encode(catgraph_map)
     meta_bytes = _metadata_bytes(metadata)
     members = {

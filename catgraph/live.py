@@ -71,7 +71,7 @@ import numpy as np
 
 from ._validation import as_generator, check_array, check_scalar
 from .differences import PreparedReference
-from .exceptions import DataError, InvalidParameterError
+from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .methods import FILTER_MODELS
 
 __all__ = [
@@ -135,6 +135,8 @@ def describe_frame(frame, kind: str, frontend=None, not_detected: float = 100.0)
         return wifi_vectors(x[None], not_detected=not_detected)[0]
     if kind == "descriptors":
         flat = x.reshape(-1)
+        if flat.dtype.kind not in "biuf":
+            raise DataError(f"a live descriptor must be numeric or boolean; got dtype {flat.dtype}.")
         return flat if flat.dtype == bool else flat.astype(np.float32)
     raise InvalidParameterError(f"unknown data kind {kind!r}; a map holds 'images', 'wifi' or 'descriptors'.")
 
@@ -648,6 +650,9 @@ class LiveLocalizer:
     def run(self, frames, odometry=None) -> list[LiveEstimate]:
         """:meth:`step` through frames (a convenience for tests and examples)."""
         odometry = None if odometry is None else check_array(odometry, "odometry", ndim=1)
+        if odometry is not None and len(odometry) != len(frames):
+            raise ShapeMismatchError(f"odometry has {len(odometry)} entries for {len(frames)} frames; give one per "
+                                     "frame.")
         return [self.step(f, None if odometry is None or k == 0 else float(odometry[k])) for k, f in enumerate(frames)]
 
 

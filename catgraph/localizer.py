@@ -181,7 +181,7 @@ from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .graph import PlaceGraph
 from .grid import learn_jump_rate
 from .motion import FrameMotion, MotionModel, OdometryMotion, PlacesWritten, VelocityMotion
-from .observation import FramePool, Observation, ObservationModel, feedback_reads_prior
+from .observation import FramePool, Observation, ObservationModel, claim_model, feedback_reads_prior
 from .particles import ParticleSet, _first_in_edge, get_resampler, normalise_in_place
 
 __all__ = ["Estimate", "LocalizationResult", "Localizer", "check_odometry", "confidence_log_odds",
@@ -190,6 +190,24 @@ __all__ = ["Estimate", "LocalizationResult", "Localizer", "check_odometry", "con
 #: Floor on the mass outside the answer's neighbourhood when taking log-odds: keeps them
 #: finite (and ordered) where the confidence is exactly 1.
 _MASS_FLOOR = 1e-300
+
+
+def check_query_index(query_index, n: int) -> np.ndarray:
+    """A run's ``query_index``: one whole number per frame, as int64.
+
+    Raises
+    ------
+    ShapeMismatchError
+        Not one index per frame.
+    DataError
+        Not whole numbers.
+    """
+    qi = np.asarray(query_index)
+    if qi.shape != (n,):
+        raise ShapeMismatchError(f"query_index has shape {qi.shape} for {n} frames; give one index per frame.")
+    if qi.dtype.kind not in "iu" and not (qi.dtype.kind == "f" and np.all(np.isfinite(qi)) and np.all(qi == np.rint(qi))):
+        raise DataError(f"query_index must hold whole frame numbers; got dtype {qi.dtype} ({qi[:3].tolist()} …).")
+    return qi.astype(np.int64)
 
 
 def check_odometry(odometry) -> float | None:
@@ -202,6 +220,8 @@ def check_odometry(odometry) -> float | None:
     """
     if odometry is None:
         return None
+    if isinstance(odometry, (bool, np.bool_, str, bytes)):  # float() would take them: True is 1, "3" is 3
+        raise DataError(f"odometry must be a finite, non-negative distance (a number); got {odometry!r}.")
     try:
         u = float(odometry)
     except (TypeError, ValueError):
@@ -989,6 +1009,9 @@ class Localizer:
                 f"The 'model' parameter of {owner} must be an ObservationModel (reset(), observe(row)). Got {self.model!r}."
             )
         check_scalar(self.n_particles, "n_particles", owner, int, 1)
+        if self.motion is not None and not isinstance(self.motion, MotionModel):
+            raise InvalidParameterError(f"The 'motion' parameter of {owner} must be a MotionModel (such as "
+                                        f"VelocityMotion()) or None. Got {self.motion!r} instead.")
         check_scalar(self.ess_threshold, "ess_threshold", owner, float, 0.0, 1.0)
         check_scalar(self.recovery, "recovery", owner, float, 0.0, 1.0, True, False)
         for flag in ("learn_recovery", "marginal_velocity", "smooth_feedback"):
@@ -1039,6 +1062,10 @@ class Localizer:
         young particles), the weights, the resampling and proposal buffers."""
         self._validate()
         g, n = self.graph, self.n_particles
+        from ._validation import check_memory
+
+        # the particles' edge, fraction, weights, velocities and their scratch: about 100 bytes each
+        check_memory(100.0 * n, f"{n} particles", "use fewer particles (2,000 is the default)")
         self._rng = as_generator(self.seed) if not isinstance(self.seed, np.random.Generator) else self.seed
         m = int(round(self.redraw_fraction * n)) if self.recovery > 0 and n >= 2 else 0
         m = min(m, n // 2)
@@ -1099,6 +1126,7 @@ class Localizer:
         self._route = rd if monotone else None  # the confidence neighbourhood along the route
         spacing = float(g.frame_spacing)
         self._route_radius = self.confidence_radius * spacing + 1e-9 * spacing
+        claim_model(self.model, self)
         self.model.reset()
         self._has_feedback = callable(getattr(self.model, "feedback", None))
         if self.confidence_radius_m is not None:
@@ -1621,7 +1649,7 @@ class Localizer:
             odometry = check_array(odometry, "odometry", ndim=1)
             if len(odometry) != n:
                 raise ShapeMismatchError(f"odometry has {len(odometry)} entries for {n} query frames; give one per frame.")
-        qi = np.arange(n) if query_index is None else np.asarray(query_index, dtype=np.int64)
+        qi = np.arange(n) if query_index is None else check_query_index(query_index, n)
         self.reset()
         place = np.empty(n, dtype=np.int64)
         conf, p_new, ess, log_odds, score = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)

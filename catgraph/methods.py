@@ -102,7 +102,9 @@ class Param:
         if self.kind == "bool":
             return "true or false"
         if self.kind == "floats":
-            return "a list of 1 to 64 numbers in [-100, 100]"
+            from .sequence import MAX_VELOCITY
+
+            return f"a list of 1 to 64 numbers in [-{MAX_VELOCITY:g}, {MAX_VELOCITY:g}]"
         what = {"int": "an int", "float": "a number", "str": "a string"}[self.kind]
         if self.low is not None and self.high is not None:
             return f"{what} in [{self.low:g}, {self.high:g}]"
@@ -138,10 +140,12 @@ class Param:
                     isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1 for v in value):
                 return [int(v) for v in value]
             raise bad()
-        if self.kind == "floats":
+        if self.kind == "floats":  # the velocities of the sequence lines
+            from .sequence import MAX_VELOCITY
+
             ok = isinstance(value, (list, tuple)) and 0 < len(value) <= 64 and all(
                 isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
-                and abs(v) <= 100 for v in value)
+                and abs(v) <= MAX_VELOCITY for v in value)
             if not ok:
                 raise bad()
             return [float(v) for v in value]

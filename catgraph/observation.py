@@ -86,12 +86,13 @@ comparable across frames and datasets.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 from typing import Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-from ._validation import check_array, check_scalar
+from ._validation import as_generator, check_array, check_scalar
 from .exceptions import InvalidParameterError, NotFittedError, ShapeMismatchError
 
 __all__ = [
@@ -185,6 +186,44 @@ class ObservationModel(Protocol):
         difference_row : ndarray, shape (n_places,)
             The frame's difference to every reference place (lower = more alike).
         """
+
+
+#: Which filter each model serves: ``id(model) -> (weakref to the model, weakref to the filter)``.
+_SERVING: dict[int, tuple] = {}
+
+
+def claim_model(model, owner) -> None:
+    """Bind ``model`` to the filter ``owner`` (called by the filters' ``reset``).
+
+    A model learns from the rows and the feedback of the filter that steps it (its
+    temperature, hub levels, histograms, the matcher's ring); two filters stepping one
+    instance would mix two queries' evidence and give both wrong answers without a word.
+    A model that another live filter still holds is refused; a copy of a filter (its own
+    copy of the model) claims its own model.
+
+    Raises
+    ------
+    InvalidParameterError
+        Another filter holds ``model``.
+    """
+    import weakref
+
+    try:
+        refs = (weakref.ref(model), weakref.ref(owner))
+    except TypeError:  # not weakly referable: nothing can be checked
+        return
+    held = _SERVING.get(id(model))
+    if held is not None and held[0]() is model:
+        other = held[1]()
+        if other is not None and other is not owner and getattr(other, "model", None) is model:
+            raise InvalidParameterError(
+                f"this {type(model).__name__} already serves another filter, and a model learns from the frames "
+                "of the filter that steps it; give each filter its own model (a new instance, or "
+                "copy.deepcopy(model)).")
+    if len(_SERVING) > 256:  # forget the models that are gone
+        for key in [k for k, (m, _) in _SERVING.items() if m() is None]:
+            del _SERVING[key]
+    _SERVING[id(model)] = refs
 
 
 class CheckedRow(np.ndarray):
@@ -343,8 +382,8 @@ class HistogramObservation:
         from .likelihood import HistogramLikelihood, reference_samples
 
         r = check_array(reference_differences, "reference differences", ndim=2)
-        gap = max(10, len(r) // 100) if gap is None else gap
-        same, different = reference_samples(r, gap=min(gap, len(r) - 2), max_different=max_different, seed=seed)
+        gap = min(max(10, len(r) // 100), len(r) - 2) if gap is None else gap  # a gap given is checked as given
+        same, different = reference_samples(r, gap=gap, max_different=max_different, seed=seed)
         return cls(mode="bootstrap", likelihood=HistogramLikelihood().fit(same, different), **kwargs)
 
     @classmethod
@@ -395,7 +434,7 @@ class HistogramObservation:
             model=self.likelihood, n_init=n_init, exclusion_radius=self.exclusion_radius,
             learn=self.mode != "trained",
         )
-        self._rng = np.random.default_rng(self.seed)
+        self._rng = as_generator(self.seed)
 
     def observe(self, difference_row: np.ndarray) -> Observation:
         if not hasattr(self, "recogniser_"):
@@ -510,6 +549,14 @@ class SequenceObservation:
                                         f"Got {self.calibration!r} instead.")
         check_scalar(self.agreement_scale, "agreement_scale", owner, float, 0.0, low_inclusive=False)
         params = {"rule": DEFAULT_LINE_RULE, **(self.matcher_params or {})}
+        import inspect
+
+        allowed = set(inspect.signature(SequenceMatcher).parameters) - {"window"}
+        unknown = sorted(set(params) - allowed)
+        if unknown:
+            raise InvalidParameterError(
+                f"The 'matcher_params' parameter of {owner} names {unknown}, which SequenceMatcher does not take "
+                f"here; choose from {sorted(allowed)} (the window is this model's own 'window').")
         self.matcher_ = SequenceMatcher(window=self.window, **params)
         self.recogniser_ = HistogramPlaceRecogniser(n_init=self.n_init, exclusion_radius=self.exclusion_radius)
         self._tempered = (TemperedObservation(hub=None, novelty=False, temperature_scale=self.agreement_scale)
@@ -587,15 +634,8 @@ class SequenceObservation:
         read: a filter that never reads the support (the grid filter) never pays for
         them. Before the matcher takes the next frame, a support still held by someone
         forms them (:meth:`_settle_support`), so it keeps this frame's values."""
-        m, length, velocity = self.matcher_, int(self.matcher_.window_grid_[0]), float(self.last_match_.velocity)
-        steps = m.n_steps_
-
-        def scores() -> np.ndarray:
-            if m.n_steps_ != steps:
-                raise NotFittedError("this recent support belongs to an earlier frame of the matcher, which has "
-                                     "moved on; read an observation's support before stepping its matcher directly.")
-            return m.window_scores(length, velocity)
-
+        m = self.matcher_
+        scores = _SupportScores(m, m.n_steps_, int(m.window_grid_[0]), float(self.last_match_.velocity))
         support = RecentSupport(None, scores)
         self._support = support
         return support
@@ -617,6 +657,29 @@ class SequenceObservation:
             buf = np.empty(n)
             setattr(self, name, buf)
         return buf
+
+
+class _SupportScores:
+    """The window scores a :class:`RecentSupport` forms on its first read: the matcher's at
+    one length and velocity, while the matcher is still at the frame they belong to. A
+    plain object (not a closure), so that a model holding one pickles."""
+
+    __slots__ = ("matcher", "steps", "length", "velocity")
+
+    def __init__(self, matcher, steps: int, length: int, velocity: float) -> None:
+        self.matcher, self.steps, self.length, self.velocity = matcher, steps, length, velocity
+
+    def __getstate__(self):
+        return self.matcher, self.steps, self.length, self.velocity
+
+    def __setstate__(self, state) -> None:
+        self.matcher, self.steps, self.length, self.velocity = state
+
+    def __call__(self) -> np.ndarray:
+        if self.matcher.n_steps_ != self.steps:
+            raise NotFittedError("this recent support belongs to an earlier frame of the matcher, which has "
+                                 "moved on; read an observation's support before stepping its matcher directly.")
+        return self.matcher.window_scores(self.length, self.velocity)
 
 
 class RecentSupport:
@@ -700,6 +763,11 @@ class RecentSupport:
     def copy(self) -> np.ndarray:
         """Every place's support, as a new array."""
         return np.array(self.__array__())
+
+
+#: The largest weight of a part of a :class:`CombinedObservation` (a larger one would only
+#: overflow the tempered log-ratios it multiplies).
+MAX_PART_WEIGHT = 1e6
 
 
 class CombinedObservation:
@@ -860,6 +928,13 @@ class CombinedObservation:
         n = len(self.models)
         if n == 0:
             raise InvalidParameterError(f"{owner} needs at least one model.")
+        for k, m in enumerate(self.models):
+            if not (callable(getattr(m, "observe", None)) and callable(getattr(m, "reset", None))):
+                raise InvalidParameterError(f"part {k} of {owner} is a {type(m).__name__}, not an observation model "
+                                            "(reset(), observe(row)); give model instances.")
+        if len({id(m) for m in self.models}) != n:
+            raise InvalidParameterError(f"{owner} lists one model instance twice: it would see every row twice "
+                                        "(and take the second for a repeat); give each part its own instance.")
         if self.reliability not in ("online", None):
             raise InvalidParameterError(
                 f"The 'reliability' parameter of {owner} must be 'online' or None. "
@@ -891,9 +966,10 @@ class CombinedObservation:
             self.weights_ = grid[int(np.argmin(np.abs(grid - 1.0).sum(1)))].copy()
         else:
             w = [1.0] * n if self.weights is None else list(self.weights)
-            if len(w) != n or any(not (isinstance(x, (int, float)) and x >= 0) for x in w):
+            if len(w) != n or any(isinstance(x, bool) or not isinstance(x, numbers.Real)
+                                  or not 0.0 <= float(x) <= MAX_PART_WEIGHT for x in w):
                 raise InvalidParameterError(
-                    f"The 'weights' parameter of {owner} must give one non-negative float per model "
+                    f"The 'weights' parameter of {owner} must give one float in [0, {MAX_PART_WEIGHT:g}] per model "
                     f"({n}) or be 'predictive'. Got {self.weights!r} instead."
                 )
             self.weights_ = np.array(w, dtype=np.float64)
@@ -1439,6 +1515,10 @@ class TemperedObservation:
         check_scalar(self.memory, "memory", owner, float, 1.0)
         check_scalar(self.n_bins, "n_bins", owner, int, 4)
         check_scalar(self.prior_strength, "prior_strength", owner, float, 0.0)
+        check_scalar(self.hub_threshold, "hub_threshold", owner, float, 0.0)
+        check_scalar(self.novelty_cap, "novelty_cap", owner, float, 0.0)
+        if not isinstance(self.novelty, (bool, np.bool_)):
+            raise InvalidParameterError(f"The 'novelty' parameter of {owner} must be a bool. Got {self.novelty!r} instead.")
         n = len(row)
         if isinstance(self.hub, str) or self.hub is None:
             if self.hub not in ("online", None):

@@ -563,15 +563,22 @@ def window_grid(l_min: int = 10, l_max: int = 500, grid: str | int | Sequence[in
     return np.unique(values.astype(np.int64))
 
 
+#: The fastest line searched, in reference places per query frame either way (a line's
+#: position ``v t`` must stay an exact integer index).
+MAX_VELOCITY = 100.0
+
+
 def _velocity_set(velocities, owner: str) -> np.ndarray:
     try:
         values = np.asarray(velocities, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError):
         values = np.array([np.nan])
-    if values.size == 0 or not np.all(np.isfinite(values)) or np.unique(values).size != values.size:
+    if values.size == 0 or not np.all(np.isfinite(values)) or np.unique(values).size != values.size \
+            or np.abs(values).max() > MAX_VELOCITY:
         raise InvalidParameterError(
-            f"The 'velocities' parameter of {owner} must be a non-empty sequence of distinct finite floats "
-            f"(reference places per query frame, e.g. (-1.0, 1.0, 2.0)). Got {velocities!r} instead.")
+            f"The 'velocities' parameter of {owner} must be a non-empty sequence of distinct finite floats in "
+            f"[-{MAX_VELOCITY:g}, {MAX_VELOCITY:g}] (reference places per query frame, e.g. (-1.0, 1.0, 2.0)). "
+            f"Got {velocities!r} instead.")
     return values
 
 
@@ -654,7 +661,13 @@ def _state(cfg: _Config, n: int, chunk: int = 1):
     rows (``chunk`` new rows are stored at a time) with their mean codes, and the scratch
     the kernels need (the robust and mixture scratch only for those approximations)."""
     v_count, g_count, rows = cfg.velocities.shape[0], cfg.grid.shape[0], int(cfg.grid[-1]) + chunk
-    sums = np.zeros((v_count, g_count, n), dtype=_kernels().sums_dtype(cfg.grid[-1]))
+    sums_dtype = _kernels().sums_dtype(cfg.grid[-1])
+    from ._validation import check_memory
+
+    check_memory(float(n) * (v_count * g_count * np.dtype(sums_dtype).itemsize + 2 * rows), f"the matcher's state for "
+                 f"{n} places (a ring of the last {rows} rows, {v_count * g_count} running sums per place)",
+                 "use a shorter l_max, fewer window lengths or velocities, or a smaller map")
+    sums = np.zeros((v_count, g_count, n), dtype=sums_dtype)
     ring = np.zeros((rows, n), dtype=np.int16)
     mring = np.zeros(rows, dtype=np.int16)
     state = np.zeros(1)  # the quantum, fixed by the first row

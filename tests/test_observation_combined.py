@@ -177,9 +177,9 @@ def test_weight_errors_name_the_problem():
     with pytest.raises(InvalidParameterError, match="'weights'.*'predictive'"):
         CombinedObservation([part], weights="learned").observe(np.zeros(3))
     with pytest.raises(InvalidParameterError, match="weight_grid.*\\(n_candidates, 2\\)"):
-        CombinedObservation([part, part], weights="predictive", weight_grid=[[1.0, 2.0, 3.0]]).observe(np.zeros(3))
+        CombinedObservation([part, Fixed(np.zeros((1, 3)))], weights="predictive", weight_grid=[[1.0, 2.0, 3.0]]).observe(np.zeros(3))
     with pytest.raises(InvalidParameterError, match="weight_grid"):
-        CombinedObservation([part, part], weights="predictive", weight_grid=[[1.0, -1.0]]).observe(np.zeros(3))
+        CombinedObservation([part, Fixed(np.zeros((1, 3)))], weights="predictive", weight_grid=[[1.0, -1.0]]).observe(np.zeros(3))
     with pytest.raises(InvalidParameterError, match="memory"):
         CombinedObservation([part], weights="predictive", memory=0.5).observe(np.zeros(3))
     with pytest.raises(InvalidParameterError, match="at least one model"):
