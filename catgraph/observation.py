@@ -669,12 +669,6 @@ class _SupportScores:
     def __init__(self, matcher, steps: int, length: int, velocity: float) -> None:
         self.matcher, self.steps, self.length, self.velocity = matcher, steps, length, velocity
 
-    def __getstate__(self):
-        return self.matcher, self.steps, self.length, self.velocity
-
-    def __setstate__(self, state) -> None:
-        self.matcher, self.steps, self.length, self.velocity = state
-
     def __call__(self) -> np.ndarray:
         if self.matcher.n_steps_ != self.steps:
             raise NotFittedError("this recent support belongs to an earlier frame of the matcher, which has "
