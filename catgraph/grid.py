@@ -1364,9 +1364,11 @@ class GridLocalizer:
         if not hasattr(self, "_state"):
             self.reset()
         from .localizer import _check_observation
+        from .observation import check_model
 
         row = _check_observation(observation, self.graph.n_places)
         odometry = check_odometry(odometry)
+        check_model(self.model, self)
         obs = self.model.observe(row)
         ratio = self._exp_ratio(obs)
         if self._components is None:

@@ -181,7 +181,7 @@ from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .graph import PlaceGraph
 from .grid import learn_jump_rate
 from .motion import FrameMotion, MotionModel, OdometryMotion, PlacesWritten, VelocityMotion
-from .observation import FramePool, Observation, ObservationModel, claim_model, feedback_reads_prior
+from .observation import FramePool, Observation, ObservationModel, check_model, claim_model, feedback_reads_prior
 from .particles import ParticleSet, _first_in_edge, get_resampler, normalise_in_place
 
 __all__ = ["Estimate", "LocalizationResult", "Localizer", "check_odometry", "confidence_log_odds",
@@ -1211,6 +1211,7 @@ class Localizer:
             self.reset()
         row = _check_observation(observation, self.graph.n_places)
         odometry = check_odometry(odometry)
+        check_model(self.model, self)
         self._log_ratio = None  # the previous frame's ratios: the model may reuse their array now
         obs = self.model.observe(row)
         self._support = obs.support if obs.informative else None

@@ -188,42 +188,46 @@ class ObservationModel(Protocol):
         """
 
 
-#: Which filter each model serves: ``id(model) -> (weakref to the model, weakref to the filter)``.
+#: Which filter last reset each model: ``id(model) -> (weakref to the model, weakref to the filter)``.
 _SERVING: dict[int, tuple] = {}
 
 
 def claim_model(model, owner) -> None:
-    """Bind ``model`` to the filter ``owner`` (called by the filters' ``reset``).
-
-    A model learns from the rows and the feedback of the filter that steps it (its
-    temperature, hub levels, histograms, the matcher's ring); two filters stepping one
-    instance would mix two queries' evidence and give both wrong answers without a word.
-    A model that another live filter still holds is refused; a copy of a filter (its own
-    copy of the model) claims its own model.
-
-    Raises
-    ------
-    InvalidParameterError
-        Another filter holds ``model``.
-    """
+    """Record that the filter ``owner`` has reset ``model`` and steps it from now on
+    (called by the filters' ``reset``; see :func:`check_model`)."""
     import weakref
 
     try:
         refs = (weakref.ref(model), weakref.ref(owner))
     except TypeError:  # not weakly referable: nothing can be checked
         return
-    held = _SERVING.get(id(model))
-    if held is not None and held[0]() is model:
-        other = held[1]()
-        if other is not None and other is not owner and getattr(other, "model", None) is model:
-            raise InvalidParameterError(
-                f"this {type(model).__name__} already serves another filter, and a model learns from the frames "
-                "of the filter that steps it; give each filter its own model (a new instance, or "
-                "copy.deepcopy(model)).")
     if len(_SERVING) > 256:  # forget the models that are gone
         for key in [k for k, (m, _) in _SERVING.items() if m() is None]:
             del _SERVING[key]
     _SERVING[id(model)] = refs
+
+
+def check_model(model, owner) -> None:
+    """Refuse a step of ``owner`` with a model that another filter has reset since ``owner``
+    did (called by the filters' ``step``).
+
+    A model learns from the rows and the feedback of the filter that steps it (its
+    temperature, hub levels, histograms, the matcher's ring); two filters stepping one
+    instance in turn would mix two queries' evidence and give both wrong answers without a
+    word. One model may serve one filter after another (each ``reset`` starts it afresh);
+    a copy of a filter steps its own copy of the model.
+
+    Raises
+    ------
+    InvalidParameterError
+        Another filter has reset ``model`` since ``owner`` did.
+    """
+    held = _SERVING.get(id(model))
+    if held is not None and held[1]() is not owner and held[0]() is model:
+        raise InvalidParameterError(
+            f"this {type(model).__name__} now serves another filter, which reset it after this one did, and a "
+            "model learns from the frames of the filter that steps it; give each filter its own model (a new "
+            "instance, or copy.deepcopy(model)).")
 
 
 class CheckedRow(np.ndarray):

@@ -26,25 +26,27 @@ def rows():
 
 @pytest.mark.parametrize("make", [lambda m: GridLocalizer(PlaceGraph.chain(N), m),
                                   lambda m: Localizer(PlaceGraph.chain(N), m, n_particles=100)])
-def test_one_model_serves_one_filter(make, rows):
-    """Two filters stepping one model would mix two queries' evidence: the second is refused;
-    a copy of a filter (with its own copy of the model), or a filter after the first is gone,
-    takes it."""
+def test_one_model_serves_one_filter_at_a_time(make, rows):
+    """Two filters stepping one model in turn would mix two queries' evidence: once a second
+    filter has reset the model, the first may not step it again. One filter after another
+    may use it (each reset starts it afresh), and a copy of a filter steps its own copy."""
     model = TemperedObservation()
     first = make(model)
-    first.step(rows[0])
-    with pytest.raises(InvalidParameterError, match="already serves another filter"):
-        make(model).step(rows[0])
+    before = [first.step(r).place for r in rows[:10]]
     twin = copy.deepcopy(first)
-    twin.reset()
-    twin.step(rows[0])
-    pickle.loads(pickle.dumps(first)).reset()
+    second = make(model)
+    assert [second.step(r).place for r in rows[:10]] == before  # the model started afresh
+    with pytest.raises(InvalidParameterError, match="now serves another filter"):
+        first.step(rows[10])
+    twin.step(rows[10])  # its own copy of the model
+    pickle.loads(pickle.dumps(second)).step(rows[10])
+    first.reset()  # the first filter takes the model back
+    assert [first.step(r).place for r in rows[:10]] == before
+    with pytest.raises(InvalidParameterError, match="now serves another filter"):
+        second.step(rows[10])
     del first, twin
     gc.collect()
-    again = make(model)
-    again.step(rows[0])
-    again.reset()  # a filter claims its own model again
-    again.step(rows[0])
+    assert [make(model).step(r).place for r in rows[:1]] == before[:1]
 
 
 def test_a_model_stepped_alone_answers_as_before_the_check(rows):
