@@ -262,11 +262,12 @@ class HistogramPlaceRecogniser:
         distance = self.confidence_distance if self.exclusion_distance is None else self.exclusion_distance
         return self._near(best, distance)
 
-    def _update(self, row: np.ndarray) -> OnlineSamples:
+    def _update(self, row: np.ndarray, blank: bool | None = None) -> OnlineSamples:
         best = int(np.argmin(row))
         same_place = self._same_location(best)
         samples = online_samples(row, self.exclusion_radius, same_place)
-        if self.learn and not _blank(row):  # a frame with no information teaches nothing
+        blank = _blank(row) if blank is None else blank
+        if self.learn and not blank:  # a frame with no information teaches nothing
             if self.n_steps_ < self.n_init:
                 self.model_.partial_fit(None, [samples.d_min])
             else:
@@ -300,8 +301,9 @@ class HistogramPlaceRecogniser:
             self._start()
         row = self._row(differences)
         was_initialising = self.n_steps_ < self.n_init
-        samples = self._update(row)
-        if _blank(row):  # no information: no output (catgraph.matching)
+        blank = _blank(row)
+        samples = self._update(row, blank)
+        if blank:  # no information: no output (catgraph.matching)
             return Recognition(NO_MATCH, NO_OUTPUT_CONFIDENCE, 0.0, 0.0, samples.d_min, was_initialising)
         if was_initialising:
             return Recognition(samples.best, 0.0, 0.0, 0.0, samples.d_min, True)
