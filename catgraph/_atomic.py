@@ -11,7 +11,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import IO
 
-__all__ = ["atomic_open", "write_text_atomic", "check_writable"]
+__all__ = ["atomic_open", "write_text_atomic", "check_writable", "check_writable_folder"]
 
 
 @contextmanager
@@ -99,4 +99,32 @@ def check_writable(path: str | os.PathLike, what: str = "output", inputs=()) -> 
                 from None
         os.close(fd)
         os.unlink(trial)
+    return path
+
+
+def check_writable_folder(path: str | os.PathLike, what: str = "output folder") -> Path:
+    """Check, before any work is done, that files can be written into the folder ``path``
+    (it exists as a folder or can be created, and takes a trial file); return it.
+
+    Raises :class:`~catgraph.exceptions.InvalidParameterError` naming the problem.
+    """
+    from .exceptions import InvalidParameterError
+
+    if os.fspath(path) == "":
+        raise InvalidParameterError(f"the {what} is empty; give a folder name.")
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise InvalidParameterError(f"the {what} {path} is a file; give a folder (it is created if missing).")
+    folder = path
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if not folder.is_dir():
+        raise InvalidParameterError(f"cannot write into the {what} {path}: {folder} is not a folder.")
+    try:
+        fd, trial = tempfile.mkstemp(prefix=".catgraph.", suffix=".tmp", dir=folder)
+    except OSError as exc:
+        raise InvalidParameterError(f"cannot write into the {what} {path}: {exc.strerror or exc} in {folder}.") \
+            from None
+    os.close(fd)
+    os.unlink(trial)
     return path

@@ -76,6 +76,7 @@ from __future__ import annotations
 import copy
 import difflib
 import itertools
+import math
 import os
 import tomllib
 from collections.abc import Callable, Mapping
@@ -248,9 +249,14 @@ def _condition_name(condition: dict) -> str:
     return c.kind
 
 
+def _is_synthetic(text: str) -> bool:
+    """``synthetic`` or ``synthetic:SEED``: the built-in world, not a path (``synthetic_gt.csv`` is one)."""
+    return text == "synthetic" or text.startswith("synthetic:")
+
+
 def _resolve(path: Any, base_dir: Path | None) -> str:
     text = str(path)
-    if text.startswith("synthetic"):
+    if _is_synthetic(text):
         return text
     p = Path(os.path.expanduser(text))
     if not p.is_absolute() and base_dir is not None:
@@ -274,9 +280,9 @@ def _check_source(where: _Where, table: str, data: Mapping, base_dir: Path | Non
         value = data[key]
         _check_value(where, table, key, value, lambda v: isinstance(v, str) and v != "",
                      "a path or 'synthetic:SEED'" if key != "map" else "a path to a map file")
-        if value.startswith("synthetic") and key != "map":
+        if _is_synthetic(value) and key != "map":
             _, _, seed = value.partition(":")
-            if value != "synthetic" and (not value.startswith("synthetic:") or not seed.isdigit()):
+            if value != "synthetic" and not seed.isdigit():
                 raise where.error(table, f"'{key}' {value!r} must be written 'synthetic:SEED' with an integer seed.")
         out[key] = _resolve(value, base_dir)
     given = [k for k in ("tolerance", "tolerance_m", "ground_truth") if data.get(k) is not None]
@@ -287,7 +293,7 @@ def _check_source(where: _Where, table: str, data: Mapping, base_dir: Path | Non
                      "an int ≥ 0 (frames)")
         out["tolerance"] = data["tolerance"]
     if "tolerance_m" in data:
-        _check_value(where, table, "tolerance_m", data["tolerance_m"], lambda v: _is_number(v) and v >= 0,
+        _check_value(where, table, "tolerance_m", data["tolerance_m"], lambda v: _is_number(v) and 0 <= v < math.inf,
                      "a number ≥ 0 (metres)")
         out["tolerance_m"] = float(data["tolerance_m"])
     if "ground_truth" in data:
@@ -301,7 +307,8 @@ def _check_source(where: _Where, table: str, data: Mapping, base_dir: Path | Non
     if "junction_radius_m" in data:
         if "map" in data:
             raise where.error(table, "sets 'junction_radius_m' with a saved 'map': its graph is fixed when it is built.")
-        _check_value(where, table, "junction_radius_m", data["junction_radius_m"], lambda v: _is_number(v) and v > 0,
+        _check_value(where, table, "junction_radius_m", data["junction_radius_m"],
+                     lambda v: _is_number(v) and 0 < v < math.inf,
                      "a number > 0 (metres)")
         out["junction_radius_m"] = float(data["junction_radius_m"])
     return out
@@ -328,7 +335,8 @@ def run_file_name(name: str) -> str:
     """A file name (without suffix) for run ``name``: ``/`` becomes ``__``, and characters
     other than letters, digits and ``._=,+-`` become ``_``."""
     text = name.replace("/", "__")
-    return "".join(c if c.isalnum() or c in "._=,+-" else "_" for c in text)
+    text = "".join(c if c.isalnum() or c in "._=,+-" else "_" for c in text)
+    return text if text.strip(".") else f"_{text}"  # never empty, "." or "..": a name, not a folder
 
 
 # ---------------------------------------------------------------------------- expansion
@@ -437,6 +445,8 @@ def parse_config(data: Mapping[str, Any], source: str = "<config>", base_dir: st
         method = _check_method_name(where, label, table["method"])
         if "dataset" in table:
             ds_name = table["dataset"]
+            if not isinstance(ds_name, str):
+                raise where.error(label, f"'dataset' must be the name of one [[dataset]] (a string); got {ds_name!r}.")
             if ds_name not in datasets:
                 raise where.error(label, f"'dataset' names {ds_name!r}, which no [[dataset]] defines; "
                                          f"defined: {', '.join(datasets) or 'none'}.")
@@ -444,11 +454,11 @@ def parse_config(data: Mapping[str, Any], source: str = "<config>", base_dir: st
             if overlap:
                 raise where.error(label, f"sets 'dataset' and {', '.join(repr(x) for x in overlap)}; "
                                          "use one or the other.")
-            source = {k: v for k, v in datasets[ds_name].items() if k != "conditions"}
+            inputs = {k: v for k, v in datasets[ds_name].items() if k != "conditions"}
             if "frontend" in table:
-                source["frontend"] = _check_frontend(where, label, table["frontend"])
+                inputs["frontend"] = _check_frontend(where, label, table["frontend"])
         else:
-            source = _check_source(where, label, table, base)
+            inputs = _check_source(where, label, table, base)
         if "shuffle" in table and "condition" in table:
             raise where.error(label, "sets both 'shuffle' and 'condition'; keep 'condition'.")
         condition = None
@@ -462,7 +472,7 @@ def parse_config(data: Mapping[str, Any], source: str = "<config>", base_dir: st
             (condition,) = _check_conditions(where, label, table["condition"], key="condition")
         name = _check_name(where, label, table["name"]) if "name" in table else f"{method}#{k}"
         params = _check_params(where, label, method, table.get("params", {}))
-        specs.append(spec(name, source, method, params, condition))
+        specs.append(spec(name, inputs, method, params, condition))
 
     seen: set[str] = set()
     for spec in specs:

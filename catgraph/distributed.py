@@ -275,7 +275,9 @@ def _client(scheduler: Any):
     if isinstance(scheduler, Client):
         return scheduler
     if isinstance(scheduler, str):
-        return Client(scheduler)
+        from .sweep import connect
+
+        return connect(scheduler)
     raise InvalidParameterError(
         f"scheduler must be a Dask scheduler address ('tcp://host:8786') or a distributed.Client; got {scheduler!r}."
     )

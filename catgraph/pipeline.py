@@ -94,6 +94,16 @@ def _kind(traverse: Traverse) -> str:
 
 def describe(traverse: Traverse, frontend: FrontEnd = FrontEnd()) -> tuple[np.ndarray, str]:
     """Descriptors ``(n, d)`` for a traverse and the metric to compare them with."""
+    descriptors, metric = _describe(traverse, frontend)
+    if metric == "hamming" and descriptors.dtype not in (np.bool_, np.uint8):
+        raise InvalidParameterError(
+            f"the hamming metric compares binary descriptors (boolean, or bits packed in uint8), but "
+            f"{traverse.name or 'this traverse'} gives {descriptors.dtype} descriptors ({_kind(traverse)}); "
+            "choose sad, ssd or cosine.")
+    return descriptors, metric
+
+
+def _describe(traverse: Traverse, frontend: FrontEnd) -> tuple[np.ndarray, str]:
     kind = _kind(traverse)
     if kind != "images" and not traverse.meta.get("described") and (
             frontend.size is not None or frontend.patch not in (0, FrontEnd.patch)):

@@ -183,21 +183,34 @@ def _run_processes(specs: list[dict], n_workers: int, progress: bool, record: bo
     return results  # type: ignore[return-value]
 
 
+def connect(address: str):
+    """A ``distributed.Client`` connected to the scheduler at ``address``.
+
+    Raises
+    ------
+    MissingDependencyError
+        dask.distributed is not installed.
+    CatgraphError
+        The address is malformed, or no scheduler answers there within 20 s.
+    """
+    try:
+        from distributed import Client
+    except ImportError:
+        raise MissingDependencyError(
+            'running on Dask needs dask.distributed, an optional dependency: pip install "catgraph[dask]"'
+        ) from None
+    try:
+        return Client(address, timeout="20s")
+    except (OSError, TimeoutError, ValueError, TypeError) as exc:
+        raise CatgraphError(f"cannot connect to the Dask scheduler at {address!r} ({exc}); give its address as "
+                            "tcp://HOST:PORT (e.g. tcp://127.0.0.1:8786) and check that the scheduler is "
+                            "running.") from None
+
+
 def _dask_client(scheduler: Any):
     """(client, owned): a client for ``scheduler`` and whether this module must close it."""
     if isinstance(scheduler, str):
-        try:
-            from distributed import Client
-        except ImportError:
-            raise MissingDependencyError(
-                'running a sweep on Dask needs dask.distributed, an optional dependency: '
-                'pip install "catgraph[dask]"'
-            ) from None
-        try:
-            return Client(scheduler, timeout="20s"), True
-        except (OSError, TimeoutError) as exc:
-            raise CatgraphError(f"cannot connect to the Dask scheduler at {scheduler!r} ({exc}); check the address "
-                                "(tcp://HOST:8786) and that the scheduler is running.") from None
+        return connect(scheduler), True
     if not (hasattr(scheduler, "submit") and hasattr(scheduler, "gather")):
         raise InvalidParameterError(f"The 'scheduler' parameter of run_sweep must be None, a scheduler address "
                                     f"such as 'tcp://host:8786', or a distributed.Client. Got {scheduler!r} instead.")

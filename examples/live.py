@@ -41,8 +41,7 @@ def load_live_map(source: str, layout: str = "float32"):
 
 
 def main(argv: list[str] | None = None) -> int:
-    from catgraph.experiment import load_input
-    from catgraph.live import LIVE_MODELS, LiveLocalizer
+    from catgraph.live import LIVE_MODELS
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("reference", metavar="REFERENCE")
@@ -56,7 +55,26 @@ def main(argv: list[str] | None = None) -> int:
                         help="the map in memory: float32 (the batch commands' numbers) or uint8 codes (a quarter "
                              "of the bytes per frame; see docs/live.md)")
     args = parser.parse_args(argv)
+    from catgraph.exceptions import CatgraphError
 
+    try:
+        return run(args)
+    except CatgraphError as exc:  # a user's mistake: one line, as the catgraph commands say it
+        print(f"live.py: error: {exc}", file=sys.stderr)
+        return 1
+
+
+def run(args) -> int:
+    from catgraph._atomic import check_writable
+    from catgraph.datasets.loaders import source_paths
+    from catgraph.exceptions import InvalidParameterError
+    from catgraph.experiment import load_input
+    from catgraph.live import LiveLocalizer
+
+    if args.every < 0:
+        raise InvalidParameterError(f"--every must be ≥ 0 (0: print no answer); got {args.every}.")
+    if args.output is not None:  # before any work, and never over an input
+        check_writable(args.output, "output file", inputs=source_paths(args.reference) + source_paths(args.query))
     live_map = load_live_map(args.reference, args.layout)
     query = load_input(args.query, "query")
     params = {} if args.model == "matcher" else {"n_particles": args.particles, "seed": args.seed}
@@ -70,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
         est = live.step(frame, None if odometry is None or k == 0 else float(odometry[k]))
         seconds.append(time.perf_counter() - start)
         frames["query_index"].append(int(query.index[k]))
-        frames["match"].append(est.place)
+        frames["match"].append(est.place if est.place >= 0 else None)  # no match: null, as localize writes
         frames["confidence"].append(est.score)
         frames["p_new_place"].append(est.new_place_probability)
         frames["window_length"].append(est.window_length)

@@ -135,6 +135,9 @@ def files(tmp_path_factory) -> dict[str, str]:
     f["bad_toml"] = root / "bad.toml"
     (root / "empty.toml").write_text("")
     f["empty_toml"] = root / "empty.toml"
+    (root / "tiny.toml").write_text('name = "tiny"\n[[run]]\nreference = "synthetic:0"\nquery = "synthetic:0"\n'
+                                    'method = "single-frame"\n')
+    f["tiny_toml"] = root / "tiny.toml"
 
     out = root / "out"
     out.mkdir()
@@ -406,6 +409,16 @@ CASES = [
     E("bench-bad-toml", "bench", "{bad_toml}", "--out", "{outdir}/b", message="bad.toml"),
     E("bench-empty-config", "bench", "{empty_toml}", "--out", "{outdir}/b", message="empty.toml|run|method"),
     E("bench-processes-zero", "bench", "{bad_toml}", "--processes", "0", message="processes|bad.toml"),
+    E("bench-out-under-a-file", "bench", "{tiny_toml}", "--out", "{blocked}", message="afile.*not a folder"),
+    E("bench-scheduler-malformed", "bench", "{tiny_toml}", "--out", "{outdir}/b", "--scheduler", "foo",
+      message="cannot connect to the Dask scheduler at 'foo'.*tcp://HOST:PORT"),
+    E("match-scheduler-wrong-scheme", *M, "--window", "5", "--scheduler", "http://127.0.0.1:8786",
+      message="cannot connect to the Dask scheduler"),
+    E("demo-out-under-a-file", "demo", "--out", "{blocked}", message="afile.*not a folder"),
+    E("report-out-empty", "report", "{valid_json}", "--out", "", message="--out.*empty"),
+    E("build-map-hamming-on-images", "build-map", "{ref_img}", "--out", "{existing_map}", "--metric", "hamming",
+      message="hamming metric compares binary descriptors"),
+    E("map-given-as-reference", "match", "{map}", "{qry}", "--tolerance", "2", message="is a saved map.*--map"),
 ]
 
 _OUTPUT_COMMANDS = ("match", "localize", "compare")

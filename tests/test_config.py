@@ -96,6 +96,15 @@ def test_paths_left_alone_without_base_dir():
 
 def test_run_file_name():
     assert run_file_name("a/sf/window=10/shuffle=0") == "a__sf__window=10__shuffle=0"
+    assert [run_file_name(n) for n in ("", ".", "..")] == ["_", "_.", "_.."]  # a name, never a folder
+
+
+def test_paths_that_begin_with_synthetic_are_paths(tmp_path):
+    text = ('[[dataset]]\nname = "d"\nreference = "synthetic_ref"\nquery = "synthetic:0"\n'
+            'ground_truth = "synthetic_gt.csv"\n[[method]]\nmethod = "single-frame"\n')
+    spec = load_config(write(tmp_path, text)).specs[0]
+    assert spec["reference"] == str(tmp_path / "synthetic_ref") and spec["query"] == "synthetic:0"
+    assert spec["ground_truth"] == str(tmp_path / "synthetic_gt.csv")
     assert run_file_name("x y:z") == "x_y_z"
 
 
@@ -137,6 +146,9 @@ query = "synthetic:0"
     ('[[run]]\nname = "r"\nmethod = "single-frame"\ndataset = "a"\n[[run]]\nname = "r"\nmethod = "single-frame"\n'
      'dataset = "a"', "two runs are named 'r'"),
     ('[[metod]]\nmethod = "single-frame"', "top level has unknown key 'metod'; did you mean 'method'?"),
+    ('[[run]]\nmethod = "single-frame"\ndataset = ["a"]', "'dataset' must be the name of one [[dataset]]"),
+    ('[[run]]\nname = "r s"\nmethod = "single-frame"\ndataset = "a"\n[[run]]\nname = "r_s"\n'
+     'method = "single-frame"\ndataset = "a"', "config.toml: two runs are named 'r_s'"),
 ])
 def test_method_and_run_errors(tmp_path, extra, needle):
     with pytest.raises(ConfigError) as info:
@@ -167,6 +179,8 @@ def test_method_and_run_errors(tmp_path, extra, needle):
     ('name = "d"\nreference = "r"\nquery = "q"\nfrontend = { metric = "wifi" }', "unknown metric 'wifi'"),
     ('name = "d/e"\nreference = "r"\nquery = "q"\ntolerance = 1', "'name' must be a non-empty string without '/'"),
     ('name = "d"\nreference = "synthetic:x"\nquery = "q"\ntolerance = 1', "'synthetic:SEED'"),
+    ('name = "d"\nreference = "r"\nquery = "q"\ntolerance_m = inf', "'tolerance_m' must be a number ≥ 0"),
+    ('name = "d"\nreference = "r"\nquery = "q"\ntolerance = 1\njunction_radius_m = inf', "'junction_radius_m'"),
     ('name = "d"\nquery = "q"\ntolerance = 1', "[[dataset]] #1 needs exactly one of 'reference' (a traverse) and "
      "'map'"),
 ])

@@ -247,6 +247,22 @@ def test_example_matches_the_localize_command(world, tmp_path, capsys, monkeypat
     assert stop.value.code == 0 and "per-frame ms: median" in capsys.readouterr().out
 
 
+def test_example_refuses_a_users_mistakes_in_one_line(world, tmp_path, capsys, monkeypatch):
+    from catgraph.io import build_map, save_map
+
+    map_path = save_map(tmp_path / "ref.npz", build_map(world.reference))
+    before = map_path.read_bytes()
+    for argv, message in ([[str(tmp_path / "nowhere"), "synthetic:0"], "does not exist"],
+                          [[str(map_path), "synthetic:0", "--output", str(map_path)], "would overwrite the input"],
+                          [[str(map_path), "synthetic:0", "--every", "-1"], "--every must be ≥ 0"]):
+        monkeypatch.setattr(sys, "argv", ["live.py", *argv])
+        with pytest.raises(SystemExit) as stop:
+            runpy.run_path(str(EXAMPLE), run_name="__main__")
+        err = capsys.readouterr().err.strip().splitlines()
+        assert stop.value.code == 1 and len(err) == 1 and err[0].startswith("live.py: error: ") and message in err[0]
+    assert map_path.read_bytes() == before
+
+
 def test_warm_up_steps_every_requested_path():
     from catgraph.live import warm_up
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .._atomic import write_text_atomic
-from .commands import register
+from .commands import folder, register
 
 
 @register
@@ -29,7 +29,7 @@ def register_bench(sub) -> None:
                                    "processes or a Dask cluster) and write every result, a summary table and an "
                                    "HTML report.")
     p.add_argument("config", type=Path, help="experiment configuration (.toml); see docs/maps_and_sweeps.md")
-    p.add_argument("--out", "-o", type=Path, metavar="DIR", help="output folder (default results/NAME)")
+    p.add_argument("--out", "-o", type=folder, metavar="DIR", help="output folder (default results/NAME)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="Dask scheduler address (tcp://host:8786); needs pip install \"catgraph[dask]\"")
     p.add_argument("--processes", type=int, metavar="N", help="local worker processes (default: CPUs; 1 = serial)")
@@ -65,7 +65,7 @@ def cmd_bench(args) -> int:
     from ..exceptions import CatgraphError, InvalidParameterError
     from ..results import write_json_atomic
     from ..sweep import run_sweep
-    from .commands import print_metrics_table
+    from .commands import print_metrics_table, progress_enabled
 
     config = load_config(args.config)
     if args.list:
@@ -78,10 +78,11 @@ def cmd_bench(args) -> int:
     if args.processes is not None and args.processes < 1:
         raise InvalidParameterError(f"--processes must be ≥ 1; got {args.processes}.")
     out = args.out if args.out is not None else Path("results") / run_file_name(config.name)
-    if out.exists() and not out.is_dir():
-        raise InvalidParameterError(f"--out {out} is a file; give a folder (it is created if missing).")
+    from .._atomic import check_writable_folder
+
+    check_writable_folder(out, "--out folder")  # before the sweep, not after it
     results = run_sweep(config.specs, scheduler=args.scheduler, processes=args.processes,
-                        progress=not args.quiet, errors="record")
+                        progress=progress_enabled(args), errors="record")
     payloads, failed, rows = [], [], []
     for spec, result in zip(config.specs, results):
         file = f"{run_file_name(spec['name'])}.json"

@@ -49,6 +49,14 @@ def _int(text: str) -> int:
     return value
 
 
+def folder(text: str) -> Path:
+    """An output folder option's value: a name, never empty (``Path("")`` would be the
+    working directory)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a folder name, got an empty one")
+    return Path(text)
+
+
 def _size(text: str) -> tuple[int, int]:
     try:
         w, h = text.lower().split("x")
@@ -436,7 +444,7 @@ def register_demo(sub) -> None:
                        description="Localise an out-of-order night drive through a synthetic city against a day "
                                    "map with single-frame matching, the adaptive sequence matcher and the particle "
                                    "filter; print a table and write an HTML report.")
-    p.add_argument("--out", type=Path, default=Path("catgraph-demo"), help="report folder (default catgraph-demo/)")
+    p.add_argument("--out", type=folder, default=Path("catgraph-demo"), help="report folder (default catgraph-demo/)")
     p.add_argument("--seed", type=_number(int), default=0, help="seed of the world and the filter (default 0)")
     p.add_argument("--particles", type=_number(int), default=2000, help="particles in the filter (default 2000)")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress messages (the table is printed)")
@@ -449,8 +457,9 @@ def cmd_demo(args) -> int:
 
     METHODS["filter"].param("seed").check(args.seed, "demo", label="--seed")
     METHODS["filter"].param("n_particles").check(args.particles, "demo", label="--particles")
-    if args.out.exists() and not args.out.is_dir():
-        raise InvalidParameterError(f"--out {args.out} is a file; give a folder (it is created if missing).")
+    from .._atomic import check_writable_folder
+
+    check_writable_folder(args.out, "--out folder")
     log = (lambda *a: None) if args.quiet else print
     report, payloads = run_demo(args.out, seed=args.seed, n_particles=args.particles,
                                 progress=progress_enabled(args), log=log)

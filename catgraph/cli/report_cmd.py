@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .commands import register
+from .commands import folder, register
 
 
 @register
@@ -24,7 +24,7 @@ def register_report(sub) -> None:
                     "page with PR curves, AUC/MTL bars and per-frame plots, plus a markdown table (results.md).",
     )
     p.add_argument("results", nargs="+", type=Path, metavar="RESULTS.json", help="result files, in the order to show")
-    p.add_argument("--out", "-o", type=Path, required=True, metavar="DIR",
+    p.add_argument("--out", "-o", type=folder, required=True, metavar="DIR",
                    help="folder to write index.html and results.md into (created if missing)")
     p.add_argument("--title", default="catgraph report", help="page title (default: 'catgraph report')")
     p.add_argument("--quiet", "-q", action="store_true", help="print nothing on success")
@@ -32,8 +32,10 @@ def register_report(sub) -> None:
 
 
 def cmd_report(args) -> int:
+    from .._atomic import check_writable_folder
     from ..report import write_report
 
+    check_writable_folder(args.out, "--out folder")
     index = write_report(list(args.results), args.out, title=args.title)
     if not args.quiet:
         print(f"wrote {index} and {index.parent / 'results.md'}")

@@ -346,6 +346,9 @@ def _read_arrays(fh, path: Path) -> tuple[np.ndarray, dict, str | None]:
         return loaded, {}, None
     with loaded:
         keys = list(loaded.files)
+        if "__format__" in keys:
+            raise DataError(f"{path} is a saved map (catgraph build-map), not a traverse; give it as --map {path} "
+                            "(from Python: catgraph.io.load_map).")
         main = next((k for k in ("descriptors", "frames") if k in keys), None)
         if main is None:
             if len(keys) != 1:
