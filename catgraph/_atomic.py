@@ -92,14 +92,21 @@ def check_writable(path: str | os.PathLike, what: str = "output", inputs=()) -> 
     if path.exists() and not os.access(path, os.W_OK) and not os.access(folder, os.W_OK):
         raise InvalidParameterError(f"cannot write the {what} {path}: the file is read-only.")
     if folder == path.parent:  # the folder is there: a trial file says what permissions may not (/proc, a full disk)
-        try:
-            fd, trial = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
-        except OSError as exc:
-            raise InvalidParameterError(f"cannot write the {what} {path}: {exc.strerror or exc} in {folder}.") \
-                from None
-        os.close(fd)
-        os.unlink(trial)
+        _trial_file(folder, f"cannot write the {what} {path}")
     return path
+
+
+def _trial_file(folder: Path, failure: str) -> None:
+    """Create and remove a file in ``folder``; where that fails, an InvalidParameterError
+    ``failure: the reason in folder``."""
+    from .exceptions import InvalidParameterError
+
+    try:
+        fd, trial = tempfile.mkstemp(prefix=".catgraph.", suffix=".tmp", dir=folder)
+    except OSError as exc:
+        raise InvalidParameterError(f"{failure}: {exc.strerror or exc} in {folder}.") from None
+    os.close(fd)
+    os.unlink(trial)
 
 
 def check_writable_folder(path: str | os.PathLike, what: str = "output folder") -> Path:
@@ -120,11 +127,5 @@ def check_writable_folder(path: str | os.PathLike, what: str = "output folder") 
         folder = folder.parent
     if not folder.is_dir():
         raise InvalidParameterError(f"cannot write into the {what} {path}: {folder} is not a folder.")
-    try:
-        fd, trial = tempfile.mkstemp(prefix=".catgraph.", suffix=".tmp", dir=folder)
-    except OSError as exc:
-        raise InvalidParameterError(f"cannot write into the {what} {path}: {exc.strerror or exc} in {folder}.") \
-            from None
-    os.close(fd)
-    os.unlink(trial)
+    _trial_file(folder, f"cannot write into the {what} {path}")
     return path
