@@ -117,8 +117,6 @@ def check_writable_folder(path: str | os.PathLike, what: str = "output folder") 
     """
     from .exceptions import InvalidParameterError
 
-    if os.fspath(path) == "":
-        raise InvalidParameterError(f"the {what} is empty; give a folder name.")
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise InvalidParameterError(f"the {what} {path} is a file; give a folder (it is created if missing).")

@@ -250,8 +250,11 @@ def _condition_name(condition: dict) -> str:
 
 
 def _is_synthetic(text: str) -> bool:
-    """``synthetic`` or ``synthetic:SEED``: the built-in world, not a path (``synthetic_gt.csv`` is one)."""
-    return text == "synthetic" or text.startswith("synthetic:")
+    """:func:`catgraph.experiment.is_synthetic_name` (imported where read: the experiment
+    layer is heavier than a configuration check)."""
+    from .experiment import is_synthetic_name
+
+    return is_synthetic_name(text)
 
 
 def _resolve(path: Any, base_dir: Path | None) -> str:

@@ -78,9 +78,14 @@ def synthetic_world(seed: int):
     return make_world(seed=seed)
 
 
+def is_synthetic_name(text: str) -> bool:
+    """``"synthetic"`` or ``"synthetic:SEED"``: the built-in world, not a path (``synthetic_gt.csv`` is one)."""
+    return text == "synthetic" or text.startswith("synthetic:")
+
+
 def _synthetic_seed(text: str) -> int | None:
     """The seed of ``"synthetic"``/``"synthetic:SEED"``; ``None`` for anything else."""
-    if text != "synthetic" and not text.startswith("synthetic:"):
+    if not is_synthetic_name(text):
         return None
     _, _, seed = text.partition(":")
     if seed and not seed.isdigit():
