@@ -39,6 +39,8 @@ from pathlib import Path
 __all__ = ["cache_location", "njit"]
 
 _CHECKED = False
+#: no folder can be written at all: kernels are compiled without a disk cache
+_NOWHERE = False
 
 
 def _writable(folder: Path) -> bool:
@@ -96,16 +98,32 @@ def _seed(shipped: Path, cache_root: Path) -> int:
 def cache_location() -> Path:
     """The folder the package's compiled kernels are cached in (made writable first).
 
-    ``NUMBA_CACHE_DIR`` when set; else ``catgraph/__pycache__`` when writable; else
-    numba's user cache folder when writable; else a private folder in the system's
-    temporary directory, which is then handed to numba. In the last two the kernels the
-    package was built with are copied in first (:func:`_seed`).
+    ``NUMBA_CACHE_DIR`` when set and writable (set but read-only: a
+    :class:`~catgraph.exceptions.CatgraphWarning`, and the folders below); else
+    ``catgraph/__pycache__`` when writable; else numba's user cache folder when writable;
+    else a private folder in the system's temporary directory, which is then handed to
+    numba. In the last two the kernels the package was built with are copied in first
+    (:func:`_seed`). Where not even that folder can be written, :func:`njit` compiles
+    without a disk cache (every process compiles again) rather than fail.
     """
-    global _CHECKED
+    global _CHECKED, _NOWHERE
     import numba
 
     if numba.config.CACHE_DIR:
-        return Path(numba.config.CACHE_DIR)
+        chosen = Path(numba.config.CACHE_DIR)
+        if _writable(chosen):
+            return chosen
+        # numba would refuse every cached kernel ("cannot cache function"): a cache folder
+        # that cannot be written is not a reason to stop working
+        import warnings
+
+        from .exceptions import CatgraphWarning
+
+        numba.config.CACHE_DIR = ""
+        where = cache_location()
+        warnings.warn(f"NUMBA_CACHE_DIR={chosen} cannot be written; compiled kernels are cached in {where} instead "
+                      f"(point NUMBA_CACHE_DIR at a writable folder, or unset it).", CatgraphWarning, stacklevel=2)
+        return where
     beside = _package_cache()
     if _writable(beside):
         _CHECKED = True
@@ -117,7 +135,14 @@ def cache_location() -> Path:
         return user
     uid = os.getuid() if hasattr(os, "getuid") else "user"
     private = Path(tempfile.gettempdir()) / f"catgraph-numba-{uid}"
-    private.mkdir(mode=0o700, parents=True, exist_ok=True)
+    try:
+        private.mkdir(mode=0o700, parents=True, exist_ok=True)
+    except OSError:
+        pass
+    if not _writable(private):  # not even the temporary folder: the kernels compile in every process
+        _NOWHERE = True
+        _CHECKED = True
+        return private
     numba.config.CACHE_DIR = str(private)
     _CHECKED = True
     _seed(beside, private)
@@ -134,4 +159,6 @@ def njit(*args, **options):
     options.setdefault("cache", True)
     if options["cache"] and not _CHECKED:
         cache_location()
+    if _NOWHERE:
+        options["cache"] = False
     return numba.njit(*args, **options)

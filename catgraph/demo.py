@@ -31,6 +31,8 @@ def run_demo(out_dir: str | Path = "catgraph-demo", seed: int = 0, n_particles: 
     seed : int
         Seed of the synthetic world and the filter.
     n_particles : int
+        Particles of the particle filter whose posterior the report draws. The filter runs
+        themselves are the exact grid filter (``mode="auto"`` on this world), which has none.
     progress : bool
         Progress bars while running.
     log : callable
@@ -53,7 +55,7 @@ def run_demo(out_dir: str | Path = "catgraph-demo", seed: int = 0, n_particles: 
     log(f"map: {graph!r}")
 
     plan = [("single-frame", {}), ("sequence", {"window": "adaptive"})]
-    plan += [("filter", {"model": model, "n_particles": n_particles, "seed": seed})
+    plan += [("filter", {"model": model, "seed": seed})
              for model in ("tempered", "histogram", "combined")]
     payloads = []
     for method, params in plan:

@@ -119,8 +119,10 @@ def map_hub_offsets(catgraph_map, threshold: float = HUB_THRESHOLD, max_rows: in
     from .differences import iter_difference_columns
 
     d, n = catgraph_map.descriptors, catgraph_map.n_places
-    rows = np.arange(n) if n <= max_rows else np.sort(np.random.default_rng(0).choice(n, max_rows, replace=False))
     check_scalar(threshold, "threshold", "hub_offsets", float, 0.0)
+    if n < 3:  # as hub_offsets: no typical difference to stand out from (one place has no other)
+        return np.zeros(n)
+    rows = np.arange(n) if n <= max_rows else np.sort(np.random.default_rng(0).choice(n, max_rows, replace=False))
     typical = np.empty(n)
     for lo, block in iter_difference_columns(d[rows], d, catgraph_map.metric,
                                              normalise=bool(catgraph_map.frontend.get("normalise", True))):

@@ -539,7 +539,7 @@ class LiveLocalizer:
         Passed to :meth:`LiveMap.bootstrap`.
     **params
         Parameters of the batch method — ``filter`` (``n_particles``, ``seed``,
-        ``confidence_radius``, ``window`` …; see ``catgraph methods filter``), or
+        ``confidence_radius``, ``window`` …; see ``catgraph localize --help``), or
         ``sequence`` for ``"matcher"`` (``window``, ``exclusion`` …) — with the same
         defaults and checks.
 
@@ -554,7 +554,7 @@ class LiveLocalizer:
     --------
     >>> from catgraph.datasets.synthetic import make_world
     >>> world = make_world(seed=1, blocks=(2, 2), as_images=True)
-    >>> live = LiveLocalizer(LiveMap(world.reference), model="adaptive", n_particles=200)
+    >>> live = LiveLocalizer(LiveMap(world.reference), model="adaptive", mode="particles", n_particles=200)
     >>> est = live.step(world.query.frames[0])
     >>> 0 <= est.place < live.live_map.n_places
     True
@@ -690,8 +690,7 @@ def warm_up(models: tuple[str, ...] = ("combined", "tempered", "histogram-bootst
         live_map = LiveMap(the_map, layout=layout)
         for model in models:
             start = time.perf_counter()
-            params = {} if model == "matcher" else {"n_particles": 100}
-            live = LiveLocalizer(live_map, model=model, **params)
+            live = LiveLocalizer(live_map, model=model)  # the default filter: the grid on maps up to 10⁵ places
             for k in range(steps):
                 live.step(descriptors[100 + k])
             seconds[f"{model}/{layout}"] = time.perf_counter() - start

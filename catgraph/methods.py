@@ -44,6 +44,7 @@ fixed window, ``window`` with the ``adaptive`` model) is refused, not ignored.
 
 from __future__ import annotations
 
+import inspect
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -422,6 +423,8 @@ def observation_model(params: dict, n_places: int, bootstrap_samples: Callable[[
 
 
 _PARTICLE_KEYS = ("n_particles", "resampler", "ess_threshold", "redraw_fraction", "proposal", "jump_graduation")
+#: the grid filter's own parameters (the particle filter has none of them)
+_GRID_KEYS = ("jump_velocity", "rigid_prior", "home_speed_odds")
 #: ``mode="auto"`` runs the exact grid filter on maps up to this many places
 GRID_MAX_PLACES = 100_000
 
@@ -457,6 +460,10 @@ RIGID_MAX_PLACES = 10_000
 #: a traverse most often has (``docs/particle_filter.md``, "The reference's own speed")
 HOME_SPEED_ODDS = 3.0
 
+#: the grid filter's ``jump_velocity`` where the method leaves it unset: a jump lands with the
+#: query's long-run velocity distribution (``GridLocalizer(jump_velocity=...)``)
+JUMP_VELOCITY = "long-run"
+
 
 def jump_graduation(params: dict, n_places: int) -> float:
     """The particle filter's ``jump_graduation`` on a map of ``n_places``: the method's
@@ -464,7 +471,12 @@ def jump_graduation(params: dict, n_places: int) -> float:
     places with the likelihood proposal (the grid's births need it), else 1."""
     if params.get("jump_graduation") is not None:
         return float(params["jump_graduation"])
-    if n_places <= JUMP_GRID_MAX_PLACES and params.get("proposal", "likelihood") == "likelihood":
+    proposal = params.get("proposal")
+    if proposal is None:  # unset: the particle filter's own
+        from .localizer import Localizer
+
+        proposal = particle_defaults(Localizer)["proposal"]
+    if n_places <= JUMP_GRID_MAX_PLACES and proposal == "likelihood":
         return JUMP_GRADUATION
     return 1.0
 
@@ -484,25 +496,70 @@ def filter_mode(params: dict, n_places: int) -> str:
     return "grid" if n_places <= GRID_MAX_PLACES else "particles"
 
 
+def particle_defaults(localizer_class) -> dict[str, Any]:
+    """The particle filter's own defaults of the ``filter`` method's particle-only parameters
+    (``n_particles``, ``resampler`` …): the method leaves them unset and the filter decides."""
+    own = inspect.signature(localizer_class.__init__).parameters
+    return {k: own[k].default for k in _PARTICLE_KEYS if k != "jump_graduation"}
+
+
+def concrete_params(params: dict, n_places: int) -> dict[str, Any]:
+    """The ``filter`` method's resolved ``params`` as they apply on a map of ``n_places``:
+    ``mode`` the filter that runs, the other filter's parameters dropped and the unset ones of
+    this filter filled in (the particle filter's own defaults; the grid's rigid line by map size).
+
+    Under ``mode="auto"`` a parameter of the filter it does not choose (``n_particles`` where
+    the grid runs, ``rigid_prior`` where particles run …) would be ignored: it is an
+    :class:`InvalidParameterError` naming the mode that applies it.
+    """
+    mode = filter_mode(params, n_places)
+    other = {"grid": (*_PARTICLE_KEYS, "motion"), "particles": _GRID_KEYS}[mode]
+    given = [k for k in other if params.get(k) is not None]
+    if given:
+        which = ("the exact grid filter", "has no particles", "particles") if mode == "grid" else \
+            ("the particle filter", "has no grid", "grid")
+        raise InvalidParameterError(
+            f"'{given[0]}' does not apply here: mode '{params['mode']}' runs {which[0]} on this map of "
+            f"{n_places:,} places (the grid up to {GRID_MAX_PLACES:,}), which {which[1]}; choose mode "
+            f"'{which[2]}', or leave '{given[0]}' out.")
+    out = {k: v for k, v in params.items() if k not in other}
+    out["mode"] = mode
+    if mode == "grid":
+        out["jump_velocity"] = params.get("jump_velocity") or JUMP_VELOCITY
+        out["rigid_prior"] = rigid_prior(params, n_places)
+        if params.get("home_speed_odds") is None:
+            out["home_speed_odds"] = HOME_SPEED_ODDS
+        return out
+    from .localizer import Localizer
+
+    for k, value in particle_defaults(Localizer).items():
+        if out.get(k) is None:
+            out[k] = value
+    if out.get("motion") is None:
+        out["motion"] = "velocity"
+    out["jump_graduation"] = jump_graduation(out, n_places)
+    return out
+
+
 def make_filter(params: dict, graph, model):
     """The filter the ``filter`` method's resolved parameters describe, on ``graph`` with
     observation ``model``: a particle filter (``mode="particles"``) or the exact grid filter."""
+    params = concrete_params(params, graph.n_places)
     common = {k: params[k] for k in ("seed", "confidence_radius", "confidence_radius_m") if k in params}
     if params.get("new_place_prior") is not None:
         common["new_place_prior"] = params["new_place_prior"]
-    if filter_mode(params, graph.n_places) == "grid":
+    if params["mode"] == "grid":
         from .grid import GridLocalizer
 
         common.pop("seed", None)
         return GridLocalizer(graph, model, jump_velocity=params["jump_velocity"],
-                             rigid_prior=rigid_prior(params, graph.n_places),
+                             rigid_prior=params["rigid_prior"],
                              home_speed_odds=params["home_speed_odds"], **common)
     from .localizer import Localizer
     from .motion import VelocityMotion
 
     motion = VelocityMotion() if params["motion"] == "velocity" else None
     particles = {k: params[k] for k in _PARTICLE_KEYS}
-    particles["jump_graduation"] = jump_graduation(params, graph.n_places)
     return Localizer(graph, model, motion=motion, **common, **particles)
 
 
@@ -510,11 +567,12 @@ def _filter(params: dict, inputs: "MethodInputs") -> RunResult:
     if params.get("window") is not None:  # a sequence model's window, as the matcher's own run checks it
         check_sequence_length(params, len(inputs.differences))
     graph = inputs.graph()
+    params = concrete_params(params, graph.n_places)
     obs = observation_model(params, inputs.map.n_places, inputs.bootstrap_samples)
     loc = make_filter(params, graph, obs)
     odometry = inputs.query.odometry if params["use_odometry"] and graph.unit == "m" else None
     start = time.perf_counter()
-    mode = filter_mode(params, graph.n_places)
+    mode = params["mode"]
     kwargs = {"progress": inputs.progress} if mode == "particles" else {}
     res = loc.run(inputs.differences, odometry=odometry, query_index=inputs.query.index, **kwargs)
     seconds = time.perf_counter() - start
@@ -562,8 +620,10 @@ def _filter_not_applicable(params: dict) -> dict[str, str]:
 
 
 def _filter_params() -> tuple[Param, ...]:
-    from .localizer import PROPOSALS
+    from .localizer import PROPOSALS, Localizer
     from .particles import RESAMPLERS
+
+    own = particle_defaults(Localizer)
     from .sequence import DEFAULT_LINE_RULE, RULES
 
     seq = {p.name: p for p in _sequence_params(None, window_optional=True)}
@@ -577,10 +637,11 @@ def _filter_params() -> tuple[Param, ...]:
         Param("mode", "str", "auto", "'grid': the exact Bayes filter over (place, velocity); 'particles': the "
               "CAT-Graph particle filter; 'auto': the grid up to 100,000 places, particles above",
               choices=("auto", "grid", "particles")),
-        Param("motion", "str", "velocity", "particle motion: 'velocity' (a signed velocity per particle, driven "
-              "forwards or backwards at 0.5-3 places per frame) or 'frame' (one frame per step, odometry where "
-              "given)", choices=("velocity", "frame")),
-        Param("n_particles", "int", 2000, "number of particles", low=1, high=10_000_000, flag="--particles"),
+        Param("motion", "str", None, "particles: 'velocity' (a signed velocity per particle, driven forwards or "
+              "backwards at 0.5-3 places per frame) or 'frame' (one frame per step, odometry where given) "
+              "(default velocity)", choices=("velocity", "frame"), optional=True),
+        Param("n_particles", "int", None, f"particles: number of particles (default {own['n_particles']})", low=1,
+              high=10_000_000, flag="--particles", optional=True),
         Param("seed", "int", 0, "seed of the particle filter and of the histogram models' samples", low=0),
         Param("confidence_radius", "int", 2, "places either side of the answer counted in its confidence "
               "(the grid: the map's mean spacings along the route; a parameter of the method, not of the "
@@ -588,12 +649,16 @@ def _filter_params() -> tuple[Param, ...]:
         Param("confidence_radius_m", "float", None, "count posterior mass within METRES instead (needs positions)",
               low=0.0, optional=True),
         Param("use_odometry", "bool", True, "drive the motion model by the query's odometry where it has one"),
-        Param("resampler", "str", "systematic", "resampling scheme", choices=tuple(RESAMPLERS)),
-        Param("ess_threshold", "float", 0.5, "resample when ESS < this fraction of the particles", low=0.0, high=1.0),
-        Param("redraw_fraction", "float", 0.1, "particles born each step to carry the jump (recovery) share, as "
-              "a fraction of the particles (0: no recovery)", low=0.0, high=0.99),
-        Param("proposal", "str", PROPOSALS[0], "where the recovery particles born each step are drawn",
-              choices=PROPOSALS),
+        Param("resampler", "str", None, f"particles: resampling scheme (default {own['resampler']})",
+              choices=tuple(RESAMPLERS), optional=True),
+        Param("ess_threshold", "float", None, "particles: resample when ESS < this fraction of the particles "
+              f"(default {own['ess_threshold']})", low=0.0, high=1.0, optional=True),
+        Param("redraw_fraction", "float", None, "particles: particles born each step to carry the jump (recovery) "
+              f"share, as a fraction of the particles (0: no recovery; default {own['redraw_fraction']})", low=0.0,
+              high=0.99,
+              optional=True),
+        Param("proposal", "str", None, f"particles: where the recovery particles born each step are drawn "
+              f"(default {own['proposal']})", choices=PROPOSALS, optional=True),
         Param("jump_graduation", "float", None, "particles: share of the exact jump grid born as particles each "
               "step (1: no grid, births only; smaller: a steadier recovery after jumps, at about twice the "
               "step's cost on a route of 10^5 places; default: 0.2 on maps of at most 5,000 places, 1 above)",
@@ -601,17 +666,17 @@ def _filter_params() -> tuple[Param, ...]:
         Param("new_place_prior", "float", None, "per-step probability of entering unmapped space (default: the "
               "filter's own, 0.05 for the grid)",
               low=0.0, high=0.99, optional=True),
-        Param("jump_velocity", "str", "long-run", "grid: the velocity a jump lands with: 'long-run' (the query's "
-              "long-run velocity distribution) or 'current' (half the current marginal, half uniform)",
-              choices=("long-run", "current")),
+        Param("jump_velocity", "str", None, "grid: the velocity a jump lands with: 'long-run' (the query's "
+              "long-run velocity distribution) or 'current' (half the current marginal, half uniform) "
+              f"(default {JUMP_VELOCITY})", choices=("long-run", "current"), optional=True),
         Param("rigid_prior", "float", None, "grid: prior probability that the query is one unbroken line "
               "at one speed (a rigid-line motion averaged with the filter's by Bayes' rule; 0: off). It holds long "
               "unbroken traverses through weak stretches and is slower to follow real jumps (default: 0.05 on "
               "maps of at most 10,000 places, 0 above: it doubles the grid's state and step)",
               low=0.0, high=0.99, optional=True),
-        Param("home_speed_odds", "float", HOME_SPEED_ODDS, "grid: prior odds of the reference's own speed (one "
+        Param("home_speed_odds", "float", None, "grid: prior odds of the reference's own speed (one "
               "place per frame, either direction) against each other velocity, at the start and where a jump lands "
-              "(1: uniform)", low=1.0, high=1000.0),
+              f"(1: uniform; default {HOME_SPEED_ODDS:g})", low=1.0, high=1000.0, optional=True),
         *seq.values(),
         hist["n_init"], hist["exclusion_radius"], hist["gap"], hist["max_different"],
     )

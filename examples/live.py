@@ -42,12 +42,17 @@ def load_live_map(source: str, layout: str = "float32"):
 
 def main(argv: list[str] | None = None) -> int:
     from catgraph.live import LIVE_MODELS
+    from catgraph.methods import METHODS
 
+    mode = METHODS["filter"].param("mode")
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("reference", metavar="REFERENCE")
     parser.add_argument("query", metavar="QUERY")
     parser.add_argument("--model", choices=LIVE_MODELS, default="combined")
-    parser.add_argument("--particles", type=int, default=2000)
+    parser.add_argument("--mode", choices=mode.choices, default=mode.default,
+                        help=f"the filter: {mode.help} (default {mode.default})")
+    parser.add_argument("--particles", type=int, help="particles in the particle filter (mode 'particles', or "
+                                                       "'auto' on a map of more than 100,000 places; default 2000)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--output", type=Path, help="write the per-frame answers (JSON, 'frames' as localize writes)")
     parser.add_argument("--every", type=int, default=0, help="print every N-th answer (0: none)")
@@ -77,7 +82,7 @@ def run(args) -> int:
         check_writable(args.output, "output file", inputs=source_paths(args.reference) + source_paths(args.query))
     live_map = load_live_map(args.reference, args.layout)
     query = load_input(args.query, "query")
-    params = {} if args.model == "matcher" else {"n_particles": args.particles, "seed": args.seed}
+    params = {} if args.model == "matcher" else {"mode": args.mode, "n_particles": args.particles, "seed": args.seed}
     live = LiveLocalizer(live_map, model=args.model, **params)
     odometry = query.odometry
     frames = {"query_index": [], "match": [], "confidence": [], "p_new_place": [], "window_length": []}

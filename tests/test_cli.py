@@ -123,7 +123,7 @@ def test_match_methods_write_rechecking_json(extra, image_pair, tmp_path):
 
 def test_localize_and_compare_on_the_synthetic_world(tmp_path, capsys):
     out = tmp_path / "l.json"
-    assert main(["localize", "synthetic:3", "synthetic:3", "--model", "histogram", "--particles", "300",
+    assert main(["localize", "synthetic:3", "synthetic:3", "--model", "histogram",
                  "-o", str(out), "-q"]) == 0
     payload = json.loads(out.read_text())
     from catgraph.experiment import synthetic_world
@@ -132,7 +132,7 @@ def test_localize_and_compare_on_the_synthetic_world(tmp_path, capsys):
     recheck(payload, world.ground_truth())
     p_new = np.array(payload["frames"]["p_new_place"])
     assert p_new.shape == (len(world.query),) and np.all((p_new >= 0) & (p_new <= 1))
-    assert main(["compare", "synthetic:3", "synthetic:3", "--particles", "200", "-o", str(tmp_path / "c.json")]) == 0
+    assert main(["compare", "synthetic:3", "synthetic:3", "-o", str(tmp_path / "c.json")]) == 0
     table = capsys.readouterr().out
     for name in ("single-frame", "adaptive", "grid-filter/histogram", "grid-filter/combined", "ms/frame"):
         assert name in table
@@ -188,15 +188,15 @@ def test_histogram_same_place_by_position(tmp_path, image_pair, capsys):
 def test_compare_and_localize_with_a_saved_map(tmp_path):
     m = tmp_path / "city.npz"
     assert main(["build-map", "synthetic:5", "--junction-radius-m", "10", "--out", str(m), "-q"]) == 0
-    assert main(["compare", "--map", str(m), "synthetic:5", "--particles", "100", "-q",
+    assert main(["compare", "--map", str(m), "synthetic:5", "-q",
                  "-o", str(tmp_path / "c.json")]) == 0
     runs = json.loads((tmp_path / "c.json").read_text())["runs"]
     from catgraph.methods import FILTER_MODELS
 
     assert [r["params"]["map"] for r in runs] == [str(m)] * (4 + len(FILTER_MODELS))
     a, b = tmp_path / "a.json", tmp_path / "b.json"
-    assert main(["localize", "--map", str(m), "synthetic:5", "--particles", "100", "-q", "-o", str(a)]) == 0
-    assert main(["localize", "synthetic:5", "synthetic:5", "--junction-radius-m", "10", "--particles", "100", "-q",
+    assert main(["localize", "--map", str(m), "synthetic:5", "-q", "-o", str(a)]) == 0
+    assert main(["localize", "synthetic:5", "synthetic:5", "--junction-radius-m", "10", "-q",
                  "-o", str(b)]) == 0
     assert json.loads(a.read_text())["frames"] == json.loads(b.read_text())["frames"]
 
@@ -210,3 +210,23 @@ def test_warm_up_compiles_into_the_cache_folder(capsys):
     assert "compiled and cached the kernels in" in out and str(cache_location()) in out
     assert main(["warm-up", "--quiet"]) == 0
     assert capsys.readouterr().out == ""
+
+
+def test_closed_or_narrow_standard_streams_are_not_a_traceback(tmp_path):
+    """``catgraph … >&-`` (Python's stdout is None) and an ASCII locale (``≥`` in the help
+    and the messages): the command still runs, exits as it would and writes no traceback."""
+    import os
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, "-m", "catgraph.cli.main"]
+    closed = subprocess.run([*cmd, "match", "--help"], capture_output=False, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: os.close(1), timeout=120)
+    assert closed.returncode == 0 and closed.stderr == "", closed.stderr
+    env = {**os.environ, "PYTHONIOENCODING": "ascii"}
+    narrow = subprocess.run([*cmd, "match", "--help"], capture_output=True, text=True, env=env, timeout=120)
+    assert narrow.returncode == 0 and "Traceback" not in narrow.stderr and "usage:" in narrow.stdout
+    bad = subprocess.run([*cmd, "match", "synthetic:1", "synthetic:1", "--window", "0"], capture_output=True,
+                         text=True, env=env, timeout=120)
+    assert bad.returncode == 1 and bad.stderr.splitlines() == [
+        "catgraph: error: --window must be an int \\u2265 1 or 'adaptive'. Got 0 instead."]

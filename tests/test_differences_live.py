@@ -261,7 +261,7 @@ def test_jit_cache_falls_back_to_a_private_folder_when_nothing_is_writable(tmp_p
     monkeypatch.setattr(numba.config, "CACHE_DIR", "")
     monkeypatch.setattr(_jit, "_CHECKED", False)
     # the folder beside the package and numba's user folder both read-only
-    monkeypatch.setattr(_jit, "_writable", lambda folder: False)
+    monkeypatch.setattr(_jit, "_writable", lambda folder: folder.name.startswith("catgraph-numba-"))
     monkeypatch.setattr(_jit.tempfile, "gettempdir", lambda: str(tmp_path))
     monkeypatch.setattr(_jit, "_package_cache", lambda: tmp_path / "no-build-cache")  # nothing shipped to copy
     where = _jit.cache_location()
@@ -274,6 +274,46 @@ def test_jit_cache_falls_back_to_a_private_folder_when_nothing_is_writable(tmp_p
 
     assert twice(21) == 42
     assert any(where.rglob("*.nbi")), "the compiled kernel is cached in the private folder"
+
+
+def test_jit_cache_set_read_only_by_the_user_falls_back_with_a_warning(tmp_path, monkeypatch):
+    import numba
+
+    from catgraph import _jit
+    from catgraph.exceptions import CatgraphWarning
+
+    read_only = tmp_path / "read-only"
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(read_only))
+    monkeypatch.setattr(_jit, "_CHECKED", False)
+    monkeypatch.setattr(_jit, "_writable", lambda folder: folder != read_only and folder.name != "__pycache__"
+                        and folder.name.startswith("catgraph-numba-"))
+    monkeypatch.setattr(_jit.tempfile, "gettempdir", lambda: str(tmp_path))
+    monkeypatch.setattr(_jit, "_package_cache", lambda: tmp_path / "no-build-cache")
+    with pytest.warns(CatgraphWarning, match=f"NUMBA_CACHE_DIR={read_only} cannot be written"):
+        where = _jit.cache_location()
+    assert where.name.startswith("catgraph-numba-") and numba.config.CACHE_DIR == str(where)
+
+
+def test_jit_compiles_without_a_disk_cache_where_nothing_is_writable(tmp_path, monkeypatch):
+    import numba
+
+    from catgraph import _jit
+
+    monkeypatch.setattr(numba.config, "CACHE_DIR", "")
+    monkeypatch.setattr(_jit, "_CHECKED", False)
+    monkeypatch.setattr(_jit, "_NOWHERE", False)
+    monkeypatch.setattr(_jit, "_writable", lambda folder: False)
+    monkeypatch.setattr(_jit.tempfile, "gettempdir", lambda: str(tmp_path / "no-temp"))
+    monkeypatch.setattr(_jit, "_package_cache", lambda: tmp_path / "no-build-cache")
+    _jit.cache_location()
+    assert _jit._NOWHERE and numba.config.CACHE_DIR == ""
+
+    @_jit.njit
+    def thrice(x):  # pragma: no cover - compiled
+        return 3 * x
+
+    assert thrice(14) == 42  # compiled, not cached: numba would have refused to decorate it
+    assert not thrice._cache_hits and not any(tmp_path.rglob("*.nbi"))
 
 
 def _shipped(folder, names):
@@ -309,7 +349,7 @@ def test_jit_copies_the_kernels_built_with_the_package_where_its_folder_is_read_
 
     # nothing writable but the private folder: the copy goes there, under numba's layout for NUMBA_CACHE_DIR
     monkeypatch.setattr(_jit, "_CHECKED", False)
-    monkeypatch.setattr(_jit, "_writable", lambda folder: False)
+    monkeypatch.setattr(_jit, "_writable", lambda folder: folder.name.startswith("catgraph-numba-"))
     monkeypatch.setattr(_jit.tempfile, "gettempdir", lambda: str(tmp_path / "tmp"))
     private = _jit.cache_location()
     assert numba.config.CACHE_DIR == str(private)

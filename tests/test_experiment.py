@@ -34,8 +34,8 @@ def _method_output(p: dict) -> dict:
 def _plan():
     plan = []
     for method, params in compare_plan(window=5):
-        if method == "filter":
-            params = {**params, "n_particles": 200}
+        if method == "filter":  # mode auto: the grid filter on this map
+            params = dict(params)
             if params["model"] in ("adaptive", "combined", "histogram-combined"):
                 params["l_max"] = 20
             if params["model"] in ("histogram-bootstrap", "histogram-combined"):
@@ -45,6 +45,7 @@ def _plan():
         plan.append((method, params))
     plan.append(("histogram", {"learning": "bootstrap", "max_different": 2000}))
     plan.append(("filter", {"model": "tempered", "mode": "grid"}))
+    plan.append(("filter", {"model": "combined", "mode": "particles", "n_particles": 200, "l_max": 20}))
     return plan
 
 
@@ -72,7 +73,7 @@ def test_evaluation_tolerance_never_reaches_the_method(image_pair, tmp_path):
     outputs = []
     for tolerance in ("0", "5"):
         out = tmp_path / f"t{tolerance}.json"
-        assert main(["localize", str(ref), str(qry), "--model", "histogram", "--particles", "200", "--init-frames",
+        assert main(["localize", str(ref), str(qry), "--model", "histogram", "--init-frames",
                      "10", "--tolerance", tolerance, "-o", str(out), "-q"]) == 0
         p = json.loads(out.read_text())
         outputs.append((json.dumps(_method_output(p), sort_keys=True),
@@ -83,7 +84,7 @@ def test_evaluation_tolerance_never_reaches_the_method(image_pair, tmp_path):
 def test_runs_without_ground_truth(image_pair, tmp_path, capsys):
     ref, qry = image_pair
     out = tmp_path / "x.json"
-    assert main(["localize", str(ref), str(qry), "--model", "histogram", "--particles", "200", "-o", str(out)]) == 0
+    assert main(["localize", str(ref), str(qry), "--model", "histogram", "-o", str(out)]) == 0
     p = json.loads(out.read_text())
     assert p["metrics"] is None and p["params"]["ground_truth"] is None
     assert len(p["frames"]["match"]) == 60 and "correct" not in p["frames"]
@@ -134,7 +135,7 @@ def test_filter_options_reach_the_filter_from_the_cli_and_a_sweep(tmp_path):
     for window in ("3", "15"):
         out = tmp_path / f"w{window}.json"
         assert main(["localize", "synthetic:2", "synthetic:2", "--model", "histogram-combined", "--window", window,
-                     "--particles", "200", "--max-different", "2000", "-o", str(out), "-q"]) == 0
+                     "--max-different", "2000", "-o", str(out), "-q"]) == 0
         runs[window] = json.loads(out.read_text())
         assert runs[window]["params"]["window"] == int(window)
     assert runs["3"]["frames"]["match"] != runs["15"]["frames"]["match"]
@@ -142,8 +143,7 @@ def test_filter_options_reach_the_filter_from_the_cli_and_a_sweep(tmp_path):
     from catgraph.experiment import run_experiment
 
     config = parse_config({"dataset": [{"name": "c", "reference": "synthetic:2", "query": "synthetic:2"}],
-                           "method": [{"method": "filter", "params": {"model": "histogram-combined", "n_particles": 200,
-                                                                      "max_different": 2000},
+                           "method": [{"method": "filter", "params": {"model": "histogram-combined", "max_different": 2000},
                                        "grid": {"window": [3, 15]}}]})
     swept = [run_experiment(spec) for spec in config.specs]
     assert [s["params"]["window"] for s in swept] == [3, 15]
@@ -151,9 +151,9 @@ def test_filter_options_reach_the_filter_from_the_cli_and_a_sweep(tmp_path):
 
 
 @pytest.mark.parametrize("args, needle", [
-    (["localize", "REF", "QRY", "--model", "adaptive", "--window", "20"], "'window' does not apply"),
-    (["localize", "REF", "QRY", "--model", "histogram", "--rule", "literal"], "'rule' does not apply"),
-    (["match", "REF", "QRY", "--window", "5", "--rule", "literal"], "'rule' does not apply"),
+    (["localize", "REF", "QRY", "--model", "adaptive", "--window", "20"], "--window does not apply"),
+    (["localize", "REF", "QRY", "--model", "histogram", "--rule", "literal"], "--rule does not apply"),
+    (["match", "REF", "QRY", "--window", "5", "--rule", "literal"], "--rule does not apply"),
     (["match", "REF", "QRY", "--learning", "online"], "--learning does not apply to single-frame matching"),
     (["match", "QRY", "--map", "MAP", "--size", "8x4"], "--size does not apply to a saved map"),
     (["match", "QRY", "--map", "MAP", "--patch", "2", "--metric", "ssd"], "--patch, --metric do not apply"),
@@ -242,3 +242,57 @@ def test_every_filter_model_runs_on_the_grid_with_its_seed(image_pair):
     seeded = run_method("filter", {"model": "histogram-bootstrap", "mode": "grid", "max_different": 2000,
                                    "seed": 3}, prepared)
     assert seeded.params["seed"] == 3
+
+
+def test_auto_mode_refuses_the_options_of_the_filter_it_does_not_run(capsys):
+    from catgraph.methods import GRID_MAX_PLACES, concrete_params, resolve_params
+
+    # the synthetic world is small: mode auto runs the grid, which has no particles
+    assert main(["localize", "synthetic:2", "synthetic:2", "--particles", "100", "-q"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("catgraph: error: --particles does not apply here: mode 'auto' runs the exact grid filter")
+    assert "choose mode 'particles', or leave --particles out" in err and "Traceback" not in err
+    for key, value in (("resampler", "multinomial"), ("motion", "frame"), ("ess_threshold", 0.3),
+                       ("redraw_fraction", 0.2), ("proposal", "uniform"), ("jump_graduation", 0.5)):
+        with pytest.raises(InvalidParameterError, match=f"'{key}' does not apply here: mode 'auto' runs the exact"):
+            concrete_params(resolve_params("filter", {key: value}), 100)
+        assert concrete_params(resolve_params("filter", {key: value}), GRID_MAX_PLACES + 1)[key] == value
+    # above the grid's size auto runs particles, which have no grid
+    for key, value in (("rigid_prior", 0.1), ("jump_velocity", "current"), ("home_speed_odds", 2.0)):
+        with pytest.raises(InvalidParameterError, match=f"'{key}' does not apply here: mode 'auto' runs the particle"):
+            concrete_params(resolve_params("filter", {key: value}), GRID_MAX_PLACES + 1)
+        assert concrete_params(resolve_params("filter", {key: value}), 100)[key] == value
+
+
+def test_filter_runs_record_the_parameters_of_the_filter_that_ran(tmp_path):
+    from catgraph.localizer import Localizer
+    from catgraph.methods import HOME_SPEED_ODDS, JUMP_VELOCITY, RIGID_PRIOR, particle_defaults
+
+    out = tmp_path / "grid.json"
+    assert main(["localize", "synthetic:2", "synthetic:2", "-o", str(out), "-q"]) == 0
+    params = json.loads(out.read_text())["params"]
+    assert params["mode"] == "grid"
+    assert not {"n_particles", "resampler", "motion", "proposal", "jump_graduation"} & set(params)
+    assert (params["jump_velocity"], params["rigid_prior"], params["home_speed_odds"]) == \
+        (JUMP_VELOCITY, RIGID_PRIOR, HOME_SPEED_ODDS)
+    out = tmp_path / "particles.json"
+    assert main(["compare", "synthetic:2", "synthetic:2", "--mode", "particles", "--particles", "50", "-o", str(out),
+                 "-q"]) == 0
+    runs = [r for r in json.loads(out.read_text())["runs"] if r["method"].startswith("particle-filter/")]
+    assert len(runs) == 7
+    own = particle_defaults(Localizer)
+    assert own["n_particles"] == 2000 and own["resampler"] == "systematic"
+    for run in runs:
+        p = run["params"]
+        assert p["mode"] == "particles" and p["n_particles"] == 50 and p["motion"] == "velocity"
+        assert {k: p[k] for k in own if k != "n_particles"} == {k: v for k, v in own.items() if k != "n_particles"}
+        assert not {"jump_velocity", "rigid_prior", "home_speed_odds"} & set(p)
+
+
+def test_compare_checks_every_filters_options_before_its_first_run(monkeypatch, capsys):
+    import catgraph.experiment as experiment
+
+    ran = []
+    monkeypatch.setattr(experiment, "run_method", lambda *a, **k: ran.append(a[0]))
+    assert main(["compare", "synthetic:2", "synthetic:2", "--particles", "100", "-q"]) == 1
+    assert ran == [] and "--particles does not apply here" in capsys.readouterr().err

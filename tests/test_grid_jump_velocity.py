@@ -118,7 +118,8 @@ def test_registry_filter_lands_with_the_long_run_velocity():
 
     graph = PlaceGraph.chain(5)
     params = methods.resolve_params("filter", {"mode": "grid"})
-    assert params["jump_velocity"] == "long-run"
+    assert params["jump_velocity"] is None  # unset: the method's default where the grid runs
+    assert methods.concrete_params(params, graph.n_places)["jump_velocity"] == methods.JUMP_VELOCITY == "long-run"
     assert methods.make_filter(params, graph, _Ratios()).jump_velocity == "long-run"
     params = methods.resolve_params("filter", {"mode": "grid", "jump_velocity": "current"})
     assert methods.make_filter(params, graph, _Ratios()).jump_velocity == "current"

@@ -117,3 +117,18 @@ def test_apply_in_blocks_equals_the_whole_matrix_formula_bit_for_bit(monkeypatch
         assert np.array_equal(apply_hub_offsets(d[4], offsets), np.zeros(300))
     assert np.array_equal(apply_hub_offsets(d, offsets, renormalise=False)[4], d[4])
     assert np.array_equal(d, before)  # the input is not modified
+
+
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("n", [1, 2])
+def test_map_hub_offsets_on_maps_too_small_for_hubs_are_zero_and_silent(n):
+    """A map of one or two places has no typical difference for a place to stand out from
+    (an all-NaN median, numpy's warning, before): no offsets, as hub_offsets requires 3 frames."""
+    from catgraph.hubs import map_hub_offsets
+    from catgraph.io import build_map
+    from catgraph.pipeline import FrontEnd
+    from catgraph.traverse import Traverse
+
+    frames = np.random.default_rng(n).normal(size=(n, 8)).astype(np.float32)
+    offsets = map_hub_offsets(build_map(Traverse(frames), FrontEnd(metric="sad"), graph=False))
+    assert offsets.shape == (n,) and np.all(offsets == 0.0)

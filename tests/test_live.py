@@ -89,10 +89,10 @@ def test_map_bootstrap_equals_full_matrix_bootstrap(world):
 def test_live_steps_give_the_batch_answers(world, short_query, model):
     from catgraph.compare import localize
 
-    live = LiveLocalizer(LiveMap(world.reference), model=model, n_particles=200, seed=2)
+    live = LiveLocalizer(LiveMap(world.reference), model=model, seed=2)
     query = short_query
     estimates = [live.step(query.frames[k], None if k == 0 else float(query.odometry[k])) for k in range(len(query))]
-    batch = localize(world.reference, query, model=model, n_particles=200, seed=2)
+    batch = localize(world.reference, query, model=model, seed=2)
     assert np.array_equal([e.place for e in estimates], batch.match)
     assert np.array_equal([e.score for e in estimates], batch.confidence)
     assert np.array_equal([e.new_place_probability for e in estimates], batch.extra["p_new_place"])
@@ -142,7 +142,7 @@ def test_uint8_live_map_equals_the_batch_matcher_on_its_own_differences(world):
     batch = match_sequences(d, radius=p["exclusion"], **_sequence_kwargs(p))
     assert np.array_equal([g.place for g in got], batch.match)
     # the bootstrapped combined filter runs on the compact map and its bootstrap
-    live = LiveLocalizer(live_map, model="histogram-combined", n_particles=100, seed=0)
+    live = LiveLocalizer(live_map, model="histogram-combined", seed=0)
     assert 0 <= live.step(world.query.frames[0]).place < live_map.n_places
 
 
@@ -203,7 +203,7 @@ def test_live_map_from_saved_map_and_bad_inputs(world, tmp_path):
         LiveMap(np.zeros((3, 3)))
     with pytest.raises(InvalidParameterError, match="model"):
         LiveLocalizer(live_map, model="kalman")
-    live = LiveLocalizer(live_map, model="histogram", n_particles=50)
+    live = LiveLocalizer(live_map, model="histogram")
     with pytest.raises(DataError):
         live.step(np.zeros((3, 3, 3, 3)))
     with pytest.raises(Exception, match="values per"):
@@ -225,23 +225,22 @@ def test_example_matches_the_localize_command(world, tmp_path, capsys, monkeypat
     map_path = tmp_path / "ref.npz"
     assert cli(["build-map", str(ref), "--out", str(map_path), "--quiet"]) == 0
     out_live = tmp_path / "live.json"
-    monkeypatch.setattr(sys, "argv", ["live.py", str(map_path), str(qry), "--model", "combined", "--particles",
-                                      "200", "--output", str(out_live)])
+    monkeypatch.setattr(sys, "argv", ["live.py", str(map_path), str(qry), "--model", "combined", "--mode",
+                                      "particles", "--particles", "200", "--output", str(out_live)])
     with pytest.raises(SystemExit) as stop:
         runpy.run_path(str(EXAMPLE), run_name="__main__")
     assert stop.value.code == 0
     assert "per-frame ms: median" in capsys.readouterr().out
     out_batch = tmp_path / "batch.json"
-    assert cli(["localize", "--map", str(map_path), str(qry), "--model", "combined", "--particles", "200",
-                "-o", str(out_batch), "--quiet"]) == 0
+    assert cli(["localize", "--map", str(map_path), str(qry), "--model", "combined", "--mode", "particles",
+                "--particles", "200", "-o", str(out_batch), "--quiet"]) == 0
     live_frames = json.loads(out_live.read_text())["frames"]
     batch_frames = json.loads(out_batch.read_text())["frames"]
     assert live_frames["match"] == batch_frames["match"]
     assert live_frames["confidence"] == batch_frames["confidence"]
     assert live_frames["p_new_place"] == batch_frames["p_new_place"]
     # the compact map runs from the example too
-    monkeypatch.setattr(sys, "argv", ["live.py", str(map_path), str(qry), "--model", "adaptive", "--particles", "100",
-                                      "--layout", "uint8"])
+    monkeypatch.setattr(sys, "argv", ["live.py", str(map_path), str(qry), "--model", "adaptive", "--layout", "uint8"])
     with pytest.raises(SystemExit) as stop:
         runpy.run_path(str(EXAMPLE), run_name="__main__")
     assert stop.value.code == 0 and "per-frame ms: median" in capsys.readouterr().out
@@ -296,7 +295,7 @@ def test_release_free_memory_runs_and_keeps_every_array(world):
 
     from catgraph.live import release_free_memory
 
-    live = LiveLocalizer(LiveMap(world.reference, layout="uint8"), model="adaptive", n_particles=50, seed=1)
+    live = LiveLocalizer(LiveMap(world.reference, layout="uint8"), model="adaptive", seed=1)
     before = live.live_map.reference.descriptors.copy()
     done = release_free_memory()
     assert done == sys.platform.startswith("linux") or done is False

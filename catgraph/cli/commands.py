@@ -379,7 +379,7 @@ def cmd_localize(args) -> int:
 
 
 # ---------------------------------------------------------------------------- compare
-_COMPARE_FILTER = ("n_particles", "seed", "confidence_radius", "confidence_radius_m", "use_odometry", "resampler",
+_COMPARE_FILTER = ("mode", "n_particles", "seed", "confidence_radius", "confidence_radius_m", "use_odometry", "resampler",
                    "ess_threshold", "redraw_fraction", "proposal", "new_place_prior")
 
 
@@ -403,6 +403,7 @@ def register_compare(sub) -> None:
 def cmd_compare(args) -> int:
     from ..compare import compare_plan
     from ..experiment import payload, prepare, run_method
+    from ..methods import concrete_params, resolve_params
     from ..results import write_json_atomic
 
     if args.window < 1:
@@ -410,9 +411,12 @@ def cmd_compare(args) -> int:
     filter_params = method_params(args, "filter")
     exp = experiment_from(args, "single-frame", {})
     prepared = prepare(exp)
+    plan = compare_plan(args.window, filter_params)
+    for name, params in plan:  # every filter's options checked on this map before the first run, not after
+        if name == "filter":
+            concrete_params(resolve_params(name, params), prepared.map.n_places)
     rows, payloads = [], []
-    for name, params in progress_iter(compare_plan(args.window, filter_params), not progress_enabled(args),
-                                      "methods"):
+    for name, params in progress_iter(plan, not progress_enabled(args), "methods"):
         result = run_method(name, params, prepared)
         out, _ = payload(result, prepared)
         payloads.append(out)
@@ -446,7 +450,9 @@ def register_demo(sub) -> None:
                                    "filter; print a table and write an HTML report.")
     p.add_argument("--out", type=folder, default=Path("catgraph-demo"), help="report folder (default catgraph-demo/)")
     p.add_argument("--seed", type=_number(int), default=0, help="seed of the world and the filter (default 0)")
-    p.add_argument("--particles", type=_number(int), default=2000, help="particles in the filter (default 2000)")
+    p.add_argument("--particles", type=_number(int), default=2000,
+                   help="particles of the particle filter whose posterior the report draws; the filter runs are the "
+                        "exact grid filter, which has none (default 2000)")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress messages (the table is printed)")
     p.set_defaults(func=cmd_demo)
 

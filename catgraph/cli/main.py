@@ -10,6 +10,7 @@ value) or a command line argparse cannot read becomes one line on stderr and exi
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import warnings
 from collections.abc import Sequence
@@ -66,12 +67,31 @@ def _in_option_terms(message: str) -> str:
     from ..methods import METHODS
 
     options = {param.name: param.option for method in METHODS.values() for param in method.params}
-    return re.sub(r"The '(\w+)' parameter of [\w.' ]+? must",
-                  lambda m: f"{options[m.group(1)]} must" if m.group(1) in options else m.group(0), message)
+    message = re.sub(r"The '(\w+)' parameter of [\w.' ]+? must",
+                     lambda m: f"{options[m.group(1)]} must" if m.group(1) in options else m.group(0), message)
+    # "'n_particles' does not apply … leave 'n_particles' out" (the filter's mode decides)
+    return re.sub(r"(^|leave )'(\w+)'( does not apply| out)",
+                  lambda m: f"{m.group(1)}{options[m.group(2)]}{m.group(3)}" if m.group(2) in options else m.group(0),
+                  message)
+
+
+def _usable_streams() -> None:
+    """Standard streams every message can be written to: one the caller closed (``>&-``,
+    where Python leaves ``None``) writes to nowhere, and one whose encoding cannot spell a
+    character (``≥``, ``×`` under an ASCII or Latin-1 locale) escapes it instead of failing."""
+    for name in ("stdout", "stderr"):
+        stream = getattr(sys, name)
+        if stream is None:
+            setattr(sys, name, open(os.devnull, "w", encoding="utf-8"))
+            continue
+        encoding = (getattr(stream, "encoding", None) or "utf-8").lower().replace("-", "").replace("_", "")
+        if encoding != "utf8" and hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="backslashreplace")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the exit code."""
+    _usable_streams()
     parser = build_parser()
     try:
         args, extra = parser.parse_known_args(argv)
