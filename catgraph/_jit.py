@@ -112,6 +112,7 @@ def cache_location() -> Path:
     if numba.config.CACHE_DIR:
         chosen = Path(numba.config.CACHE_DIR)
         if _writable(chosen):
+            _CHECKED = True
             return chosen
         # numba would refuse every cached kernel ("cannot cache function"): a cache folder
         # that cannot be written is not a reason to stop working
