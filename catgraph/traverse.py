@@ -205,11 +205,21 @@ class GroundTruth(ABC):
         return {"type": type(self).__name__}
 
 
-def _as_index(values, name: str) -> np.ndarray:
+def _as_index(values, name: str, n: int | None = None, present: np.ndarray | None = None) -> np.ndarray:
+    """``values`` as int64 indices; with ``n``, each a frame in ``[0, n)`` (and, with
+    ``present``, one the traverse holds) or a :class:`DataError` naming it."""
     out = np.asarray(values)
     if out.dtype.kind not in "iu":
         raise DataError(f"{name} must be integer indices; got dtype {out.dtype}.")
-    return out.astype(np.int64, copy=False)
+    out = out.astype(np.int64, copy=False)
+    if n is not None and out.size:
+        bad = (out < 0) | (out >= n)
+        if present is not None:
+            bad[~bad] = ~present[out[~bad]]
+        if bad.any():
+            raise DataError(f"{name} {int(out[bad][0])} is not a frame of this ground truth's query "
+                            f"({n} frames as loaded); give indices as loaded (Traverse.index).")
+    return out
 
 
 @dataclass(frozen=True)
@@ -268,14 +278,24 @@ class MetricTolerance(GroundTruth):
         use_floors = query_floors is not None and reference_floors is not None
         self.query_floors = np.asarray(query_floors, dtype=np.int64) if use_floors else None
         self.reference_floors = np.asarray(reference_floors, dtype=np.int64) if use_floors else None
+        #: the query frames (as loaded) the traverse holds; ``None``: all (see :meth:`between`)
+        self._present: np.ndarray | None = None
         from scipy.spatial import cKDTree
 
         self._tree = cKDTree(self.reference_positions)
         self._has = np.zeros(len(self.query_positions), dtype=bool)
-        for i, neighbours in enumerate(self._tree.query_ball_point(self.query_positions, self.metres)):
+        # the tree's candidates, a little beyond the threshold, then the very distance that
+        # correct() measures: a pair exactly at the threshold is a true match for both (the
+        # tree's own arithmetic may put it an ulp outside, and the recall would lose it)
+        reach = self.metres * (1.0 + 1e-9) + 1e-12
+        for i, neighbours in enumerate(self._tree.query_ball_point(self.query_positions, reach)):
+            if not neighbours:
+                continue
+            j = np.asarray(neighbours, dtype=np.int64)
+            ok = _distances(self.query_positions[np.full(len(j), i)], self.reference_positions[j]) <= self.metres
             if use_floors:
-                neighbours = [j for j in neighbours if self.reference_floors[j] == self.query_floors[i]]
-            self._has[i] = len(neighbours) > 0
+                ok &= self.reference_floors[j] == self.query_floors[i]
+            self._has[i] = bool(ok.any())
 
     @classmethod
     def between(cls, query: Traverse, reference: Traverse, metres: float) -> "MetricTolerance":
@@ -285,35 +305,45 @@ class MetricTolerance(GroundTruth):
                 "metric ground truth needs positions in both traverses; "
                 "use a frame tolerance (--tolerance) for data without positions."
             )
-        # positions are carried in loaded order by ``index``
-        qpos = np.empty_like(query.positions)
+        # the query's positions by frame as loaded (``index``: a shuffled, repeated or thinned
+        # query keeps its frames' numbers); the reference's by place, its rows, which matches name
+        n = int(query.index.max()) + 1 if len(query) else 0
+        present = np.zeros(n, dtype=bool)
+        present[query.index] = True
+        qpos = np.zeros((n, query.positions.shape[1]), dtype=np.float64)
         qpos[query.index] = query.positions
-        rpos = np.empty_like(reference.positions)
-        rpos[reference.index] = reference.positions
         qf = rf = None
         if query.floors is not None and reference.floors is not None:
-            qf = np.empty_like(query.floors)
+            qf = np.zeros(n, dtype=np.int64)
             qf[query.index] = query.floors
-            rf = np.empty_like(reference.floors)
-            rf[reference.index] = reference.floors
-        return cls(qpos, rpos, metres, qf, rf)
+            rf = reference.floors
+        out = cls(qpos, reference.positions, metres, qf, rf)
+        if not present.all():
+            out._present = present
+            out._has &= present
+        return out
 
     def correct(self, query_index, match):
-        q = _as_index(query_index, "query_index")
+        q = _as_index(query_index, "query_index", len(self.query_positions), self._present)
         m = _as_index(match, "match")
         valid = (m >= 0) & (m < len(self.reference_positions))
         mm = np.where(valid, m, 0)
-        dist = np.linalg.norm(self.query_positions[q] - self.reference_positions[mm], axis=1)
-        ok = valid & (dist <= self.metres)
+        ok = valid & (_distances(self.query_positions[q], self.reference_positions[mm]) <= self.metres)
         if self.query_floors is not None:
             ok &= self.query_floors[q] == self.reference_floors[mm]
         return ok
 
     def has_true_match(self, query_index):
-        return self._has[_as_index(query_index, "query_index")]
+        return self._has[_as_index(query_index, "query_index", len(self.query_positions), self._present)]
 
     def describe(self):
         return {"type": "metric", "metres": self.metres, "floors": self.query_floors is not None}
+
+
+def _distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Euclidean distance of each row pair: one formula for :meth:`MetricTolerance.correct`
+    and its recall denominator, so that they agree to the last bit."""
+    return np.linalg.norm(a - b, axis=1)
 
 
 class ExplicitGroundTruth(GroundTruth):
@@ -339,6 +369,10 @@ class ExplicitGroundTruth(GroundTruth):
         data = np.asarray(m.data, dtype=np.float64)
         if not np.all(np.isfinite(data)):
             raise DataError("the ground-truth matrix contains NaN or infinite values.")
+        if threshold is not None:
+            # at or below 0 every entry — the matrix's zeros and absent ones too — would be a match
+            check_scalar(threshold, "threshold", "ExplicitGroundTruth", float, 0.0, low_inclusive=False)
+            threshold = float(threshold)
         self.threshold = threshold
         keep = data >= threshold if threshold is not None else data > 0
         m = scipy.sparse.csr_array((keep, m.indices, m.indptr), shape=m.shape)
@@ -361,7 +395,7 @@ class ExplicitGroundTruth(GroundTruth):
         return cls(m)
 
     def correct(self, query_index, match):
-        q = _as_index(query_index, "query_index")
+        q = _as_index(query_index, "query_index", self.matrix.shape[0])
         m = _as_index(match, "match")
         valid = (m >= 0) & (m < self.matrix.shape[1])
         out = np.zeros(len(q), dtype=bool)
@@ -370,7 +404,7 @@ class ExplicitGroundTruth(GroundTruth):
         return out
 
     def has_true_match(self, query_index):
-        return self._has[_as_index(query_index, "query_index")]
+        return self._has[_as_index(query_index, "query_index", len(self._has))]
 
     def describe(self):
         return {"type": "explicit", "threshold": self.threshold}
