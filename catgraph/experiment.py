@@ -384,12 +384,14 @@ def _inputs(exp: Experiment) -> tuple:
         graph = the_map.graph
         sources = {"map": _source_name(exp.map)}
     else:
-        from .pipeline import FrontEnd
+        from .pipeline import FrontEnd, check_image_options
 
         reference = load_input(exp.reference, "reference")
         if exp.junction_radius_m is not None and reference.positions is None:
             raise InvalidParameterError("junction_radius_m joins places by position, but the reference has no "
                                         "positions; leave it out.")
+        # an option given explicitly is refused where it does not apply, its default value too
+        check_image_options(reference, {k for k in ("size", "patch") if (exp.frontend or {}).get(k) is not None})
         frontend = FrontEnd.from_dict(exp.frontend)
         the_map = build_map(reference, frontend, graph=False)
         graph = None

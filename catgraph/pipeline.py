@@ -103,14 +103,23 @@ def describe(traverse: Traverse, frontend: FrontEnd = FrontEnd()) -> tuple[np.nd
     return descriptors, metric
 
 
+def check_image_options(traverse: Traverse, given: set[str]) -> None:
+    """Refuse the image front-end's options ``given`` (``size``, ``patch``) for a traverse of
+    other frames (Wi-Fi scans, descriptors), which they would not touch."""
+    kind = _kind(traverse)
+    given = [f"--{k} ({k})" for k in ("size", "patch") if k in given]
+    if kind == "images" or traverse.meta.get("described") or not given:
+        return
+    both = len(given) > 1
+    raise InvalidParameterError(f"{' and '.join(given)} appl{'y' if both else 'ies'} to image frames only; "
+                                f"{traverse.name or 'this traverse'} holds {kind}. Leave {'them' if both else 'it'} out.")
+
+
 def _describe(traverse: Traverse, frontend: FrontEnd) -> tuple[np.ndarray, str]:
     kind = _kind(traverse)
-    if kind != "images" and not traverse.meta.get("described") and (
-            frontend.size is not None or frontend.patch not in (0, FrontEnd.patch)):
-        given = " and ".join(f for f, on in (("--size (size)", frontend.size is not None),
-                                               ("--patch (patch)", frontend.patch not in (0, FrontEnd.patch))) if on)
-        raise InvalidParameterError(f"{given} appl{'ies' if ' and ' not in given else 'y'} to image frames only; "
-                                    f"{traverse.name or 'this traverse'} holds {kind}. Leave {'it' if ' and ' not in given else 'them'} out.")
+    # a value other than the default was given (the experiment layer also knows a default given explicitly)
+    check_image_options(traverse, {k for k, on in (("size", frontend.size is not None),
+                                                   ("patch", frontend.patch not in (0, FrontEnd.patch))) if on})
     if kind == "images":
         return seqslam_preprocess(traverse.frames, size=frontend.size, patch=frontend.patch), frontend.metric or "sad"
     if kind == "wifi":

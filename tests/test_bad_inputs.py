@@ -324,6 +324,12 @@ CASES = [
       message="memory|GiB"),
     E("size-on-descriptors", *M, "--size", "32x16", message="--size"),
     E("patch-on-descriptors", *M, "--patch", "8", message="--patch"),
+    # given explicitly, the default and 'off' do not apply either (they were accepted and ignored)
+    E("patch-default-on-descriptors", *M, "--patch", "4", message="--patch .* applies to image frames only"),
+    E("patch-off-on-descriptors", *M, "--patch", "0", message="--patch .* applies to image frames only"),
+    E("build-map-patch-on-descriptors", "build-map", "{ref}", "--out", "{outdir}/d.npz", "--patch", "4",
+      message="--patch .* applies to image frames only"),
+    OK("build-map-patch-on-images", "build-map", "{ref_img}", "--out", "{outdir}/i.npz", "--patch", "2"),
     E("map-and-size", "match", "--map", "{map}", "{qry}", "--tolerance", "2", "--size", "32x16", message="--size"),
     E("map-and-patch", "match", "--map", "{map}", "{qry}", "--tolerance", "2", "--patch", "2", message="--patch"),
     E("map-and-metric", "match", "--map", "{map}", "{qry}", "--tolerance", "2", "--metric", "sad", message="--metric"),

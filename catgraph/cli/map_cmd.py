@@ -27,7 +27,7 @@ def register_build_map(sub) -> None:
                                      "or synthetic:SEED")
     p.add_argument("--out", "-o", type=Path, required=True, metavar="FILE", help="map file to write (map.npz)")
     p.add_argument("--size", type=_size, metavar="WxH", help="resize images to WxH before patch normalisation")
-    p.add_argument("--patch", type=_number(int), default=4, help="patch-normalisation patch side in pixels (0 = off)")
+    p.add_argument("--patch", type=_number(int), help="patch-normalisation patch side in pixels (0 = off; default 4)")
     p.add_argument("--metric", choices=METRICS, help="difference metric (default: by data kind)")
     p.add_argument("--junction-radius-m", type=_number(float), metavar="METRES",
                    help="join places of different parts of the route within METRES (needs positions)")
@@ -40,7 +40,7 @@ def cmd_build_map(args) -> int:
     from ..exceptions import InvalidParameterError
     from ..experiment import load_input
     from ..io import build_map, save_map
-    from ..pipeline import FrontEnd
+    from ..pipeline import FrontEnd, check_image_options
 
     from .._atomic import check_writable
     from ..datasets.loaders import source_paths
@@ -49,9 +49,10 @@ def cmd_build_map(args) -> int:
         raise InvalidParameterError("--junction-radius-m adds edges to the place graph; drop --no-graph.")
     if args.junction_radius_m is not None and not 0 < args.junction_radius_m < float("inf"):
         raise InvalidParameterError(f"--junction-radius-m must be > 0 metres; got {args.junction_radius_m}.")
-    frontend = FrontEnd(size=args.size, patch=args.patch, metric=args.metric)
+    frontend = FrontEnd.from_dict({"size": args.size, "patch": args.patch, "metric": args.metric})
     check_writable(args.out, "map file", inputs=source_paths(args.reference))
     reference = load_input(args.reference, "reference")
+    check_image_options(reference, {k for k in ("size", "patch") if getattr(args, k) is not None})
     if args.junction_radius_m is not None and reference.positions is None:
         raise InvalidParameterError("--junction-radius-m joins places by position, but the reference has no "
                                     "positions; leave it out.")
