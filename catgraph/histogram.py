@@ -188,6 +188,7 @@ class HistogramLikelihood:
 
     def _initialise(self) -> None:
         self._validate_params()
+        self._tables_cache = None  # a model fitted again: the tables of the last fit are not its own
         n = self.n_bins
         self.counts_same_ = np.zeros(n, dtype=np.float64)
         self.counts_different_ = np.zeros(n, dtype=np.float64)

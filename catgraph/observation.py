@@ -346,8 +346,13 @@ class HistogramObservation:
         Multiplies every log-ratio.
     new_place_samples : int or None
         Monte Carlo samples for the new-place ratio (``None``: exact expectation).
+    n_random_different : int
+        ``¬L`` samples drawn each frame at random places outside the best match's
+        location, beside the paper's one (the smallest difference there): see
+        :class:`~catgraph.likelihood.HistogramPlaceRecogniser`. ``0``: paper 2's online
+        scheme exactly.
     seed : int or None
-        For the Monte Carlo new-place samples.
+        Draws those random ``¬L`` samples and the Monte Carlo new-place samples.
 
     Attributes
     ----------
@@ -356,13 +361,15 @@ class HistogramObservation:
     """
 
     def __init__(self, mode: str = "online", likelihood=None, n_init: int = 100, exclusion_radius: int = 5,
-                 temperature: float = 1.0, new_place_samples: int | None = None, seed: int | None = 0) -> None:
+                 temperature: float = 1.0, new_place_samples: int | None = None, n_random_different: int = 5,
+                 seed: int | None = 0) -> None:
         self.mode = mode
         self.likelihood = likelihood
         self.n_init = n_init
         self.exclusion_radius = exclusion_radius
         self.temperature = temperature
         self.new_place_samples = new_place_samples
+        self.n_random_different = n_random_different
         self.seed = seed
 
     @classmethod
@@ -436,7 +443,7 @@ class HistogramObservation:
         n_init = self.n_init if self.mode == "online" else 0
         self.recogniser_ = HistogramPlaceRecogniser(
             model=self.likelihood, n_init=n_init, exclusion_radius=self.exclusion_radius,
-            learn=self.mode != "trained",
+            learn=self.mode != "trained", n_random_different=self.n_random_different, random_state=self.seed,
         )
         self._rng = as_generator(self.seed)
 

@@ -719,3 +719,39 @@ def test_recent_support_as_an_array_is_numpys_array_protocol():
     copied = np.array(support, copy=True)
     assert copied is not full and np.array_equal(copied, full)
     assert np.asarray(support, dtype=np.float32).dtype == np.float32
+
+
+def test_fitting_again_learns_the_new_data_not_the_tables_of_the_last_fit():
+    """Same sample sizes and range, other data: the cached tables of the first fit were
+    reused (the log-ratios kept their sign)."""
+    from catgraph.histogram import HistogramLikelihood
+
+    for kwargs in ({"n_bins": 10, "range": (0.0, 1.0), "monotone": False}, {"n_bins": 10}):
+        m = HistogramLikelihood(**kwargs).fit([0.05, 0.1], [0.9, 0.95])
+        m.log_likelihood_ratio(0.5)  # fills the cache
+        m.fit([0.9, 0.95], [0.05, 0.1])
+        fresh = HistogramLikelihood(**kwargs).fit([0.9, 0.95], [0.05, 0.1])
+        np.testing.assert_array_equal(m.log_likelihood_ratio([0.05, 0.5, 0.95]),
+                                      fresh.log_likelihood_ratio([0.05, 0.5, 0.95]))
+
+
+def test_histogram_observation_is_paper_2s_scheme_with_no_random_samples_and_seeds_them_otherwise():
+    from catgraph.observation import HistogramObservation
+
+    rows = np.random.default_rng(3).uniform(0.0, 1.0, (12, 30))
+
+    def learned(**kwargs):
+        obs = HistogramObservation(n_init=2, **kwargs)
+        for row in rows:
+            obs.observe(row)
+        return obs.recogniser_
+
+    paper = learned(n_random_different=0)
+    # paper 2: after T_init, one L sample (d_min) and one ¬L sample per frame; T_init frames add d_min to ¬L
+    assert (paper.model_.n_same_, paper.model_.n_different_) == (10, 12)
+    more = learned()
+    assert (more.model_.n_same_, more.model_.n_different_) == (10, 12 + 5 * 10)
+    np.testing.assert_array_equal(learned(seed=0).model_.counts_different_, more.model_.counts_different_)
+    assert not np.array_equal(learned(seed=999).model_.counts_different_, more.model_.counts_different_)
+    np.testing.assert_array_equal(learned(n_random_different=0, seed=999).model_.counts_different_,
+                                  paper.model_.counts_different_)
