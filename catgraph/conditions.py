@@ -18,10 +18,10 @@ under that condition, by *reordering* its frames:
 
 Every per-frame array, ``index`` included, travels with its frame, so ground truth
 (which speaks of frames *as loaded*) follows. Odometry is recomputed for the new order:
-between frames that stay near each other on the route (at most three frames apart as
-loaded) it is the route distance between them (zero for a repeated frame); across a
-shuffle's jump, where no motion could connect the frames, each frame keeps the step it
-had. Because a condition is only an order, a difference matrix computed once for the
+between frames the condition drives from one to the next — every step of a reversed or
+sped-up query, a shuffle's steps inside a segment — it is the route distance between
+them (zero for a repeated frame, ``K`` loaded steps at speed ``K``); across a shuffle's
+jump, where no motion could connect the frames, each frame keeps the step it had. Because a condition is only an order, a difference matrix computed once for the
 loaded query serves every condition: ``D[condition.order(n)]``.
 
 :func:`condition_table` lists the conditions every default is chosen on: in order;
@@ -47,19 +47,38 @@ CONDITION_KINDS = ("in-order", "shuffle", "reverse", "speed")
 #: (each frame 100 times) or faster (every 100th frame).
 MIN_SPEED, MAX_SPEED = 0.01, 100.0
 
-#: frames further apart (as loaded) than this are a jump, not motion
-_MAX_STEP = 3
-
-
-def _odometry(odometry: np.ndarray, order: np.ndarray) -> np.ndarray:
-    """Odometry (metres since the previous frame) of the frames ``order``, see the module."""
+def _odometry(odometry: np.ndarray, order: np.ndarray, driven: np.ndarray) -> np.ndarray:
+    """Odometry (metres since the previous frame) of the frames ``order``; ``driven[k]``:
+    the query is driven from frame ``order[k]`` to ``order[k + 1]`` (else a jump), see the
+    module."""
     travelled = np.concatenate([[0.0], np.cumsum(odometry[1:])])  # route distance of each loaded frame
     out = odometry[order].astype(np.float64)
     if len(order) > 1:
-        step = np.abs(np.diff(order))
-        near = step <= _MAX_STEP
-        out[1:][near] = np.abs(travelled[order[1:]] - travelled[order[:-1]])[near]
+        out[1:][driven] = np.abs(travelled[order[1:]] - travelled[order[:-1]])[driven]
     return out
+
+
+#: the fields each kind reads (the others must be left at their defaults)
+_USES = {"in-order": (), "reverse": (), "speed": ("factor",), "shuffle": ("seed", "segment_range")}
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def _is_real(value) -> bool:
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+
+
+def _given(value, default) -> bool:
+    """Whether a field holds something other than its default (any sequence equal to it is the default)."""
+    if value is None or default is None:
+        return value is not default
+    try:
+        return bool(np.any(np.asarray(value, dtype=object) != np.asarray(default, dtype=object))) or \
+            np.shape(value) != np.shape(default)
+    except Exception:  # noqa: BLE001 - not comparable: not the default
+        return True
 
 
 @dataclass(frozen=True)
@@ -84,17 +103,30 @@ class Condition:
     factor: float = 1.0
 
     def __post_init__(self) -> None:
-        if self.kind not in CONDITION_KINDS:
+        if not isinstance(self.kind, str) or self.kind not in CONDITION_KINDS:
             raise InvalidParameterError(f"unknown condition {self.kind!r}; choose one of {', '.join(CONDITION_KINDS)}.")
+        unused = [name for name, default in (("seed", None), ("segment_range", (0.02, 0.20)), ("factor", 1.0))
+                  if name not in _USES[self.kind] and _given(getattr(self, name), default)]
+        if unused:
+            raise InvalidParameterError(f"{', '.join(unused)} do{'es' if len(unused) == 1 else ''} not apply to the "
+                                        f"condition {self.kind!r}; leave {'it' if len(unused) == 1 else 'them'} out.")
         if self.kind == "shuffle":
-            if self.seed is None or int(self.seed) != self.seed or self.seed < 0:
+            if not _is_int(self.seed) or self.seed < 0:
                 raise InvalidParameterError(f"a shuffle needs a seed ≥ 0 (an int); got {self.seed!r}.")
-            lo, hi = (float(v) for v in self.segment_range)
+            object.__setattr__(self, "seed", int(self.seed))
+            bounds = self.segment_range
+            if isinstance(bounds, (str, bytes)) or not hasattr(bounds, "__len__") or len(bounds) != 2 or \
+                    not all(_is_real(v) for v in bounds):
+                raise InvalidParameterError(f"the segment range must be two fractions (MIN, MAX) of the query; got "
+                                            f"{bounds!r}.")
+            lo, hi = (float(v) for v in bounds)
             if not (0.0 < lo <= hi <= 1.0):
                 raise InvalidParameterError(
                     f"the segment range must satisfy 0 < MIN ≤ MAX ≤ 1 (fractions of the query); got {lo}:{hi}.")
             object.__setattr__(self, "segment_range", (lo, hi))
         if self.kind == "speed":
+            if not _is_real(self.factor):
+                raise InvalidParameterError(f"the speed factor must be a number; got {self.factor!r}.")
             f = float(self.factor)
             if not (math.isfinite(f) and MIN_SPEED <= f <= MAX_SPEED):
                 raise InvalidParameterError(
@@ -132,6 +164,9 @@ class Condition:
         """Inverse of :meth:`as_dict` (``None`` = in order)."""
         if not values:
             return cls()
+        if not isinstance(values, dict):
+            raise InvalidParameterError(f"a condition is a dict (kind, seed, segment_range, factor) or a string such "
+                                        f"as 'shuffle:0'; got {values!r}.")
         unknown = set(values) - {"kind", "seed", "segment_range", "factor"}
         if unknown:
             raise InvalidParameterError(f"unknown condition keys {sorted(unknown)}; allowed: kind, seed, "
@@ -181,7 +216,10 @@ class Condition:
         meta["traversal"] = self.as_dict()
         if self.kind == "shuffle":
             meta["segments"] = segment_order(len(traverse), self.seed, *self.segment_range)[1]
-        odometry = None if traverse.odometry is None else _odometry(traverse.odometry, order)
+        # a shuffle drives its segments one frame at a time and jumps between them; a reversed
+        # or sped-up query is driven all the way (at speed K, K loaded steps per frame)
+        driven = np.diff(order) == 1 if self.kind == "shuffle" else np.ones(max(len(order) - 1, 0), dtype=bool)
+        odometry = None if traverse.odometry is None else _odometry(traverse.odometry, order, driven)
         return replace(out, odometry=odometry, meta=meta, name=f"{traverse.name} ({self.label})")
 
 

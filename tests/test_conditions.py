@@ -67,3 +67,35 @@ def test_table():
     table = condition_table()
     assert len(table) == 14
     assert len({c.label for c in table}) == 14
+
+
+def test_odometry_at_any_speed_is_the_route_driven_and_a_shuffle_jump_keeps_its_step():
+    """The slow reference: the distance along the route between consecutive driven frames,
+    except across a shuffle's jump (the frame's own loaded step). Frames more than three
+    loaded steps apart (speed 4 and above) were taken for jumps before."""
+    t = _traverse(60)
+    travelled = np.concatenate([[0.0], np.cumsum(t.odometry[1:])])
+    for factor in (1.5, 2, 3, 4, 7.5, 0.3):
+        c = Condition("speed", factor=factor)
+        order = c.order(len(t))
+        expected = [t.odometry[order[0]]] + [abs(travelled[b] - travelled[a]) for a, b in zip(order[:-1], order[1:])]
+        np.testing.assert_allclose(c.apply(t).odometry, expected, rtol=1e-12, atol=1e-12)
+    c = Condition("shuffle", seed=2, segment_range=(0.1, 0.2))
+    order, out = c.order(len(t)), c.apply(t).odometry
+    for k in range(1, len(order)):
+        want = abs(travelled[order[k]] - travelled[order[k - 1]]) if order[k] == order[k - 1] + 1 else \
+            t.odometry[order[k]]
+        assert out[k] == pytest.approx(want, abs=1e-12)
+
+
+def test_conditions_built_in_python_give_typed_errors():
+    for bad in (dict(kind="speed", factor="abc"), dict(kind="shuffle", seed="abc"), dict(kind="shuffle", seed=2.0),
+                dict(kind="shuffle", seed=True), dict(kind="shuffle", seed=0, segment_range=0.1),
+                dict(kind="shuffle", seed=0, segment_range=("a", 0.2)), dict(kind=5), dict(seed=1),
+                dict(kind="reverse", factor=2.0), dict(kind="speed", factor=2.0, seed=1)):
+        with pytest.raises(InvalidParameterError):
+            Condition(**bad)
+    for bad in ({"seed": 1}, 123, {"kind": "speed", "factor": "abc"}, {"kind": "shuffle", "seed": 0, "speed": 2}):
+        with pytest.raises(InvalidParameterError):
+            Condition.from_dict(bad)
+    assert Condition("shuffle", seed=np.int64(2)).seed == 2 and Condition("speed", factor=np.float32(2)).factor == 2.0
