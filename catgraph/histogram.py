@@ -244,9 +244,8 @@ class HistogramLikelihood:
             q = np.ldexp(d, -self.bin_exponent_)
             # a negative quotient that underflows to 0 still lies in bin −1
             idx = np.where((q == 0) & (d < 0), -1.0, np.floor(q)) - self.bin_offset_
-        else:
-            lo, hi = float(self.range[0]), float(self.range[1])
-            idx = np.floor((d - lo) * (self.n_bins / (hi - lo)))
+        else:  # by the edges themselves: a value on an edge opens its bin (the scaled floor can round below it)
+            idx = np.searchsorted(self.bin_edges_, d, side="right") - 1
         return np.clip(idx, 0, self.n_bins - 1).astype(np.intp)
 
     def fit(self, d_same: Any, d_different: Any) -> "HistogramLikelihood":

@@ -755,3 +755,14 @@ def test_histogram_observation_is_paper_2s_scheme_with_no_random_samples_and_see
     assert not np.array_equal(learned(seed=999).model_.counts_different_, more.model_.counts_different_)
     np.testing.assert_array_equal(learned(n_random_different=0, seed=999).model_.counts_different_,
                                   paper.model_.counts_different_)
+
+
+def test_fixed_range_bins_are_read_by_their_edges():
+    from catgraph.histogram import HistogramLikelihood
+
+    for n_bins, lo, hi in ((3, 0.0, 0.3), (10, 0.0, 1.0), (7, -0.35, 0.9), (100, 0.0, 0.1)):
+        m = HistogramLikelihood(n_bins=n_bins, range=(lo, hi)).fit([], [lo])
+        edges = m.bin_edges_
+        np.testing.assert_array_equal(m._bin_index(edges[:-1]), np.arange(n_bins))   # each edge opens its bin
+        np.testing.assert_array_equal(m._bin_index(np.nextafter(edges[1:], -np.inf)), np.arange(n_bins))
+        assert m._bin_index(np.array([lo - 1.0, hi, hi + 1.0])).tolist() == [0, n_bins - 1, n_bins - 1]
