@@ -214,7 +214,8 @@ def map_bootstrap_samples(catgraph_map, gap: int | None = None, max_different: i
     ----------
     catgraph_map : CatgraphMap
     gap : int, optional
-        Places more than ``gap`` apart are different (default ``max(10, N // 100)``,
+        Places more than ``gap`` apart are different (default
+        :func:`catgraph.samples.default_bootstrap_gap`: 50, or a fifth of a short route;
         capped at ``N − 2``).
     max_different : int
         ``¬L`` samples.
@@ -258,7 +259,9 @@ def reference_bootstrap_samples(reference: PreparedReference, normalise: bool = 
     n = reference.n_places
     if n < 3:
         raise DataError(f"a bootstrap needs at least 3 map places; the map has {n}.")
-    gap = max(10, n // 100) if gap is None else gap
+    from .samples import default_bootstrap_gap
+
+    gap = default_bootstrap_gap(n) if gap is None else gap
     gap = min(gap, n - 2)
     rows, cols = bootstrap_pairs(n, gap, max_different, seed, anchor_rows)
     order = np.argsort(rows, kind="stable")

@@ -326,8 +326,11 @@ def _same_place(params: dict, inputs: "MethodInputs") -> dict:
 
 
 def _bootstrap_gap(params: dict, n: int) -> int:
-    """"Far apart along the route": ``gap`` places, by default 50 or a fifth of a short route."""
-    gap = params["gap"] if params["gap"] is not None else min(50, max(1, n // 5))
+    """"Far apart along the route": ``gap`` places (:func:`catgraph.samples.default_bootstrap_gap`
+    where unset)."""
+    from .samples import default_bootstrap_gap
+
+    gap = params["gap"] if params["gap"] is not None else default_bootstrap_gap(n)
     return max(1, min(int(gap), n - 2))
 
 

@@ -383,7 +383,7 @@ class HistogramObservation:
             Reference-vs-reference differences, normalised like the query rows will be.
         gap : int, optional
             Reference frames more than ``gap`` apart are different places (default
-            ``max(10, n_places // 100)``).
+            :func:`catgraph.samples.default_bootstrap_gap`: 50, or a fifth of a short route).
         max_different : int
             ``¬L`` samples drawn.
         seed : int or None
@@ -391,9 +391,10 @@ class HistogramObservation:
             Further constructor parameters (``temperature`` …).
         """
         from .likelihood import HistogramLikelihood, reference_samples
+        from .samples import default_bootstrap_gap
 
         r = check_array(reference_differences, "reference differences", ndim=2)
-        gap = min(max(10, len(r) // 100), len(r) - 2) if gap is None else gap  # a gap given is checked as given
+        gap = default_bootstrap_gap(len(r)) if gap is None else gap  # a gap given is checked as given
         same, different = reference_samples(r, gap=gap, max_different=max_different, seed=seed)
         return cls(mode="bootstrap", likelihood=HistogramLikelihood().fit(same, different), **kwargs)
 

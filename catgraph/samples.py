@@ -119,6 +119,14 @@ def labelled_samples(
     return d_same, d_diff
 
 
+def default_bootstrap_gap(n_places: int) -> int:
+    """Places more than this many apart along the route count as different places where a
+    bootstrap from the map leaves ``gap`` unset: 50, or a fifth of a short route, at least 1
+    and at most ``n_places − 2`` (the one default of the method registry, the live map and
+    :meth:`catgraph.observation.HistogramObservation.bootstrap`)."""
+    return max(1, min(50, n_places // 5, n_places - 2))
+
+
 def reference_samples(
     reference_differences: Any,
     gap: int,

@@ -766,3 +766,21 @@ def test_fixed_range_bins_are_read_by_their_edges():
         np.testing.assert_array_equal(m._bin_index(edges[:-1]), np.arange(n_bins))   # each edge opens its bin
         np.testing.assert_array_equal(m._bin_index(np.nextafter(edges[1:], -np.inf)), np.arange(n_bins))
         assert m._bin_index(np.array([lo - 1.0, hi, hi + 1.0])).tolist() == [0, n_bins - 1, n_bins - 1]
+
+
+def test_one_default_bootstrap_gap_for_the_registry_the_live_map_and_the_api():
+    from catgraph import methods
+    from catgraph.samples import default_bootstrap_gap
+
+    for n in (3, 4, 10, 60, 249, 250, 251, 3576, 100_000):
+        registry = methods._bootstrap_gap({"gap": None}, n)
+        assert registry == default_bootstrap_gap(n) == max(1, min(50, n // 5, n - 2))
+    # the API's bootstrap without a gap is the registry's model
+    from catgraph.observation import HistogramObservation
+
+    rng = np.random.default_rng(2)
+    r = rng.uniform(0, 1, (120, 120))
+    a = HistogramObservation.bootstrap(r, max_different=500, seed=1).likelihood
+    b = HistogramObservation.bootstrap(r, gap=methods._bootstrap_gap({"gap": None}, 120), max_different=500,
+                                       seed=1).likelihood
+    np.testing.assert_array_equal(a.counts_different_, b.counts_different_)
