@@ -238,7 +238,8 @@ class PlaceGraph:
         junctions : array-like of int, shape (J, 2), optional
             Pairs of places that are the same physical place (added both ways).
         junction_radius_m : float, optional
-            Also find junctions from positions: places within this many metres.
+            Also find junctions from positions: places within this many metres (on the
+            same floor, where the traverse has floors).
         bidirectional : bool
             Add reverse chain edges so particles may travel the route backwards.
         edge_length : {"auto", "odometry", "positions", "frames"}
@@ -295,9 +296,12 @@ class PlaceGraph:
             check_scalar(junction_radius_m, "junction_radius_m", "PlaceGraph.from_traverse", float, 0.0, low_inclusive=False)
             if positions is None:
                 raise DataError("junction_radius_m needs positions in the reference traverse; give junctions explicitly.")
+            if junction_exclusion_m is not None:
+                check_scalar(junction_exclusion_m, "junction_exclusion_m", "PlaceGraph.from_traverse", float, 0.0)
             exclusion = 3.0 * junction_radius_m if junction_exclusion_m is None else float(junction_exclusion_m)
             route_m = route if unit == "m" else np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(positions, axis=0), axis=1))])
-            pairs.append(_find_junctions(np.asarray(positions), route_m, junction_radius_m, exclusion))
+            pairs.append(_find_junctions(np.asarray(positions), route_m, junction_radius_m, exclusion,
+                                         getattr(traverse, "floors", None)))
         if pairs:
             jp = np.unique(np.sort(np.concatenate(pairs), axis=1), axis=0)
             jp = jp[jp[:, 0] != jp[:, 1]]
@@ -448,26 +452,32 @@ def load_graph(path: str | PathLike) -> PlaceGraph:
     return PlaceGraph.from_networkx(g)
 
 
-def _find_junctions(positions: np.ndarray, route: np.ndarray, radius: float, exclusion: float) -> np.ndarray:
-    """Mutual-nearest place pairs within ``radius`` metres and further than
-    ``exclusion`` apart along the route. Returns ``(J, 2)`` int64."""
+def _find_junctions(positions: np.ndarray, route: np.ndarray, radius: float, exclusion: float,
+                    floors: np.ndarray | None = None) -> np.ndarray:
+    """Mutual-nearest place pairs within ``radius`` metres, on the same floor where
+    ``floors`` are given, and further than ``exclusion`` apart along the route (among
+    equally near places, the one of the smallest index). Returns ``(J, 2)`` int64."""
     from scipy.spatial import cKDTree
 
     tree = cKDTree(positions)
     cand = tree.query_pairs(radius, output_type="ndarray")
     if len(cand) == 0:
         return np.zeros((0, 2), dtype=np.int64)
-    cand = cand[np.abs(route[cand[:, 0]] - route[cand[:, 1]]) > exclusion]
+    keep = np.abs(route[cand[:, 0]] - route[cand[:, 1]]) > exclusion
+    if floors is not None:  # two floors of a building, one above the other, are not one place
+        floors = np.asarray(floors)
+        keep &= floors[cand[:, 0]] == floors[cand[:, 1]]
+    cand = cand[keep]
     if len(cand) == 0:
         return np.zeros((0, 2), dtype=np.int64)
     dist = np.linalg.norm(positions[cand[:, 0]] - positions[cand[:, 1]], axis=1)
     n = len(positions)
     both = np.concatenate([cand, cand[:, ::-1]])
     dd = np.concatenate([dist, dist])
-    best = np.full(n, np.inf)
-    np.minimum.at(best, both[:, 0], dd)
+    order = np.lexsort((both[:, 1], dd, both[:, 0]))  # by place, then distance, then the partner's index
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = both[order[1:], 0] != both[order[:-1], 0]
     nearest = np.full(n, -1)
-    hit = dd <= best[both[:, 0]]
-    nearest[both[hit, 0]] = both[hit, 1]
+    nearest[both[order[first], 0]] = both[order[first], 1]
     mutual = (nearest[cand[:, 0]] == cand[:, 1]) & (nearest[cand[:, 1]] == cand[:, 0])
     return cand[mutual].astype(np.int64)

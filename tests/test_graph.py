@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from catgraph.exceptions import DataError, MapFileError
+from catgraph.exceptions import DataError, InvalidParameterError, MapFileError
 from catgraph.graph import EDGE_KINDS, PlaceGraph, load_graph
 from catgraph.traverse import Traverse
 
@@ -147,3 +147,31 @@ def test_hop_length_counts_places_whatever_the_metres():
     assert g.unit == "m" and np.sum(g.length < 1e-3) > 0
     np.testing.assert_array_equal(g.hop_length, np.ones(g.n_edges))
     assert not g.hop_length.flags.writeable
+
+
+def test_junctions_join_places_of_one_floor_and_break_ties_by_index():
+    from catgraph.traverse import Traverse
+
+    # an out-and-back corridor walked on floor 0, then the same corridor on floor 1 above it
+    x = np.r_[np.arange(10.0), np.arange(10.0)]
+    positions = np.stack([x, np.zeros(20)], axis=1)
+    walk = Traverse(np.zeros((20, 2)), positions=positions, floors=np.r_[np.zeros(10), np.ones(10)].astype(int))
+    assert PlaceGraph.from_traverse(walk, junction_radius_m=0.5).junction_pairs().size == 0  # one floor per place
+    flat = Traverse(np.zeros((20, 2)), positions=positions)
+    assert len(PlaceGraph.from_traverse(flat, junction_radius_m=0.5).junction_pairs()) == 10  # without floors: joined
+    # a figure-eight whose crossing is passed three times at the very same point (frames 0, 8, 16)
+    t = np.linspace(0, 2 * np.pi, 17)
+    eight = np.stack([10 * np.sin(t), 10 * np.sin(t) * np.cos(t)], axis=1)
+    eight[[0, 8, 16]] = 0.0
+    pairs = PlaceGraph.from_traverse(Traverse(np.zeros((17, 2)), positions=eight), junction_radius_m=0.5,
+                                     junction_exclusion_m=5.0).junction_pairs()
+    assert [0, 8] in pairs.tolist()  # ties: the nearest of the smallest index (no junction at all before)
+
+
+def test_junction_exclusion_must_be_a_distance():
+    from catgraph.traverse import Traverse
+
+    walk = Traverse(np.zeros((5, 2)), positions=np.stack([np.arange(5.0), np.zeros(5)], axis=1))
+    for bad in (float("nan"), -1.0, "far"):
+        with pytest.raises(InvalidParameterError, match="junction_exclusion_m"):
+            PlaceGraph.from_traverse(walk, junction_radius_m=1.0, junction_exclusion_m=bad)
