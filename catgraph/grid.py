@@ -1359,7 +1359,7 @@ class GridLocalizer:
         -------
         Estimate
         """
-        from .localizer import check_odometry
+        from .motion import check_odometry
 
         if not hasattr(self, "_state"):
             self.reset()

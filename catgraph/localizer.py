@@ -180,7 +180,7 @@ from ._validation import as_generator, check_array, check_scalar
 from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .graph import PlaceGraph
 from .grid import learn_jump_rate
-from .motion import FrameMotion, MotionModel, OdometryMotion, PlacesWritten, VelocityMotion
+from .motion import FrameMotion, MotionModel, OdometryMotion, PlacesWritten, VelocityMotion, check_odometry
 from .observation import FramePool, Observation, ObservationModel, check_model, claim_model, feedback_reads_prior
 from .particles import ParticleSet, _first_in_edge, get_resampler, normalise_in_place
 
@@ -208,30 +208,6 @@ def check_query_index(query_index, n: int) -> np.ndarray:
     if qi.dtype.kind not in "iu" and not (qi.dtype.kind == "f" and np.all(np.isfinite(qi)) and np.all(qi == np.rint(qi))):
         raise DataError(f"query_index must hold whole frame numbers; got dtype {qi.dtype} ({qi[:3].tolist()} …).")
     return qi.astype(np.int64)
-
-
-def check_odometry(odometry) -> float | None:
-    """Validate one step's odometry: ``None`` or a finite, non-negative distance.
-
-    Raises
-    ------
-    DataError
-        For NaN, infinite or negative odometry, on every step (the first included).
-    """
-    if odometry is None:
-        return None
-    if isinstance(odometry, (bool, np.bool_, str, bytes)):  # float() would take them: True is 1, "3" is 3
-        raise DataError(f"odometry must be a finite, non-negative distance (a number); got {odometry!r}.")
-    try:
-        u = float(odometry)
-    except (TypeError, ValueError):
-        raise DataError(f"odometry must be a finite, non-negative distance; got {odometry!r}.") from None
-    if not math.isfinite(u) or u < 0:
-        raise DataError(
-            f"odometry must be a finite, non-negative distance; got {odometry!r}. "
-            "Drop or repair the frame's odometry, or give None for a frame without it."
-        )
-    return u
 
 
 def confidence_log_odds(w_in: float, w_out: float, log_map: float, log_new: float) -> tuple[float, float]:

@@ -81,7 +81,32 @@ from ._validation import check_scalar
 from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .particles import ParticleSet
 
-__all__ = ["MotionModel", "OdometryMotion", "FrameMotion", "VelocityMotion", "LongRunVelocity", "PlacesWritten", "advance"]
+__all__ = ["MotionModel", "OdometryMotion", "FrameMotion", "VelocityMotion", "LongRunVelocity", "PlacesWritten", "advance",
+           "check_odometry"]
+
+
+def check_odometry(odometry) -> float | None:
+    """Validate one step's odometry: ``None`` or a finite, non-negative distance.
+
+    Raises
+    ------
+    DataError
+        For NaN, infinite or negative odometry, on every step (the first included).
+    """
+    if odometry is None:
+        return None
+    if isinstance(odometry, (bool, np.bool_, str, bytes)):  # float() would take them: True is 1, "3" is 3
+        raise DataError(f"odometry must be a finite, non-negative distance (a number); got {odometry!r}.")
+    try:
+        u = float(odometry)
+    except (TypeError, ValueError):
+        raise DataError(f"odometry must be a finite, non-negative distance; got {odometry!r}.") from None
+    if not math.isfinite(u) or u < 0:
+        raise DataError(
+            f"odometry must be a finite, non-negative distance; got {odometry!r}. "
+            "Drop or repair the frame's odometry, or give None for a frame without it."
+        )
+    return u
 
 
 @njit(inline="always")
@@ -295,6 +320,7 @@ class MotionModel:
     def move(self, particles: ParticleSet, graph, rng: np.random.Generator, odometry: float | None = None) -> None:
         """Advance ``particles`` in place by one step."""
         self._check()
+        odometry = check_odometry(odometry)
         d = self.distances(len(particles), graph, odometry, rng)
         # without odometry the distance is in places (hop lengths); with it, in graph units
         advance(particles, graph, d, rng, self.straight_preference, self.reverse_probability,
@@ -464,6 +490,7 @@ class VelocityMotion(MotionModel):
 
     def move(self, particles: ParticleSet, graph, rng: np.random.Generator, odometry: float | None = None) -> None:
         self._check()
+        odometry = check_odometry(odometry)
         n = len(particles)
         if particles.velocity is None:
             particles.velocity = -1 - np.arange(n, dtype=np.int64)

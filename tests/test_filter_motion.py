@@ -204,3 +204,16 @@ def test_velocity_motion_defaults_are_the_grid_filters():
     m2 = VelocityMotion(blur=0.2)
     m2.move(ParticleSet.uniform(g, 4, rng), g, rng)
     assert m2._blur == 0.2
+
+
+@pytest.mark.parametrize("bad", [float("nan"), -1.0, float("inf"), "3", True])
+def test_every_motion_model_refuses_odometry_that_is_not_a_distance(bad):
+    """Called directly (not through a filter, which checks it too): NaN sent every particle to
+    the route's end, -1 read as 'no odometry', '3' was taken as 3."""
+    from catgraph.motion import VelocityMotion
+
+    graph = PlaceGraph.chain(10, spacing=2.0)
+    rng = np.random.default_rng(0)
+    for model in (FrameMotion(), OdometryMotion(), VelocityMotion()):
+        with pytest.raises(DataError, match="odometry must be a finite, non-negative distance"):
+            model.move(_at(graph, 2, 3, 0.0, 20), graph, rng, odometry=bad)
