@@ -824,7 +824,9 @@ def _shift_distance(p, out, distance, sign, fwd, bwd, fl, bl):  # pragma: no cov
             while True:
                 t = fwd[cur] if s > 0 else bwd[cur]
                 if t < 0:
-                    break  # ran off the route's end
+                    if left <= 0.0:  # reached the route's end exactly, or stood still there: it stays
+                        out[cur, b] += m
+                    break  # else it ran off the route's end
                 ln = fl[cur] if s > 0 else bl[cur]
                 if left < ln:
                     a = left / ln if ln > 0 else 1.0

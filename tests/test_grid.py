@@ -540,3 +540,45 @@ def test_velocity_sums_formed_by_the_line_kernel_are_the_posterior_velocity_marg
         want = (loc._state.astype(np.float64) * loc._like).sum(1)
         np.testing.assert_allclose(loc._velocity, want, rtol=1e-12, atol=1e-300)
         assert (k > 0) == (loc._summed is not None)
+
+
+def _slow_odometry_shift(state, velocities, lengths, distance):
+    """Reference: each bin's mass walks ``distance`` metres along a chain with edge
+    ``lengths`` in its velocity's direction, split between the two places it lands between;
+    what would pass a route end is dropped, what reaches it exactly (or stands there) stays."""
+    n = state.shape[0]
+    route = np.concatenate([[0.0], np.cumsum(lengths)])
+    out = np.zeros_like(state)
+    for j in range(n):
+        for b, v in enumerate(velocities):
+            m = state[j, b]
+            if m == 0.0:
+                continue
+            x = route[j] + math.copysign(distance, v)
+            if x < route[0] - 1e-12 or x > route[-1] + 1e-12:
+                continue  # past the end
+            k = min(int(np.searchsorted(route, x, side="right")) - 1, n - 1)
+            if k == n - 1 or route[k] == x:
+                out[k, b] += m
+                continue
+            a = (x - route[k]) / (route[k + 1] - route[k])
+            out[k, b] += (1.0 - a) * m
+            out[k + 1, b] += a * m
+    return out
+
+
+@pytest.mark.parametrize("distance", [0.0, 1.0, 2.0, 3.5, 4.0, 9.0, 10.0, 11.0])
+def test_odometry_prediction_keeps_the_mass_that_reaches_a_route_end(distance):
+    """Mass standing at a route end (odometry 0) or landing on it exactly was lost before."""
+    graph = PlaceGraph.chain(6, spacing=2.0)
+    velocities = np.array([-1.0, 1.0])
+    transition = velocity_transition(velocities, 1.0, 0.0)
+    state = np.random.default_rng(int(distance * 10)).uniform(0, 1, (6, 2))
+    state[[0, 5]] += 1.0  # much of it at the ends
+    state /= state.sum()
+    got = predict(state, transition, velocities, route_neighbours(graph), 0.0, 0.0, np.array([0.5, 0.5]), 0.0,
+                  odometry=distance)
+    want = _slow_odometry_shift(state, velocities, np.full(5, 2.0), distance)
+    # nothing left on the route (beyond its length): the documented uniform fallback
+    want = want / want.sum() if want.sum() > 0 else np.full_like(state, 1.0 / state.size)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15)
