@@ -21,8 +21,9 @@ Every per-frame array, ``index`` included, travels with its frame, so ground tru
 between frames the condition drives from one to the next — every step of a reversed or
 sped-up query, a shuffle's steps inside a segment — it is the route distance between
 them (zero for a repeated frame, ``K`` loaded steps at speed ``K``); across a shuffle's
-jump, where no motion could connect the frames, each frame keeps the step it had. Because a condition is only an order, a difference matrix computed once for the
-loaded query serves every condition: ``D[condition.order(n)]``.
+jump, where no motion could connect the frames, each frame keeps the step it had.
+Because a condition is only an order, a difference matrix computed once for the loaded
+query serves every condition: ``D[condition.order(n)]``.
 
 :func:`condition_table` lists the conditions every default is chosen on: in order;
 shuffled in segments of 2–20 % and of 0.5–3 % (five seeds each); reversed; speed 2 and
@@ -71,13 +72,12 @@ def _is_real(value) -> bool:
 
 
 def _given(value, default) -> bool:
-    """Whether a field holds something other than its default (any sequence equal to it is the default)."""
-    if value is None or default is None:
-        return value is not default
+    """Whether a field holds something other than its default (a list equal to it is the default)."""
+    if default is None:
+        return value is not None
     try:
-        return bool(np.any(np.asarray(value, dtype=object) != np.asarray(default, dtype=object))) or \
-            np.shape(value) != np.shape(default)
-    except Exception:  # noqa: BLE001 - not comparable: not the default
+        return tuple(np.atleast_1d(np.asarray(value, dtype=np.float64))) != tuple(np.atleast_1d(default))
+    except (TypeError, ValueError):  # not numbers: not the default
         return True
 
 
