@@ -40,7 +40,8 @@ stays valid and every fraction stays in ``[0, 1]``.
   like the grid's point masses. Its defaults are the grid filter's, and one compiled
   loop does the whole step, so the particle filter is a Monte Carlo version of the
   grid filter's prediction and converges to it as particles grow
-  (``tests/test_localizer.py``).
+  (``tests/test_localizer.py``) on a route without junctions; at junctions the branch
+  rule above is not yet the grid's (``docs/particle_filter.md``, "At junctions").
 
 :meth:`VelocityMotion.move_marginal` is the same motion with the velocity *marginalised*
 (Rao–Blackwellised): a particle carries a distribution over the velocity bins instead of
