@@ -411,6 +411,10 @@ def prepare(exp: Experiment) -> Prepared:
     # depends on its own frame only, so this equals Prepared.under without a second
     # n_query × N matrix in memory
     if exp.condition.kind != "in-order":
+        if query.meta.get("traversal") is not None:  # a second condition on a driven query: one would be lost
+            raise InvalidParameterError(
+                f"the query is already driven under {query.meta['traversal']}; give the query as loaded with the "
+                f"condition {exp.condition.label!r}, or leave the condition out.")
         query = exp.condition.apply(query)
     return Prepared(the_map, reference, query, query_differences(the_map, query), ground_truth, sources,
                     junction_radius_m=exp.junction_radius_m, _graph=graph)

@@ -296,3 +296,13 @@ def test_compare_checks_every_filters_options_before_its_first_run(monkeypatch, 
     monkeypatch.setattr(experiment, "run_method", lambda *a, **k: ran.append(a[0]))
     assert main(["compare", "synthetic:2", "synthetic:2", "--particles", "100", "-q"]) == 1
     assert ran == [] and "--particles does not apply here" in capsys.readouterr().err
+
+
+def test_a_condition_is_not_stacked_on_a_query_already_driven_under_one():
+    from catgraph.datasets.synthetic import make_world
+
+    world = make_world(seed=1, blocks=(2, 2))
+    driven = Condition.parse("reverse").apply(world.query)
+    with pytest.raises(InvalidParameterError, match="already driven under"):
+        prepare(Experiment(query=driven, reference=world.reference, condition="speed:2"))
+    assert len(prepare(Experiment(query=driven, reference=world.reference)).query) == len(world.query)
