@@ -549,7 +549,7 @@ class LiveLocalizer:
     Attributes
     ----------
     params_ : dict
-        The resolved parameters.
+        The resolved parameters (the filter's: its mode as chosen on this map, its defaults filled in).
     localizer_ : Localizer or None
     matcher_ : SequenceMatcher or None
 
@@ -587,9 +587,10 @@ class LiveLocalizer:
                                             **_sequence_kwargs(self.params_))
             release_free_memory()
             return
-        from .methods import make_filter, observation_model
+        from .methods import concrete_params, make_filter, observation_model
 
-        self.params_ = p = resolve_params("filter", {"model": model, **params})
+        # the filter's parameters as they apply on this map (mode 'auto' chooses by its size)
+        self.params_ = p = concrete_params(resolve_params("filter", {"model": model, **params}), live_map.n_places)
 
         def bootstrap_samples(gap: int, max_different: int, seed: int) -> np.ndarray:
             values, self.live_map.hub_ = reference_bootstrap_samples(live_map.reference, live_map.frontend.normalise,
