@@ -566,6 +566,14 @@ def make_filter(params: dict, graph, model):
     return Localizer(graph, model, motion=motion, **common, **particles)
 
 
+def check_odometry_applies(has_odometry: bool, unit: str) -> None:
+    """Refuse ``use_odometry`` given as true where there is no odometry to use: a query
+    without it, or a place graph in frames (a reference without positions or odometry)."""
+    why = "the query has no odometry" if not has_odometry else \
+        f"the map's place graph is in {unit}s, not metres (its reference has no positions or odometry)"
+    raise InvalidParameterError(f"'use_odometry' does not apply here: {why}; leave it out.")
+
+
 def _filter(params: dict, inputs: "MethodInputs") -> RunResult:
     if params.get("window") is not None:  # a sequence model's window, as the matcher's own run checks it
         check_sequence_length(params, len(inputs.differences))
@@ -573,7 +581,10 @@ def _filter(params: dict, inputs: "MethodInputs") -> RunResult:
     params = concrete_params(params, graph.n_places)
     obs = observation_model(params, inputs.map.n_places, inputs.bootstrap_samples)
     loc = make_filter(params, graph, obs)
-    odometry = inputs.query.odometry if params["use_odometry"] and graph.unit == "m" else None
+    odometry = inputs.query.odometry if params["use_odometry"] is not False and graph.unit == "m" else None
+    if params["use_odometry"] and odometry is None:  # asked for, and there is none to use
+        check_odometry_applies(inputs.query.odometry is not None, graph.unit)
+    params = dict(params, use_odometry=odometry is not None)  # recorded: whether odometry drove the motion
     start = time.perf_counter()
     mode = params["mode"]
     kwargs = {"progress": inputs.progress} if mode == "particles" else {}
@@ -651,7 +662,8 @@ def _filter_params() -> tuple[Param, ...]:
               "evaluation)", low=0, high=1_000_000),
         Param("confidence_radius_m", "float", None, "count posterior mass within METRES instead (needs positions)",
               low=0.0, optional=True),
-        Param("use_odometry", "bool", True, "drive the motion model by the query's odometry where it has one"),
+        Param("use_odometry", "bool", None, "drive the motion model by the query's odometry (default: where the "
+              "query has odometry and the map's place graph is in metres; given, both are required)", optional=True),
         Param("resampler", "str", None, f"particles: resampling scheme (default {own['resampler']})",
               choices=tuple(RESAMPLERS), optional=True),
         Param("ess_threshold", "float", None, "particles: resample when ESS < this fraction of the particles "

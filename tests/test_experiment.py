@@ -306,3 +306,31 @@ def test_a_condition_is_not_stacked_on_a_query_already_driven_under_one():
     with pytest.raises(InvalidParameterError, match="already driven under"):
         prepare(Experiment(query=driven, reference=world.reference, condition="speed:2"))
     assert len(prepare(Experiment(query=driven, reference=world.reference)).query) == len(world.query)
+
+
+def test_use_odometry_given_where_there_is_none_is_refused_and_runs_record_whether_it_drove(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    ref, qry = tmp_path / "r.npy", tmp_path / "q.npy"
+    np.save(ref, np.cumsum(rng.normal(size=(100, 8)), axis=0).astype(np.float32))
+    np.save(qry, np.cumsum(rng.normal(size=(40, 8)), axis=0).astype(np.float32))
+    assert main(["localize", str(ref), str(qry), "--use-odometry", "-q"]) == 1  # no odometry: it was ignored
+    assert "--use-odometry does not apply here: the query has no odometry" in capsys.readouterr().err
+    recorded = {}
+    for name, argv in (("descriptors", [str(ref), str(qry)]), ("synthetic", ["synthetic:2", "synthetic:2"]),
+                       ("synthetic, off", ["synthetic:2", "synthetic:2", "--no-use-odometry"])):
+        out = tmp_path / "out.json"
+        assert main(["localize", *argv, "-o", str(out), "-q"]) == 0
+        recorded[name] = json.loads(out.read_text())["params"]["use_odometry"]
+    assert recorded == {"descriptors": False, "synthetic": True, "synthetic, off": False}
+
+
+def test_live_use_odometry_needs_a_metric_map():
+    from catgraph.io import build_map
+    from catgraph.live import LiveLocalizer, LiveMap
+    from catgraph.traverse import Traverse
+
+    frames = np.cumsum(np.random.default_rng(1).normal(size=(60, 8)), axis=0).astype(np.float32)
+    live_map = LiveMap(build_map(Traverse(frames)))  # no positions, no odometry: a graph in frames
+    with pytest.raises(InvalidParameterError, match="use_odometry' does not apply here: the map's place graph is in"):
+        LiveLocalizer(live_map, model="tempered", use_odometry=True)
+    assert LiveLocalizer(live_map, model="tempered").use_odometry is False
