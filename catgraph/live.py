@@ -587,7 +587,7 @@ class LiveLocalizer:
                                             **_sequence_kwargs(self.params_))
             release_free_memory()
             return
-        from .methods import check_odometry_applies, concrete_params, make_filter, observation_model
+        from .methods import check_use_odometry, concrete_params, make_filter, observation_model
 
         # the filter's parameters as they apply on this map (mode 'auto' chooses by its size)
         self.params_ = p = concrete_params(resolve_params("filter", {"model": model, **params}), live_map.n_places)
@@ -600,8 +600,7 @@ class LiveLocalizer:
         obs = observation_model(p, live_map.n_places, bootstrap_samples)
         self.model_ = obs
         self._sequence = _sequence_part(obs)
-        if p["use_odometry"] and live_map.graph.unit != "m":  # each frame brings its own odometry, or none
-            check_odometry_applies(True, live_map.graph.unit)
+        check_use_odometry(p["use_odometry"], True, live_map.graph.unit)  # each frame brings its own, or none
         self.use_odometry = p["use_odometry"] is not False and live_map.graph.unit == "m"
         self.localizer_ = make_filter(p, live_map.graph, obs)
         self.localizer_.reset()

@@ -566,9 +566,11 @@ def make_filter(params: dict, graph, model):
     return Localizer(graph, model, motion=motion, **common, **particles)
 
 
-def check_odometry_applies(has_odometry: bool, unit: str) -> None:
+def check_use_odometry(use: bool | None, has_odometry: bool, unit: str) -> None:
     """Refuse ``use_odometry`` given as true where there is no odometry to use: a query
     without it, or a place graph in frames (a reference without positions or odometry)."""
+    if not use or (has_odometry and unit == "m"):
+        return
     why = "the query has no odometry" if not has_odometry else \
         f"the map's place graph is in {unit}s, not metres (its reference has no positions or odometry)"
     raise InvalidParameterError(f"'use_odometry' does not apply here: {why}; leave it out.")
@@ -581,9 +583,8 @@ def _filter(params: dict, inputs: "MethodInputs") -> RunResult:
     params = concrete_params(params, graph.n_places)
     obs = observation_model(params, inputs.map.n_places, inputs.bootstrap_samples)
     loc = make_filter(params, graph, obs)
+    check_use_odometry(params["use_odometry"], inputs.query.odometry is not None, graph.unit)
     odometry = inputs.query.odometry if params["use_odometry"] is not False and graph.unit == "m" else None
-    if params["use_odometry"] and odometry is None:  # asked for, and there is none to use
-        check_odometry_applies(inputs.query.odometry is not None, graph.unit)
     params = dict(params, use_odometry=odometry is not None)  # recorded: whether odometry drove the motion
     start = time.perf_counter()
     mode = params["mode"]

@@ -379,8 +379,8 @@ def cmd_localize(args) -> int:
 
 
 # ---------------------------------------------------------------------------- compare
-_COMPARE_FILTER = ("mode", "n_particles", "seed", "confidence_radius", "confidence_radius_m", "use_odometry", "resampler",
-                   "ess_threshold", "redraw_fraction", "proposal", "new_place_prior")
+_COMPARE_FILTER = ("mode", "n_particles", "seed", "confidence_radius", "confidence_radius_m", "use_odometry",
+                   "resampler", "ess_threshold", "redraw_fraction", "proposal", "new_place_prior")
 
 
 @register
