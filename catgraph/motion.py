@@ -35,13 +35,14 @@ stays valid and every fraction stays in ``[0, 1]``.
   backwards), which changes by the grid's sticky transition ``T``; it then travels
   ``⌊|v_b|⌋`` places, one more with probability ``|v_b| − ⌊|v_b|⌋`` (the grid's
   fractional shift), or the odometry when the frame has it, in the direction
-  ``sign(v_b)``; then one place either way along the route with probability ``blur``
-  each (a route end keeps it). Without odometry particles therefore sit on places,
-  like the grid's point masses. Its defaults are the grid filter's, and one compiled
-  loop does the whole step, so the particle filter is a Monte Carlo version of the
-  grid filter's prediction and converges to it as particles grow
-  (``tests/test_localizer.py``) on a route without junctions; at junctions the branch
-  rule above is not yet the grid's (``docs/particle_filter.md``, "At junctions").
+  ``sign(v_b)``, hop by hop as the grid filter moves mass (not the branch rule
+  above: junctions at the grid's rate, then on in either direction); then one place
+  either way along the route with probability ``blur`` each (a route end keeps it).
+  Without odometry particles therefore sit on places, like the grid's point masses.
+  Its defaults are the grid filter's, and one compiled loop does the whole step, so the
+  particle filter is a Monte Carlo version of the grid filter's prediction and
+  converges to it as particles grow, on a chain and at junctions
+  (``tests/test_localizer.py``, ``tests/test_filter_motion.py``).
 
 :meth:`VelocityMotion.move_marginal` is the same motion with the velocity *marginalised*
 (Rao–Blackwellised): a particle carries a distribution over the velocity bins instead of
@@ -178,13 +179,44 @@ def _advance_kernel(edge, fraction, distance, uniform, length, target, out_ptr, 
         leftover[i] = rest
 
 
+@njit(inline="always")
+def _route_walk(e, f, d, length, ahead, max_hops):  # pragma: no cover - compiled
+    """Move ``d`` along the route from ``(e, f)`` (``e`` a route edge), never leaving it:
+    returns ``(e, f, leftover)``, the leftover > 0 where the route ended first (or
+    ``max_hops`` edges were crossed)."""
+    hops = 0
+    while True:
+        ln = length[e]
+        left = (1.0 - f) * ln
+        if d < left:
+            f += d / ln
+            break
+        d -= left
+        f = 1.0
+        if hops >= max_hops:
+            break
+        nxt = ahead[e]
+        if nxt < 0:
+            break
+        e = nxt
+        f = 0.0
+        hops += 1
+    f = min(max(f, 0.0), 1.0)
+    return e, f, (d if f >= 1.0 else 0.0)
+
+
 @njit
-def _velocity_kernel(edge, fraction, log_weight, velocity, uniform, speeds, cumulative, forwards, hop, metric,
-                     odometry, target, out_ptr, reverse, straight, p_straight, blur, max_hops,
-                     tolerance):  # pragma: no cover - compiled
+def _velocity_kernel(edge, fraction, log_weight, velocity, uniform, speeds, cumulative, mirror, hop, metric,
+                     odometry, source, target, reverse, direction, ahead, out_fwd, out_bwd, at_edge, at_fraction,
+                     jptr, jdst, p_junction, blur, max_hops, tolerance):  # pragma: no cover - compiled
     """One :class:`VelocityMotion` step for every particle, in place (see its Notes).
-    ``uniform``: ``(4, n)`` — bin transition, fractional speed, branch, blur.
-    ``odometry < 0``: none (move ``|v|`` places on ``hop`` lengths)."""
+    ``uniform``: ``(4, n)`` — bin transition, fractional speed, junctions, blur.
+    ``odometry < 0``: none (move ``|v|`` places, hop by hop, as the grid filter's
+    ``_shift_frames``). ``direction[e]``: +1 / −1 for the route's forward / backward
+    edges, 0 for the rest; ``ahead[e]``: the route edge after ``e`` in its direction;
+    ``out_fwd`` / ``out_bwd``: the route edge leaving each place; ``at_edge[0|1, j]``,
+    ``at_fraction``: where a particle standing at place ``j`` facing backwards / forwards
+    sits."""
     nb = speeds.shape[0]
     for i in range(edge.shape[0]):
         b = velocity[i]
@@ -194,39 +226,145 @@ def _velocity_kernel(edge, fraction, log_weight, velocity, uniform, speeds, cumu
         k = 0
         while k < nb - 1 and u > cumulative[b, k]:
             k += 1
-        velocity[i] = k
         v = speeds[k]
+        s = 1 if v >= 0.0 else -1
         e = edge[i]
         f = fraction[i]
-        if (v < 0.0) == forwards[e] and reverse[e] >= 0:  # face the velocity's direction
-            e = reverse[e]
-            f = 1.0 - f
-        if odometry < 0.0:
+        gone = False
+        if odometry < 0.0:  # hop by hop between places
+            j = source[e] if f < 0.5 else target[e]
             a = abs(v)
             whole = math.floor(a)
-            d = whole + (1.0 if uniform[1, i] < a - whole else 0.0)
-            e, f, rest, u = _advance_one(e, f, d, uniform[2, i], hop, target, out_ptr, reverse, straight,
-                                         p_straight, False, max_hops)
-        else:
-            e, f, rest, u = _advance_one(e, f, odometry, uniform[2, i], metric, target, out_ptr, reverse, straight,
-                                         p_straight, False, max_hops)
-        if rest > tolerance:  # ran past the route's end: it leaves the map, as grid mass does
-            log_weight[i] = -np.inf
-        else:
+            d = whole + (1 if uniform[1, i] < a - whole else 0)
+            u = uniform[2, i]
+            for h in range(d):
+                if h >= max_hops:
+                    gone = True
+                    break
+                nj = jptr[j + 1] - jptr[j]
+                pj = 0.0
+                if nj > 0:
+                    pj = min(p_junction * nj, 0.5)
+                if u < pj:  # a junction, each alike; then half go on each way
+                    u = u / pj * nj
+                    c = min(int(u), nj - 1)
+                    u -= c
+                    j = jdst[jptr[j] + c]
+                    if mirror[k] != k:
+                        if u < 0.5:
+                            u = 2.0 * u
+                        else:
+                            u = 2.0 * u - 1.0
+                            k = mirror[k]
+                            s = -s
+                    continue
+                if pj > 0.0:
+                    u = (u - pj) / (1.0 - pj)
+                t = out_fwd[j] if s > 0 else out_bwd[j]
+                if t < 0:  # ran past the route's end: it leaves the map, as grid mass does
+                    gone = True
+                    break
+                j = target[t]
             c = uniform[3, i]
-            if c < 2.0 * blur:  # one place either way along the route; a route end keeps it
+            if not gone and c < 2.0 * blur:  # one place either way along the route; a route end keeps it
+                t = out_fwd[j] if (c < blur) == (s > 0) else out_bwd[j]
+                if t >= 0:
+                    j = target[t]
+            side = 1 if s > 0 else 0
+            e = at_edge[side, j]
+            f = at_fraction[side, j]
+        else:  # the odometry along the route's edges (junctions are taken by frame motion only)
+            if direction[e] != s:  # face the velocity's direction
+                r = reverse[e]
+                if direction[e] == -s and r >= 0 and direction[r] == s:
+                    e = r
+                    f = 1.0 - f
+                else:
+                    j = source[e] if f < 0.5 else target[e]
+                    side = 1 if s > 0 else 0
+                    e = at_edge[side, j]
+                    f = at_fraction[side, j]
+            if direction[e] == s:
+                e, f, rest = _route_walk(e, f, odometry, metric, ahead, max_hops)
+                gone = rest > tolerance
+            elif odometry > tolerance:  # a place with no route onwards (a route end): it leaves the map
+                gone = True
+            c = uniform[3, i]
+            if not gone and c < 2.0 * blur:  # one place either way along the route; a route end keeps it
                 back = c >= blur
-                if not back or reverse[e] >= 0:
-                    if back:
-                        e = reverse[e]
+                r = reverse[e]
+                if not back and direction[e] == s:
+                    e, f, rest = _route_walk(e, f, 1.0, hop, ahead, max_hops)
+                elif back and r >= 0 and direction[r] == -s:
+                    e, f, rest = _route_walk(r, 1.0 - f, 1.0, hop, ahead, max_hops)
+                    r = reverse[e]
+                    if r >= 0:
+                        e = r
                         f = 1.0 - f
-                    e, f, rest, u = _advance_one(e, f, 1.0, u, hop, target, out_ptr, reverse, straight, 1.0, False,
-                                                 max_hops)
-                    if back and reverse[e] >= 0:
-                        e = reverse[e]
-                        f = 1.0 - f
+        velocity[i] = k
+        if gone:
+            log_weight[i] = -np.inf
         edge[i] = e
         fraction[i] = f
+
+
+def _velocity_route(graph) -> tuple:
+    """The grid filter's route on ``graph`` (:func:`catgraph.grid.route_neighbours`) as
+    edges, for :func:`_velocity_kernel`, computed once per graph: ``direction``,
+    ``ahead``, ``out_fwd``, ``out_bwd``, ``at_edge``, ``at_fraction``, and the junction
+    lists ``jptr``, ``jdst``."""
+    route = graph.__dict__.get("_velocity_route")
+    if route is not None:
+        return route
+    from .grid import route_neighbours
+
+    n = graph.n_places
+    fwd, bwd, _, _, jptr, jdst = route_neighbours(graph)
+    key = graph.source * n + graph.target
+    order = np.argsort(key, kind="stable")
+
+    def edge_to(nxt):  # the edge from each place to nxt[place], or -1
+        out = np.full(n, -1, dtype=np.int64)
+        has = np.flatnonzero(nxt >= 0)
+        if len(has):
+            want = has * n + nxt[has]
+            pos = np.minimum(np.searchsorted(key, want, sorter=order), len(order) - 1)
+            hit = key[order[pos]] == want
+            out[has[hit]] = order[pos[hit]]
+        return out
+
+    out_fwd, out_bwd = edge_to(fwd), edge_to(bwd)
+    direction = np.zeros(graph.n_edges, dtype=np.int64)
+    ahead = np.full(graph.n_edges, -1, dtype=np.int64)
+    for out, sign in ((out_fwd, 1), (out_bwd, -1)):
+        e = out[out >= 0]
+        direction[e] = sign
+        ahead[e] = out[graph.target[e]]
+    first_in = np.full(n, -1, dtype=np.int64)
+    first_in[graph.target[::-1]] = np.arange(graph.n_edges)[::-1]
+    at_edge = np.empty((2, n), dtype=np.int64)
+    at_fraction = np.empty((2, n))
+    for side, (ahead_out, behind_out) in enumerate(((out_bwd, out_fwd), (out_fwd, out_bwd))):
+        into = np.full(n, -1, dtype=np.int64)  # the route edge arriving at each place facing this way
+        e = ahead_out[ahead_out >= 0]
+        into[graph.target[e]] = e
+        into_back = np.full(n, -1, dtype=np.int64)
+        e = behind_out[behind_out >= 0]
+        into_back[graph.target[e]] = e
+        start = graph.out_ptr[:-1]
+        has_out = graph.out_ptr[1:] > start
+        # in order of preference: leaving this way, arrived this way (a route end), then the other way
+        choices = [(ahead_out, 0.0), (into, 1.0), (behind_out, 0.0), (into_back, 1.0),
+                   (np.where(has_out, start, -1), 0.0), (first_in, 1.0)]
+        at_edge[side] = -1
+        at_fraction[side] = 0.0
+        for edges, frac in reversed(choices):
+            ok = edges >= 0
+            at_edge[side, ok] = edges[ok]
+            at_fraction[side, ok] = frac
+    route = (direction, ahead, out_fwd, out_bwd, at_edge, at_fraction, jptr, jdst)
+    object.__setattr__(graph, "_velocity_route", route)
+    return route
 
 
 def advance(particles: ParticleSet, graph, distance: np.ndarray, rng: np.random.Generator,
@@ -401,30 +539,35 @@ class VelocityMotion(MotionModel):
         Probability per frame of turning round (``v → −v``).
     blur : float in [0, 0.5)
         Probability of one extra place forwards, and likewise backwards.
-    junction_probability : float in [0, 1]
-        Probability of leaving the route at a node that has other out-edges (the branch
-        choice of :class:`MotionModel`, as ``1 − straight_preference``).
+    junction_probability : float in [0, 0.5]
+        Probability, per junction edge, that a hop from a place with junction edges
+        takes that one (at most 0.5 for all of them together), as the grid filter's.
 
     Each one left ``None`` is :class:`~catgraph.grid.GridLocalizer`'s default (read from
     its signature), so the two filters share one motion model by construction.
-    **kwargs
-        ``max_hops`` of :class:`MotionModel`.
+    max_hops : int
+        Most edges one particle may cross in one step (bounds the time of a step); a
+        particle that would cross more gets weight 0.
 
     Notes
     -----
-    A particle's direction is its edge's: a bin whose sign disagrees with the edge
-    (chain edges run forwards, reverse-chain edges backwards) first turns the particle
-    onto the reverse edge, at the same place. Without odometry it travels ``|v_b|``
-    places (edges of ``graph.hop_length``), whatever their lengths in metres; with
-    odometry ``u`` the distance is ``u`` along the edge lengths (the bins keep only
-    their sign), as in the grid filter. A particle that would run past a dead end gets
-    weight 0 (the grid filter's mass leaves the map there). Randomness: four uniforms
-    per particle per step, drawn into a buffer kept between steps.
+    Without odometry a particle moves ``|v_b|`` *hops* between places, as the grid
+    filter's ``_shift_frames`` moves mass: each hop follows the route edge of the
+    direction of travel (``sign(v_b)``; the grid's :func:`~catgraph.grid.route_neighbours`),
+    except that from a place with junction edges it takes each one with probability
+    ``junction_probability`` (together at most 0.5) and then goes on, with probability
+    ½ each, with ``v_b`` or with ``−v_b`` (a crossing may turn either way; where the
+    velocity set has no ``−v_b``, with ``v_b``). With odometry ``u`` the distance is ``u``
+    along the route's edge lengths (the bins keep only their sign; junctions are taken
+    by frame motion only, as in the grid filter). A particle that would run past a route
+    end gets weight 0 (the grid filter's mass leaves the map there). Without odometry
+    particles sit on places. Randomness: four uniforms per particle per step (bin,
+    fractional hop, junctions, blur), drawn into a buffer kept between steps.
     """
 
     def __init__(self, velocities=None, velocity_stay: float | None = None, reverse_probability: float | None = None,
-                 blur: float | None = None, junction_probability: float | None = None, **kwargs) -> None:
-        super().__init__(**kwargs)
+                 blur: float | None = None, junction_probability: float | None = None, max_hops: int = 256) -> None:
+        super().__init__(max_hops=max_hops)
         self.velocities = velocities
         self.velocity_stay = velocity_stay
         self.velocity_reverse_probability = reverse_probability
@@ -439,7 +582,7 @@ class VelocityMotion(MotionModel):
     def _validate_params(self) -> None:
         import inspect
 
-        from .grid import GridLocalizer, velocity_transition
+        from .grid import GridLocalizer, _bin_moves, velocity_transition
 
         # one owner for the motion's defaults: the grid filter's signature
         grid = {k: p.default for k, p in inspect.signature(GridLocalizer.__init__).parameters.items()}
@@ -447,7 +590,6 @@ class VelocityMotion(MotionModel):
             ("velocities", "velocities"), ("velocity_stay", "velocity_stay"),
             ("reverse_probability", "velocity_reverse_probability"), ("blur", "blur"),
             ("junction_probability", "junction_probability"))}
-        self.straight_preference = 1.0 - resolved["junction_probability"]
         super()._validate_params()
         name = type(self).__name__
         v = np.asarray(resolved["velocities"], dtype=np.float64)
@@ -460,8 +602,10 @@ class VelocityMotion(MotionModel):
         check_scalar(stay, "velocity_stay", name, float, 0.0, 1.0)
         check_scalar(reverse, "reverse_probability", name, float, 0.0, 1.0 - stay)
         check_scalar(resolved["blur"], "blur", name, float, 0.0, 0.5, True, False)
-        check_scalar(resolved["junction_probability"], "junction_probability", name, float, 0.0, 1.0)
+        check_scalar(resolved["junction_probability"], "junction_probability", name, float, 0.0, 0.5)
         self._v = v
+        self._junction = float(resolved["junction_probability"])
+        self._mirror = _bin_moves(v)[3]
         self._blur = float(resolved["blur"])
         self._transition = velocity_transition(v, stay, reverse)
         nz = self._transition.T != 0  # the transition's columns, sparse
@@ -499,15 +643,11 @@ class VelocityMotion(MotionModel):
         if buffer is None or buffer.shape[1] != n:
             buffer = self._uniform = np.empty((4, n))
         rng.random(out=buffer)
-        forwards = graph.__dict__.get("_forwards")
-        if forwards is None:  # a junction edge's direction: towards the larger index
-            forwards = np.where(graph.kind == 2, graph.target > graph.source, graph.kind != 1)
-            object.__setattr__(graph, "_forwards", forwards)
         metric = odometry is not None
         _velocity_kernel(particles.edge, particles.fraction, particles.log_weight, particles.velocity, buffer,
-                         self._v, self._cumulative, forwards, graph.hop_length, graph.length,
-                         float(odometry) if metric else -1.0, graph.target, graph.out_ptr, graph.reverse,
-                         graph.straight, float(self.straight_preference), self._blur, int(self.max_hops),
+                         self._v, self._cumulative, self._mirror, graph.hop_length, graph.length,
+                         float(odometry) if metric else -1.0, graph.source, graph.target, graph.reverse,
+                         *_velocity_route(graph), float(self._junction), self._blur, int(self.max_hops),
                          1e-9 * (graph.frame_spacing if metric else 1.0))
 
     # ------------------------------------------------------------------ velocity marginalised

@@ -199,7 +199,7 @@ def test_velocity_motion_defaults_are_the_grid_filters():
     want = np.cumsum(velocity_transition(np.asarray(grid["velocities"], dtype=float), grid["velocity_stay"],
                                          grid["reverse_probability"]), axis=1)
     np.testing.assert_allclose(m._cumulative[:, :-1], want[:, :-1])
-    assert m._blur == grid["blur"] and m.straight_preference == pytest.approx(1 - grid["junction_probability"])
+    assert m._blur == grid["blur"] and m._junction == grid["junction_probability"]
     # an explicit value wins
     m2 = VelocityMotion(blur=0.2)
     m2.move(ParticleSet.uniform(g, 4, rng), g, rng)
