@@ -212,7 +212,7 @@ class Condition:
             return traverse
         order = self.order(len(traverse))
         out = traverse.take(order)
-        meta = dict(traverse.meta)
+        meta = dict(out.meta)
         meta["traversal"] = self.as_dict()
         if self.kind == "shuffle":
             meta["segments"] = segment_order(len(traverse), self.seed, *self.segment_range)[1]

@@ -52,6 +52,10 @@ def _optional(values: Any, name: str, n: int, ndim: int | tuple[int, ...], dtype
     return out
 
 
+#: ``meta`` entries the library writes about a traverse as a whole (never per frame)
+_WHOLE_TRAVERSE_META = frozenset({"segments", "traversal"})
+
+
 @dataclass(frozen=True, eq=False)
 class Traverse:
     """One pass along a route.
@@ -74,6 +78,11 @@ class Traverse:
         Index of each frame in the traverse as loaded; defaults to ``arange(n)``.
     name : str
         Human-readable name (a folder or file name).
+    meta : dict
+        Anything else the source knows. An entry that is an array or a list with one
+        item per frame (an image folder's ``"files"``, the synthetic world's ``"street"``,
+        ``"new_place"`` …) travels with its frames when they are reordered or thinned
+        (:meth:`take`: conditions, shuffles); the others are kept as they are.
     """
 
     frames: np.ndarray
@@ -114,11 +123,22 @@ class Traverse:
         return f"Traverse(name={self.name!r}, n={len(self)}, frame_shape={self.frames.shape[1:]}, with={extras})"
 
     def take(self, order: np.ndarray) -> "Traverse":
-        """Frames ``order`` (ints), everything carried along, ``index`` included."""
+        """Frames ``order`` (ints), everything carried along, ``index`` included, and every
+        ``meta`` entry with one item per frame (an array or a list of ``len(self)``)."""
         order = np.asarray(order, dtype=np.int64)
         sub = lambda a: None if a is None else a[order]  # noqa: E731
+        n = len(self)
+        meta = {}
+        for key, value in self.meta.items():
+            if key not in _WHOLE_TRAVERSE_META and isinstance(value, np.ndarray) and value.ndim >= 1 \
+                    and value.shape[0] == n:
+                value = value[order]
+            elif key not in _WHOLE_TRAVERSE_META and isinstance(value, list) and len(value) == n:
+                value = [value[k] for k in order]
+            meta[key] = value
         return replace(
             self,
+            meta=meta,
             frames=self.frames[order],
             positions=sub(self.positions),
             floors=sub(self.floors),
@@ -180,7 +200,7 @@ def shuffle_segments(
     check_scalar(max_fraction, "max_fraction", "shuffle_segments", float, min_fraction, 1.0)
     frame_order, segments = segment_order(len(traverse), seed, min_fraction, max_fraction)
     out = traverse.take(frame_order)
-    meta = dict(traverse.meta)
+    meta = dict(out.meta)
     meta["segments"] = segments
     return replace(out, meta=meta, name=f"{traverse.name} (shuffled)")
 

@@ -99,3 +99,34 @@ def test_conditions_built_in_python_give_typed_errors():
         with pytest.raises(InvalidParameterError):
             Condition.from_dict(bad)
     assert Condition("shuffle", seed=np.int64(2)).seed == 2 and Condition("speed", factor=np.float32(2)).factor == 2.0
+
+
+@pytest.mark.parametrize("condition", [Condition("reverse"), Condition("speed", factor=2.0),
+                                       Condition("speed", factor=0.5), Condition("shuffle", seed=3)])
+def test_per_frame_meta_travels_with_its_frames(condition):
+    """An image folder's file names and the synthetic world's per-frame flags stay with
+    their frames under every condition (they stayed in the loaded order); what describes
+    the whole traverse is kept as it is."""
+    n = 40
+    t = Traverse(np.arange(n, dtype=float)[:, None] * np.ones((1, 3)), name="q",
+                 meta={"files": [f"{k:04d}.png" for k in range(n)], "new_place": np.arange(n) % 7 == 0,
+                       "street": np.arange(n) // 5, "kind": "images", "source": "folder", "tags": ["a", "b"]})
+    out = condition.apply(t)
+    loaded = out.index  # the frame as loaded, per frame driven
+    assert out.meta["files"] == [f"{k:04d}.png" for k in loaded]
+    np.testing.assert_array_equal(out.meta["new_place"], loaded % 7 == 0)
+    np.testing.assert_array_equal(out.meta["street"], loaded // 5)
+    assert out.meta["kind"] == "images" and out.meta["source"] == "folder" and out.meta["tags"] == ["a", "b"]
+    assert out.meta["traversal"] == condition.as_dict()
+    # the library's own whole-traverse entries are never read as per frame
+    again = shuffle_segments(out, seed=1, min_fraction=0.5, max_fraction=0.5)
+    assert again.meta["traversal"] == condition.as_dict()
+    assert t.meta["files"][0] == "0000.png"  # the loaded traverse is left as it was
+
+
+def test_shuffle_segments_carries_per_frame_meta():
+    n = 30
+    t = Traverse(np.zeros((n, 2)), meta={"files": [str(k) for k in range(n)], "new_place": np.arange(n)})
+    out = shuffle_segments(t, seed=0)
+    np.testing.assert_array_equal(out.meta["new_place"], out.index)
+    assert out.meta["files"] == [str(k) for k in out.index]
