@@ -776,6 +776,12 @@ class RecentSupport:
 MAX_PART_WEIGHT = 1e6
 
 
+def _is_predictive(weights) -> bool:
+    """Whether a combined model's ``weights`` ask for the predictive choice (an array of
+    weights is not the string)."""
+    return isinstance(weights, str) and weights == "predictive"
+
+
 class CombinedObservation:
     """Tempered product of observation models, each part tempered by its reliability.
 
@@ -907,7 +913,7 @@ class CombinedObservation:
         self.reliability_ = (self._hits + 1.0) / (self._trials + 2.0)
 
     def _reads_prior(self) -> bool:
-        return self.weights == "predictive" or any(feedback_reads_prior(m) for m in self.models
+        return _is_predictive(self.weights) or any(feedback_reads_prior(m) for m in self.models
                                                    if callable(getattr(m, "feedback", None)))
 
     def _learn_weights(self, prior) -> None:
@@ -989,7 +995,7 @@ class CombinedObservation:
         # each part's own best place is read only to learn its reliability
         self._best = ([int(np.argmax(p.log_ratio)) if p.informative else -1 for p in parts]
                       if self.reliability is not None else None)
-        if self.weights == "predictive":  # kept for the feedback's scores
+        if _is_predictive(self.weights):  # kept for the feedback's scores
             self._ratios = [p.log_ratio if p.informative else None for p in parts]
         w = [float(x) for x in self.weights_]
         rho = self.reliability_ if self.reliability else np.ones(len(parts))
@@ -1397,7 +1403,9 @@ class TemperedObservation:
       violators). Paper 2's own online scheme stays available as
       :class:`HistogramObservation`.
     * ``c_j`` is the hub correction. Each reference's *level* is its mean difference to
-      the query frames so far (``hub="online"``) or a level given from the map
+      the query frames so far (``hub="online"``: the frames the filter has fed back,
+      :meth:`feedback`, blank ones left out; applied from the third frame on, once two
+      frames give a mean) or a level given from the map
       (``hub=array``, e.g. the map's levels, :func:`catgraph.hubs.map_hub_offsets`). A *hub* is a
       reference whose level is a low outlier (below ``median − hub_threshold ·
       1.4826 · MAD`` of the levels); ``c = w · (level − mean level)`` with
@@ -1428,6 +1436,10 @@ class TemperedObservation:
       evidence per place would double (measured on Nordland at speed 0.5, where it
       cost the filter 0.05 AUC, ``docs/particle_filter.md``). With the repeats left
       out, the frames of such a query get exactly the weights of the query shown once.
+      A *blank* frame (a constant row, as a textureless image normalises to) is no
+      measurement either: ``ν = 0``, the filter's feedback learns nothing from it, and
+      the next frame is compared with the last frame before it. On a map of fewer
+      than three places (where any two frames correlate ±1) the weight is 1.
 
     The new-place log-ratio is ``log mean_j e^{r_j}``: a place not in the map looks,
     to this model, like a place drawn at random from the map.
@@ -1610,8 +1622,11 @@ class TemperedObservation:
         observation); until the feedback takes them, they are marked stale, so that a
         frame observed without that feedback forms its levels from the total again."""
         row = getattr(self, "_row", None)
+        # the histogram likelihood's feedback reads the frame's own levels (its differences
+        # are learned as they were observed): they must not be overwritten before it
         if (row is None or self._hub_map is not None or not isinstance(self.hub, str) or self._hub_count < 1
-                or not _plain_row(row) or len(row) != len(self._hub_sum)):
+                or not _plain_row(row) or len(row) != len(self._hub_sum) or self.likelihood == "histogram"
+                or self.__dict__.get("_blank")):
             return
         n = len(row)
         new_total, level = self._buffer("_next_total", n), self._buffer("_level", n)
@@ -1798,7 +1813,8 @@ class TemperedObservation:
         (after a jump) counts more."""
         # The previous row enters only centred, with its sum of squares: both are kept
         # from its own frame (the same values ``prev − prev.mean()`` would give again).
-        if not self.novelty:
+        self._blank = False
+        if not self.novelty or len(row) < 3:  # two places: any two frames correlate ±1
             return 1.0
         first = self._kept is None
         n = len(row)
@@ -1816,6 +1832,13 @@ class TemperedObservation:
             np.subtract(row, mean, out=a)
             np.multiply(a, a, out=square)
             aa = square.sum()
+        if aa <= n * (n * 4e-16 * abs(mean)) ** 2 and row.min() == row.max():
+            # a blank frame (a constant row: e.g. a textureless image, normalised to 0)
+            # holds no measurement: it adds nothing, and the next frame is compared with
+            # the last frame that held one
+            self._blank = True
+            self.novelty_ = 0.0
+            return 0.0
         # the previous row was kept as a contiguous copy, whose mean numpy may sum in
         # another order than a strided row's
         kept = self._centred_b_next(row, a, aa)
@@ -1823,14 +1846,19 @@ class TemperedObservation:
             self._kept = kept
             if kept[0] is a:
                 self._centred_a = np.empty(n)
+            self.novelty_ = 1.0
             return 1.0
         b, bb = self._kept
-        den = float(np.sqrt(aa * bb))
+        den = math.sqrt(float(aa) * float(bb))  # (numpy's floats; an overflow is caught below)
         if ab is None:
             square = self._buffer("_square", n)
             np.multiply(a, b, out=square)
             ab = square.sum()
-        rho = float(ab) / den if den > 0 else 1.0
+        if 0.0 < den < math.inf and math.isfinite(float(ab)):
+            rho = float(ab) / den
+        else:  # the sums under- or overflowed (rows of extreme scale): the same correlation, rescaled
+            x, y = a / np.abs(a).max(), b / np.abs(b).max()
+            rho = float(np.clip((x @ y) / math.sqrt(float(x @ x) * float(y @ y)), -1.0, 1.0))
         self._kept = kept
         if kept[0] is a:
             # the next frame centres into the previous row's buffer, free from now on
@@ -1857,6 +1885,9 @@ class TemperedObservation:
         frame; learn ``P(d|L)`` from the posterior; update the online hub levels."""
         row = getattr(self, "_row", None)
         if row is None:
+            return
+        if self.__dict__.get("_blank"):  # a blank frame: nothing to learn from (its best place is arbitrary)
+            self._row = None
             return
         if self.temperature == "predictive" or len(self._lams) > 1:
             prior = np.asarray(feedback.prior, dtype=np.float64)
