@@ -53,8 +53,9 @@ Models (all follow :class:`ObservationModel`: ``reset()``, ``observe(row)``):
 window, the evidence of the most recent frames alone, which caps the filter's
 confidence (:mod:`catgraph.localizer`).
 
-Every model takes a ``temperature`` ``τ`` (``r ← τ r``); values below 1 flatten an
-over-confident model so that one frame cannot wipe out the particle cloud.
+Every single model takes a ``temperature`` ``τ`` (``r ← τ r``); values below 1 flatten an
+over-confident model so that one frame cannot wipe out the particle cloud. (A
+:class:`CombinedObservation` tempers through its parts and their ``weights``.)
 
 Per frame, a model makes a handful of passes over the places, and at 10⁵ places and more
 those passes are the model's cost: the arithmetic writes into work arrays kept between
@@ -435,6 +436,8 @@ class HistogramObservation:
                 f"The 'mode' parameter of {owner} must be 'online', 'trained' or 'bootstrap'. Got {self.mode!r} instead."
             )
         check_scalar(self.temperature, "temperature", owner, float, 0.0, low_inclusive=False)
+        if self.new_place_samples is not None:
+            check_scalar(self.new_place_samples, "new_place_samples", owner, int, 1)
         if self.mode != "online":
             if not isinstance(self.likelihood, HistogramLikelihood) or not self.likelihood._is_fitted():
                 raise NotFittedError(
@@ -898,14 +901,14 @@ class CombinedObservation:
                 if callable(getattr(m, "feedback", None)):
                     m.feedback(feedback)
             self._learn_weights(feedback.prior)
-        best = getattr(self, "_best", None)
+        best = self.__dict__.pop("_best", None)  # one feedback per frame: a second one counts nothing
         if best is None or self.reliability is None:
             return
         for m, b in enumerate(best):
             if b < 0:
                 continue
-            if isinstance(near, slice):
-                hit = near.start <= b < near.stop
+            if isinstance(near, slice):  # read as numpy reads it (None, negative bounds, steps)
+                hit = b in range(*near.indices(self._n_places))
             else:
                 hit = bool(near[b])
             self._hits[m] += hit
@@ -992,6 +995,7 @@ class CombinedObservation:
         if not hasattr(self, "_hits"):
             self._start()
         parts = _observe_parts(self.models, difference_row)
+        self._n_places = len(parts[0].log_ratio)
         # each part's own best place is read only to learn its reliability
         self._best = ([int(np.argmax(p.log_ratio)) if p.informative else -1 for p in parts]
                       if self.reliability is not None else None)
@@ -1534,7 +1538,7 @@ class TemperedObservation:
         check_scalar(self.n_bins, "n_bins", owner, int, 4)
         check_scalar(self.prior_strength, "prior_strength", owner, float, 0.0)
         check_scalar(self.hub_threshold, "hub_threshold", owner, float, 0.0)
-        check_scalar(self.novelty_cap, "novelty_cap", owner, float, 0.0)
+        check_scalar(self.novelty_cap, "novelty_cap", owner, float, 0.0, low_inclusive=False)
         if not isinstance(self.novelty, (bool, np.bool_)):
             raise InvalidParameterError(f"The 'novelty' parameter of {owner} must be a bool. Got {self.novelty!r} instead.")
         n = len(row)
@@ -1546,7 +1550,11 @@ class TemperedObservation:
                 )
             hub_vector = None
         else:
-            hub_vector = _check_row(self.hub, n)
+            hub_vector = check_array(self.hub, f"the 'hub' levels of {owner}", ndim=1)
+            if len(hub_vector) != n:
+                raise ShapeMismatchError(
+                    f"the 'hub' levels of {owner} hold {len(hub_vector)} values but the map has {n} places; "
+                    "give one level per place (catgraph.hubs.map_hub_offsets of this map).")
         lams = np.asarray(self.hub_weights, dtype=np.float64) if self.hub is not None else np.array([0.0])
         if lams.ndim != 1 or len(lams) == 0 or not np.all(np.isfinite(lams)):
             raise InvalidParameterError(

@@ -103,3 +103,37 @@ def test_combination_weights_may_be_an_array():
     b = CombinedObservation([TemperedObservation(), TemperedObservation(hub=None)], weights=(1.0, 0.5))
     for row in rows:
         np.testing.assert_array_equal(a.observe(row).log_ratio, b.observe(row).log_ratio)
+
+
+def test_combined_feedback_counts_one_answer_per_frame_and_reads_slices_as_numpy():
+    rows = _rows(12)
+
+    def run(twice, near):
+        model = CombinedObservation([TemperedObservation(), TemperedObservation(hub=None)])
+        for k, row in enumerate(rows):
+            o = model.observe(row)
+            p = np.exp(o.log_ratio - o.log_ratio.max())
+            p /= p.sum()
+            for _ in range(2 if twice else 1):
+                model.feedback(FilterFeedback(p, p, near(k)))
+        return model.reliability_
+
+    around = lambda k: slice(8 + k, 13 + k)  # noqa: E731  (the true place is 10 + k)
+    np.testing.assert_array_equal(run(True, around), run(False, around))
+    # None and negative bounds as numpy reads them: the same places, the same answer
+    np.testing.assert_array_equal(run(False, lambda k: slice(None, 13 + k)), run(False, lambda k: slice(0, 13 + k)))
+    np.testing.assert_array_equal(run(False, lambda k: slice(8 + k - 200, None)), run(False, lambda k: slice(8 + k, 200)))
+
+
+def test_parameter_errors_name_the_parameter_and_come_first():
+    from catgraph.exceptions import InvalidParameterError, ShapeMismatchError
+    from catgraph.observation import HistogramObservation
+
+    row = _rows(1)[0]
+    with pytest.raises(ShapeMismatchError, match="'hub' levels of TemperedObservation hold 5 values"):
+        TemperedObservation(hub=np.zeros(5)).observe(row)
+    for bad in (0, -3, 2.5):
+        with pytest.raises(InvalidParameterError, match="'new_place_samples' parameter of HistogramObservation"):
+            HistogramObservation(new_place_samples=bad).observe(row)  # the first frame, not after n_init
+    with pytest.raises(InvalidParameterError, match="novelty_cap"):
+        TemperedObservation(novelty_cap=0).observe(row)  # it silenced every frame after the first
