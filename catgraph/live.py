@@ -434,9 +434,35 @@ class LiveMap:
         """One raw frame through the map's front-end, ``(d,)``."""
         return describe_frame(frame, self.kind, self.frontend, self.not_detected)
 
+    def check_query(self, traverse) -> None:
+        """Refuse a query traverse of another kind than the map's (images against a map of
+        descriptors …), as the batch commands do (:func:`catgraph.io.describe_query`);
+        one frame alone cannot say its kind.
+
+        Raises
+        ------
+        DataError
+        """
+        from .pipeline import _kind
+
+        if _kind(traverse) != self.kind:
+            raise DataError(f"the map holds {self.kind} but the query holds {_kind(traverse)}; compare like with like.")
+
     def difference_row(self, frame, out: np.ndarray | None = None) -> np.ndarray:
-        """The frame's (normalised, as the map's front-end says) difference to every place."""
-        return self.reference.row(self.describe(frame), normalise=self.frontend.normalise, out=out)
+        """The frame's (normalised, as the map's front-end says) difference to every place.
+        A frame with no information (a black image, a scan that detected nothing: every
+        value of its descriptor equal) gets a constant row, as in the batch commands
+        (:func:`catgraph.io.query_differences`): no match, no evidence."""
+        descriptor = self.describe(frame)
+        return self._no_information(descriptor, self.reference.row(descriptor, normalise=self.frontend.normalise,
+                                                                    out=out))
+
+    def _no_information(self, descriptor: np.ndarray, row: np.ndarray) -> np.ndarray:
+        """``row`` made constant (0 where normalised, else its mean) where ``descriptor``
+        carries no information."""
+        if descriptor.size and not np.any(descriptor != descriptor.flat[0]):
+            row[...] = 0.0 if self.frontend.normalise else row.mean(axis=-1, keepdims=True)
+        return row
 
     def _row_into(self, descriptor: np.ndarray, out: np.ndarray) -> np.ndarray:
         """A described frame's row into ``out`` (C-contiguous float64 ``(N,)``):
@@ -448,7 +474,7 @@ class LiveMap:
         reference._raw(reference.prepare_query(descriptor, single=True), out.reshape(1, -1))
         if self.frontend.normalise:
             normalise_row(out, out)
-        return out
+        return self._no_information(descriptor, out)
 
     def bootstrap(self, gap: int | None = None, max_different: int = 100_000, seed=0,
                   anchor_rows: int | None = 4096):

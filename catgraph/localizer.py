@@ -1177,7 +1177,9 @@ class Localizer:
         observation : ndarray, shape (n_places,)
             The frame's difference to every reference place (what the model observes).
         odometry : float, optional
-            Distance travelled since the previous frame (graph units).
+            Distance travelled since the previous frame (graph units). Ignored on the
+            first frame (there is no previous one): a first frame given its odometry
+            runs as one given ``None``.
 
         Returns
         -------
@@ -1187,6 +1189,8 @@ class Localizer:
             self.reset()
         row = _check_observation(observation, self.graph.n_places)
         odometry = check_odometry(odometry)
+        if self.n_steps_ == 0:
+            odometry = None  # ignored, as a query's odometry[0] (the marginal start must not hang on it)
         check_model(self.model, self)
         self._log_ratio = None  # the previous frame's ratios: the model may reuse their array now
         obs = self.model.observe(row)

@@ -1,7 +1,7 @@
 """Localise a query one frame at a time, as a camera or Wi-Fi callback would.
 
-    python examples/live.py REFERENCE QUERY [--model combined] [--particles 2000]
-                            [--seed 0] [--output frames.json] [--every 100]
+    python examples/live.py REFERENCE QUERY [--model combined] [--mode auto]
+                            [--particles 2000] [--seed 0] [--output frames.json] [--every 100]
 
 REFERENCE is a saved map (``catgraph build-map … --out map.npz``) or anything
 ``catgraph localize`` reads as a reference (an image folder, a UJI prefix, an array
@@ -33,10 +33,10 @@ def load_live_map(source: str, layout: str = "float32"):
     from catgraph.live import LiveMap
 
     path = Path(source)
-    if path.suffix == ".npz" and path.is_file():
+    if path.suffix.lower() == ".npz":
         from catgraph.io import load_map
 
-        return LiveMap(load_map(path), layout=layout)
+        return LiveMap(load_map(path), layout=layout)  # a missing map is reported as one
     return LiveMap(load_input(source, "reference"), layout=layout)
 
 
@@ -49,11 +49,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("reference", metavar="REFERENCE")
     parser.add_argument("query", metavar="QUERY")
     parser.add_argument("--model", choices=LIVE_MODELS, default="combined")
-    parser.add_argument("--mode", choices=mode.choices, default=mode.default,
+    parser.add_argument("--mode", choices=mode.choices,
                         help=f"the filter: {mode.help} (default {mode.default})")
     parser.add_argument("--particles", type=int, help="particles in the particle filter (mode 'particles', or "
                                                        "'auto' on a map of more than 100,000 places; default 2000)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, help="the particle filter's seed (default 0)")
     parser.add_argument("--output", type=Path, help="write the per-frame answers (JSON, 'frames' as localize writes)")
     parser.add_argument("--every", type=int, default=0, help="print every N-th answer (0: none)")
     parser.add_argument("--layout", choices=("float32", "uint8"), default="float32",
@@ -80,9 +80,18 @@ def run(args) -> int:
         raise InvalidParameterError(f"--every must be ≥ 0 (0: print no answer); got {args.every}.")
     if args.output is not None:  # before any work, and never over an input
         check_writable(args.output, "output file", inputs=source_paths(args.reference) + source_paths(args.query))
+    # only the options given, as the catgraph commands take them (one that does not apply is an error)
+    given = {flag: value for flag, value in (("--mode", args.mode), ("--particles", args.particles),
+                                             ("--seed", args.seed)) if value is not None}
+    if args.model == "matcher" and given:
+        verb = "does" if len(given) == 1 else "do"
+        raise InvalidParameterError(f"{' and '.join(given)} {verb} not apply to --model matcher (it runs no filter); "
+                                    "leave it out.")
     live_map = load_live_map(args.reference, args.layout)
     query = load_input(args.query, "query")
-    params = {} if args.model == "matcher" else {"mode": args.mode, "n_particles": args.particles, "seed": args.seed}
+    live_map.check_query(query)
+    params = {name: given[flag] for name, flag in (("mode", "--mode"), ("n_particles", "--particles"),
+                                                   ("seed", "--seed")) if flag in given}
     live = LiveLocalizer(live_map, model=args.model, **params)
     odometry = query.odometry
     frames = {"query_index": [], "match": [], "confidence": [], "p_new_place": [], "window_length": []}

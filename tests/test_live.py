@@ -104,6 +104,73 @@ def test_live_steps_give_the_batch_answers(world, short_query, model):
         assert last.window_length is None
 
 
+def _with_black_frames(query, frames_black):
+    from dataclasses import replace
+
+    frames = query.frames.copy()
+    frames[list(frames_black)] = 0
+    return replace(query, frames=frames)
+
+
+@pytest.mark.filterwarnings("ignore:3 of 120 query frames carry no information")
+@pytest.mark.parametrize("model", ["combined", "tempered", "adaptive"])
+def test_a_frame_with_no_information_gets_the_batch_answer_live(world, short_query, model):
+    """A black frame: the batch commands give it a constant row (no match, no evidence);
+    live gave it a confident match and fed its row to the filter, so every later answer
+    differed."""
+    from catgraph.compare import localize
+
+    query = _with_black_frames(short_query, (0, 40, 41))
+    live = LiveLocalizer(LiveMap(world.reference), model=model, seed=2)
+    estimates = live.run(query.frames, query.odometry)
+    batch = localize(world.reference, query, model=model, seed=2)
+    assert np.array_equal([e.place for e in estimates], batch.match)
+    assert np.array_equal([e.score for e in estimates], batch.confidence)
+    row = LiveMap(world.reference).difference_row(query.frames[40])
+    assert np.all(row == 0.0)
+
+
+def test_the_live_matcher_gives_no_match_for_a_frame_with_no_information(world, short_query):
+    from catgraph.matching import NO_MATCH
+
+    query = _with_black_frames(short_query, (30,))
+    got = LiveLocalizer(LiveMap(world.reference), model="matcher").run(query.frames[:40])
+    assert got[30].place == NO_MATCH and got[29].place != NO_MATCH
+
+
+def test_live_particles_with_odometry_give_the_batch_answers(world, short_query):
+    """The batch handed the first frame its odometry (documented as ignored), live handed
+    it None; the particle filter started differently from the two, so every answer of a
+    query with odometry differed."""
+    from catgraph.compare import localize
+
+    params = dict(mode="particles", n_particles=300, seed=2)
+    live = LiveLocalizer(LiveMap(world.reference), model="tempered", **params)
+    estimates = live.run(short_query.frames, short_query.odometry)
+    batch = localize(world.reference, short_query, model="tempered", **params)
+    assert short_query.odometry is not None
+    assert np.array_equal([e.place for e in estimates], batch.match)
+    assert np.array_equal([e.score for e in estimates], batch.confidence)
+
+
+def test_the_first_frames_odometry_is_ignored():
+    from catgraph.graph import PlaceGraph
+    from catgraph.localizer import Localizer
+    from catgraph.motion import VelocityMotion
+
+    from .conftest import FixedLogRatio
+
+    rng = np.random.default_rng(0)
+    rows = rng.random((8, 50))
+    odometry = np.full(8, 2.0)
+    answers = []
+    for first in (None, 0.0, 7.5):
+        loc = Localizer(PlaceGraph.chain(50, spacing=2.0), FixedLogRatio(1.0), 200, motion=VelocityMotion(), seed=1)
+        out = [loc.step(rows[0], first)] + [loc.step(r, o) for r, o in zip(rows[1:], odometry[1:])]
+        answers.append([(e.place, e.confidence, e.new_place_probability) for e in out])
+    assert answers[0] == answers[1] == answers[2]
+
+
 def test_matcher_mode_equals_the_batch_sequence_method(world):
     from catgraph.differences import difference_matrix
     from catgraph.methods import _sequence_kwargs
@@ -244,6 +311,12 @@ def test_example_matches_the_localize_command(world, tmp_path, capsys, monkeypat
     with pytest.raises(SystemExit) as stop:
         runpy.run_path(str(EXAMPLE), run_name="__main__")
     assert stop.value.code == 0 and "per-frame ms: median" in capsys.readouterr().out
+    # the grid filter from the example: only the options given reach the filter (a seed it has no use for was
+    # always passed, and --mode grid was refused)
+    monkeypatch.setattr(sys, "argv", ["live.py", str(map_path), str(qry), "--model", "tempered", "--mode", "grid"])
+    with pytest.raises(SystemExit) as stop:
+        runpy.run_path(str(EXAMPLE), run_name="__main__")
+    assert stop.value.code == 0 and "per-frame ms: median" in capsys.readouterr().out
 
 
 def test_example_refuses_a_users_mistakes_in_one_line(world, tmp_path, capsys, monkeypatch):
@@ -252,6 +325,10 @@ def test_example_refuses_a_users_mistakes_in_one_line(world, tmp_path, capsys, m
     map_path = save_map(tmp_path / "ref.npz", build_map(world.reference))
     before = map_path.read_bytes()
     for argv, message in ([[str(tmp_path / "nowhere"), "synthetic:0"], "does not exist"],
+                          [[str(tmp_path / "nowhere.npz"), "synthetic:0"], "map"],
+                          [[str(map_path), "synthetic:0", "--model", "matcher", "--particles", "10"],
+                           "--particles does not apply to --model matcher"],
+                          [[str(map_path), "synthetic:0"], "the map holds images but the query holds descriptors"],
                           [[str(map_path), "synthetic:0", "--output", str(map_path)], "would overwrite the input"],
                           [[str(map_path), "synthetic:0", "--every", "-1"], "--every must be ≥ 0"]):
         monkeypatch.setattr(sys, "argv", ["live.py", *argv])
