@@ -225,6 +225,8 @@ def build_map(reference: "Traverse", frontend: "FrontEnd | None" = None, *, junc
     check_information(descriptors, "reference")
     the_graph = place_graph(reference, junction_radius_m) if graph else None
     info = {"kind": _kind(reference), "n_frames": len(reference)}
+    if info["kind"] == "images":  # (h, w): images of another shape may hold as many pixels
+        info["image_shape"] = [int(v) for v in reference.frames.shape[1:3]]
     if "source" in reference.meta:
         info["source"] = str(reference.meta["source"])
     info.update(meta or {})
@@ -275,6 +277,7 @@ def describe_query(catgraph_map: CatgraphMap, query: "Traverse") -> tuple[np.nda
     kind = catgraph_map.meta.get("kind")
     if kind is not None and _kind(query) != kind:
         raise DataError(f"the map holds {kind} but the query holds {_kind(query)}; compare like with like.")
+    check_image_shape(catgraph_map.meta, frontend, query.frames.shape[1:3] if kind == "images" else None, "query images")
     q, _ = describe(query, frontend)
     if q.shape[1] != catgraph_map.descriptors.shape[1]:
         raise ShapeMismatchError(
@@ -282,6 +285,29 @@ def describe_query(catgraph_map: CatgraphMap, query: "Traverse") -> tuple[np.nda
             f"the map was built with front-end {catgraph_map.frontend}: use query data of the same kind and size."
         )
     return q, check_information(q, "query")
+
+
+def check_image_shape(meta: dict, frontend, shape, what: str) -> None:
+    """Refuse images of another ``(h, w)`` than the map's where the front-end keeps the
+    images' own size (``size=None``): a transposed 16×32 image holds as many pixels as a
+    32×16 one, and was compared pixel for pixel. Maps saved without ``image_shape`` (and
+    any ``shape`` of ``None``) are not checked.
+
+    Raises
+    ------
+    ShapeMismatchError
+    """
+    from .exceptions import ShapeMismatchError
+
+    expected = meta.get("image_shape")
+    if shape is None or expected is None or getattr(frontend, "size", None) is not None:
+        return
+    if tuple(int(v) for v in shape) != tuple(int(v) for v in expected):
+        h, w = (int(v) for v in shape)
+        raise ShapeMismatchError(
+            f"{what} are {w}×{h} (width × height) but the map's are {int(expected[1])}×{int(expected[0])}, and the "
+            "map keeps the images' own size: give images of the map's size, or build the map with --size W×H "
+            "(both are then resized to it).")
 
 
 def query_differences(catgraph_map: CatgraphMap, query: "Traverse") -> np.ndarray:

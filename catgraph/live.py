@@ -416,6 +416,7 @@ class LiveMap:
                             "needs one: build the map again without --no-graph.")
         self.frontend = source.frontend_settings()
         self.kind = str(source.meta.get("kind", "descriptors"))
+        self._meta = dict(source.meta)
         self.metric = source.metric
         self.graph = source.graph
         self.positions = source.positions
@@ -432,6 +433,11 @@ class LiveMap:
 
     def describe(self, frame) -> np.ndarray:
         """One raw frame through the map's front-end, ``(d,)``."""
+        if self.kind == "images" and self.frontend.size is None and "image_shape" in self._meta:
+            from .io import check_image_shape
+
+            shape = np.shape(frame)
+            check_image_shape(self._meta, self.frontend, shape[:2] if len(shape) in (2, 3) else None, "live images")
         return describe_frame(frame, self.kind, self.frontend, self.not_detected)
 
     def check_query(self, traverse) -> None:

@@ -57,7 +57,7 @@ def test_match_shuffled_query_indices_refer_to_loaded_order(image_pair, tmp_path
     (["match", "MISSING", "MISSING", "--tolerance", "1"], "does not exist"),
     (["match", "EMPTY", "EMPTY", "--tolerance", "1"], "no PNG or JPG"),
     (["match", "REF", "QRY", "--tolerance-m", "2"], "positions"),
-    (["match", "REF", "SMALL", "--tolerance", "1"], "values per descriptor"),
+    (["match", "REF", "SMALL", "--tolerance", "1"], "the map's are 16×8"),
     (["match", "NPY", "NAN", "--tolerance", "1"], "NaN"),
     (["match", "REF", "CORRUPT", "--tolerance", "1"], "cannot read image"),
 ])

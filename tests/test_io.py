@@ -200,3 +200,28 @@ def test_build_map_command(tmp_path, rng, capsys):
     assert m.meta["source"] == str(tmp_path / "ref.npz")
     assert main(["build-map", str(tmp_path / "missing"), "--out", str(out), "-q"]) == 1
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_images_of_another_shape_with_as_many_pixels_are_refused(tmp_path, rng):
+    """A map keeps its images' (h, w): a transposed query (as many pixels) was compared
+    pixel for pixel, silently. With --size both are resized, and any shape goes."""
+    from catgraph.exceptions import ShapeMismatchError
+    from catgraph.live import LiveMap
+
+    frames = rng.integers(0, 255, (30, 16, 32)).astype(np.uint8)
+    ref = Traverse(frames, meta={"kind": "images"})
+    the_map = load_map(save_map(tmp_path / "m.npz", build_map(ref)))
+    assert the_map.meta["image_shape"] == [16, 32]
+    upright = Traverse(frames[:5], meta={"kind": "images"})
+    transposed = Traverse(np.ascontiguousarray(frames[:5].transpose(0, 2, 1)), meta={"kind": "images"})
+    reshaped = Traverse(frames[:5].reshape(5, 8, 64), meta={"kind": "images"})
+    assert query_differences(the_map, upright).shape == (5, 30)
+    for query in (transposed, reshaped):
+        with pytest.raises(ShapeMismatchError, match="the map's are 32×16"):
+            query_differences(the_map, query)
+        with pytest.raises(ShapeMismatchError, match="the map's are 32×16"):
+            differences(ref, query)  # the batch path without a saved map
+        with pytest.raises(ShapeMismatchError, match="live images"):
+            LiveMap(the_map).difference_row(query.frames[0])
+    resized = build_map(ref, FrontEnd(size=(16, 8)))
+    assert query_differences(resized, transposed).shape == (5, 30)

@@ -273,7 +273,7 @@ def test_live_map_from_saved_map_and_bad_inputs(world, tmp_path):
     live = LiveLocalizer(live_map, model="histogram")
     with pytest.raises(DataError):
         live.step(np.zeros((3, 3, 3, 3)))
-    with pytest.raises(Exception, match="values per"):
+    with pytest.raises(Exception, match="live images are 4×4"):
         live.step(np.zeros((4, 4)))
 
 
