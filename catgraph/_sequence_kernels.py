@@ -13,7 +13,10 @@ reference offset ``pos_v(i) = floor(v * i + 1/2)``; the *line* ``c = j - pos_v(i
 visits place ``c + pos_v(t)`` at frame ``t``. Lines are global, so one history serves
 every velocity. Every stored value is an integer *code*, a multiple of the quantum
 ``u = state[0]`` that the first row fixes (:func:`unit_of`: ``u = 2^(e - 12)`` with
-``max_j |d_0j| < 2^e``, so the first row's codes lie below ``2^12`` in magnitude):
+``max_j |d_0j| < 2^e``, so the first row's codes lie below ``2^12`` in magnitude; rows
+of zeros before it, blank frames once normalised, are codes 0 in any quantum and leave
+it unfixed, ``state[0] = 0``; ``state[1]``, where the state has it, counts the values
+stored at the largest code):
 
 ``ring`` ``(R, N) int16``
     the last ``R >= l_max + 1`` difference rows, row ``t`` at ``ring[t % R]``, stored
@@ -163,6 +166,15 @@ def unit_of(d_row):
 
 
 @njit(inline="always")
+def quantum_of(d_row):
+    """:func:`unit_of` of a row, or 0 for a row of zeros (no scale to fix)."""
+    for j in range(d_row.shape[0]):
+        if d_row[j] != 0.0:
+            return unit_of(d_row)
+    return 0.0
+
+
+@njit(inline="always")
 def encode(x, unit):
     """``x`` as a code: ``rint(x / unit)`` saturated at ``±CODE_MAX`` (int64)."""
     c = np.rint(x / unit)
@@ -189,13 +201,23 @@ def encode_scaled(x, inv):
 @njit
 def advance(ring, mring, state, i, d_row):
     """Store query frame ``i``'s row as codes in ``ring[i % R]`` and its mean code in
-    ``mring``; frame 0 fixes the quantum ``state[0]``."""
+    ``mring``; the first row that is not all zeros fixes the quantum ``state[0]`` (0
+    until then: a blank first frame, normalised to zeros, is all codes 0 in any
+    quantum, and would otherwise fix ``2^-12``, saturating every later difference
+    beyond ±8)."""
     if i == 0:
-        state[0] = unit_of(d_row)
+        state[0] = 0.0
+    if state[0] == 0.0:
+        state[0] = quantum_of(d_row)
     unit = state[0]
     r = ring.shape[0]
     out = ring[i % r]
     n = d_row.shape[0]
+    if unit == 0.0:  # every value 0 so far
+        for j in range(n):
+            out[j] = 0
+        mring[i % r] = 0
+        return
     total = 0
     inv = 1.0 / unit  # a power of two: d * inv is d / unit, the same float (one multiplication, not a division)
     if inv < np.inf:
@@ -209,6 +231,12 @@ def advance(ring, mring, state, i, d_row):
             out[j] = c
             total += c
     mring[i % r] = np.int64(np.rint(total / n))
+    if state.shape[0] > 1:  # state[1] counts the values stored at the largest code (clipped there)
+        clipped = 0
+        for j in range(n):
+            if out[j] == CODE_MAX or out[j] == -CODE_MAX:
+                clipped += 1
+        state[1] += clipped
 
 
 @njit(inline="always")

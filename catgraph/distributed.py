@@ -320,9 +320,9 @@ def _columns(codes: tuple, a: int, b: int) -> np.ndarray:
     return np.ascontiguousarray(codes[0][:, a:b])
 
 
-def _row_peak(block: np.ndarray, row: int) -> float:
-    """``max_j |d_row,j|`` over the shard's columns (the quantum's reduction)."""
-    return float(np.abs(block[row]).max()) if block.shape[1] else 0.0
+def _row_peaks(block: np.ndarray) -> np.ndarray:
+    """``max_j |d_row,j|`` of each row over the shard's columns (the quantum's reduction)."""
+    return np.abs(block).max(axis=1) if block.shape[1] else np.zeros(block.shape[0])
 
 
 @njit(nogil=True)
@@ -740,12 +740,14 @@ def difference_matrix(query, ref: ShardedReference, normalise: bool = True, bloc
     return out
 
 
-def _quantum(ref: ShardedReference, blocks: list) -> float:
-    """The local matcher's quantum (:func:`catgraph._sequence_kernels.unit_of`) from
-    row 0 of ``blocks`` (query frame 0): the largest ``|d_0j|`` of every shard, reduced
-    here, once per query."""
-    peaks = ref.client.gather([ref.submit(s, _row_peak, b, 0) for s, b in enumerate(blocks)])
-    return float(unit_of(np.array([max(peaks)])))
+def _quantum(ref: ShardedReference, blocks: list) -> float | None:
+    """The local matcher's quantum (:func:`catgraph._sequence_kernels.unit_of`) from the
+    first row of ``blocks`` that is not all zeros: each row's largest ``|d_j|`` of every
+    shard, reduced here. ``None`` where every row is zeros (blank frames, normalised):
+    the next block fixes it, as the local matcher's first such row does."""
+    peaks = np.max(ref.client.gather([ref.submit(s, _row_peaks, b) for s, b in enumerate(blocks)]), axis=0)
+    nonzero = np.flatnonzero(peaks > 0)
+    return float(unit_of(np.array([peaks[nonzero[0]]]))) if len(nonzero) else None
 
 def _halo(velocities: np.ndarray, first: int, stop: int, window: int) -> tuple[int, int]:
     """Columns a shard needs left and right of its places for query frames ``first …
@@ -786,9 +788,10 @@ def _line_blocks(ref: ShardedReference, q: np.ndarray, start: int, stop: int, wi
                                 zeros)
     if flat is not None:
         flat[:] = zeros[start - first:]
-    if unit is None:  # the first block starts at query frame 0
+    if unit is None:  # the first block starts at query frame 0 (or every row before it was zeros)
         unit = _quantum(ref, blocks)
-    coded = [ref.submit(s, _codes, b, unit) for s, b in enumerate(blocks)]
+    # rows of zeros only so far: codes 0 in any quantum (1 stands in; the scores are 0)
+    coded = [ref.submit(s, _codes, b, 1.0 if unit is None else unit) for s, b in enumerate(blocks)]
     # each row's mean code (the fill outside the reference), as the local ring rounds it
     totals = np.sum(c.gather([ref.submit(s, _totals, b) for s, b in enumerate(coded)]), axis=0)
     mean_codes = np.rint(totals / ref.n_places).astype(np.int64)
@@ -850,7 +853,7 @@ def window_scores(query, ref: ShardedReference, window: int, velocity: float = 1
         eff = _effective(start, stop, window)[:, None]
         for (lo, hi), block in zip(ref.bounds, ref.client.gather([ref.submit(s, _sums_only, f)
                                                                   for s, f in enumerate(futs)])):
-            out[start:stop, lo:hi] = block[0].astype(np.float64) * unit / eff
+            out[start:stop, lo:hi] = block[0].astype(np.float64) * (unit or 0.0) / eff
     return out
 
 
@@ -1272,18 +1275,19 @@ def _match(query, ref: ShardedReference, cfg, block_rows: int, no_information, o
         best_j = np.take_along_axis(np.stack([p["place"] for p in parts]), pick, axis=0)[0]
         second = _second_best(parts, ref.bounds, best_j, cfg.radius)
         eff = np.minimum(windows[None, None, :], np.arange(start + 1, stop + 1)[:, None, None])  # (rows, 1, G)
-        mean, std = _moments(parts, n, unit, eff)
+        quantum = unit or 0.0  # (rows of zeros only so far: every score 0, as the local matcher's)
+        mean, std = _moments(parts, n, quantum, eff)
         # the statistics the local kernel hands to the window rule (_sequence_kernels._window, _sub_scores)
         st = _Stats(stop - start, cfg.velocities.shape[0], windows.shape[0], 1, with_sub=with_sub)
         st.best_j[...] = best_j
-        st.best_s[...] = best.astype(np.float64) * unit / eff
-        st.second_s[...] = np.where(second == _NONE, np.inf, second.astype(np.float64) * unit / eff)
+        st.best_s[...] = best.astype(np.float64) * quantum / eff
+        st.second_s[...] = np.where(second == _NONE, np.inf, second.astype(np.float64) * quantum / eff)
         st.mean[...], st.std[...] = mean, std
         st.weights[...] = 1.0
         st.locs[..., 0], st.scales[..., 0] = mean, std
         if with_sub:
             sub = np.take_along_axis(np.stack([p["sub"] for p in parts]), pick[..., None], axis=0)[0]
-            st.sub[...] = sub.astype(np.float64) * unit / eff[:, :, None, :]
+            st.sub[...] = sub.astype(np.float64) * quantum / eff[:, :, None, :]
         if current or lookups:
             places, values = np.empty((stop - start, 0), dtype=np.int64), np.empty((stop - start, 0))
             if lookups:  # the places the record reads, in the first moments round

@@ -36,10 +36,12 @@ scratch row of ``8 N`` bytes); never an ``N x N`` matrix.
 
 Precision (a documented policy). Each difference is stored once as an int16 *code*, the
 nearest integer multiple of a quantum ``u = 2^(e - 12)`` fixed by the query's first row
-(``max_j |d_0j| < 2^e``, so the first row's codes stay below ``2^12``); the row means are
-stored as rounded mean codes. Later differences up to 8 times the first row's largest
-keep their value to ``u / 2``; larger ones saturate at ``±32767 u`` (they never wrap
-around). The running sums are integers (int32: ``|S| <= l_max 32767 < 2^31``; int64 for
+(``max_j |d_0j| < 2^e``, so the first row's codes stay below ``2^12``; leading rows of
+zeros, blank frames once normalised, are skipped: they are codes 0 in any quantum); the
+row means are stored as rounded mean codes. Later differences up to 8 times the first
+row's largest keep their value to ``u / 2``; larger ones saturate at ``±32767 u`` (they
+never wrap around), and the matcher warns (``CatgraphWarning``, once per query) where
+any does: rows that are not normalised per query can grow far beyond their first. The running sums are integers (int32: ``|S| <= l_max 32767 < 2^31``; int64 for
 ``l_max > 65,538``), so they never drift, a window summed in any order gives the same
 value, and places whose windows tie exactly keep tying (the first place wins). Scores
 and statistics are converted to float64 once, where they are divided. Against the
@@ -670,11 +672,27 @@ def _state(cfg: _Config, n: int, chunk: int = 1):
     sums = np.zeros((v_count, g_count, n), dtype=sums_dtype)
     ring = np.zeros((rows, n), dtype=np.int16)
     mring = np.zeros(rows, dtype=np.int16)
-    state = np.zeros(1)  # the quantum, fixed by the first row
+    state = np.zeros(2)  # the quantum (fixed by the first row not all zeros), the count of clipped values
     scores = np.empty((v_count, n if cfg.approx_code != 0 else 0))  # the Gaussian path reads the sums only
     work = np.empty((v_count, n if cfg.approx_code == 1 else 0))
     resp = np.empty((v_count, cfg.n_components, n if cfg.approx_code == 2 else 0))
     return sums, ring, mring, state, (scores, work, resp)
+
+
+def _warn_clipped(state: np.ndarray) -> None:
+    """Warn where the matcher stored values at its largest code (clipped: the precision
+    policy of the module docstring)."""
+    count = int(state[1])
+    if count:
+        import warnings
+
+        from .exceptions import CatgraphWarning
+
+        warnings.warn(
+            f"{count} differences reached the sequence matcher's largest stored value (8 times the largest |d| of "
+            "the query's first row that is not all zeros) and were clipped there: the window scores that hold them "
+            "are approximate. Normalise the rows per query (catgraph.differences.normalise_rows, the front-end's "
+            "default), or start the query with a frame of its typical scale.", CatgraphWarning, stacklevel=3)
 
 
 def _record(cfg: _Config) -> _Record | None:
@@ -789,6 +807,7 @@ def match_sequences(
             st.weights, st.locs, st.scales, st.sub, *scratch)
         parts.append(_decide(st, cfg, np.arange(start, stop), return_curves, d[start:stop], record,
                              raw_rows=raw[start:stop]))
+    _warn_clipped(state)
     match, score, conf, length, velocity = (np.concatenate([p[c] for p in parts]) for c in range(5))
     log_p = np.concatenate([p[5] for p in parts]) if return_curves else None
     return SequenceResult(match=match, score=score, confidence=conf, window_length=length,
@@ -877,7 +896,7 @@ class SequenceMatcher:
     def reset(self) -> "SequenceMatcher":
         """Forget all frames (the next step starts a new query)."""
         for name in ("n_reference_", "n_steps_", "window_grid_", "velocities_", "_cfg", "_sums", "_ring", "_mring",
-                     "_state", "_buffers", "_stats", "_record"):
+                     "_state", "_buffers", "_stats", "_record", "_clipped_told"):
             self.__dict__.pop(name, None)
         return self
 
@@ -964,6 +983,9 @@ class SequenceMatcher:
             cfg.approx_code, EM_ITERATIONS, _em_stride(self.n_reference_), cfg.radius, st.best_j, st.best_s,
             st.second_s, st.mean, st.std, st.weights, st.locs, st.scales, st.sub, s, work, resp, beside=beside)
         self.n_steps_ = i + 1
+        if self._state[1] and not self.__dict__.get("_clipped_told"):  # once per query
+            self._clipped_told = True
+            _warn_clipped(self._state)
         match, score, conf, length, velocity, log_p = _decide(st, cfg, frame, return_curve, rows, self._record,
                                                              reads[0], raw[None, :])
         return SequenceMatch(

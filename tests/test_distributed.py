@@ -14,9 +14,13 @@ from catgraph import distributed as dd  # noqa: E402
 
 
 def coded(d):
-    """The local matcher's stored values, obviously: the quantum of row 0, int16-range codes
-    (round half to even, saturated at ±32767) and each row's rounded mean code."""
-    u = 2.0 ** (int(np.frexp(np.abs(d[0]).max())[1]) - 12)
+    """The local matcher's stored values, obviously: the quantum of the first row that is not
+    all zeros, int16-range codes (round half to even, saturated at ±32767) and each row's
+    rounded mean code."""
+    peaks = np.abs(d).max(1)
+    if not np.any(peaks > 0):
+        return 0.0, np.zeros(d.shape, dtype=np.int64), np.zeros(d.shape[0], dtype=np.int64)
+    u = 2.0 ** (int(np.frexp(peaks[np.flatnonzero(peaks > 0)[0]])[1]) - 12)
     codes = np.clip(np.rint(d / u), -32767, 32767).astype(np.int64)
     return u, codes, np.rint(codes.sum(1) / d.shape[1]).astype(np.int64)
 
@@ -287,14 +291,15 @@ def test_saturated_codes_equal_local(client, data):
 
 
 def test_first_frame_without_information(client, data):
-    # a blank first frame: a zero row, quantum 2^-12 (as locally: unit_of of a zero row)
+    # a blank first frame: a zero row leaves the quantum to the next row (it was 2^-12, and every
+    # later difference beyond ±8 saturated), as locally
     q, r = data
     ref = dd.shard_reference(r, "sad", client, shard_places=4096)
     blank = np.zeros(q.shape[0], dtype=bool)
     blank[[0, 40]] = True
     local = difference_matrix(q, r, "sad", normalise=True)
     local[blank] = 0.0
-    assert coded(local)[0] == 2.0**-12
+    assert coded(local)[0] == 2.0 ** (int(np.frexp(np.abs(local[1]).max())[1]) - 12) > 2.0**-12
     res = dd.match_fixed_window(q, ref, 12, radius=5, velocities=[1.0], confidence="gap", block_rows=64,
                                  no_information=blank)
     assert_same_as_local(res, local, 12, 5)
