@@ -125,13 +125,14 @@ def check_array(
         raise DataError(f"{name} is empty (shape {out.shape}); at least one frame is needed.")
     if finite and out.dtype.kind == "f" and not np.isfinite(out).all():
         bad = ~np.isfinite(out)
-        where = f" (first at row {int(np.argwhere(bad)[0][0])})" if out.ndim else ""
+        first = int(np.argwhere(bad)[0][0]) if out.ndim else 0
+        where = (f" (first at row {first})" if out.ndim > 1 else f" (first at index {first})") if out.ndim else ""
         converted = (
             f" after conversion to {np.dtype(dtype).name}"
             if dtype is not None and raw.dtype.kind == "f" and np.all(np.isfinite(raw)) else ""
         )
         raise DataError(
-            f"{name} contain {int(bad.sum())} NaN or infinite values{converted}{where}; "
+            f"{name} holds {int(bad.sum())} NaN or infinite values{converted}{where}; "
             "clean or drop those frames before localising."
         )
     return out

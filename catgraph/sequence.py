@@ -455,7 +455,8 @@ class SequenceMatch:
     Attributes
     ----------
     match : int
-        Best reference place (``-1`` = no output; not produced by the current rules).
+        Best reference place (``-1`` = no output: a frame with no information of its own,
+        a constant row, under every rule; :mod:`catgraph.matching`).
     score : float
         ``s_ij(L, v)`` of the match at the chosen window and velocity (lower is better).
     confidence : float
@@ -528,12 +529,13 @@ def window_grid(l_min: int = 10, l_max: int = 500, grid: str | int | Sequence[in
     Parameters
     ----------
     l_min, l_max : int
-        Range of window lengths (inclusive).
+        Range of window lengths (inclusive) of the grids built here.
     grid : "geometric", "all", int or sequence of int
         ``"geometric"``: 32 lengths spaced geometrically from ``l_min`` to ``l_max``
         (rounded, duplicates removed); an int ``G`` (at most :data:`MAX_GRID_COUNT`): ``G``
         geometric lengths; ``"all"``:
-        every integer in ``[l_min, l_max]``; a sequence: those lengths.
+        every integer in ``[l_min, l_max]``; a sequence: those lengths, as given
+        (``l_min`` and ``l_max`` are not read: the sequence is the range).
 
     Examples
     --------
@@ -718,7 +720,7 @@ def fixed_window_scores(differences: np.ndarray, window: int, velocity: float = 
     """
     d = check_array(differences, "difference matrix", ndim=2)
     check_scalar(window, "window", "fixed_window_scores", int, 1)
-    check_scalar(velocity, "velocity", "fixed_window_scores", float)
+    check_scalar(velocity, "velocity", "fixed_window_scores", float, -MAX_VELOCITY, MAX_VELOCITY)
     return _kernels().fixed_scores(np.ascontiguousarray(d), int(window), float(velocity))
 
 
@@ -758,7 +760,8 @@ def match_sequences(
         rule's own, "tracked" for rule "tracked" (which reads no other), else
         :data:`DEFAULT_CONFIDENCE`.
     l_min, l_max : int
-        Range of candidate window lengths (adaptive only).
+        Range of candidate window lengths (adaptive only; a ``grid`` given as a sequence
+        of lengths is its own range).
     grid : "geometric", "all", int or sequence of int
         Candidate lengths, see :func:`window_grid`.
     radius : int
@@ -919,8 +922,9 @@ class SequenceMatcher:
         Same policy and stored values as the matcher itself (query start:
         ``min(L, i+1)`` terms; outside the reference: neutral fill): a candidate length
         reads the matcher's own running sums, any other length is summed from the ring in
-        ``O(N L)``, with the same result. ``L`` may not exceed ``l_max`` (the ring holds
-        no more); ``velocity`` must be one of the matcher's velocities
+        ``O(N L)``, with the same result. ``L`` may not exceed the longest candidate
+        length (``l_max``, or a fixed window, or the largest of a grid given as lengths:
+        the ring holds no more); ``velocity`` must be one of the matcher's velocities
         (default: ``1.0`` if searched, else the first).
         """
         if not hasattr(self, "n_steps_") or self.n_steps_ == 0:

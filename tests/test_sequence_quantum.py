@@ -75,3 +75,24 @@ def test_values_clipped_at_the_largest_code_are_reported(rng):
         warnings.simplefilter("error", CatgraphWarning)
         for row in d[1:]:  # a first row of the query's own scale: nothing clipped
             matcher.step(row)
+
+
+def test_fixed_window_scores_take_the_matchers_velocity_range(rng):
+    """A velocity beyond ±MAX_VELOCITY (the others' limit) overflowed the line positions."""
+    from catgraph.exceptions import InvalidParameterError
+    from catgraph.sequence import MAX_VELOCITY
+
+    d = rng.normal(size=(5, 20))
+    fixed_window_scores(d, 3, -MAX_VELOCITY)
+    for v in (MAX_VELOCITY * 1.5, 5e18, -1e300):
+        with pytest.raises(InvalidParameterError, match="velocity"):
+            fixed_window_scores(d, 3, v)
+
+
+def test_a_nan_in_one_row_is_named_by_its_index(rng):
+    from catgraph.exceptions import DataError
+
+    row = rng.normal(size=10)
+    row[3] = np.nan
+    with pytest.raises(DataError, match=r"holds 1 NaN or infinite values \(first at index 3\)"):
+        SequenceMatcher(window=3).step(row)
