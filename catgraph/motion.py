@@ -1087,6 +1087,8 @@ def _marginal_kernel(edge, fraction, log_weight, velocity, skip_start, skip_stop
                 o = origin[b]
                 for extra in range(2):
                     m = q[b] * (frac[b] if extra == 1 else 1.0 - frac[b])
+                    if m == 0.0:  # (a whole speed's extra hop: no mass, and its blur would reach past the window)
+                        continue
                     if extra == 1:
                         o += sign[b]
                     if window[o] < 0:

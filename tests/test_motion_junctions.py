@@ -151,3 +151,19 @@ def test_particle_posterior_converges_to_the_grid_filter_on_a_junction_graph():
             for s in range(3)])
     assert tv[4000] < tv[250] / 3
     assert tv[4000] < 0.05
+
+
+def test_the_marginal_kernel_stays_inside_its_buffers_at_a_route_end(monkeypatch):
+    """Run as plain Python (numpy indexing raises where the compiled kernel read and wrote
+    past its window: the extra hop of a whole speed, which carries no mass, blurred one
+    place beyond it), a query driven to the end of a chain."""
+    import catgraph.motion as motion
+
+    from .conftest import FixedLogRatio
+
+    monkeypatch.setattr(motion, "_marginal_kernel", motion._marginal_kernel.py_func)
+    rng = np.random.default_rng(0)
+    rows = rng.normal(size=(30, 30))
+    rows[np.arange(30), np.arange(30)] -= 2.0
+    loc = Localizer(PlaceGraph.chain(30), FixedLogRatio(1.0), n_particles=60, motion=VelocityMotion(), seed=0)
+    assert loc.run(rows).match[-1] >= 25
