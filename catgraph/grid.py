@@ -452,6 +452,28 @@ _LINE_BLOCK = 1024
 
 
 @njit(fastmath=True)
+def _line_kept(p, like, t_ptr, t_src, t_val, whole, frac, sign):  # pragma: no cover - compiled
+    """The mass of :func:`_line_setup`'s prediction that stays on the route, summed
+    directly: each bin's transition times the likelihood, over the places its hop does
+    not carry past a route end."""
+    nb, n = p.shape
+    kept = 0.0
+    for b in range(nb):
+        for part in range(2):
+            hops = whole[b] + part
+            share = 1.0 - frac[b] if part == 0 else frac[b]
+            if share == 0.0:
+                continue
+            lo, hi = (0, n - hops) if sign[b] > 0 else (hops, n)
+            for j in range(max(lo, 0), min(hi, n)):
+                acc = 0.0
+                for c in range(t_ptr[b], t_ptr[b + 1]):
+                    acc += t_val[c] * p[t_src[c], j]
+                kept += share * acc * like[j]
+    return kept
+
+
+@njit(fastmath=True)
 def _line_setup(p, like, prior_mass, t_ptr, t_src, t_val, whole, frac, sign, blur, recovery):  # pragma: no cover
     """The scalars of :func:`_line_predict` that need the whole state: the mass that
     runs past a route end (summed from the few places within reach of the ends), and
@@ -482,6 +504,10 @@ def _line_setup(p, like, prior_mass, t_ptr, t_src, t_val, whole, frac, sign, blu
                     acc += t_val[c] * p[t_src[c], j]
                 lost += share * acc * like[j]
     total = total_in - lost
+    if lost > 0.5 * total_in:
+        # most of the mass runs off the route: the difference cancels (and in a float32 state
+        # the two sums are not even of the same numbers), so sum what stays, directly
+        total = _line_kept(p, like, t_ptr, t_src, t_val, whole, frac, sign)
     keep = (1.0 - recovery) / total if total > 0 else 0.0
     share0 = recovery / n if total > 0 else 1.0 / n
     centre = keep * (1.0 - 2.0 * blur)

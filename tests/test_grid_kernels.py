@@ -163,3 +163,32 @@ def test_line_kernel_threads_leave_the_cores_other_processes_hold(monkeypatch, l
     monkeypatch.setattr(grid.os, "getloadavg", lambda: (load, load, load))
     assert grid._free_cores(2) == two
     assert grid._free_cores(16) == sixteen
+
+
+@pytest.mark.parametrize("kwargs", [dict(rigid_prior=0.05), dict(velocity_stay=1.0, reverse_probability=0.0)])
+def test_line_path_keeps_its_normaliser_when_most_mass_runs_off_the_route(kwargs):
+    """A track driven to the route's end, then a jump back: almost all of a component's
+    mass leaves at the end, and ``total_in − lost`` cancelled (the rigid component's
+    prediction summed to 0.003 or 0 in the float32 line storage, its weight off 100×).
+    The line path against the general path (``grid.predict``) on the same filter."""
+    from catgraph.grid import GridLocalizer, route_neighbours
+
+    from .conftest import FixedLogRatio
+
+    n = 40
+    graph = PlaceGraph.chain(n)
+    truth = np.r_[np.arange(n), np.arange(5, 25)]
+    rows = np.full((len(truth), n), -30.0) + np.random.default_rng(0).normal(size=(len(truth), n))
+    rows[np.arange(len(truth)), truth] = 0.0
+    line = GridLocalizer(graph, FixedLogRatio(-5.0), smooth_feedback=False, **kwargs)
+    general = GridLocalizer(graph, FixedLogRatio(-5.0), smooth_feedback=False, **kwargs)
+    line.reset()
+    general.reset()
+    assert line._line
+    general._line, general._neighbours = False, route_neighbours(graph)
+    for k, row in enumerate(rows):
+        a, b = line.step(row), general.step(row)
+        np.testing.assert_allclose(line.place_posterior_, general.place_posterior_, atol=1e-6, err_msg=f"frame {k}")
+        assert abs(a.new_place_probability - b.new_place_probability) < 1e-6
+        for c in line._components or [dict(prior_=line.prior_)]:
+            assert abs(c["prior_"].sum() - 1.0) < 1e-4
