@@ -457,7 +457,12 @@ def _reweight_kernel(edge, fraction, log_weight, source, target, log_ratio, star
             continue
         e = edge[i]
         f = fraction[i]
-        log_weight[i] += (1.0 - f) * log_ratio[source[e]] + f * log_ratio[target[e]]
+        if f == 0.0:  # at a place: its ratio alone (an impossible neighbour, -inf, must not make 0 · -inf)
+            log_weight[i] += log_ratio[source[e]]
+        elif f == 1.0:
+            log_weight[i] += log_ratio[target[e]]
+        else:
+            log_weight[i] += (1.0 - f) * log_ratio[source[e]] + f * log_ratio[target[e]]
     mx = -np.inf
     for i in range(k):
         if (i < start or i >= stop) and log_weight[i] > mx:

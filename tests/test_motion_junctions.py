@@ -167,3 +167,26 @@ def test_the_marginal_kernel_stays_inside_its_buffers_at_a_route_end(monkeypatch
     rows[np.arange(30), np.arange(30)] -= 2.0
     loc = Localizer(PlaceGraph.chain(30), FixedLogRatio(1.0), n_particles=60, motion=VelocityMotion(), seed=0)
     assert loc.run(rows).match[-1] >= 25
+
+
+def test_an_impossible_place_next_to_a_particle_is_no_nan():
+    """A place whose log-ratio is -inf (a model that rules it out): particles standing on
+    its neighbour weighed it with a factor 0, and 0 · -inf made NaN posteriors (the default
+    frame motion's particles sit on places)."""
+    from catgraph.observation import Observation
+
+    class RulesOutSeven:
+        def reset(self):
+            pass
+
+        def observe(self, row):
+            r = -np.asarray(row, dtype=float)
+            r[7] = -np.inf
+            return Observation(r, 0.0)
+
+    rows = np.random.default_rng(0).random((40, 30))
+    loc = Localizer(PlaceGraph.chain(30), RulesOutSeven(), n_particles=300, seed=0)
+    for row in rows:
+        est = loc.step(row)
+        assert np.all(np.isfinite(loc.place_posterior_)) and np.isfinite(est.log_odds)
+        assert loc.place_posterior_[7] == 0.0
