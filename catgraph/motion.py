@@ -42,7 +42,12 @@ stays valid and every fraction stays in ``[0, 1]``.
   Its defaults are the grid filter's, and one compiled loop does the whole step, so the
   particle filter is a Monte Carlo version of the grid filter's prediction and
   converges to it as particles grow, on a chain and at junctions
-  (``tests/test_localizer.py``, ``tests/test_filter_motion.py``).
+  (``tests/test_localizer.py``, ``tests/test_motion_junctions.py``), with two
+  differences of representation: a fractional speed is a random extra hop here, the
+  grid's linear split (``max_phases=1``), not its phase bins (the grid's default
+  ``max_phases=4`` keeps a track at half speed sharp, which random hops do not); and
+  with odometry a particle keeps its position between two places and counts at the
+  nearer one, where the grid splits the mass between both.
 
 :meth:`VelocityMotion.move_marginal` is the same motion with the velocity *marginalised*
 (Rao–Blackwellised): a particle carries a distribution over the velocity bins instead of
