@@ -365,6 +365,12 @@ def _ground_truth(exp: Experiment, reference: Traverse, query: Traverse, n_place
         seed = _synthetic_seed(str(exp.query)) if isinstance(exp.query, (str, Path)) else None
         if seed is None:
             return None
+        # only against that world's own reference: another world's, or a reference without
+        # positions, is not scored by default (it was: AUC 0 against the wrong streets, or an error)
+        other = _synthetic_seed(str(exp.reference)) if isinstance(exp.reference, (str, Path)) else None
+        if (isinstance(exp.reference, (str, Path)) and other != seed) or reference.positions is None \
+                or query.positions is None:
+            return None
         tolerance_m = synthetic_world(seed).tolerance_m
     if tolerance_m is not None:
         return MetricTolerance.between(query, reference, float(tolerance_m))

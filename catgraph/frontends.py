@@ -247,7 +247,8 @@ def check_information(descriptors: np.ndarray, role: str) -> np.ndarray:
         )
     if bad:
         first = int(np.flatnonzero(~mask)[0])
-        consequence = "they get no match" if role == "query" else "matches to them say nothing; check or drop them"
+        consequence = ("they get no match from a matcher, and a filter answers them from its prediction"
+                       if role == "query" else "matches to them say nothing; check or drop them")
         warnings.warn(
             f"{bad} of {n} {role} frames carry no information (constant descriptors: black or flat images, "
             f"no access point detected, zero vectors; first at frame {first}); {consequence}.",

@@ -239,6 +239,8 @@ class Method:
     params: tuple[Param, ...]
     run: Callable[[dict, "MethodInputs"], RunResult]
     not_applicable: Callable[[dict], dict[str, str]] = field(default=lambda p: {})
+    #: checks across parameters that need no data (``l_min`` ≤ ``l_max`` …): a sweep is refused at once
+    check: Callable[[dict, set], None] = field(default=lambda p, given: None)
 
     def param(self, name: str) -> Param:
         for p in self.params:
@@ -262,7 +264,9 @@ class Method:
         if given:
             name = given[0]
             raise InvalidParameterError(f"'{name}' does not apply to {owner} here: {refused[name]}.")
-        return {name: value for name, value in out.items() if name not in refused}
+        out = {name: value for name, value in out.items() if name not in refused}
+        self.check(out, {name for name, value in params.items() if value is not None})
+        return out
 
 
 def _single_frame(params: dict, inputs: "MethodInputs") -> RunResult:
@@ -310,6 +314,45 @@ def _not_adaptive(params: dict) -> dict[str, str]:
     if params.get("window") == "adaptive":
         return {}
     return {k: "it sets the adaptive window; give window 'adaptive' or leave it out" for k in _WINDOW_ADAPTIVE}
+
+
+def _check_sequence(params: dict, given: set) -> None:
+    """The ``sequence`` method's checks across parameters."""
+    _check_window_range(params)
+    if params.get("window") == "adaptive" and params.get("rule") == "tracked":
+        reads = {"exclusion": "exclusion around the best match", "recent_fraction": "recent sub-windows"}
+        for name in sorted(given & set(reads)):  # its confidence is its tracking filter's mass
+            raise InvalidParameterError(
+                f"'{name}' does not apply to method 'sequence' here: rule 'tracked' takes its confidence from its "
+                f"tracking filter, which reads no {reads[name]}; choose another rule (e.g. 'challenged') to set it, "
+                f"or leave '{name}' out.")
+
+
+def _check_window_range(params: dict) -> None:
+    """``l_min`` ≤ ``l_max`` where both apply."""
+    lo, hi = params.get("l_min"), params.get("l_max")
+    if lo is not None and hi is not None and lo > hi:
+        raise InvalidParameterError(f"'l_min' ({lo}) is longer than 'l_max' ({hi}): the adaptive window's shortest "
+                                    "length must not exceed its longest.")
+
+
+def _check_filter(params: dict, given: set) -> None:
+    """The ``filter`` method's checks across parameters."""
+    _check_window_range(params)
+    graduation = params.get("jump_graduation")
+    if graduation is None:
+        return
+    if graduation <= 0.0:
+        raise InvalidParameterError(f"'jump_graduation' must lie in (0, 1] (1: no jump grid); got {graduation}.")
+    proposal = params.get("proposal")
+    if proposal is None:
+        from .localizer import Localizer
+
+        proposal = particle_defaults(Localizer)["proposal"]
+    if graduation < 1.0 and proposal != "likelihood":
+        raise InvalidParameterError(f"'jump_graduation' below 1 draws the births from the jump grid, which needs "
+                                    f"proposal 'likelihood' (got {proposal!r}); give jump_graduation 1 or that "
+                                    "proposal.")
 
 
 def _same_place(params: dict, inputs: "MethodInputs") -> dict:
@@ -580,11 +623,26 @@ def _filter(params: dict, inputs: "MethodInputs") -> RunResult:
     if params.get("window") is not None:  # a sequence model's window, as the matcher's own run checks it
         check_sequence_length(params, len(inputs.differences))
     graph = inputs.graph()
+    given_graduation = params.get("jump_graduation")
     params = concrete_params(params, graph.n_places)
-    obs = observation_model(params, inputs.map.n_places, inputs.bootstrap_samples)
-    loc = make_filter(params, graph, obs)
     check_use_odometry(params["use_odometry"], inputs.query.odometry is not None, graph.unit)
     odometry = inputs.query.odometry if params["use_odometry"] is not False and graph.unit == "m" else None
+    if params["mode"] == "particles" and params["jump_graduation"] < 1.0:
+        from .motion import VelocityMotion
+
+        # the jump grid rides on the velocity-marginalised particles: motion 'velocity', a route
+        # without junctions, frames without odometry
+        if not (params["motion"] == "velocity" and odometry is None and VelocityMotion().supports_marginal(graph)):
+            if given_graduation is not None:
+                why = "odometry drives the particles" if odometry is not None else \
+                    "the particles' motion is 'frame'" if params["motion"] != "velocity" else "the route has junctions"
+                raise InvalidParameterError(
+                    f"'jump_graduation' does not apply here: the jump grid rides on the velocity-marginalised "
+                    f"particles, and {why}; leave it out" + (" or give use_odometry false." if odometry is not None
+                                                               else "."))
+            params = dict(params, jump_graduation=1.0)  # recorded as it ran: no jump grid
+    obs = observation_model(params, inputs.map.n_places, inputs.bootstrap_samples)
+    loc = make_filter(params, graph, obs)
     params = dict(params, use_odometry=odometry is not None)  # recorded: whether odometry drove the motion
     start = time.perf_counter()
     mode = params["mode"]
@@ -606,6 +664,15 @@ def _filter_not_applicable(params: dict) -> dict[str, str]:
         # the seed also draws the histogram models' samples, so it stays for those
         for k in (*_PARTICLE_KEYS, "motion", *(("seed",) if model not in histogram_models else ())):
             out[k] = "the grid filter has no particles (it is exact); use mode 'particles'"
+    if params["mode"] != "grid":
+        from .localizer import Localizer
+
+        own = particle_defaults(Localizer)
+        redraw = own["redraw_fraction"] if params.get("redraw_fraction") is None else params["redraw_fraction"]
+        n = own["n_particles"] if params.get("n_particles") is None else params["n_particles"]
+        if n >= 2 and int(round(redraw * n)) > 0:  # (the filter's births: Localizer.reset)
+            out["ess_threshold"] = (f"with particles born each frame (redraw_fraction {redraw:g}) the particle "
+                                    "filter resamples every frame; give redraw_fraction 0 to resample by ESS")
     if params["mode"] == "particles":
         out["jump_velocity"] = "it sets the grid filter's jumps; the particle filter's recovery particles are drawn"
         out["rigid_prior"] = "the rigid line is the grid filter's; the particle filter has none"
@@ -714,11 +781,11 @@ def _registry() -> dict[str, Method]:
     return {m.name: m for m in (
         Method("single-frame", "nearest reference place per frame", (_EXCLUSION,), _single_frame),
         Method("sequence", "SeqSLAM sequence matching, fixed or adaptive window, with velocity search",
-               (*_sequence_params(50), *_velocity_params(), _EXCLUSION), _sequence, _not_adaptive),
+               (*_sequence_params(50), *_velocity_params(), _EXCLUSION), _sequence, _not_adaptive, _check_sequence),
         Method("histogram", "single-frame recognition with the histogram model P(d|L), P(d|¬L)",
                _histogram_method_params(), _histogram, _histogram_not_applicable),
         Method("filter", "CAT-Graph particle filter on the place graph", _filter_params(), _filter,
-               _filter_not_applicable),
+               _filter_not_applicable, _check_filter),
     )}
 
 

@@ -363,7 +363,7 @@ CASES = [
     E("filter-model-unknown", *L, "--model", "oracle", message="oracle"),
     E("filter-window-longer-than-query", *L, "--model", "sequence", "--window", "1000", message="1000.*60"),
     E("l-max-below-l-min-in-option-terms", *M, "--window", "adaptive", "--l-min", "50", "--l-max", "10",
-      message="^catgraph: error: --l-max must be"),
+      message=r"^catgraph: error: --l-min \(50\) is longer than --l-max \(10\)"),
     EITHER("two-frame-reference", "localize", "{two}", "{qry}", "--tolerance", "2",
            message="two|2 frames|reference"),
     E("map-and-junction-radius", "localize", "--map", "{map}", "{qry}", "--tolerance", "2", "--junction-radius-m", "5",

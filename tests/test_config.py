@@ -216,3 +216,26 @@ def test_examples_parse(path):
     for spec in config.specs:
         for key in ("reference", "query"):
             assert spec[key].startswith("synthetic") or Path(spec[key]).is_absolute()
+
+
+@pytest.mark.parametrize("method, params, message", [
+    ("filter", {"mode": "particles", "jump_graduation": 0.0}, r"\(0, 1\]"),
+    ("filter", {"mode": "particles", "jump_graduation": 0.5, "proposal": "uniform"}, "proposal 'likelihood'"),
+    ("filter", {"model": "adaptive", "l_min": 600, "l_max": 100}, "'l_min' \\(600\\) is longer"),
+    ("sequence", {"window": "adaptive", "l_min": 600, "l_max": 100}, "'l_min' \\(600\\) is longer"),
+    ("sequence", {"window": "adaptive", "exclusion": 3}, "rule 'tracked'"),
+    ("sequence", {"window": "adaptive", "recent_fraction": 0.2}, "rule 'tracked'"),
+    ("filter", {"mode": "particles", "ess_threshold": 0.9}, "resamples every frame"),
+])
+def test_values_that_would_fail_or_be_ignored_once_running_are_refused_at_once(method, params, message):
+    """Checks across parameters that need no data: a sweep refused these only when the run
+    started (or ran and ignored them)."""
+    from catgraph.exceptions import InvalidParameterError
+    from catgraph.methods import resolve_params
+
+    with pytest.raises(InvalidParameterError, match=message):
+        resolve_params(method, params)
+    # what still applies is taken
+    assert resolve_params("sequence", {"window": "adaptive", "rule": "challenged", "exclusion": 3})["exclusion"] == 3
+    assert resolve_params("filter", {"mode": "particles", "redraw_fraction": 0.0, "ess_threshold": 0.9})[
+        "ess_threshold"] == 0.9

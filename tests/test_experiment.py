@@ -254,9 +254,10 @@ def test_auto_mode_refuses_the_options_of_the_filter_it_does_not_run(capsys):
     assert "choose mode 'particles', or leave --particles out" in err and "Traceback" not in err
     for key, value in (("resampler", "multinomial"), ("motion", "frame"), ("ess_threshold", 0.3),
                        ("redraw_fraction", 0.2), ("proposal", "uniform"), ("jump_graduation", 0.5)):
-        with pytest.raises(InvalidParameterError, match=f"'{key}' does not apply here: mode 'auto' runs the exact"):
-            concrete_params(resolve_params("filter", {key: value}), 100)
-        assert concrete_params(resolve_params("filter", {key: value}), GRID_MAX_PLACES + 1)[key] == value
+        given = {key: value, **({"redraw_fraction": 0.0} if key == "ess_threshold" else {})}  # (ESS: no redraws)
+        with pytest.raises(InvalidParameterError, match="does not apply here: mode 'auto' runs the exact"):
+            concrete_params(resolve_params("filter", given), 100)
+        assert concrete_params(resolve_params("filter", given), GRID_MAX_PLACES + 1)[key] == value
     # above the grid's size auto runs particles, which have no grid
     for key, value in (("rigid_prior", 0.1), ("jump_velocity", "current"), ("home_speed_odds", 2.0)):
         with pytest.raises(InvalidParameterError, match=f"'{key}' does not apply here: mode 'auto' runs the particle"):
@@ -334,3 +335,32 @@ def test_live_use_odometry_needs_a_metric_map():
     with pytest.raises(InvalidParameterError, match="use_odometry' does not apply here: the map's place graph is in"):
         LiveLocalizer(live_map, model="tempered", use_odometry=True)
     assert LiveLocalizer(live_map, model="tempered").use_odometry is False
+
+
+def test_jump_graduation_applies_only_where_the_jump_grid_runs():
+    """The jump grid rides on the velocity-marginalised particles; where odometry drives
+    them (the synthetic world) a jump_graduation given was recorded and ignored, and the
+    default was recorded as 0.2 though no grid ran."""
+    prepared = prepare(Experiment(query="synthetic:0", reference="synthetic:0"))
+    with pytest.raises(InvalidParameterError, match="'jump_graduation' does not apply here.*odometry"):
+        run_method("filter", {"mode": "particles", "n_particles": 100, "jump_graduation": 0.5}, prepared)
+    ran = run_method("filter", {"mode": "particles", "n_particles": 100}, prepared)
+    assert ran.params["use_odometry"] is True and ran.params["jump_graduation"] == 1.0
+    frames = run_method("filter", {"mode": "particles", "n_particles": 100, "use_odometry": False,
+                                   "jump_graduation": 0.5}, prepared)
+    assert frames.params["jump_graduation"] == 0.5
+
+
+def test_the_synthetic_worlds_tolerance_scores_only_against_its_own_reference():
+    """Implicitly, the query's world scored a run against another world's reference (AUC 0)
+    and failed a reference without positions with a ground-truth error."""
+    from dataclasses import replace
+
+    from catgraph.experiment import load_input
+
+    assert run(Experiment(query="synthetic:1", reference="synthetic:1"))[2] is not None
+    assert run(Experiment(query="synthetic:0", reference="synthetic:1"))[2] is None
+    no_positions = replace(load_input("synthetic:1", "reference"), positions=None, odometry=None)
+    assert run(Experiment(query="synthetic:1", reference=no_positions))[2] is None
+    # given explicitly, a tolerance scores any pair
+    assert run(Experiment(query="synthetic:0", reference="synthetic:1", tolerance_m=5.0))[2] is not None

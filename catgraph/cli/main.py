@@ -69,6 +69,8 @@ def _in_option_terms(message: str) -> str:
     options = {param.name: param.option for method in METHODS.values() for param in method.params}
     message = re.sub(r"The '(\w+)' parameter of [\w.' ]+? must",
                      lambda m: f"{options[m.group(1)]} must" if m.group(1) in options else m.group(0), message)
+    # the checks across parameters: "'l_min' (600) is longer than 'l_max' (100)", "'jump_graduation' must …"
+    message = re.sub(r"'(\w+)'(?= \(\d| must | below )", lambda m: options.get(m.group(1), m.group(0)), message)
     # "'n_particles' does not apply … leave 'n_particles' out" (the filter's mode decides)
     return re.sub(r"(^|leave )'(\w+)'( does not apply| out)",
                   lambda m: f"{m.group(1)}{options[m.group(2)]}{m.group(3)}" if m.group(2) in options else m.group(0),
