@@ -150,6 +150,13 @@ def test_bench_list_and_errors(tiny_config, tmp_path, capsys):
     assert main(["bench", str(tiny_config), "--list"]) == 0
     listed = capsys.readouterr().out
     assert "b/sf/exclusion=10" in listed and "9 runs" in listed
+    # options that a listing or a cluster would not read are refused, not ignored
+    for extra, needle in ((["--out", str(tmp_path / "o")], "--out does not apply with --list"),
+                          (["--processes", "2"], "--processes does not apply with --list"),
+                          (["--out", str(tmp_path / "o"), "--scheduler", "tcp://127.0.0.1:1", "--processes", "2"],
+                           "--processes does not apply with --scheduler")):
+        assert main(["bench", str(tiny_config), *extra, *(["--list"] if "list" in needle else [])]) == 1
+        assert needle in capsys.readouterr().err
     bad = tmp_path / "bad.toml"
     bad.write_text(CONFIG.replace("grid", "gird"))
     assert main(["bench", str(bad), "--out", str(tmp_path / "x"), "-q"]) == 1

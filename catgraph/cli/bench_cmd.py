@@ -67,6 +67,14 @@ def cmd_bench(args) -> int:
     from ..sweep import run_sweep
     from .commands import print_metrics_table, progress_enabled
 
+    ignored = [flag for flag, value in (("--out", args.out), ("--scheduler", args.scheduler),
+                                        ("--processes", args.processes)) if value is not None]
+    if args.list and ignored:
+        raise InvalidParameterError(f"{' and '.join(ignored)} {'does' if len(ignored) == 1 else 'do'} not apply with "
+                                    "--list (it only lists the runs); leave it out.")
+    if args.scheduler is not None and args.processes is not None:
+        raise InvalidParameterError("--processes does not apply with --scheduler (the cluster's workers run the "
+                                    "sweep); leave it out.")
     config = load_config(args.config)
     if args.list:
         for spec in config.specs:
