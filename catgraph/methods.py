@@ -570,6 +570,12 @@ def concrete_params(params: dict, n_places: int) -> dict[str, Any]:
             f"'{which[2]}', or leave '{given[0]}' out.")
     out = {k: v for k, v in params.items() if k not in other}
     out["mode"] = mode
+    if out.get("new_place_prior") is None:  # the filter's own default, recorded as it runs
+        from .grid import GridLocalizer
+        from .localizer import Localizer
+
+        owner = GridLocalizer if mode == "grid" else Localizer
+        out["new_place_prior"] = inspect.signature(owner.__init__).parameters["new_place_prior"].default
     if mode == "grid":
         out["jump_velocity"] = params.get("jump_velocity") or JUMP_VELOCITY
         out["rigid_prior"] = rigid_prior(params, n_places)

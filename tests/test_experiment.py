@@ -346,6 +346,12 @@ def test_jump_graduation_applies_only_where_the_jump_grid_runs():
         run_method("filter", {"mode": "particles", "n_particles": 100, "jump_graduation": 0.5}, prepared)
     ran = run_method("filter", {"mode": "particles", "n_particles": 100}, prepared)
     assert ran.params["use_odometry"] is True and ran.params["jump_graduation"] == 1.0
+    import inspect
+
+    from catgraph.localizer import Localizer
+
+    # the defaults it ran with are recorded (new_place_prior was saved as null)
+    assert ran.params["new_place_prior"] == inspect.signature(Localizer).parameters["new_place_prior"].default
     frames = run_method("filter", {"mode": "particles", "n_particles": 100, "use_odometry": False,
                                    "jump_graduation": 0.5}, prepared)
     assert frames.params["jump_graduation"] == 0.5
