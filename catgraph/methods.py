@@ -716,7 +716,7 @@ def _filter_params() -> tuple[Param, ...]:
 
     seq = {p.name: p for p in _sequence_params(None, window_optional=True)}
     seq["rule"] = Param("rule", "str", DEFAULT_LINE_RULE, "sequence models, adaptive window: how the window length "
-                        "is chosen (default: the matcher's statistics alone; the filter is the tracker)", choices=RULES)
+                        "is chosen (the matcher's statistics alone: the filter is the tracker)", choices=RULES)
     seq["window"] = Param("window", "window", None, "sequence models: window length in frames or 'adaptive' "
                           "(default: 50 for model 'sequence', adaptive otherwise)", optional=True)
     hist = {p.name: p for p in _histogram_params()}

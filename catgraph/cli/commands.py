@@ -355,6 +355,8 @@ def cmd_match(args) -> int:
     if args.output is not None:
         write_json_atomic(args.output, out)
     print_results([(result.method, out["metrics"], result.seconds)], per_frame=len(result.match))
+    if args.output is not None and not args.quiet:  # as the local run says it
+        print(f"wrote {args.output}")
     return 0
 
 
