@@ -40,7 +40,9 @@ it and continues at the other place, half in each direction (a crossing may turn
 either way; where the velocity set has no ``−v`` bin, both halves keep ``v``). Mass
 that would run past a dead end leaves the map (the normalisation gives its share back
 to the rest): a route end is no place to wait, and letting mass stop there would pile
-every backward-moving hypothesis up at place 0. With odometry ``u`` (metres since the
+every backward-moving hypothesis up at place 0. Where every hypothesis runs off (odometry
+longer than the route), there is no rest: the filter starts again uniform over the
+places, with the jump velocity. With odometry ``u`` (metres since the
 last frame) the shift is ``u`` along the route instead of ``|v_b|`` places, walking the
 chain's edge lengths (junctions are taken only by frame-based motion).
 
@@ -1057,7 +1059,8 @@ class GridLocalizer:
         Learn ``ε`` online from the frames (see the module docstring), starting from
         and shrunk towards ``recovery``.
     junction_probability : float in [0, 0.5]
-        Share of mass taking each junction edge at a junction place.
+        Share of mass taking each junction edge at a junction place (all of a place's
+        junction edges together take at most 0.5).
     new_place_prior, new_place_stay : float in [0, 1)
         The new-place hypothesis' two-state prior (as :class:`~catgraph.localizer.Localizer`,
         with its defaults 0.05 and 0.8; ``new_place_prior=0`` switches it off).
