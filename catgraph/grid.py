@@ -1423,6 +1423,8 @@ class GridLocalizer:
         r = np.asarray(obs.log_ratio, dtype=np.float64)
         # the maximum where the model found it while forming the ratios (the same value)
         top = float(r.max()) if obs.log_ratio_max is None else float(obs.log_ratio_max)
+        if top == -math.inf:  # every place impossible: no update, the prediction stands
+            return None
         e = self._e
         np.exp(np.subtract(r, top, out=e), out=e)
         return e, top, float(obs.new_place_log_ratio)

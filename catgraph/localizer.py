@@ -1288,6 +1288,9 @@ class Localizer:
         self._log_ratio = log_ratio = np.ascontiguousarray(log_ratio, dtype=np.float64)
         known = obs.log_ratio_max if obs.informative and obs.log_ratio_max is not None else math.nan
         self._r_max = r_max = likelihood_cumulative(log_ratio, self._like, float(known))
+        if r_max == -math.inf:  # every place impossible: no evidence, the prediction stands (as in the grid filter)
+            self._log_ratio = log_ratio = self._no_ratio
+            self._r_max = r_max = likelihood_cumulative(log_ratio, self._like, math.nan)
         self._log_like_mean = r_max + math.log(self._like[-1] / g.n_places)  # log mean_j e^{r_j}
         born = self._births > 0 and self.n_steps_ > 0
         self._newborn = self._generation(self.n_steps_ - 1) if born else (0, 0)

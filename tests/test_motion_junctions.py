@@ -190,3 +190,35 @@ def test_an_impossible_place_next_to_a_particle_is_no_nan():
         est = loc.step(row)
         assert np.all(np.isfinite(loc.place_posterior_)) and np.isfinite(est.log_odds)
         assert loc.place_posterior_[7] == 0.0
+
+
+@pytest.mark.parametrize("velocity_motion", [True, False], ids=["velocity", "frame"])
+def test_a_frame_that_rules_out_every_place_leaves_the_prediction_standing(velocity_motion):
+    """As the grid filter keeps its prediction: the velocity particles froze on such frames
+    (the place they were at, confidence falling) and then lost the track."""
+    from catgraph.observation import Observation
+
+    class RulesOutAll:
+        def reset(self):
+            pass
+
+        def observe(self, row):
+            r = np.asarray(row, dtype=float).copy()
+            if r[0] > 1e8:
+                r[:] = -np.inf
+            return Observation(r, 0.0)
+
+    graph = PlaceGraph.chain(50)
+    rng = np.random.default_rng(0)
+    truth = np.arange(40) + 5
+    rows = rng.normal(size=(40, 50))
+    rows[np.arange(40), truth] += 3.0
+    rows[20:23] = 1e9
+    grid = GridLocalizer(graph, RulesOutAll())
+    loc = Localizer(graph, RulesOutAll(), n_particles=2000, seed=0,
+                    motion=VelocityMotion() if velocity_motion else None)
+    for k, row in enumerate(rows[:26]):
+        g, p = grid.step(row), loc.step(row)
+        assert np.all(np.isfinite(loc.place_posterior_))
+        if k >= 18:
+            assert p.place == g.place == truth[k], k
