@@ -1035,6 +1035,13 @@ class Localizer:
                 raise DataError("confidence_radius_m needs a place graph with positions; use confidence_radius (places).")
         self._resample = get_resampler(self.resampler)
 
+    def marginal_applies(self) -> bool:
+        """Whether the particles carry velocity distributions on this graph (``marginal_velocity``
+        with :class:`~catgraph.motion.VelocityMotion` on a route without junctions); the jump
+        grid (``jump_graduation < 1``) rides on them, on the frames without odometry."""
+        return bool(self.marginal_velocity) and isinstance(self.motion, VelocityMotion) and \
+            self.motion.supports_marginal(self.graph)
+
     def reset(self) -> "Localizer":
         """Start afresh: particles uniform over the graph, ``P(new) = 0``, model reset.
 
@@ -1076,8 +1083,7 @@ class Localizer:
         self._support = None
         self._no_ratio = np.zeros(g.n_places)
         self._motions = (self.motion or FrameMotion(), self.motion or OdometryMotion())
-        self._marginal = bool(self.marginal_velocity) and isinstance(self.motion, VelocityMotion) and \
-            self.motion.supports_marginal(g)
+        self._marginal = self.marginal_applies()
         nb = len(self.motion._v) if self._marginal else 0
         self._spread = np.full((n, nb), 1.0 / max(nb, 1))  # velocity distributions (marginal mode)
         self._gathered = (*self._gathered, np.empty((n, nb)))

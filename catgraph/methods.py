@@ -344,11 +344,7 @@ def _check_filter(params: dict, given: set) -> None:
         return
     if graduation <= 0.0:
         raise InvalidParameterError(f"'jump_graduation' must lie in (0, 1] (1: no jump grid); got {graduation}.")
-    proposal = params.get("proposal")
-    if proposal is None:
-        from .localizer import Localizer
-
-        proposal = particle_defaults(Localizer)["proposal"]
+    proposal = _proposal(params)
     if graduation < 1.0 and proposal != "likelihood":
         raise InvalidParameterError(f"'jump_graduation' below 1 draws the births from the jump grid, which needs "
                                     f"proposal 'likelihood' (got {proposal!r}); give jump_graduation 1 or that "
@@ -517,14 +513,18 @@ def jump_graduation(params: dict, n_places: int) -> float:
     places with the likelihood proposal (the grid's births need it), else 1."""
     if params.get("jump_graduation") is not None:
         return float(params["jump_graduation"])
-    proposal = params.get("proposal")
-    if proposal is None:  # unset: the particle filter's own
-        from .localizer import Localizer
-
-        proposal = particle_defaults(Localizer)["proposal"]
-    if n_places <= JUMP_GRID_MAX_PLACES and proposal == "likelihood":
+    if n_places <= JUMP_GRID_MAX_PLACES and _proposal(params) == "likelihood":
         return JUMP_GRADUATION
     return 1.0
+
+
+def _proposal(params: dict) -> str:
+    """The particle filter's proposal: the method's parameter where set, else the filter's own."""
+    if params.get("proposal") is not None:
+        return params["proposal"]
+    from .localizer import Localizer
+
+    return particle_defaults(Localizer)["proposal"]
 
 
 def rigid_prior(params: dict, n_places: int) -> float:
@@ -633,12 +633,11 @@ def _filter(params: dict, inputs: "MethodInputs") -> RunResult:
     params = concrete_params(params, graph.n_places)
     check_use_odometry(params["use_odometry"], inputs.query.odometry is not None, graph.unit)
     odometry = inputs.query.odometry if params["use_odometry"] is not False and graph.unit == "m" else None
+    obs = observation_model(params, inputs.map.n_places, inputs.bootstrap_samples)
+    loc = make_filter(params, graph, obs)
     if params["mode"] == "particles" and params["jump_graduation"] < 1.0:
-        from .motion import VelocityMotion
-
-        # the jump grid rides on the velocity-marginalised particles: motion 'velocity', a route
-        # without junctions, frames without odometry
-        if not (params["motion"] == "velocity" and odometry is None and VelocityMotion().supports_marginal(graph)):
+        # the jump grid rides on the velocity-marginalised particles, on frames without odometry
+        if odometry is not None or not loc.marginal_applies():
             if given_graduation is not None:
                 why = "odometry drives the particles" if odometry is not None else \
                     "the particles' motion is 'frame'" if params["motion"] != "velocity" else "the route has junctions"
@@ -647,8 +646,7 @@ def _filter(params: dict, inputs: "MethodInputs") -> RunResult:
                     f"particles, and {why}; leave it out" + (" or give use_odometry false." if odometry is not None
                                                                else "."))
             params = dict(params, jump_graduation=1.0)  # recorded as it ran: no jump grid
-    obs = observation_model(params, inputs.map.n_places, inputs.bootstrap_samples)
-    loc = make_filter(params, graph, obs)
+            loc.jump_graduation = 1.0
     params = dict(params, use_odometry=odometry is not None)  # recorded: whether odometry drove the motion
     start = time.perf_counter()
     mode = params["mode"]

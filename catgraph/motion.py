@@ -322,6 +322,7 @@ def _velocity_route(graph) -> tuple:
     if route is not None:
         return route
     from .grid import route_neighbours
+    from .particles import _first_in_edge
 
     n = graph.n_places
     fwd, bwd, _, _, jptr, jdst = route_neighbours(graph)
@@ -345,8 +346,7 @@ def _velocity_route(graph) -> tuple:
         e = out[out >= 0]
         direction[e] = sign
         ahead[e] = out[graph.target[e]]
-    first_in = np.full(n, -1, dtype=np.int64)
-    first_in[graph.target[::-1]] = np.arange(graph.n_edges)[::-1]
+    first_in = _first_in_edge(graph)
     at_edge = np.empty((2, n), dtype=np.int64)
     at_fraction = np.empty((2, n))
     for side, (ahead_out, behind_out) in enumerate(((out_bwd, out_fwd), (out_fwd, out_bwd))):
