@@ -271,12 +271,11 @@ def describe_query(catgraph_map: CatgraphMap, query: "Traverse") -> tuple[np.nda
     """
     from .exceptions import ShapeMismatchError
     from .frontends import check_information
-    from .pipeline import _kind, describe
+    from .pipeline import describe
 
     frontend = catgraph_map.frontend_settings()
     kind = catgraph_map.meta.get("kind")
-    if kind is not None and _kind(query) != kind:
-        raise DataError(f"the map holds {kind} but the query holds {_kind(query)}; compare like with like.")
+    check_query_kind(kind, query)
     check_image_shape(catgraph_map.meta, frontend, query.frames.shape[1:3] if kind == "images" else None, "query images")
     q, _ = describe(query, frontend)
     if q.shape[1] != catgraph_map.descriptors.shape[1]:
@@ -326,8 +325,22 @@ def query_differences(catgraph_map: CatgraphMap, query: "Traverse") -> np.ndarra
     check_memory(8.0 * n_query * n_places, f"the ({n_query}, {n_places}) float64 difference matrix",
                  "use a shorter query or reference")
     d = difference_matrix(q, catgraph_map.descriptors, catgraph_map.metric, normalise=frontend.normalise)
-    # a frame with no information says nothing about where it is: σ = 0, no match (catgraph.matching)
-    d[~informative] = 0.0 if frontend.normalise else d[~informative].mean(axis=1, keepdims=True)
+    return no_information_rows(d, informative, frontend.normalise)
+
+
+def check_query_kind(kind: str | None, query: "Traverse") -> None:
+    """Refuse a query of another data kind than the map's ``kind`` (``None``: not checked)."""
+    from .pipeline import _kind
+
+    if kind is not None and _kind(query) != kind:
+        raise DataError(f"the map holds {kind} but the query holds {_kind(query)}; compare like with like.")
+
+
+def no_information_rows(d: np.ndarray, informative: np.ndarray, normalise: bool) -> np.ndarray:
+    """Difference rows ``d`` (in place) with the rows of frames that carry no information made
+    constant: a frame with no information says nothing about where it is (σ = 0, no match,
+    :mod:`catgraph.matching`): 0 where the rows are normalised, else the row's mean."""
+    d[~informative] = 0.0 if normalise else d[~informative].mean(axis=1, keepdims=True)
     return d
 
 

@@ -449,10 +449,9 @@ class LiveMap:
         ------
         DataError
         """
-        from .pipeline import _kind
+        from .io import check_query_kind
 
-        if _kind(traverse) != self.kind:
-            raise DataError(f"the map holds {self.kind} but the query holds {_kind(traverse)}; compare like with like.")
+        check_query_kind(self.kind, traverse)
 
     def difference_row(self, frame, out: np.ndarray | None = None) -> np.ndarray:
         """The frame's (normalised, as the map's front-end says) difference to every place.
@@ -466,8 +465,10 @@ class LiveMap:
     def _no_information(self, descriptor: np.ndarray, row: np.ndarray) -> np.ndarray:
         """``row`` made constant (0 where normalised, else its mean) where ``descriptor``
         carries no information."""
-        if descriptor.size and not np.any(descriptor != descriptor.flat[0]):
-            row[...] = 0.0 if self.frontend.normalise else row.mean(axis=-1, keepdims=True)
+        from .frontends import informative_frames
+        from .io import no_information_rows
+
+        no_information_rows(row.reshape(1, -1), informative_frames(descriptor.reshape(1, -1)), self.frontend.normalise)
         return row
 
     def _row_into(self, descriptor: np.ndarray, out: np.ndarray) -> np.ndarray:
