@@ -95,6 +95,7 @@ import numpy as np
 
 from ._validation import as_generator, check_array, check_scalar
 from .exceptions import InvalidParameterError, NotFittedError, ShapeMismatchError
+from .recogniser import _blank
 
 __all__ = [
     "CheckedRow",
@@ -1840,7 +1841,7 @@ class TemperedObservation:
             np.subtract(row, mean, out=a)
             np.multiply(a, a, out=square)
             aa = square.sum()
-        if aa <= n * (n * 4e-16 * abs(mean)) ** 2 and row.min() == row.max():
+        if aa <= n * (n * 4e-16 * abs(mean)) ** 2 and _blank(row):
             # a blank frame (a constant row: e.g. a textureless image, normalised to 0)
             # holds no measurement: it adds nothing, and the next frame is compared with
             # the last frame that held one
