@@ -95,7 +95,6 @@ import numpy as np
 
 from ._validation import as_generator, check_array, check_scalar
 from .exceptions import InvalidParameterError, NotFittedError, ShapeMismatchError
-from .recogniser import _blank
 
 __all__ = [
     "CheckedRow",
@@ -778,6 +777,13 @@ class RecentSupport:
 #: The largest weight of a part of a :class:`CombinedObservation` (a larger one would only
 #: overflow the tempered log-ratios it multiplies).
 MAX_PART_WEIGHT = 1e6
+
+
+def _blank_row(row: np.ndarray) -> bool:
+    """:func:`catgraph.recogniser._blank` (imported where first needed: it brings scipy)."""
+    from .recogniser import _blank
+
+    return _blank(row)
 
 
 def _is_predictive(weights) -> bool:
@@ -1841,7 +1847,7 @@ class TemperedObservation:
             np.subtract(row, mean, out=a)
             np.multiply(a, a, out=square)
             aa = square.sum()
-        if aa <= n * (n * 4e-16 * abs(mean)) ** 2 and _blank(row):
+        if aa <= n * (n * 4e-16 * abs(mean)) ** 2 and _blank_row(row):
             # a blank frame (a constant row: e.g. a textureless image, normalised to 0)
             # holds no measurement: it adds nothing, and the next frame is compared with
             # the last frame that held one
