@@ -130,8 +130,9 @@ what it does to accuracy and seed spread is measured per condition in
 
 The velocity marginalised (``marginal_velocity``, the default where it applies: a
 :class:`~catgraph.motion.VelocityMotion` on a route without junctions, frames without
-odometry). A particle then carries a *distribution* over the velocity bins instead of
-one sampled bin (Rao–Blackwellisation), and the prediction and the frame are taken
+odometry). A particle then carries a *distribution* over the grid filter's state bins
+(every speed, a fractional speed split into its phases as the grid's ``max_phases``
+splits it) instead of one sampled bin (Rao–Blackwellisation), and the prediction and the frame are taken
 together (:meth:`~catgraph.motion.VelocityMotion.move_marginal`): the particles on one
 place predict as the grid filter predicts a state with all its mass there; they move to
 destinations drawn from that prediction times the frame's likelihood (the locally optimal
@@ -909,8 +910,9 @@ class Localizer:
     marginal_velocity : bool
         Rao–Blackwellise the velocity (default): with a
         :class:`~catgraph.motion.VelocityMotion` on a route without junctions and a
-        frame without odometry, each particle carries a distribution over the velocity
-        bins, predicts as the grid filter does from its one place, and moves with the
+        frame without odometry, each particle carries a distribution over the grid
+        filter's state bins (a fractional speed's phases each), predicts as the grid
+        filter does from its one place, and moves with the
         frame's evidence (:meth:`~catgraph.motion.VelocityMotion.move_marginal`); the
         place masses are the particles' mixtures before their draw. ``False``, junction
         graphs and odometry: one sampled velocity bin per particle.
@@ -1084,10 +1086,13 @@ class Localizer:
         self._no_ratio = np.zeros(g.n_places)
         self._motions = (self.motion or FrameMotion(), self.motion or OdometryMotion())
         self._marginal = self.marginal_applies()
-        nb = len(self.motion._v) if self._marginal else 0
-        self._spread = np.full((n, nb), 1.0 / max(nb, 1))  # velocity distributions (marginal mode)
+        # velocity distributions over the motion's state bins (marginal mode; a fractional speed
+        # has one bin per phase)
+        nb = len(self.motion._owner) if self._marginal else 0
+        self._velocity_prior = self.motion._bin_prior.copy() if self._marginal else np.ones(0)
+        self._spread = np.empty((n, nb))
+        self._spread[:] = self._velocity_prior
         self._gathered = (*self._gathered, np.empty((n, nb)))
-        self._velocity_prior = np.full(nb, 1.0 / max(nb, 1))
         self._velocity_marginal = self._velocity_prior.copy()
         self._e = np.empty(g.n_places)
         self._e_dense = False
@@ -1127,7 +1132,7 @@ class Localizer:
     def _reset_jump_grid(self, nb: int) -> None:
         """The jump grid's arrays (two grids over (place, velocity bin), the one the last
         step wrote and the one the next writes), its sums and the route it moves along."""
-        from .grid import _bin_moves, route_neighbours
+        from .grid import route_neighbours
         from ._jump_kernels import block_starts, line_segments, segment_edges
 
         g, motion = self.graph, self.motion
@@ -1148,7 +1153,7 @@ class Localizer:
             nbrs = route_neighbours(g)
             object.__setattr__(g, "_jump_neighbours", nbrs)
         self._jumps_neighbours = nbrs
-        self._jumps_moves = _bin_moves(motion._v)
+        self._jumps_moves = motion._bin_moves
         whole, frac = self._jumps_moves[:2]
         self._jumps_reach = int(whole.max()) if len(whole) else 0
         seg = line_segments(nbrs[0], nbrs[1])
@@ -1334,9 +1339,8 @@ class Localizer:
             if self._marginal:
                 self._sample_velocity()
             motion.move(self.particles_, self.graph, self._rng, odometry)
-            if self._marginal:
-                self._spread[:] = 0.0
-                self._spread[np.arange(self.n_particles), np.maximum(self._velocity, 0)] = 1.0
+            if self._marginal:  # the speed each particle drove at, its phases alike
+                self._spread[:] = self.motion._speed_bins[np.maximum(self._velocity, 0)]
             return
         start, stop = self._newborn
         log_keep = math.log1p(-self.recovery_) if stop > start else 0.0
@@ -1385,11 +1389,11 @@ class Localizer:
             self._log_weight[rest] = -math.inf
 
     def _sample_velocity(self) -> None:
-        """One bin per particle from its velocity distribution (for a step the sampled
-        motion takes: odometry)."""
+        """One speed per particle from its velocity distribution (for a step the sampled
+        motion takes: odometry): a bin drawn, its speed kept."""
         c = np.cumsum(self._spread, axis=1)
         u = self._rng.random(self.n_particles)[:, None] * c[:, -1:]
-        self._velocity[:] = np.minimum((c <= u).sum(1), c.shape[1] - 1)
+        self._velocity[:] = self.motion._owner[np.minimum((c <= u).sum(1), c.shape[1] - 1)]
 
     def _inject(self) -> None:
         """The recovery share ``ε``: a new generation of particles in the slots the
@@ -1463,7 +1467,7 @@ class Localizer:
             from .grid import predict
 
             if kept_mass > 0.0:
-                moved = predict(np.ascontiguousarray(s.T) * (1.0 / s.sum()), motion._transition, motion._v,
+                moved = predict(np.ascontiguousarray(s.T) * (1.0 / s.sum()), motion._transition, motion._v[motion._owner],
                                 self._jumps_neighbours, motion._blur, 0.0, jv, 0.0, moves=self._jumps_moves)
                 total = moved.sum()
                 moved *= kept_mass / total if total > 0 else 0.0

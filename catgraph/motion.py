@@ -43,14 +43,16 @@ stays valid and every fraction stays in ``[0, 1]``.
   particle filter is a Monte Carlo version of the grid filter's prediction and
   converges to it as particles grow, on a chain and at junctions
   (``tests/test_localizer.py``, ``tests/test_motion_junctions.py``), with two
-  differences of representation: a fractional speed is a random extra hop here, the
-  grid's linear split (``max_phases=1``), not its phase bins (the grid's default
-  ``max_phases=4`` keeps a track at half speed sharp, which random hops do not); and
-  with odometry a particle keeps its position between two places and counts at the
-  nearer one, where the grid splits the mass between both.
+  differences of representation in this sampled motion: a fractional speed is a random
+  extra hop, the grid's linear split (``max_phases=1``), not its phase bins; and with
+  odometry a particle keeps its position between two places and counts at the nearer
+  one, where the grid splits the mass between both. The velocity-marginalised motion
+  below (the default on chains without odometry) has the grid's phase bins.
 
 :meth:`VelocityMotion.move_marginal` is the same motion with the velocity *marginalised*
-(Rao–Blackwellised): a particle carries a distribution over the velocity bins instead of
+(Rao–Blackwellised): a particle carries a distribution over the grid filter's state bins
+(every speed, a fractional one split into its phases: :func:`catgraph.grid.phase_bins`,
+so that a track at half speed stays sharp, ``tests/test_localizer_phases.py``) instead of
 one bin, and the particles on one place (a *family*) predict exactly as the grid filter
 predicts a state with all its mass at that place — transition, shift, fractional shift
 and blur (:meth:`VelocityMotion.marginal_transition`, tested against
@@ -547,6 +549,13 @@ class VelocityMotion(MotionModel):
     junction_probability : float in [0, 0.5]
         Probability, per junction edge, that a hop from a place with junction edges
         takes that one (at most 0.5 for all of them together), as the grid filter's.
+    max_phases : int >= 1
+        The velocity-marginalised motion (:meth:`move_marginal`) drives a fractional
+        speed ``w + p/q`` (``q ≤ max_phases``) by ``q`` phase bins, as the grid filter
+        does (:func:`~catgraph.grid.phase_bins`): ``v = 0.5`` moves 0, 1, 0, 1 … places
+        and a track at half speed stays sharp. 1: one bin per speed, a fractional speed
+        split between the two bracketing places each frame (a random walk). The sampled
+        motion (:meth:`move`: odometry, junction graphs) keeps one bin per speed.
 
     Each one left ``None`` is :class:`~catgraph.grid.GridLocalizer`'s default (read from
     its signature), so the two filters share one motion model by construction.
@@ -571,13 +580,15 @@ class VelocityMotion(MotionModel):
     """
 
     def __init__(self, velocities=None, velocity_stay: float | None = None, reverse_probability: float | None = None,
-                 blur: float | None = None, junction_probability: float | None = None, max_hops: int = 256) -> None:
+                 blur: float | None = None, junction_probability: float | None = None, max_phases: int | None = None,
+                 max_hops: int = 256) -> None:
         super().__init__(max_hops=max_hops)
         self.velocities = velocities
         self.velocity_stay = velocity_stay
         self.velocity_reverse_probability = reverse_probability
         self.blur = blur
         self.junction_probability = junction_probability
+        self.max_phases = max_phases
 
     def _params(self) -> tuple:
         v = self.velocities
@@ -587,14 +598,14 @@ class VelocityMotion(MotionModel):
     def _validate_params(self) -> None:
         import inspect
 
-        from .grid import GridLocalizer, _bin_moves, velocity_transition
+        from .grid import GridLocalizer, _bin_moves, phase_bins, phase_transition, velocity_transition
 
         # one owner for the motion's defaults: the grid filter's signature
         grid = {k: p.default for k, p in inspect.signature(GridLocalizer.__init__).parameters.items()}
         resolved = {k: grid[k] if getattr(self, attr) is None else getattr(self, attr) for k, attr in (
             ("velocities", "velocities"), ("velocity_stay", "velocity_stay"),
             ("reverse_probability", "velocity_reverse_probability"), ("blur", "blur"),
-            ("junction_probability", "junction_probability"))}
+            ("junction_probability", "junction_probability"), ("max_phases", "max_phases"))}
         super()._validate_params()
         name = type(self).__name__
         v = np.asarray(resolved["velocities"], dtype=np.float64)
@@ -608,32 +619,52 @@ class VelocityMotion(MotionModel):
         check_scalar(reverse, "reverse_probability", name, float, 0.0, 1.0 - stay)
         check_scalar(resolved["blur"], "blur", name, float, 0.0, 0.5, True, False)
         check_scalar(resolved["junction_probability"], "junction_probability", name, float, 0.0, 0.5)
+        check_scalar(resolved["max_phases"], "max_phases", name, int, 1, 64)
         self._v = v
         self._junction = float(resolved["junction_probability"])
         self._mirror = _bin_moves(v)[3]
         self._blur = float(resolved["blur"])
-        self._transition = velocity_transition(v, stay, reverse)
+        transition = velocity_transition(v, stay, reverse)
+        # the sampled motion (move): one bin per speed
+        self._cumulative = np.cumsum(transition, axis=1)
+        self._cumulative[:, -1] = 1.0
+        # the velocity-marginalised motion's state bins: the grid filter's (a fractional speed
+        # split into its phases where max_phases allows; else one bin per speed)
+        owner, whole, frac, sign, mirror, successor = phase_bins(v, int(resolved["max_phases"]))
+        self._owner = owner
+        if len(owner) == len(v):  # no phases: the speeds' own arrays
+            speed = np.abs(v)
+            whole = np.floor(speed).astype(np.int64)
+            frac = speed - whole
+            sign = np.where(v >= 0, 1, -1).astype(np.int64)
+            mirror = self._mirror
+            self._transition = transition
+        else:
+            self._transition = phase_transition(transition, owner, successor)
+        self._moves = (whole, frac, sign)
+        self._bin_moves = (whole, frac, sign, mirror)  # as catgraph.grid.predict takes them
         nz = self._transition.T != 0  # the transition's columns, sparse
         self._columns = (np.concatenate([[0], np.cumsum(nz.sum(1))]).astype(np.int64),
                          np.nonzero(nz)[1].astype(np.int64), np.ascontiguousarray(self._transition.T[nz]))
-        self._cumulative = np.cumsum(self._transition, axis=1)
-        self._cumulative[:, -1] = 1.0
-        speed = np.abs(v)
-        whole = np.floor(speed).astype(np.int64)
-        self._moves = (whole, speed - whole, np.where(v >= 0, 1, -1).astype(np.int64))
+        count = np.bincount(owner, minlength=len(v))
+        # uniform over the speeds, each shared evenly by its phases (the grid's prior, odds 1)
+        self._bin_prior = 1.0 / (len(v) * count[owner])
+        # per speed, the bin distribution of a particle known to drive at it (its phases alike)
+        self._speed_bins = (owner[None, :] == np.arange(len(v))[:, None]) / count[:, None].astype(np.float64)
         # route offsets a particle can reach in one step: its fastest bin's hops (one more
         # for a fractional speed), then the blur's one place
-        self._reach = int(np.max(whole + (speed > whole))) + 1
+        self._reach = int(np.max(whole + (frac > 0))) + 1
         # away from the route's ends, a one-bin state's prediction per (offset, bin): the
         # prediction of any velocity distribution there is their mixture
         width = 2 * self._reach + 1
         line = np.arange(width + 2)
         fwd, bwd = np.where(line + 1 < width + 2, line + 1, -1), line - 1
-        self._interior = np.empty((len(v), width, len(v)))
-        window, moved = np.empty(width, dtype=np.int64), np.empty((width, len(v)))
-        for a in range(len(v)):
-            _marginal_transition(self._reach + 1, np.eye(len(v))[a], self._transition, *self._moves, self._blur,
-                                 fwd, bwd, self._reach, window, np.empty(len(v)), moved)
+        nb = len(owner)
+        self._interior = np.empty((nb, width, nb))
+        window, moved = np.empty(width, dtype=np.int64), np.empty((width, nb))
+        for a in range(nb):
+            _marginal_transition(self._reach + 1, np.eye(nb)[a], self._transition, *self._moves, self._blur,
+                                 fwd, bwd, self._reach, window, np.empty(nb), moved)
             self._interior[a] = moved
         self._interior_column = np.ascontiguousarray(self._interior.sum(2))
         self._interior_rows = np.ascontiguousarray(self._interior.transpose(1, 2, 0))  # [o, b, a]
@@ -701,13 +732,14 @@ class VelocityMotion(MotionModel):
         self._check()
         fwd, bwd, _, _ = self._route(graph)
         whole, frac, sign = self._moves
+        nb = len(self._owner)
         width = 2 * self._reach + 1
         window = np.empty(width, dtype=np.int64)
-        moved = np.empty((width, len(self._v)))
+        moved = np.empty((width, nb))
         _marginal_transition(int(place), np.ascontiguousarray(velocity_distribution, dtype=np.float64),
                              self._transition, whole, frac, sign, self._blur, fwd, bwd, self._reach, window,
-                             np.empty(len(self._v)), moved)
-        out = np.zeros((graph.n_places, len(self._v)))
+                             np.empty(nb), moved)
+        out = np.zeros((graph.n_places, nb))
         for o in range(width):
             if window[o] >= 0:
                 out[window[o]] += moved[o]

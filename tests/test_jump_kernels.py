@@ -37,7 +37,8 @@ def _reference(state, motion, nbrs, eps, mass, jv, e):
     normalised grid, its lost mass given back, the new jump mass, the frame."""
     n = state.shape[0]
     if mass > 0:
-        moved = predict(state / state.sum(), motion._transition, motion._v, nbrs, motion._blur, 0.0, jv, 0.0)
+        moved = predict(state / state.sum(), motion._transition, None, nbrs, motion._blur, 0.0, jv, 0.0,
+                        moves=motion._bin_moves)
         moved *= (1.0 - eps) * mass / moved.sum()
     else:
         moved = np.zeros_like(state)
@@ -52,7 +53,7 @@ def _kernel(state, motion, graph, eps, mass, jv, e, unit=1.0, threads=1, block=J
     n, nb = state.shape
     fwd, bwd = route_neighbours(graph)[:2]
     seg = line_segments(fwd, bwd)
-    whole, frac, sign, _ = _bin_moves(motion._v)
+    whole, frac, sign, _ = motion._bin_moves
     hops = int((whole + (frac > 0)).max())
     s = np.ascontiguousarray(state.T)
     lost = jump_lost(s, seg, segment_edges(seg, hops), *motion._columns, whole, frac, sign)
@@ -68,7 +69,7 @@ def _kernel(state, motion, graph, eps, mass, jv, e, unit=1.0, threads=1, block=J
 def _case(rng, n, velocities, stay, blur, concentrated):
     motion = VelocityMotion(velocities=velocities, velocity_stay=stay, blur=blur)
     motion.supports_marginal(PlaceGraph.chain(2))  # resolves the motion's arrays
-    nb = len(motion._v)
+    nb = len(motion._owner)  # the state bins (a fractional speed's phases each)
     state = rng.random((n, nb)) ** 4
     if concentrated:  # most of the mass at a few places, some of them at the route's ends
         state *= 1e-6
@@ -165,7 +166,7 @@ def test_jump_lost_is_the_mass_the_shift_loses():
         g = _route(n, set(breaks))
         motion, state, _, _ = _case(rng, n, (-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0), 0.95, 0.0, True)
         fwd, bwd = route_neighbours(g)[:2]
-        whole, frac, sign, _ = _bin_moves(motion._v)
+        whole, frac, sign, _ = motion._bin_moves
         moved = np.empty_like(state)
         _shift_walk(state, moved, whole, frac, sign, fwd, bwd, *motion._columns)
         seg = line_segments(fwd, bwd)

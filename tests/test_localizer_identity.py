@@ -22,7 +22,7 @@ from .conftest import ROUNDS_OTHERWISE, host_processor
 
 #: the motion pinned (the defaults may move; the digests must not)
 _MOTION = dict(velocities=(-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0), velocity_stay=0.99,
-               reverse_probability=0.001, blur=0.01, junction_probability=0.1)
+               reverse_probability=0.001, blur=0.01, junction_probability=0.1, max_phases=1)
 
 
 @njit(fastmath=True)
@@ -220,7 +220,7 @@ def _reference_kernel(edge, fraction, log_weight, velocity, skip_start, skip_sto
 def _state(graph, motion, rng, n, skip):
     """Particles on places, in families of every size, some on the route's ends, some of
     weight 0, with random velocity distributions (one-bin ones among them)."""
-    nb = len(motion._v)
+    nb = len(motion._owner)
     _, _, first_in, _ = motion._route(graph)
     places = rng.integers(0, graph.n_places, n)
     places[: n // 4] = places[0]  # one large family

@@ -38,9 +38,9 @@ def test_graduation_one_is_the_filter_without_the_grid():
 
 def test_jump_grid_converges_to_the_grid_filter_and_is_closer_than_births_alone():
     """Same particles, same seeds: with the jump grid the posterior is closer to the grid
-    filter's than with births drawn from the frame alone, and as the particles grow it
-    reaches the same error (the filters share a small floor, about 0.013 at 16,000
-    particles, that does not come from the jump grid)."""
+    filter's than with births drawn from the frame alone, and as the particles grow its
+    error stays no larger than theirs (both about 0.002–0.003 at 16,000 particles): the
+    jump grid adds no error of its own."""
     g = _survey_graph(15)
     rows = _rows_with_a_jump(g)
     exact = GridLocalizer(g, _Fixed(0.8), recovery=0.05).run(rows, return_posterior=True).posterior
@@ -53,7 +53,7 @@ def test_jump_grid_converges_to_the_grid_filter_and_is_closer_than_births_alone(
     small, large = tv(250, 0.2), tv(4000, 0.2)
     assert small < 0.75 * tv(250, 1.0)
     assert large < small / 2 and large < 0.02
-    assert abs(large - tv(4000, 1.0)) < 0.003
+    assert large < tv(4000, 1.0) + 0.003
 
 
 def test_mass_is_conserved_between_particles_and_grid():

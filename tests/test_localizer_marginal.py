@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from catgraph.graph import PlaceGraph
-from catgraph.grid import predict, route_neighbours
+from catgraph.grid import GridLocalizer, predict, route_neighbours
 from catgraph.localizer import Localizer
 from catgraph.motion import PlacesWritten, VelocityMotion, _marginal_kernel
 from catgraph.traverse import Traverse
@@ -16,12 +16,15 @@ from .conftest import survey_graph as _survey_graph
 
 def _grid_prediction(graph, motion, place, p):
     """The grid filter's prediction (``catgraph.grid.predict``, general path, no recovery)
-    of a state with all its mass at ``place`` and velocity distribution ``p``."""
+    of a state with all its mass at ``place`` and distribution ``p`` over the grid's state
+    bins (its own phase bins and transition, from a grid filter of the same motion)."""
+    phases = {} if motion.max_phases is None else {"max_phases": motion.max_phases}
+    grid = GridLocalizer(graph, _Fixed(1.0), velocities=motion._v, blur=motion._blur, **phases).reset()
+    assert len(grid._owner) == len(p)
     state = np.zeros((graph.n_places, len(p)))
     state[place] = p
-    v = np.asarray(motion._v)
-    return predict(state, motion._transition, v, route_neighbours(graph), motion._blur, 0.0,
-                   np.full(len(v), 1.0 / len(v)), 0.1)
+    return predict(state, grid._transition, None, route_neighbours(graph), grid.blur, 0.0,
+                   np.full(len(p), 1.0 / len(p)), 0.1, moves=grid._moves)
 
 
 @pytest.mark.parametrize("graph", [PlaceGraph.chain(30), _survey_graph(12)], ids=["chain", "survey"])
@@ -33,7 +36,7 @@ def test_one_particle_predicts_as_the_grid_predicts_a_point_mass(graph):
     motion = VelocityMotion()
     assert motion.supports_marginal(graph)
     rng = np.random.default_rng(0)
-    nb = len(motion._v)
+    nb = len(motion._owner)
     for place in range(graph.n_places):
         for p in (np.full(nb, 1.0 / nb), np.eye(nb)[place % nb], rng.dirichlet(np.ones(nb))):
             ours = motion.marginal_transition(graph, place, p)
@@ -86,7 +89,7 @@ def test_marginal_kernel_matches_a_slow_reference(graph):
     motion = VelocityMotion()
     motion._check()
     rng = np.random.default_rng(1)
-    n, nb = 40, len(motion._v)
+    n, nb = 40, len(motion._owner)
     fwd, bwd, first_in, _ = motion._route(graph)
     places = rng.integers(0, graph.n_places, n)
     places[:10] = places[0]  # one large family
@@ -142,7 +145,7 @@ def test_a_family_splits_in_proportion_over_its_destinations():
     motion = VelocityMotion()
     motion._check()
     fwd, bwd, first_in, _ = motion._route(g)
-    k, nb = 200, len(motion._v)
+    k, nb = 200, len(motion._owner)
     edge = np.full(k, g.out_ptr[20], dtype=np.int64)
     spread = np.tile(np.full(nb, 1.0 / nb), (k, 1))
     like = np.ones(g.n_places)

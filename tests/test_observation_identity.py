@@ -61,6 +61,7 @@ def _digest(mode: str, hubs: bool, seed: int = 0, n_places: int = 3000, n_frames
         loc.home_speed_odds = 1.0  # a uniform velocity prior then (the registry's now favours ±1)
     else:
         loc.motion.blur = 0.01  # the particles follow the grid's blur unless given one
+        loc.motion.max_phases = 1  # one bin per speed then (the particles' marginal motion now has phase bins)
     loc.reset()
     h = hashlib.sha256()
     tempered = obs.models[0]
