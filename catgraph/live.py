@@ -118,7 +118,8 @@ def describe_frame(frame, kind: str, frontend=None, not_detected: float = 100.0)
     Returns
     -------
     ndarray, shape (d,)
-        float32 (bool for boolean descriptors).
+        float32 (bool for boolean descriptors; uint8 for bits packed in bytes under the
+        ``hamming`` metric).
     """
     from .frontends import seqslam_preprocess, wifi_vectors
     from .pipeline import FrontEnd
@@ -137,7 +138,9 @@ def describe_frame(frame, kind: str, frontend=None, not_detected: float = 100.0)
         flat = x.reshape(-1)
         if flat.dtype.kind not in "biuf":
             raise DataError(f"a live descriptor must be numeric or boolean; got dtype {flat.dtype}.")
-        return flat if flat.dtype == bool else flat.astype(np.float32)
+        if flat.dtype == bool or (flat.dtype == np.uint8 and frontend.metric == "hamming"):
+            return flat  # bits, or bits packed in bytes (compared as bits)
+        return flat.astype(np.float32)
     raise InvalidParameterError(f"unknown data kind {kind!r}; a map holds 'images', 'wifi' or 'descriptors'.")
 
 

@@ -128,6 +128,8 @@ def _describe(traverse: Traverse, frontend: FrontEnd) -> tuple[np.ndarray, str]:
     frames = traverse.frames.reshape(len(traverse), -1)
     if frames.dtype == bool:
         return frames, frontend.metric or "hamming"
+    if frames.dtype == np.uint8 and frontend.metric == "hamming":  # bits packed in bytes, compared as bits
+        return frames, "hamming"
     from ._validation import check_array
 
     return check_array(frames, f"descriptors of {traverse.name or 'the traverse'}", dtype=np.float32), \

@@ -52,6 +52,29 @@ def test_hamming_bool_and_packed(rng):
     np.testing.assert_allclose(difference_matrix(np.packbits(q, axis=1), np.packbits(r, axis=1), "hamming"), expected)
 
 
+def test_packed_descriptors_through_the_pipeline_and_the_live_front_end(rng):
+    """Bits packed in uint8 (ORB, BRISK) under ``metric="hamming"``: the pipeline and the
+    live front-end keep them as bits (the same differences as the unpacked booleans), where
+    they were cast to float32 and refused; without the metric they stay numbers (cosine)."""
+    from catgraph.live import describe_frame
+    from catgraph.pipeline import FrontEnd, describe, differences
+    from catgraph.traverse import Traverse
+
+    q, r = rng.random((5, 64)) > 0.5, rng.random((7, 64)) > 0.5
+    packed_q, packed_r = Traverse(np.packbits(q, axis=1)), Traverse(np.packbits(r, axis=1))
+    hamming = FrontEnd(metric="hamming", normalise=False)
+    expected = cdist(q, r, "hamming") * 64
+    np.testing.assert_allclose(differences(packed_r, packed_q, hamming), expected)
+    np.testing.assert_allclose(differences(Traverse(r), Traverse(q), hamming), expected)
+    descriptors, metric = describe(packed_r, hamming)
+    assert metric == "hamming" and descriptors.dtype == np.uint8
+    assert describe(packed_r)[1] == "cosine"
+    one = describe_frame(np.packbits(q[0]), "descriptors", hamming)
+    assert one.dtype == np.uint8
+    np.testing.assert_array_equal(one, np.packbits(q[0]))
+    assert describe_frame(np.packbits(q[0]), "descriptors").dtype == np.float32
+
+
 def test_blocks_are_bounded_and_cover_everything(rng):
     q, r = rng.random((10, 3)), rng.random((7, 3))
     blocks = list(iter_difference_blocks(q, r, "sad", block_rows=4))
