@@ -356,8 +356,43 @@ class MethodInputs:
         return self.prepared.hub_offsets()
 
 
+def check_frame_pairing(reference: Traverse, query: Traverse) -> int:
+    """Warn (:class:`~catgraph.exceptions.CatgraphWarning`) where a frame tolerance's
+    pairing by index (query frame ``i`` is reference frame ``i``) disagrees with the frames'
+    names: both traverses name their frames (``ids``, e.g. file names), the query's names
+    are among the reference's, and some query frame's name is not that of the reference
+    frame of its index — a frame missing from one folder shifts every later pair, and the
+    figures come out wrong without a sign. Traverses that name their frames each their own
+    way say nothing. Returns the number of query frames whose pair disagrees."""
+    if reference.ids is None or query.ids is None:
+        return 0
+    ref_ids, qry_ids = np.asarray(reference.ids).astype(str), np.asarray(query.ids).astype(str)
+    shared = np.isin(qry_ids, ref_ids)
+    if not shared.any():
+        return 0
+    index = np.asarray(query.index)
+    inside = index < len(ref_ids)
+    paired = np.where(inside, ref_ids[np.minimum(index, len(ref_ids) - 1)], "")
+    differ = shared & (~inside | (qry_ids != paired))
+    n = int(differ.sum())
+    if n:
+        import warnings
+
+        from .exceptions import CatgraphWarning
+
+        k = int(np.flatnonzero(differ)[0])
+        at = f"reference frame {index[k]} is {str(paired[k])!r}" if inside[k] else \
+            f"the reference has no frame {index[k]}"
+        warnings.warn(f"the frame tolerance pairs query frame i with reference frame i, but {n} of {len(qry_ids)} "
+                      f"query frames carry the name of another reference frame (query frame {index[k]} is "
+                      f"{str(qry_ids[k])!r}; {at}): a frame missing from one folder shifts every later pair. Check the "
+                      "folders, or give the pairs as a ground-truth file.", CatgraphWarning, stacklevel=3)
+    return n
+
+
 def _ground_truth(exp: Experiment, reference: Traverse, query: Traverse, n_places: int) -> GroundTruth | None:
     if exp.tolerance is not None:
+        check_frame_pairing(reference, query)
         return FrameTolerance(n_places, exp.tolerance)
     tolerance_m = exp.tolerance_m
     if tolerance_m is None and exp.ground_truth is None:

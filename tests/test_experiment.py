@@ -370,3 +370,33 @@ def test_the_synthetic_worlds_tolerance_scores_only_against_its_own_reference():
     assert run(Experiment(query="synthetic:1", reference=no_positions))[2] is None
     # given explicitly, a tolerance scores any pair
     assert run(Experiment(query="synthetic:0", reference="synthetic:1", tolerance_m=5.0))[2] is not None
+
+
+def test_a_frame_missing_from_one_folder_is_reported_where_the_tolerance_pairs_by_index():
+    """Query frame i is scored against reference frame i: where both name their frames
+    and a query frame carries another reference frame's name (a frame missing from one
+    folder), the run warns instead of scoring every later frame against its neighbour."""
+    import warnings
+
+    from catgraph.exceptions import CatgraphWarning
+    from catgraph.experiment import check_frame_pairing
+    from catgraph.traverse import Traverse
+
+    rng = np.random.default_rng(0)
+    frames = rng.random((30, 8)).astype(np.float32)
+    names = 10 * np.arange(1, 31)  # file numbers, as the image-folder loader gives them (images-00010.png …)
+    reference = Traverse(frames, ids=names)
+    keep = np.r_[0:3, 4:30]  # the query folder lacks the fourth frame: loaded, it is 29 frames from 0
+    missing = Traverse(frames[keep] + 0.01, ids=names[keep])
+    with pytest.warns(CatgraphWarning, match=r"26 of 29 query frames .*query frame 3 is '50'; reference frame 3 is '40'"):
+        run(Experiment(query=missing, reference=reference, method="single-frame", tolerance=0))
+    # the same names in the same order, names of their own, or a query driven out of order: silent
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", CatgraphWarning)
+        run(Experiment(query=Traverse(frames + 0.01, ids=names), reference=reference, method="single-frame",
+                       tolerance=0))
+        assert check_frame_pairing(reference, Traverse(frames, ids=1000 + np.arange(30))) == 0
+        assert check_frame_pairing(reference, Condition("shuffle", seed=1).apply(Traverse(frames, ids=names))) == 0
+        assert check_frame_pairing(reference, Traverse(frames)) == 0
+        # a longer query than the reference: its later frames have no pair, and no name either
+        assert check_frame_pairing(Traverse(frames[:9], ids=names[:9]), Traverse(frames, ids=names)) == 0
