@@ -298,6 +298,12 @@ class MetricTolerance(GroundTruth):
         use_floors = query_floors is not None and reference_floors is not None
         self.query_floors = np.asarray(query_floors, dtype=np.int64) if use_floors else None
         self.reference_floors = np.asarray(reference_floors, dtype=np.int64) if use_floors else None
+        if use_floors:
+            for name, floors, positions in (("query", self.query_floors, self.query_positions),
+                                            ("reference", self.reference_floors, self.reference_positions)):
+                if floors.shape != (len(positions),):
+                    raise ShapeMismatchError(f"{name} floors have shape {floors.shape} but there are "
+                                             f"{len(positions)} {name} positions; give one floor per position.")
         #: the query frames (as loaded) the traverse holds; ``None``: all (see :meth:`between`)
         self._present: np.ndarray | None = None
         from scipy.spatial import cKDTree
@@ -355,6 +361,11 @@ class MetricTolerance(GroundTruth):
 
     def has_true_match(self, query_index):
         return self._has[_as_index(query_index, "query_index", len(self.query_positions), self._present)]
+
+    @property
+    def n_reference(self) -> int:
+        """The reference's places (a match past them is refused by :func:`~catgraph.metrics.evaluate`)."""
+        return len(self.reference_positions)
 
     def describe(self):
         return {"type": "metric", "metres": self.metres, "floors": self.query_floors is not None}
@@ -425,6 +436,11 @@ class ExplicitGroundTruth(GroundTruth):
 
     def has_true_match(self, query_index):
         return self._has[_as_index(query_index, "query_index", len(self._has))]
+
+    @property
+    def n_reference(self) -> int:
+        """The reference's places (a match past them is refused by :func:`~catgraph.metrics.evaluate`)."""
+        return int(self.matrix.shape[1])
 
     def describe(self):
         return {"type": "explicit", "threshold": self.threshold}

@@ -105,3 +105,45 @@ def test_pr_curve_refuses_fewer_positives_than_correct_frames():
 
     with pytest.raises(DataError, match="n_positive"):
         pr_curve([True, True], [True, True], [0.5, 0.4], 1)
+
+
+def test_every_ground_truth_refuses_a_match_past_the_reference():
+    """A match past the reference's last place is an error for every kind of ground truth
+    (it was refused by the frame tolerance and silently scored wrong by the others)."""
+    from catgraph.exceptions import DataError
+    from catgraph.traverse import MetricTolerance
+
+    positions = np.array([[0.0, 0.0], [1.0, 0.0]])
+    for gt in (FrameTolerance(2, 0), MetricTolerance(positions, positions, 0.5), ExplicitGroundTruth(np.eye(2, dtype=bool))):
+        assert evaluate([0, 1], [0, 1], [1.0, 0.5], gt).metrics.accuracy == 1.0
+        with pytest.raises(DataError, match="reference has 2 places"):
+            evaluate([0, 1], [0, 7], [1.0, 0.5], gt)
+
+
+def test_floors_of_the_wrong_length_are_refused():
+    from catgraph.exceptions import ShapeMismatchError
+    from catgraph.traverse import MetricTolerance
+
+    qp, rp = np.zeros((1, 2)), np.zeros((2, 2))
+    with pytest.raises(ShapeMismatchError, match="reference floors"):
+        MetricTolerance(qp, rp, 5.0, query_floors=[3], reference_floors=[3])
+    with pytest.raises(ShapeMismatchError, match="query floors"):
+        MetricTolerance(qp, rp, 5.0, query_floors=[3, 3], reference_floors=[3, 3])
+    assert MetricTolerance(qp, rp, 5.0, query_floors=[3], reference_floors=[3, 4]).correct([0], [0])[0]
+
+
+def test_a_ground_truth_no_frame_matches_warns():
+    """Every figure 0 because no frame has a true match (e.g. a slice of the query, which
+    keeps its frame numbers, against a reference numbered from 0) is said, not silent."""
+    import warnings
+
+    from catgraph.exceptions import CatgraphWarning
+
+    gt = FrameTolerance(300, 2)
+    with pytest.warns(CatgraphWarning, match="none of the 3 query frames has a true match"):
+        ev = evaluate([1000, 1001, 1002], [0, 1, 2], [1.0, 0.5, 0.2], gt)
+    assert ev.metrics.auc == 0.0 and ev.metrics.mtl == 3
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", CatgraphWarning)
+        evaluate([0, 1, 2], [0, 1, 2], [1.0, 0.5, 0.2], gt)
+        evaluate([], [], [], gt)  # nothing to evaluate: nothing to say
