@@ -24,7 +24,7 @@ Format
     # ground_truth = "pairs.csv"         # … or a file (at most one; none: no metrics)
     conditions = ["in-order", "shuffle:0", "shuffle:1:0.005:0.03", "reverse", "speed:2"]  # optional
     # shuffle = [false, 0]               # optional shorthand: false = in order, int = shuffle seed
-    frontend = { size = "32x16", patch = 4, metric = "sad", normalise = true }  # optional
+    frontend = { size = "32x16", patch = 4, metric = "sad", normalise = true }  # optional; also crop = [0, 4, 0, 0]
     # junction_radius_m = 1.0            # optional: junctions of the place graph (needs positions)
 
     [[method]]
@@ -204,7 +204,7 @@ def _check_frontend(where: _Where, table: str, frontend: Any) -> dict:
     from .exceptions import InvalidParameterError
     from .pipeline import FrontEnd
 
-    _check_keys(where, f"{table} frontend", frontend, _FRONTEND_KEYS)
+    _check_keys(where, f"{table} frontend", frontend, FrontEnd.KEYS)
     try:
         checked = FrontEnd.from_dict(frontend)
     except InvalidParameterError as exc:
@@ -267,7 +267,6 @@ def _resolve(path: Any, base_dir: Path | None) -> str:
     return os.path.normpath(os.path.abspath(p)) if base_dir is not None else os.path.normpath(p)
 
 
-_FRONTEND_KEYS = ("size", "patch", "metric", "normalise")
 
 
 def _check_source(where: _Where, table: str, data: Mapping, base_dir: Path | None) -> dict:

@@ -53,6 +53,7 @@ import numpy as np
 from .conditions import Condition
 from .exceptions import ConfigError, InvalidParameterError
 from .methods import get_method
+from .pipeline import FrontEnd
 from .results import RunResult
 from .traverse import FrameTolerance, GroundTruth, MetricTolerance, Traverse
 
@@ -66,7 +67,8 @@ __all__ = ["Experiment", "Prepared", "MethodInputs", "prepare", "prepared_from",
 
 SPEC_KEYS = ("name", "reference", "map", "query", "method", "params", "tolerance", "tolerance_m", "ground_truth",
              "condition", "frontend", "junction_radius_m")
-FRONTEND_KEYS = ("size", "patch", "metric", "normalise")
+#: the front-end's settings (their one owner: :attr:`catgraph.pipeline.FrontEnd.KEYS`)
+FRONTEND_KEYS = FrontEnd.KEYS
 
 
 # ---------------------------------------------------------------------------- sources
@@ -432,7 +434,7 @@ def _inputs(exp: Experiment) -> tuple:
             raise InvalidParameterError("junction_radius_m joins places by position, but the reference has no "
                                         "positions; leave it out.")
         # an option given explicitly is refused where it does not apply, its default value too
-        check_image_options(reference, {k for k in ("size", "patch") if (exp.frontend or {}).get(k) is not None})
+        check_image_options(reference, {k for k in FrontEnd.IMAGE_KEYS if (exp.frontend or {}).get(k) is not None})
         frontend = FrontEnd.from_dict(exp.frontend)
         the_map = build_map(reference, frontend, graph=False)
         graph = None

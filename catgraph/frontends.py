@@ -31,7 +31,7 @@ import warnings
 import numpy as np
 
 from ._validation import check_array, check_memory, check_scalar
-from .exceptions import CatgraphWarning, DataError
+from .exceptions import CatgraphWarning, DataError, InvalidParameterError
 
 __all__ = ["to_greyscale", "resize_images", "patch_normalise", "seqslam_preprocess", "wifi_vectors",
            "informative_frames", "check_information"]
@@ -147,7 +147,11 @@ def seqslam_preprocess(
     """
     x = to_greyscale(check_array(images, "images", ndim=(3, 4), dtype=None))
     if crop is not None:
-        top, bottom, left, right = (int(v) for v in crop)
+        values = tuple(crop) if isinstance(crop, (tuple, list, np.ndarray)) else ()
+        if len(values) != 4 or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in values):
+            raise InvalidParameterError(f"crop must be (top, bottom, left, right): four whole numbers of pixels to cut; "
+                                        f"got {crop!r}.")
+        top, bottom, left, right = (int(v) for v in values)
         h, w = x.shape[1:]
         if min(top, bottom, left, right) < 0 or top + bottom >= h or left + right >= w:
             raise DataError(f"crop {crop} does not fit images of size {w}×{h}; give (top, bottom, left, right) pixels.")

@@ -129,7 +129,7 @@ def describe_frame(frame, kind: str, frontend=None, not_detected: float = 100.0)
     if kind == "images":
         if x.ndim not in (2, 3):
             raise DataError(f"a live image frame must have shape (h, w) or (h, w, channels); got {x.shape}.")
-        return seqslam_preprocess(x[None], size=frontend.size, patch=frontend.patch)[0]
+        return seqslam_preprocess(x[None], size=frontend.size, patch=frontend.patch, crop=frontend.crop)[0]
     if kind == "wifi":
         if x.ndim != 1:
             raise DataError(f"a live Wi-Fi scan must have shape (n_access_points,); got {x.shape}.")

@@ -1,8 +1,8 @@
 """Front-ends: from a traverse's frames to descriptors and a difference matrix.
 
 1. :func:`describe` turns a traverse's frames into descriptors with the front-end its
-   kind calls for — images: the SeqSLAM pipeline (greyscale, resize, 4×4 patch
-   normalisation) compared with SAD; Wi-Fi: strength-above-floor vectors, SAD;
+   kind calls for — images: the SeqSLAM pipeline (greyscale, optional crop, resize, 4×4
+   patch normalisation) compared with SAD; Wi-Fi: strength-above-floor vectors, SAD;
    descriptor arrays: as given, cosine (boolean arrays: Hamming).
 2. :func:`differences` computes the query × reference difference matrix, normalised per
    query (paper 1) unless asked otherwise — through a map built in memory
@@ -15,7 +15,7 @@ Running a method on the result is :mod:`catgraph.experiment`'s job.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -37,6 +37,9 @@ class FrontEnd:
         Image resize target; ``None`` keeps the images' size.
     patch : int
         Patch-normalisation patch side (0 = off).
+    crop : (top, bottom, left, right) or None
+        Image pixels cut from each side before the resize (e.g. a vehicle's bonnet or a
+        sky band); ``None`` keeps the whole image.
     metric : str or None
         Difference metric; ``None`` picks by data kind (images/Wi-Fi: SAD, feature
         vectors: cosine, booleans: Hamming).
@@ -48,8 +51,21 @@ class FrontEnd:
     patch: int = 4
     metric: str | None = None
     normalise: bool = True
+    crop: tuple[int, int, int, int] | None = None
+
+    #: the settings' names, as :meth:`as_dict` writes them and configs and maps give them
+    KEYS: ClassVar[tuple[str, ...]] = ("size", "patch", "crop", "metric", "normalise")
+    #: the settings that apply to image frames only
+    IMAGE_KEYS: ClassVar[tuple[str, ...]] = ("size", "patch", "crop")
 
     def __post_init__(self) -> None:
+        if self.crop is not None:
+            crop = tuple(self.crop) if isinstance(self.crop, (tuple, list, np.ndarray)) else ()
+            if len(crop) != 4 or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+                                         and 0 <= v <= 100_000 for v in crop):
+                raise InvalidParameterError(f"the front-end crop must be (top, bottom, left, right) pixels cut from "
+                                            f"each side, each an int in [0, 100000]; got {self.crop!r}.")
+            object.__setattr__(self, "crop", tuple(int(v) for v in crop))
         if self.size is not None:
             size = tuple(self.size)
             if len(size) != 2 or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and 0 < v <= 100_000
@@ -68,21 +84,27 @@ class FrontEnd:
     def from_dict(cls, values: dict[str, Any] | None) -> "FrontEnd":
         """From :meth:`as_dict`'s form (``None`` or ``{}``: the defaults)."""
         values = dict(values or {})
-        unknown = sorted(set(values) - {"size", "patch", "metric", "normalise"})
+        unknown = sorted(set(values) - set(cls.KEYS))
         if unknown:
-            raise InvalidParameterError(f"unknown front-end options {unknown}; allowed: size, patch, metric, normalise.")
+            raise InvalidParameterError(f"unknown front-end options {unknown}; allowed: {', '.join(cls.KEYS)}.")
+        if isinstance(values.get("crop"), str):
+            try:
+                values["crop"] = tuple(int(v) for v in values["crop"].split(","))
+            except ValueError:
+                raise InvalidParameterError(f"write the crop as TOP,BOTTOM,LEFT,RIGHT pixels, e.g. 0,4,0,0; got "
+                                            f"{values['crop']!r}.") from None
         if isinstance(values.get("size"), str):
             try:
                 w, h = values["size"].lower().split("x")
                 values["size"] = (int(w), int(h))
             except ValueError:
                 raise InvalidParameterError(f"write the size as WIDTHxHEIGHT, e.g. 32x16; got {values['size']!r}.") from None
-        values = {k: v for k, v in values.items() if v is not None or k in ("size", "metric")}
+        values = {k: v for k, v in values.items() if v is not None or k in ("size", "metric", "crop")}
         return cls(**values)
 
     def as_dict(self) -> dict:
-        return {"size": list(self.size) if self.size else None, "patch": self.patch, "metric": self.metric,
-                "normalise": self.normalise}
+        return {"size": list(self.size) if self.size else None, "patch": self.patch,
+                "crop": list(self.crop) if self.crop else None, "metric": self.metric, "normalise": self.normalise}
 
 
 def _kind(traverse: Traverse) -> str:
@@ -104,10 +126,10 @@ def describe(traverse: Traverse, frontend: FrontEnd = FrontEnd()) -> tuple[np.nd
 
 
 def check_image_options(traverse: Traverse, given: set[str]) -> None:
-    """Refuse the image front-end's options ``given`` (``size``, ``patch``) for a traverse of
-    other frames (Wi-Fi scans, descriptors), which they would not touch."""
+    """Refuse the image front-end's options ``given`` (``size``, ``patch``, ``crop``) for a
+    traverse of other frames (Wi-Fi scans, descriptors), which they would not touch."""
     kind = _kind(traverse)
-    given = [f"--{k} ({k})" for k in ("size", "patch") if k in given]
+    given = [f"--{k} ({k})" for k in FrontEnd.IMAGE_KEYS if k in given]
     if kind == "images" or traverse.meta.get("described") or not given:
         return
     both = len(given) > 1
@@ -119,9 +141,11 @@ def _describe(traverse: Traverse, frontend: FrontEnd) -> tuple[np.ndarray, str]:
     kind = _kind(traverse)
     # a value other than the default was given (the experiment layer also knows a default given explicitly)
     check_image_options(traverse, {k for k, on in (("size", frontend.size is not None),
-                                                   ("patch", frontend.patch not in (0, FrontEnd.patch))) if on})
+                                                   ("patch", frontend.patch not in (0, FrontEnd.patch)),
+                                                   ("crop", frontend.crop is not None)) if on})
     if kind == "images":
-        return seqslam_preprocess(traverse.frames, size=frontend.size, patch=frontend.patch), frontend.metric or "sad"
+        return seqslam_preprocess(traverse.frames, size=frontend.size, patch=frontend.patch, crop=frontend.crop), \
+            frontend.metric or "sad"
     if kind == "wifi":
         return wifi_vectors(traverse.frames, not_detected=traverse.meta.get("not_detected", 100.0)), \
             frontend.metric or "sad"

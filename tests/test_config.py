@@ -18,7 +18,7 @@ reference = "ref.npz"
 query = "qry.npz"
 tolerance = 2
 shuffle = [false, 0]
-frontend = { size = "32x16", patch = 0 }
+frontend = { size = "32x16", patch = 0, crop = [0, 2, 1, 1] }
 
 [[dataset]]
 name = "b"
@@ -73,7 +73,7 @@ def test_expansion_order_names_and_specs(tmp_path):
     assert first["params"] == {"exclusion": 1} and first["tolerance"] == 2
     assert first["condition"] == {"kind": "shuffle", "seed": 0, "segment_range": [0.02, 0.2]}
     assert config.specs[0]["condition"] == {"kind": "in-order"}
-    assert first["frontend"] == {"size": [32, 16], "patch": 0}
+    assert first["frontend"] == {"size": [32, 16], "patch": 0, "crop": [0, 2, 1, 1]}
     assert config.specs[6]["reference"] == "synthetic:1" and "tolerance" not in config.specs[6]
     assert config.specs[9]["params"] == {"exclusion": 3}
     explicit = config.specs[10]
@@ -176,6 +176,8 @@ def test_method_and_run_errors(tmp_path, extra, needle):
     ('name = "d"\nreference = "r"\nquery = "q"\ntolerance = 1\nfrontend = { patch_size = 4 }',
      "[[dataset]] #1 frontend has unknown key 'patch_size'; did you mean 'patch'?"),
     ('name = "d"\nreference = "r"\nquery = "q"\ntolerance = 1\nfrontend = { metric = "l1" }', "unknown metric 'l1'"),
+    ('name = "d"\nreference = "r"\nquery = "q"\ntolerance = 1\nfrontend = { crop = [1, 2] }',
+     "crop must be (top, bottom, left, right)"),
     ('name = "d"\nreference = "r"\nquery = "q"\nfrontend = { metric = "wifi" }', "unknown metric 'wifi'"),
     ('name = "d/e"\nreference = "r"\nquery = "q"\ntolerance = 1', "'name' must be a non-empty string without '/'"),
     ('name = "d"\nreference = "synthetic:x"\nquery = "q"\ntolerance = 1', "'synthetic:SEED'"),

@@ -400,3 +400,52 @@ def test_a_frame_missing_from_one_folder_is_reported_where_the_tolerance_pairs_b
         assert check_frame_pairing(reference, Traverse(frames)) == 0
         # a longer query than the reference: its later frames have no pair, and no name either
         assert check_frame_pairing(Traverse(frames[:9], ids=names[:9]), Traverse(frames, ids=names)) == 0
+
+
+def test_a_crop_reaches_the_map_the_saved_map_the_cli_and_the_live_frames(image_pair, tmp_path):
+    """``crop`` (top, bottom, left, right pixels) is one front-end setting from the CLI,
+    a config, a saved map and a live frame alike: the descriptors are the SeqSLAM pipeline's
+    on the cropped images, a map saved with it answers as its folder does, and it is
+    refused for frames that are not images and for a saved map (fixed when built)."""
+    from catgraph.datasets import load_traverse
+    from catgraph.frontends import seqslam_preprocess
+    from catgraph.io import load_map, query_differences
+    from catgraph.live import LiveMap
+    from catgraph.pipeline import FrontEnd, describe
+    from catgraph.traverse import Traverse
+
+    ref, qry = image_pair
+    crop = (1, 2, 3, 0)
+    reference = load_traverse(ref)
+    descriptors, metric = describe(reference, FrontEnd(crop=crop))
+    np.testing.assert_array_equal(descriptors, seqslam_preprocess(reference.frames, crop=crop))
+    assert descriptors.shape[1] == (8 - 3) * (16 - 3) and metric == "sad"
+    cropped = prepare(Experiment(query=qry, reference=ref, tolerance=1, frontend={"crop": list(crop)}))
+    whole = prepare(Experiment(query=qry, reference=ref, tolerance=1))
+    assert not np.array_equal(cropped.differences, whole.differences)
+    # the CLI: build-map --crop, then localize --map, against localize REFERENCE --crop
+    path = tmp_path / "crop.npz"
+    assert main(["build-map", str(ref), "--out", str(path), "--crop", "1,2,3,0", "-q"]) == 0
+    assert load_map(path).frontend_settings().crop == crop
+    np.testing.assert_array_equal(query_differences(load_map(path), load_traverse(qry)), cropped.differences)
+    outputs = []
+    for source in (["--map", str(path), str(qry)], [str(ref), str(qry), "--crop", "1,2,3,0"]):
+        out = tmp_path / f"o{len(outputs)}.json"
+        assert main(["localize", *source, "--tolerance", "1", "-o", str(out), "-q"]) == 0
+        outputs.append(json.loads(out.read_text()))
+    assert _method_output(outputs[0]) == _method_output(outputs[1])
+    # live frames through the saved map's front-end: the batch's descriptors
+    live = LiveMap(load_map(path))
+    np.testing.assert_array_equal(live.describe(load_traverse(qry).frames[0]),
+                                  seqslam_preprocess(load_traverse(qry).frames[:1], crop=crop)[0])
+    # refused where it cannot apply, or as a malformed value
+    assert main(["localize", "--map", str(path), str(qry), "--tolerance", "1", "--crop", "1,1,1,1", "-q"]) == 1
+    with pytest.raises(InvalidParameterError, match="crop"):
+        describe(Traverse(np.zeros((3, 5), dtype=np.float32)), FrontEnd(crop=crop))
+    for bad in ((1, 1, 1), (1.5, 0, 0, 0), (-1, 0, 0, 0), "1,1,1,1", (True, 0, 0, 0)):
+        with pytest.raises(InvalidParameterError, match="crop"):
+            FrontEnd(crop=bad)
+    assert FrontEnd.from_dict({"crop": "1,2,3,0"}).crop == crop
+    assert main(["localize", str(ref), str(qry), "--tolerance", "1", "--crop", "1,2,3", "-q"]) == 1
+    with pytest.raises(InvalidParameterError, match="crop"):
+        seqslam_preprocess(reference.frames, crop=(1, 1, 1))

@@ -68,6 +68,17 @@ def _size(text: str) -> tuple[int, int]:
     return size
 
 
+def _crop(text: str) -> tuple[int, int, int, int]:
+    try:
+        crop = tuple(_int(v) for v in text.split(","))
+    except ValueError:
+        crop = ()
+    if len(crop) != 4 or not all(0 <= v <= 100_000 for v in crop):
+        raise argparse.ArgumentTypeError(f"expected TOP,BOTTOM,LEFT,RIGHT pixels to cut, each in [0, 100000], such as "
+                                         f"0,4,0,0; got {text!r}")
+    return crop
+
+
 def _window(text: str):
     if text == "adaptive":
         return text
@@ -213,6 +224,8 @@ def add_common_inputs(p: argparse.ArgumentParser, graph_options: bool = False) -
     fe.add_argument("--size", type=_size, metavar="WxH", help="resize images to WxH before patch normalisation")
     fe.add_argument("--patch", type=_number(int), metavar="PIXELS",
                     help="patch-normalisation patch side in pixels (0 = off; default 4)")
+    fe.add_argument("--crop", type=_crop, metavar="T,B,L,R",
+                    help="cut T, B, L and R pixels from the images' top, bottom, left and right before resizing")
     fe.add_argument("--metric", choices=METRICS, help="difference metric (default: by data kind)")
     if graph_options:
         fe.add_argument("--junction-radius-m", type=_number(float), metavar="METRES",
@@ -245,7 +258,7 @@ def experiment_from(args, method: str, params: dict):
             f"with --map give only QUERY (got {len(args.inputs)} paths)." if args.map is not None else
             f"give REFERENCE and QUERY (got {len(args.inputs)} path{'s' if len(args.inputs) != 1 else ''})."
         )
-    frontend = {k: getattr(args, k) for k in ("size", "patch", "metric") if getattr(args, k) is not None}
+    frontend = {k: getattr(args, k) for k in ("size", "patch", "crop", "metric") if getattr(args, k) is not None}
     if args.map is not None and frontend:
         flags = ", ".join(f"--{k}" for k in frontend)
         raise InvalidParameterError(f"{flags} do{'es' if len(frontend) == 1 else ''} not apply to a saved map: its "

@@ -1,6 +1,6 @@
 """``catgraph build-map``: describe a reference once and save it as a map file.
 
-    catgraph build-map REFERENCE --out map.npz [--size WxH] [--patch P] [--metric M]
+    catgraph build-map REFERENCE --out map.npz [--size WxH] [--patch P] [--crop T,B,L,R] [--metric M]
                        [--junction-radius-m R] [--no-graph] [--quiet]
 
 REFERENCE is anything the other commands accept (image folder, UJI prefix,
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .commands import _number, _size, register
+from .commands import _crop, _number, _size, register
 
 
 @register
@@ -28,6 +28,8 @@ def register_build_map(sub) -> None:
     p.add_argument("--out", "-o", type=Path, required=True, metavar="FILE", help="map file to write (map.npz)")
     p.add_argument("--size", type=_size, metavar="WxH", help="resize images to WxH before patch normalisation")
     p.add_argument("--patch", type=_number(int), help="patch-normalisation patch side in pixels (0 = off; default 4)")
+    p.add_argument("--crop", type=_crop, metavar="T,B,L,R",
+                   help="cut T, B, L and R pixels from the images' top, bottom, left and right before resizing")
     p.add_argument("--metric", choices=METRICS, help="difference metric (default: by data kind)")
     p.add_argument("--junction-radius-m", type=_number(float), metavar="METRES",
                    help="join places of different parts of the route within METRES (needs positions)")
@@ -49,10 +51,10 @@ def cmd_build_map(args) -> int:
         raise InvalidParameterError("--junction-radius-m adds edges to the place graph; drop --no-graph.")
     if args.junction_radius_m is not None and not 0 < args.junction_radius_m < float("inf"):
         raise InvalidParameterError(f"--junction-radius-m must be > 0 metres; got {args.junction_radius_m}.")
-    frontend = FrontEnd.from_dict({"size": args.size, "patch": args.patch, "metric": args.metric})
+    frontend = FrontEnd.from_dict({"size": args.size, "patch": args.patch, "crop": args.crop, "metric": args.metric})
     check_writable(args.out, "map file", inputs=source_paths(args.reference))
     reference = load_input(args.reference, "reference")
-    check_image_options(reference, {k for k in ("size", "patch") if getattr(args, k) is not None})
+    check_image_options(reference, {k for k in FrontEnd.IMAGE_KEYS if getattr(args, k) is not None})
     if args.junction_radius_m is not None and reference.positions is None:
         raise InvalidParameterError("--junction-radius-m joins places by position, but the reference has no "
                                     "positions; leave it out.")
