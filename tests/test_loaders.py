@@ -116,6 +116,25 @@ def test_uji_timestamps_with_14_or_17_digits(tmp_path):
     np.testing.assert_allclose(load_uji(prefix).timestamps, [0, 3.548, 7.089], atol=1e-6)
 
 
+def test_uji_timestamps_read_alike_in_every_time_zone_and_with_a_second_60(tmp_path, monkeypatch):
+    """A logger's second 60 (UJI 02/tst03 and 06/tst04 hold one) is the next minute's 0, and
+    a stamp across a daylight-saving change counts the seconds that passed on one clock,
+    whatever the machine's time zone (it counted an hour more under Europe/Madrid)."""
+    import time
+
+    rss = np.array([[100, -60], [-70, 100], [-50, -50]])
+    stamps = [20161030015958000, 20161030015960000, 20161030030001000]  # 2016-10-30: Madrid falls back at 03:00
+    prefix = write_uji(tmp_path / "c" / "trn01", rss, tms=stamps)
+    for zone in ("UTC", "Europe/Madrid", "America/New_York"):
+        monkeypatch.setenv("TZ", zone)
+        if hasattr(time, "tzset"):
+            time.tzset()
+        np.testing.assert_allclose(load_uji(prefix).timestamps, [0, 2, 3603])
+    monkeypatch.delenv("TZ")
+    if hasattr(time, "tzset"):
+        time.tzset()
+
+
 @pytest.mark.parametrize("stamps", ["201601011200,201601011201,201601011202", "x,y,z", "20160101120000\n",
                                     "20161301120000,20160101120002,20160101120003"])
 def test_uji_bad_timestamps_warn_and_keep_the_fingerprints(tmp_path, stamps):

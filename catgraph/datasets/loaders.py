@@ -26,7 +26,7 @@ import os
 import re
 import warnings
 import zipfile
-from datetime import datetime
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -269,7 +269,11 @@ def _read_stamps(file: Path) -> list[str]:
 
 
 def _uji_seconds(stamps, file: Path) -> np.ndarray:
-    """``yyyymmddHHMMSSfff`` (or ``yyyymmddHHMMSS``) → seconds since the first stamp."""
+    """``yyyymmddHHMMSSfff`` (or ``yyyymmddHHMMSS``) → seconds since the first stamp.
+
+    Read as one clock without time zone or daylight saving (UTC), whatever the machine's
+    zone, and a logger's second 60 as the next minute's 0 (UJI 02/tst03 and 06/tst04 hold
+    one each)."""
     out = np.empty(len(stamps))
     for k, stamp in enumerate(stamps):
         text = str(stamp).strip()
@@ -278,8 +282,11 @@ def _uji_seconds(stamps, file: Path) -> np.ndarray:
         try:
             if not text.isdigit() or len(text) not in (14, 17):
                 raise ValueError(text)
-            out[k] = datetime.strptime(text[:14], "%Y%m%d%H%M%S").timestamp() + (int(text[14:]) / 1000.0 if
-                                                                                   len(text) == 17 else 0.0)
+            seconds = int(text[12:14])
+            if seconds > 60:
+                raise ValueError(text)
+            minute = datetime.strptime(text[:12], "%Y%m%d%H%M").replace(tzinfo=timezone.utc)
+            out[k] = minute.timestamp() + seconds + (int(text[14:]) / 1000.0 if len(text) == 17 else 0.0)
         except ValueError:
             raise DataError(
                 f"{file}, line {k + 1}: {text!r} is not a yyyymmddHHMMSSfff (17-digit) or yyyymmddHHMMSS "
