@@ -164,12 +164,15 @@ class Experiment:
                                 ("ground_truth", self.ground_truth)) if v is not None]
         if len(given) > 1:
             raise InvalidParameterError(f"give one ground truth, not {' and '.join(given)}.")
-        if self.tolerance is not None and (isinstance(self.tolerance, bool) or not isinstance(self.tolerance, int)
-                                           or self.tolerance < 0):
+        if self.tolerance is not None and (isinstance(self.tolerance, (bool, np.bool_))
+                                           or not isinstance(self.tolerance, (int, np.integer)) or self.tolerance < 0):
             raise InvalidParameterError(f"the tolerance must be an int ≥ 0 (frames); got {self.tolerance!r}.")
-        if self.tolerance_m is not None and not (isinstance(self.tolerance_m, (int, float))
-                                                 and 0 <= self.tolerance_m < float("inf")):
+        if self.tolerance is not None:
+            object.__setattr__(self, "tolerance", int(self.tolerance))  # a numpy integer as the int it holds
+        if self.tolerance_m is not None and not (_is_real(self.tolerance_m) and 0 <= self.tolerance_m < float("inf")):
             raise InvalidParameterError(f"the metric tolerance must be a number ≥ 0 (metres); got {self.tolerance_m!r}.")
+        if self.tolerance_m is not None:
+            object.__setattr__(self, "tolerance_m", float(self.tolerance_m))
         if self.map is not None:
             if self.frontend:
                 raise InvalidParameterError(
@@ -182,7 +185,7 @@ class Experiment:
             unknown = sorted(set(self.frontend) - set(FRONTEND_KEYS))
             if unknown:
                 raise InvalidParameterError(f"unknown front-end options {unknown}; allowed: {', '.join(FRONTEND_KEYS)}.")
-        if self.junction_radius_m is not None and not (isinstance(self.junction_radius_m, (int, float))
+        if self.junction_radius_m is not None and not (_is_real(self.junction_radius_m)
                                                        and 0 < self.junction_radius_m < float("inf")):
             raise InvalidParameterError(f"junction_radius_m must be a number > 0 (metres); got "
                                         f"{self.junction_radius_m!r}.")
@@ -356,6 +359,11 @@ class MethodInputs:
 
     def hub_offsets(self) -> np.ndarray:
         return self.prepared.hub_offsets()
+
+
+def _is_real(value) -> bool:
+    """A real number: a Python or numpy int or float, not a bool."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
 
 
 def check_frame_pairing(reference: Traverse, query: Traverse) -> int:

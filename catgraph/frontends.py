@@ -96,7 +96,8 @@ def patch_normalise(images: np.ndarray, patch: int = 4) -> np.ndarray:
     if patch > max(h, w):
         raise DataError(
             f"the patch side {patch} is larger than the images ({w}×{h} pixels); choose a patch of at most "
-            f"{max(h, w)} pixels (4 is the SeqSLAM default) or 0 to switch patch normalisation off."
+            f"{max(h, w)} pixels (4 is the SeqSLAM default), or switch patch normalisation off with the front-end's "
+            f"patch 0 (--patch 0)."
         )
     # the whole patches at once: a strided view (n, rows, cols, patch, patch) whose
     # reductions run over each patch's values in the same order as one patch's own

@@ -38,7 +38,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ._validation import check_array, check_scalar
-from .exceptions import DataError, ShapeMismatchError
+from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .traverse import GroundTruth
 
 __all__ = ["PRCurve", "Metrics", "Evaluation", "pr_curve", "auc", "recall_at_precision", "max_time_to_localisation",
@@ -156,7 +156,11 @@ def auc(curve: PRCurve) -> float:
 
 
 def recall_at_precision(curve: PRCurve, precision: float) -> float:
-    """Largest recall among points with precision ≥ ``precision`` (0 if none)."""
+    """Largest recall among points with precision ≥ ``precision`` (0 if none), the
+    precision a fraction in ``(0, 1]`` (0.99, not 99)."""
+    if isinstance(precision, bool) or not isinstance(precision, (int, float, np.integer, np.floating)) \
+            or not 0.0 < precision <= 1.0:
+        raise InvalidParameterError(f"the precision must be a fraction in (0, 1], e.g. 0.99 for 99 %; got {precision!r}.")
     ok = curve.precision >= precision - 1e-12
     return float(curve.recall[ok].max()) if ok.any() else 0.0
 

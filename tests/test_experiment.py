@@ -449,3 +449,14 @@ def test_a_crop_reaches_the_map_the_saved_map_the_cli_and_the_live_frames(image_
     assert main(["localize", str(ref), str(qry), "--tolerance", "1", "--crop", "1,2,3", "-q"]) == 1
     with pytest.raises(InvalidParameterError, match="crop"):
         seqslam_preprocess(reference.frames, crop=(1, 1, 1))
+
+
+def test_numpy_numbers_are_tolerances_as_python_numbers_are(image_pair):
+    ref, qry = image_pair
+    a = run(Experiment(query=qry, reference=ref, method="single-frame", tolerance=np.int64(1)))[2].metrics
+    b = run(Experiment(query=qry, reference=ref, method="single-frame", tolerance=1))[2].metrics
+    assert a == b
+    assert Experiment(query=qry, reference=ref, tolerance_m=np.float32(3.0)).tolerance_m == 3.0
+    for bad in (np.bool_(True), np.float64(1.0), -1):
+        with pytest.raises(InvalidParameterError, match="tolerance"):
+            Experiment(query=qry, reference=ref, tolerance=bad)

@@ -147,3 +147,13 @@ def test_a_ground_truth_no_frame_matches_warns():
         warnings.simplefilter("error", CatgraphWarning)
         evaluate([0, 1, 2], [0, 1, 2], [1.0, 0.5, 0.2], gt)
         evaluate([], [], [], gt)  # nothing to evaluate: nothing to say
+
+
+def test_precision_is_a_fraction():
+    curve = pr_curve(np.array([True, False]), np.array([True, True]), np.array([1.0, 0.5]), 1)
+    assert recall_at_precision(curve, 1.0) == 1.0 and recall_at_precision(curve, np.float32(0.9)) == 1.0
+    from catgraph.exceptions import InvalidParameterError
+
+    for bad in (99, 0.0, -0.5, float("nan"), True, "0.9"):
+        with pytest.raises(InvalidParameterError, match="fraction"):
+            recall_at_precision(curve, bad)
