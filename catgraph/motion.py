@@ -632,15 +632,7 @@ class VelocityMotion(MotionModel):
         # split into its phases where max_phases allows; else one bin per speed)
         owner, whole, frac, sign, mirror, successor = phase_bins(v, int(resolved["max_phases"]))
         self._owner = owner
-        if len(owner) == len(v):  # no phases: the speeds' own arrays
-            speed = np.abs(v)
-            whole = np.floor(speed).astype(np.int64)
-            frac = speed - whole
-            sign = np.where(v >= 0, 1, -1).astype(np.int64)
-            mirror = self._mirror
-            self._transition = transition
-        else:
-            self._transition = phase_transition(transition, owner, successor)
+        self._transition = phase_transition(transition, owner, successor)  # without phases: transition itself
         self._moves = (whole, frac, sign)
         self._bin_moves = (whole, frac, sign, mirror)  # as catgraph.grid.predict takes them
         nz = self._transition.T != 0  # the transition's columns, sparse
