@@ -185,8 +185,9 @@ class PlaceGraph:
         straight = np.full(len(src), -1, dtype=np.int64)
         for k, (a, b, c) in enumerate(zip(src, dst, kd)):
             if c in (_CHAIN, _REVERSE):
-                nxt = 2 * int(b) - int(a)
-                straight[k] = key.get((int(b), nxt), -1)
+                nxt = key.get((int(b), 2 * int(b) - int(a)), -1)
+                # the route's continuation: an edge of the same kind (a junction edge is not the route)
+                straight[k] = nxt if nxt >= 0 and kd[nxt] == c else -1
         pos = None
         if positions is not None:
             pos = check_array(positions, "place positions", ndim=2)
@@ -397,16 +398,24 @@ class PlaceGraph:
             pairs = [(a, b)] if directed else [(a, b), (b, a)]
             for s, t in pairs:
                 edges.append((int(s), int(t)))
-                lengths.append(float(data.get("length", 1.0)))
+                length = data.get("length", 1.0)
+                try:
+                    lengths.append(float(length))
+                except (TypeError, ValueError):
+                    raise MapFileError(f"the place graph's edge {s} → {t} has length {length!r}; an edge length "
+                                       "must be a number (graph units).") from None
                 kinds.append(data.get("kind", "chain"))
         has_xy = all("x" in g.nodes[v] and "y" in g.nodes[v] for v in nodes)
         positions = None
-        if has_xy:
-            cols = "xyz" if all("z" in g.nodes[v] for v in nodes) else "xy"
-            positions = np.array([[g.nodes[v][c] for c in cols] for v in nodes], dtype=np.float64)
         rd = None
-        if all("route_distance" in g.nodes[v] for v in nodes):
-            rd = np.array([g.nodes[v]["route_distance"] for v in nodes], dtype=np.float64)
+        try:
+            if has_xy:
+                cols = "xyz" if all("z" in g.nodes[v] for v in nodes) else "xy"
+                positions = np.array([[g.nodes[v][c] for c in cols] for v in nodes], dtype=np.float64)
+            if all("route_distance" in g.nodes[v] for v in nodes):
+                rd = np.array([g.nodes[v]["route_distance"] for v in nodes], dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise MapFileError(f"the place graph's node positions or route distances are not numbers: {exc}") from None
         try:
             return cls.from_edges(
                 n, np.array(edges, dtype=np.int64).reshape(-1, 2), np.array(lengths), kinds,

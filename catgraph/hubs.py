@@ -44,7 +44,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._validation import check_array, check_scalar
-from .exceptions import ShapeMismatchError
+from .exceptions import DataError, ShapeMismatchError
 
 __all__ = ["hub_offsets", "map_hub_offsets", "apply_hub_offsets", "HUB_THRESHOLD", "HUB_ROWS"]
 
@@ -94,9 +94,15 @@ def hub_offsets(map_differences: np.ndarray, threshold: float = HUB_THRESHOLD,
                 f"the map difference matrix must be square (reference x reference) with at least 3 frames; got shape "
                 f"{r.shape}. Compute it as differences(reference, reference).")
         rows = np.arange(r.shape[0])
-    rows = np.asarray(rows, dtype=np.int64)
+    rows = np.asarray(rows)
+    if rows.dtype.kind not in "iu":
+        raise DataError(f"rows must be map frame indices (integers); got dtype {rows.dtype}.")
+    rows = rows.astype(np.int64)
     if rows.shape != (r.shape[0],) or r.shape[0] < 3 or rows.min() < 0 or rows.max() >= r.shape[1]:
         raise ShapeMismatchError(f"give one map frame index per row of the {r.shape} map differences (at least 3).")
+    if len(np.unique(rows)) != len(rows):
+        raise DataError("rows name a map frame twice; give each sampled map frame once (a frame's own difference "
+                        "is left out of its column, and a column left with no other frame would drop every offset).")
     check_scalar(threshold, "threshold", "hub_offsets", float, 0.0)
     m = np.array(r, dtype=np.float64, copy=True)
     m[np.arange(len(rows)), rows] = np.nan

@@ -137,6 +137,21 @@ def test_bad_inputs_raise_typed_errors(tmp_path):
     bad.write_text("{not json")
     with pytest.raises(MapFileError):
         load_graph(bad)
+    import json
+
+    saved = tmp_path / "g.json"
+    PlaceGraph.chain(3).save(saved)
+    for value, where in (("abc", "links"), (None, "links"), ("north", "nodes")):
+        data = json.loads(saved.read_text())
+        if where == "links":
+            data["links"][0]["length"] = value
+        else:
+            for node in data["nodes"]:
+                node["x"], node["y"] = value, 0.0
+        saved.write_text(json.dumps(data))
+        with pytest.raises(MapFileError, match="length|positions"):
+            load_graph(saved)
+        PlaceGraph.chain(3).save(saved)
 
 
 def test_hop_length_counts_places_whatever_the_metres():
@@ -175,3 +190,15 @@ def test_junction_exclusion_must_be_a_distance():
     for bad in (float("nan"), -1.0, "far"):
         with pytest.raises(InvalidParameterError, match="junction_exclusion_m"):
             PlaceGraph.from_traverse(walk, junction_radius_m=1.0, junction_exclusion_m=bad)
+
+
+def test_straight_continues_along_the_route_never_onto_a_junction():
+    """``straight`` is the route's continuation: an edge of the same kind, not a junction
+    edge that happens to run the same way (a hand-built graph; from_traverse never makes one)."""
+    g = PlaceGraph.from_edges(3, np.array([(0, 1), (1, 2)]), kinds=["chain", "junction"])
+    assert g.straight.tolist() == [-1, -1]
+    g = PlaceGraph.from_edges(3, np.array([(0, 1), (1, 2)]), kinds=["chain", "chain"])
+    assert g.straight.tolist() == [1, -1]
+    chain = PlaceGraph.chain(6)
+    forward = chain.kind == EDGE_KINDS.index("chain")
+    assert np.all(chain.straight[forward][:-1] >= 0)

@@ -132,3 +132,17 @@ def test_map_hub_offsets_on_maps_too_small_for_hubs_are_zero_and_silent(n):
     frames = np.random.default_rng(n).normal(size=(n, 8)).astype(np.float32)
     offsets = map_hub_offsets(build_map(Traverse(frames), FrontEnd(metric="sad"), graph=False))
     assert offsets.shape == (n,) and np.all(offsets == 0.0)
+
+
+def test_sampled_rows_must_be_distinct_integer_frames():
+    """A frame named twice emptied its own column (every entry left out as its own), whose
+    NaN median dropped every offset, the obvious hub's too; fractional rows were truncated."""
+    from catgraph.exceptions import DataError
+
+    r = np.random.default_rng(1).normal(size=(3, 5))
+    r[:, 0] -= 10.0
+    assert hub_offsets(r, rows=[0, 1, 2])[0] < -5.0
+    with pytest.raises(DataError, match="twice"):
+        hub_offsets(r, rows=[0, 0, 0])
+    with pytest.raises(DataError, match="integers"):
+        hub_offsets(r, rows=[0.9, 1.9, 2.9])
