@@ -96,6 +96,7 @@ def run_sweep(
     progress: bool = True,
     errors: str = "raise",
     runner: Callable[[dict], dict] | None = None,
+    on_result: Callable[[int, dict], None] | None = None,
 ) -> list[dict[str, Any]]:
     """Run every spec and return the payloads in spec order.
 
@@ -116,6 +117,12 @@ def run_sweep(
     runner : callable, optional
         ``runner(spec) -> payload``; default :func:`~catgraph.experiment.run_experiment`.
         Must be importable by the workers (a module-level function).
+    on_result : callable, optional
+        ``on_result(k, payload)``, called in this process as run ``k`` finishes (its
+        payload, or its error entry with ``errors="record"``): a caller can keep each
+        result as it comes, so that an interrupted sweep loses only the runs not yet done.
+        With ``errors="record"`` a run whose worker dies (a process killed, out of memory)
+        is recorded as failed, and the others go on.
 
     Returns
     -------
@@ -135,15 +142,24 @@ def run_sweep(
     record = errors == "record"
     if not specs:
         return []
+    done = on_result if on_result is not None else (lambda k, payload: None)
     if scheduler is not None:
-        return _run_dask(specs, scheduler, progress, record, runner)
+        return _run_dask(specs, scheduler, progress, record, runner, done)
     n_workers = min(len(specs), processes or os.cpu_count() or 1)
     if n_workers == 1:
-        return _run_serial(specs, progress, record, runner)
-    return _run_processes(specs, n_workers, progress, record, runner)
+        return _run_serial(specs, progress, record, runner, done)
+    return _run_processes(specs, n_workers, progress, record, runner, done)
 
 
-def _run_serial(specs: list[dict], progress: bool, record: bool, runner) -> list[dict]:
+def _lost(spec: dict, exc: BaseException) -> dict:
+    """The error entry of a run whose worker failed it (not the run itself: a process
+    killed, out of memory, a lost connection)."""
+    return {"name": spec.get("name"), "spec": spec,
+            "error": f"{type(exc).__name__}: the worker running it failed ({exc or 'no message'}); a process killed "
+                     "or out of memory is the usual cause."}
+
+
+def _run_serial(specs: list[dict], progress: bool, record: bool, runner, done) -> list[dict]:
     out = []
     with _progress(len(specs), progress, "sweep") as bar:
         for k, spec in enumerate(specs):
@@ -151,11 +167,12 @@ def _run_serial(specs: list[dict], progress: bool, record: bool, runner) -> list
                 out.append(_guarded(runner, spec, record))
             except CatgraphError as exc:
                 raise _labelled(exc, spec, k) from exc
+            done(k, out[-1])
             bar.update(1)
     return out
 
 
-def _run_processes(specs: list[dict], n_workers: int, progress: bool, record: bool, runner) -> list[dict]:
+def _run_processes(specs: list[dict], n_workers: int, progress: bool, record: bool, runner, done) -> list[dict]:
     import multiprocessing
     from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
 
@@ -167,13 +184,14 @@ def _run_processes(specs: list[dict], n_workers: int, progress: bool, record: bo
         pending = set(futures)
         try:
             while pending:
-                done, pending = wait(pending, return_when=FIRST_EXCEPTION)
-                for future in done:
+                finished, pending = wait(pending, return_when=FIRST_EXCEPTION)
+                for future in finished:
                     k = futures[future]
                     exc = future.exception()
-                    if exc is not None:
+                    if exc is not None and not record:
                         raise _labelled(exc, specs[k], k) from exc
-                    results[k] = future.result()
+                    results[k] = future.result() if exc is None else _lost(specs[k], exc)
+                    done(k, results[k])
                     bar.update(1)
         except BaseException:
             for future in pending:
@@ -217,7 +235,7 @@ def _dask_client(scheduler: Any):
     return scheduler, False
 
 
-def _run_dask(specs: list[dict], scheduler: Any, progress: bool, record: bool, runner) -> list[dict]:
+def _run_dask(specs: list[dict], scheduler: Any, progress: bool, record: bool, runner, done) -> list[dict]:
     client, owned = _dask_client(scheduler)
     from distributed import as_completed
 
@@ -234,6 +252,11 @@ def _run_dask(specs: list[dict], scheduler: Any, progress: bool, record: bool, r
                         results[k] = future.result()
                     except CatgraphError as exc:
                         raise _labelled(exc, specs[k], k) from exc
+                    except Exception as exc:  # noqa: BLE001 - a worker lost (killed, out of memory)
+                        if not record:
+                            raise
+                        results[k] = _lost(specs[k], exc)
+                    done(k, results[k])
                     bar.update(1)
             except BaseException:
                 client.cancel(futures)

@@ -189,3 +189,48 @@ def test_bench_into_an_earlier_output_keeps_no_stale_result(tiny_config, tmp_pat
     assert len(rows) == 9 and all("error" in r for r in rows)
     assert [p.name for p in out.glob("*.json")] == ["summary.json"]
     assert not (out / "index.html").exists() and not (out / "results.md").exists()
+
+
+def dying_runner(spec):
+    """A stand-in runner whose worker process dies on one spec (as the out-of-memory killer
+    ends it): no exception reaches the runner's guard."""
+    if spec.get("params", {}).get("die"):
+        import os
+
+        os._exit(9)
+    return {"name": spec["name"], "spec": spec}
+
+
+def test_each_result_is_handed_on_as_it_finishes_and_a_dead_worker_is_recorded():
+    specs = [{"name": f"r{k}", "params": {"die": k == 2}} for k in range(5)]
+    seen = {}
+    out = run_sweep(specs[:2] + specs[3:], processes=1, progress=False, runner=dying_runner,
+                    on_result=lambda k, payload: seen.setdefault(k, payload))
+    assert [p["name"] for p in out] == ["r0", "r1", "r3", "r4"] and [seen[k] for k in range(4)] == out
+    seen.clear()
+    out = run_sweep(specs, processes=2, progress=False, runner=dying_runner, errors="record",
+                    on_result=lambda k, payload: seen.setdefault(k, payload))
+    assert sorted(seen) == list(range(5)) and [seen[k] for k in range(5)] == out
+    assert "error" in out[2] and "worker" in out[2]["error"]
+    # the pool breaks for the runs still pending when the worker died: each is recorded, not lost in a traceback
+    assert all(p["name"] == f"r{k}" for k, p in enumerate(out))
+
+
+def test_bench_keeps_only_this_configs_runs_and_prints_runs_without_ground_truth(tiny_config, tmp_path, capsys):
+    """Runs the config no longer has leave the folder (their earlier files would be read as this
+    bench's), and a dataset without ground truth prints dashes, not a traceback."""
+    from catgraph.cli.main import main
+
+    out = tmp_path / "out"
+    assert main(["bench", str(tiny_config), "--out", str(out), "--processes", "1", "-q"]) == 0
+    assert (out / "a__sf__exclusion=10__in-order.json").exists()
+    fewer = tmp_path / "fewer.toml"
+    fewer.write_text(CONFIG.replace("exclusion = [1, 4, 10]", "exclusion = [1, 4]"))
+    assert main(["bench", str(fewer), "--out", str(out), "--processes", "1", "-q"]) == 0
+    files = sorted(p.name for p in out.glob("*.json"))
+    assert len(files) == 7 and "a__sf__exclusion=10__in-order.json" not in files  # 6 runs and the summary
+    nogt = tmp_path / "nogt.toml"
+    nogt.write_text(CONFIG.replace("tolerance = 1\n", "").replace("tolerance_m = 4.0\n", ""))
+    assert main(["bench", str(nogt), "--out", str(tmp_path / "nogt"), "--processes", "1"]) == 0
+    table = capsys.readouterr().out
+    assert "a/sf/exclusion=1/in-order" in table and "–" in table

@@ -16,6 +16,7 @@ with status 1 and names the failed runs.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from .._atomic import write_text_atomic
@@ -59,6 +60,16 @@ def _summary_markdown(config, payloads: list[dict], failed: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _earlier_run_files(out: Path) -> set[str]:
+    """The run files an earlier bench's summary in ``out`` lists (none: no readable summary)."""
+    try:
+        runs = json.loads((out / "summary.json").read_text()).get("runs", [])
+        return {run["file"] for run in runs if isinstance(run, dict) and isinstance(run.get("file"), str)
+                and Path(run["file"]).name == run["file"] and run["file"].endswith(".json")}
+    except (OSError, ValueError, AttributeError):
+        return set()
+
+
 def cmd_bench(args) -> int:
     from ..conditions import Condition
     from ..config import load_config, run_file_name
@@ -89,23 +100,40 @@ def cmd_bench(args) -> int:
     from .._atomic import check_writable_folder
 
     check_writable_folder(out, "--out folder")  # before the sweep, not after it
-    results = run_sweep(config.specs, scheduler=args.scheduler, processes=args.processes,
-                        progress=progress_enabled(args), errors="record")
-    payloads, failed, rows = [], [], []
-    for spec, result in zip(config.specs, results):
+    out.mkdir(parents=True, exist_ok=True)
+    # an earlier bench in this folder: its summary goes now (a sweep cut short must not look
+    # complete), and its run files that this sweep does not write go at the end
+    earlier = _earlier_run_files(out)
+    for stale in ("summary.json", "summary.md", "index.html", "results.md"):
+        (out / stale).unlink(missing_ok=True)
+    entries: list[tuple[dict, str, dict] | None] = [None] * len(config.specs)
+
+    def keep(k: int, result: dict) -> None:
+        """Each run's file as the run finishes: an interrupted sweep keeps what it has done."""
+        spec = config.specs[k]
         file = f"{run_file_name(spec['name'])}.json"
+        if "error" in result:
+            # an earlier bench's result under this run's name is not this run's: it goes
+            (out / file).unlink(missing_ok=True)
+        else:
+            result = dict(result, name=spec["name"], spec=spec)
+            write_json_atomic(out / file, result)
+        entries[k] = (spec, file, result)
+
+    run_sweep(config.specs, scheduler=args.scheduler, processes=args.processes, progress=progress_enabled(args),
+              errors="record", on_result=keep)
+    payloads, failed, rows = [], [], []
+    for spec, file, result in entries:  # type: ignore[misc]
         if "error" in result:
             failed.append(result)
             rows.append({"name": spec["name"], "error": result["error"], "spec": spec})
-            # an earlier bench's result under this run's name is not this run's: it goes
-            (out / file).unlink(missing_ok=True)
             continue
-        result = dict(result, name=spec["name"], spec=spec)
-        write_json_atomic(out / file, result)
         payloads.append(result)
         rows.append({"name": spec["name"], "file": file, "metrics": result["metrics"],
                      "seconds": result.get("seconds"), "spec": spec})
-    out.mkdir(parents=True, exist_ok=True)
+    written = {row["file"] for row in rows if "file" in row}
+    for file in sorted(earlier - written):  # runs the config no longer has
+        (out / file).unlink(missing_ok=True)
     write_json_atomic(out / "summary.json", {"name": config.name, "description": config.description,
                                              "config": str(args.config), "runs": rows})
     write_text_atomic(out / "summary.md", _summary_markdown(config, payloads, failed))
@@ -117,15 +145,12 @@ def cmd_bench(args) -> int:
             write_report = None
         if write_report is not None:
             report = write_report(payloads, out, title=config.name)
-    else:  # no run to report: an earlier bench's report would read as this one's
-        for stale in ("index.html", "results.md"):
-            (out / stale).unlink(missing_ok=True)
     if not args.quiet:
         print_metrics_table([(p["name"], p["metrics"], p.get("seconds", float("nan"))) for p in payloads])
         print(f"wrote {len(payloads)} results, summary.md" + (f" and {report.name}" if report else "") + f" to {out}")
     if failed:
         listed = "; ".join(f"{f['name']} ({f['error'].splitlines()[0]})" for f in failed[:5])
         more = f" and {len(failed) - 5} more" if len(failed) > 5 else ""
-        raise CatgraphError(f"{len(failed)} of {len(config.specs)} runs failed: {listed}{more}. "
-                            f"The other results are in {out}.")
+        rest = f"The other results are in {out}." if payloads else f"The summary is in {out}."
+        raise CatgraphError(f"{len(failed)} of {len(config.specs)} runs failed: {listed}{more}. {rest}")
     return 0

@@ -322,9 +322,11 @@ def print_metrics_table(rows, per_frame: int | None = None) -> None:
               "ms/frame" if per_frame else "seconds"]
     lines = [header]
     for name, m, seconds in rows:
-        lines.append([name, f"{m['auc']:.3f}", f"{m['recall_at_100p']:.3f}", f"{m['recall_at_99p']:.3f}",
-                      f"{m['recall_at_90p']:.3f}", str(m["mtl"]), f"{m['accuracy']:.3f}", str(m["n_queries"]),
-                      "-" if seconds != seconds else
+        # a run without ground truth has no metrics (None): its cells are dashes
+        cells = ["–"] * 7 if m is None else [
+            f"{m['auc']:.3f}", f"{m['recall_at_100p']:.3f}", f"{m['recall_at_99p']:.3f}", f"{m['recall_at_90p']:.3f}",
+            str(m["mtl"]), f"{m['accuracy']:.3f}", str(m["n_queries"])]
+        lines.append([name, *cells, "-" if seconds != seconds else
                       f"{1000 * seconds / per_frame:.2f}" if per_frame else f"{seconds:.2f}"])
     widths = [max(len(row[k]) for row in lines) for k in range(len(header))]
     for row in lines:
