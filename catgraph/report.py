@@ -216,8 +216,16 @@ def run_labels(payloads: Sequence[Mapping[str, Any]]) -> list[str]:
         if len(group) < 2:
             continue
         flat, shared, varying = _split_params([payloads[k] for k in group])
-        for k, f, keys in zip(group, flat, varying):
-            text = _summary(f, keys)
+        # the keys that tell the runs apart most first (a shuffle's seed before its kind), each
+        # by its last part where that is unambiguous (seed=1, not condition.seed=1): the label is
+        # cut at 40 characters, and what it keeps must still tell the runs apart
+        keys = list(dict.fromkeys(k for v in varying for k in v))
+        distinct = {k: len({repr(f.get(k)) for f in flat}) for k in keys}
+        last = [k.rsplit(".", 1)[-1] for k in keys]
+        short = {k: (t if last.count(t) == 1 else k) for k, t in zip(keys, last)}
+        for k, f, own in zip(group, flat, varying):
+            ordered = sorted(own, key=lambda key: -distinct[key])
+            text = ", ".join(f"{short[key]}={_format_value(f[key])}" for key in ordered if key in f)
             if text:
                 labels[k] = f"{name} ({_shorten(text, 40)})"
     counts = {label: labels.count(label) for label in labels}

@@ -228,3 +228,15 @@ def test_new_place_truth_is_shaded_once_per_report(tmp_path, payloads):
     truth[20:30] = True
     page = write_report(payloads, tmp_path / "r", new_place_truth=truth).read_text()
     assert "Shaded: frames truly outside the map" in page
+
+
+def test_run_labels_keep_what_tells_runs_apart_within_their_length():
+    """Runs that differ by a shuffle's seed among longer nested parameters: the seed comes
+    first, by its own name, so that the label cut at its length still tells them apart."""
+    runs = [{"name": "sequence-L5", "params": {"window": 5, "condition": {"kind": "in-order"}}}]
+    runs += [{"name": "sequence-L5", "params": {"window": 5, "condition": {"kind": "shuffle", "seed": s,
+                                                                          "segment_range": [0.02, 0.2]}}}
+             for s in range(3)]
+    labels = run_labels(runs)
+    assert len(set(labels)) == 4 and not any("#" in label for label in labels)
+    assert "seed=1" in labels[2] and "kind=shuffle" in labels[2]
