@@ -236,6 +236,16 @@ def _check_conditions(where: _Where, table: str, value: Any, key: str = "conditi
         raise where.error(table, f"'{key}': {exc}") from None
     if len({repr(c) for c in out}) != len(out):
         raise where.error(table, f"'{key}' lists a condition twice: {_show(value)}.")
+    # conditions that drive the query alike (speed 1 is the query in order) or whose runs would
+    # share a name (speeds equal to the digits a name shows) would be one run twice
+    same: dict[str, str] = {}
+    for text, condition in zip(values, out):
+        c = Condition.from_dict(condition)
+        name = "in-order" if c.kind == "speed" and c.factor == 1.0 else _condition_name(condition)
+        if name in same:
+            raise where.error(table, f"'{key}' lists {same[name]!r} and {text!r}, which give the same runs "
+                                     f"({name}); keep one.")
+        same[name] = text
     return out
 
 
