@@ -278,6 +278,12 @@ def describe_query(catgraph_map: CatgraphMap, query: "Traverse") -> tuple[np.nda
     check_query_kind(kind, query)
     check_image_shape(catgraph_map.meta, frontend, query.frames.shape[1:3] if kind == "images" else None, "query images")
     q, _ = describe(query, frontend)
+    packing = {q.dtype, catgraph_map.descriptors.dtype}
+    if catgraph_map.metric == "hamming" and packing == {np.dtype(bool), np.dtype(np.uint8)}:
+        packed = "the map's" if catgraph_map.descriptors.dtype == np.uint8 else "the query's"
+        raise ShapeMismatchError(
+            f"{packed} bits are packed in uint8 and the other's are booleans; give both alike (np.packbits(bits, "
+            "axis=1) packs booleans, np.unpackbits(codes, axis=1) unpacks them).")
     if q.shape[1] != catgraph_map.descriptors.shape[1]:
         raise ShapeMismatchError(
             f"query frames give {q.shape[1]} values per descriptor but the map holds {catgraph_map.descriptors.shape[1]}; "

@@ -73,6 +73,11 @@ def test_packed_descriptors_through_the_pipeline_and_the_live_front_end(rng):
     assert one.dtype == np.uint8
     np.testing.assert_array_equal(one, np.packbits(q[0]))
     assert describe_frame(np.packbits(q[0]), "descriptors").dtype == np.float32
+    # booleans against packed bits: said so, not a count of values that blames the front-end
+    with pytest.raises(ShapeMismatchError, match="packed in uint8"):
+        differences(packed_r, Traverse(q), hamming)
+    with pytest.raises(ShapeMismatchError, match="packed in uint8"):
+        differences(Traverse(r), packed_q, hamming)
 
 
 def test_blocks_are_bounded_and_cover_everything(rng):
