@@ -831,6 +831,12 @@ def normalise_rows(differences: np.ndarray) -> np.ndarray:
             f"{where if d.ndim > 1 else where[0]}); a difference must be a finite number — check the descriptors."
         )
     two = np.ascontiguousarray(d.reshape(-1, d.shape[-1]))
+    # a row beyond 1e100 is scaled to its largest |d| first (the normalisation does not change):
+    # its squared deviations would overflow, the spread read infinite and the row become zeros
+    big = np.abs(two).max(axis=1) > 1e100
+    if big.any():
+        two = two.copy()
+        two[big] /= np.abs(two[big]).max(axis=1, keepdims=True)
     out = np.empty_like(two)
     _normalise_into(two, out)
     return out.reshape(d.shape)

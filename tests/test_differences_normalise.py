@@ -75,3 +75,17 @@ def test_column_blocks_in_one_block_equal_the_matrix_bit_for_bit():
         assert len(one) == 1 and len(several) == 3
         assert np.array_equal(one[0][1], full)
         assert np.array_equal(np.concatenate([b for _, b in several], axis=1), full)
+
+
+def test_rows_of_huge_values_normalise_as_their_scaled_copies():
+    """Rows beyond 1e100 (their squared deviations overflow) normalise as the same rows
+    scaled down, where they became zeros; other rows keep their floats."""
+    rng = np.random.default_rng(0)
+    rows = rng.random((3, 7))
+    huge = rows * 1e200
+    huge[1] = rows[1]  # one ordinary row among them
+    normalise_rows = differences.normalise_rows
+    out = normalise_rows(huge)
+    np.testing.assert_allclose(out, normalise_rows(rows), rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(out[1], normalise_rows(rows)[1])
+    np.testing.assert_allclose(normalise_rows([1e200, 0.0]), [1.0, -1.0])
