@@ -100,16 +100,18 @@ def cmd_bench(args) -> int:
     from .._atomic import check_writable_folder
 
     check_writable_folder(out, "--out folder")  # before the sweep, not after it
-    out.mkdir(parents=True, exist_ok=True)
-    # an earlier bench in this folder: its summary goes now (a sweep cut short must not look
-    # complete), and its run files that this sweep does not write go at the end
+    # an earlier bench in this folder: its summary goes when the first run is done (a sweep cut
+    # short must not look complete; a sweep refused before any run touches nothing), and its run
+    # files that this sweep does not write go at the end
     earlier = _earlier_run_files(out)
-    for stale in ("summary.json", "summary.md", "index.html", "results.md"):
-        (out / stale).unlink(missing_ok=True)
     entries: list[tuple[dict, str, dict] | None] = [None] * len(config.specs)
 
     def keep(k: int, result: dict) -> None:
         """Each run's file as the run finishes: an interrupted sweep keeps what it has done."""
+        if not out.is_dir() or all(entry is None for entry in entries):
+            out.mkdir(parents=True, exist_ok=True)
+            for stale in ("summary.json", "summary.md", "index.html", "results.md"):
+                (out / stale).unlink(missing_ok=True)
         spec = config.specs[k]
         file = f"{run_file_name(spec['name'])}.json"
         if "error" in result:
