@@ -317,7 +317,6 @@ def prepared_from(reference: Traverse, query: Traverse, differences: np.ndarray 
     :func:`catgraph.io.query_differences` gives for ``query`` against ``reference``'s map.
     """
     from .io import build_map, query_differences
-    from .pipeline import FrontEnd
 
     the_map = build_map(reference, FrontEnd.from_dict(frontend), graph=False)
     d = query_differences(the_map, query) if differences is None else np.asarray(differences)
@@ -435,7 +434,7 @@ def _inputs(exp: Experiment) -> tuple:
         graph = the_map.graph
         sources = {"map": _source_name(exp.map)}
     else:
-        from .pipeline import FrontEnd, check_image_options
+        from .pipeline import check_image_options
 
         reference = load_input(exp.reference, "reference")
         if exp.junction_radius_m is not None and reference.positions is None:

@@ -108,7 +108,7 @@ def cmd_bench(args) -> int:
 
     def keep(k: int, result: dict) -> None:
         """Each run's file as the run finishes: an interrupted sweep keeps what it has done."""
-        if not out.is_dir() or all(entry is None for entry in entries):
+        if all(entry is None for entry in entries):  # the first run done
             out.mkdir(parents=True, exist_ok=True)
             for stale in ("summary.json", "summary.md", "index.html", "results.md"):
                 (out / stale).unlink(missing_ok=True)
