@@ -198,6 +198,7 @@ from ._jit import njit
 from ._validation import check_array, check_scalar
 from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .graph import PlaceGraph
+from .jumps import frame_jump_rate
 
 __all__ = ["GridLocalizer", "route_neighbours", "velocity_transition", "predict", "learn_jump_rate"]
 
@@ -1138,8 +1139,10 @@ class GridLocalizer:
         ``(1 − P(new)) Σ_b state_[:, b]``.
     new_place_probability_ : float
     recovery_ : float
-        The jump rate ``ε`` used by the latest prediction (learned, or ``recovery``; with
-        ``jump_rates``, the mixture's hazard ``Σ_k w_k ε_k``).
+        The jump rate ``ε``: learned, or ``recovery``; with ``jump_rates`` or
+        ``rigid_prior``, the mixture's hazard ``Σ_k w_k ε_k`` of the latest prediction.
+        Each frame's prediction uses it as its frame's jump evidence
+        (``Observation.jump_evidence``, :mod:`catgraph.jumps`) modulates it.
     rate_weights_ : ndarray of float64, shape (len(jump_rates),)
         With ``jump_rates``: the posterior probability of each rate's component (the
         current run's rate). With ``rigid_prior``: shape (2,), the filter's own motion
@@ -1402,9 +1405,11 @@ class GridLocalizer:
         check_model(self.model, self)
         obs = self.model.observe(row)
         ratio = self._exp_ratio(obs)
+        self._frame_rates(obs.jump_evidence)
         if self._components is None:
             self._predict(odometry, ratio)
             self._update(ratio)
+            self.recovery_ = self._prior_rate  # the learned rate again, for the next frame's evidence
         elif self._motions is not None:
             self._rigid_step(odometry, ratio)
         else:
@@ -1413,6 +1418,33 @@ class GridLocalizer:
         self._feedback(near)
         self.n_steps_ += 1
         return estimate
+
+    def _frame_rates(self, evidence: float) -> None:
+        """This frame's jump rate(s): the prior rate(s) given the frame's jump evidence
+        (:func:`catgraph.jumps.frame_jump_rate`; evidence 0 leaves them as they are). With
+        one rate, ``recovery_`` is the frame's while the frame is processed (the learning
+        reads it as the E-step's rate) and the learned rate after it."""
+        if self._components is None:
+            self._prior_rate = self.recovery_
+            self.recovery_ = frame_jump_rate(self._prior_rate, evidence)
+        elif self._motions is None and self.jump_rate_scope == "run":
+            # a run-length hazard's jumps are its runs' ends, shared out by the rates' prior:
+            # the frame's change is not read there
+            self._step_rates = self._rates
+        else:
+            self._step_rates = frame_jump_rate(self._rates, evidence)
+
+    def _change_factors(self) -> np.ndarray | None:
+        """Each component's likelihood of the frame's change, against a step's: ``(1 −
+        ε_k) / (1 − ε'_k)``, ``ε'_k`` the frame's rate (:meth:`_frame_rates`): a component
+        that keeps ``1 − ε'_k`` of its mass on its track and lands ``ε'_k`` anywhere has,
+        before that normalisation, ``1 − ε_k`` on the track and ``ε_k λ`` landing (``λ``
+        the change's likelihood ratio), so a component that may jump is weighed up by a
+        change that looks like one and a rigid line is not. ``None``: the frame has no
+        jump evidence (every factor 1)."""
+        if self.n_steps_ == 0 or self._step_rates is self._rates:
+            return None
+        return (1.0 - self._rates) / (1.0 - self._step_rates)
 
     def _exp_ratio(self, obs):
         """``(e, top, new_place_log_ratio)`` of an informative observation, ``e_j =
@@ -1525,7 +1557,8 @@ class GridLocalizer:
         weight that sum. Every jump lands uniformly over places with the mixture's jump
         velocity. The update weighs each component by its evidence ``Σ_j prior_kj
         e^{r_j}``."""
-        rates, pi, w = self._rates, self._rate_prior, self.rate_weights_
+        rates, pi, w = self._step_rates, self._rate_prior, self.rate_weights_
+        change = self._change_factors()
         jump = 0.0
         if self.n_steps_ > 0 and self.jump_rate_scope == "query":
             jump = float(w @ rates)
@@ -1542,7 +1575,7 @@ class GridLocalizer:
         totals = self._step_components(odometry, ratio, velocity, share)[0]
         components = self._components
         self.prior_ = _weighted_sum(predicted, [c["prior_"] for c in components], self._pool.take(self.graph.n_places))
-        evidence = predicted * totals
+        evidence = predicted * totals if change is None else predicted * totals * change
         total = float(evidence.sum())
         if ratio is None or not total > 0.0:
             # no update (or every place impossible): the predictions stand
@@ -1607,13 +1640,14 @@ class GridLocalizer:
         by its evidence ``Σ_j prior_kj e^{r_j}``. The filter's own jump rate is learned
         (``learn_recovery``) from its own component's evidence, as the single-rate
         filter learns it."""
-        w = self.rate_weights_
+        w, rates = self.rate_weights_, self._step_rates
+        change = self._change_factors()
         velocity = self._velocity  # the mixture's: every component's jump lands with it
-        totals, means = self._step_components(odometry, ratio, velocity, self._rates)
-        self.recovery_ = float(w @ self._rates)
+        totals, means = self._step_components(odometry, ratio, velocity, rates)
+        self.recovery_ = float(w @ rates)
         components = self._components
         self.prior_ = _weighted_sum(w, [c["prior_"] for c in components], self._pool.take(self.graph.n_places))
-        evidence = w * totals
+        evidence = w * totals if change is None else w * totals * change
         total = float(evidence.sum())
         if ratio is None or not total > 0.0:
             self._mass = _weighted_sum(w, [c["_mass"] for c in components], self._pool.take(self.graph.n_places))
@@ -1621,7 +1655,7 @@ class GridLocalizer:
             return
         if self.n_steps_ > 0 and self.learn_recovery and self.recovery > 0.0 and totals[0] > 0.0:
             jumps, frames, self._rates[0] = learn_jump_rate(*self._rigid_jumps, float(self.recovery),
-                                                            float(self._rates[0]), means[0] / totals[0])
+                                                            float(rates[0]), means[0] / totals[0])
             self._rigid_jumps = (jumps, frames)
         self.rate_weights_ = evidence / total
         self._mass = _weighted_sum(self.rate_weights_, [c["_mass"] for c in components],
@@ -1648,8 +1682,8 @@ class GridLocalizer:
         """Online EM for the jump rate (:func:`learn_jump_rate`)."""
         if not self.learn_recovery or self.recovery == 0.0:
             return
-        self._jumps, self._frames, self.recovery_ = learn_jump_rate(self._jumps, self._frames, float(self.recovery),
-                                                                    self.recovery_, ratio)
+        self._jumps, self._frames, self._prior_rate = learn_jump_rate(self._jumps, self._frames, float(self.recovery),
+                                                                      self.recovery_, ratio)
 
     def _summarise(self):
         from .localizer import Estimate, confidence_log_odds

@@ -181,6 +181,7 @@ from ._validation import as_generator, check_array, check_scalar
 from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .graph import PlaceGraph
 from .grid import learn_jump_rate
+from .jumps import frame_jump_rate
 from .motion import FrameMotion, MotionModel, OdometryMotion, PlacesWritten, VelocityMotion, check_odometry
 from .observation import FramePool, Observation, ObservationModel, check_model, claim_model, feedback_reads_prior
 from .particles import ParticleSet, _first_in_edge, get_resampler, normalise_in_place
@@ -944,7 +945,9 @@ class Localizer:
         the filter's fixed arrays.
     new_place_probability_ : float
     recovery_ : float
-        The jump rate ``ε`` of the latest prediction (learned, or ``recovery``).
+        The jump rate ``ε`` (learned, or ``recovery``). Each frame's prediction uses it
+        as its frame's jump evidence (``Observation.jump_evidence``,
+        :mod:`catgraph.jumps`) modulates it.
     place_posterior_ : ndarray of float64, shape (n_places,)
     n_steps_ : int
     """
@@ -1210,6 +1213,9 @@ class Localizer:
         check_model(self.model, self)
         self._log_ratio = None  # the previous frame's ratios: the model may reuse their array now
         obs = self.model.observe(row)
+        # the frame's jump rate while the frame is processed (catgraph.jumps); the learned one after it
+        self._prior_rate = self.recovery_
+        self.recovery_ = frame_jump_rate(self._prior_rate, obs.jump_evidence)
         self._support = obs.support if obs.informative else None
         ahead = None
         try:
@@ -1232,6 +1238,7 @@ class Localizer:
                 from concurrent.futures import wait
 
                 wait([ahead])
+        self.recovery_ = self._prior_rate
         self.n_steps_ += 1
         return estimate
 
@@ -1527,8 +1534,8 @@ class Localizer:
         (:func:`catgraph.grid.learn_jump_rate`)."""
         if not self.learn_recovery or self.recovery == 0.0:
             return
-        self._jumps, self._frames, self.recovery_ = learn_jump_rate(self._jumps, self._frames, float(self.recovery),
-                                                                    self.recovery_, ratio)
+        self._jumps, self._frames, self._prior_rate = learn_jump_rate(self._jumps, self._frames, float(self.recovery),
+                                                                      self.recovery_, ratio)
 
     def _resample_if_degenerate(self, ess: float) -> bool:
         """With recovery: every step, resample the cloud together with the oldest young

@@ -95,6 +95,7 @@ import numpy as np
 
 from ._validation import as_generator, check_array, check_scalar
 from .exceptions import InvalidParameterError, NotFittedError, ShapeMismatchError
+from .jumps import JumpEvidence
 
 __all__ = [
     "CheckedRow",
@@ -135,6 +136,11 @@ class Observation:
     log_ratio_max : float or None
         ``log_ratio.max()`` where the model found it in a pass it made anyway (the
         filters then skip their own pass for it); ``None``: not known.
+    jump_evidence : float
+        Log-likelihood ratio of "the query jumped since the previous frame" against
+        "it moved on", from the frame alone (:mod:`catgraph.jumps`); the filters turn
+        it into the frame's jump rate (:func:`catgraph.jumps.frame_jump_rate`). 0: no
+        evidence either way.
     """
 
     log_ratio: np.ndarray
@@ -142,6 +148,7 @@ class Observation:
     informative: bool = True
     support: np.ndarray | None = None
     log_ratio_max: float | None = None
+    jump_evidence: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -574,7 +581,8 @@ class SequenceObservation:
                 f"here; choose from {sorted(allowed)} (the window is this model's own 'window').")
         self.matcher_ = SequenceMatcher(window=self.window, **params)
         self.recogniser_ = HistogramPlaceRecogniser(n_init=self.n_init, exclusion_radius=self.exclusion_radius)
-        self._tempered = (TemperedObservation(hub=None, novelty=False, temperature_scale=self.agreement_scale)
+        self._tempered = (TemperedObservation(hub=None, novelty=False, jump_evidence=False,
+                                              temperature_scale=self.agreement_scale)
                           if self.calibration == "agreement" else None)
         if self._tempered is not None:
             self._tempered._new_place = False  # this model computes its own from the tempered ratios
@@ -1042,7 +1050,9 @@ class CombinedObservation:
             log_ratio = np.array(log_ratio, dtype=np.float64)
         support = None if not supports else (
             supports[0] if len(supports) == 1 else np.maximum.reduce([np.asarray(x) for x in supports]))
-        return Observation(np.asarray(log_ratio, dtype=np.float64), float(new), True, support, top)
+        # the frame's jump evidence is the frame's, not a part's to weigh: the first part that reads it
+        jump = next((p.jump_evidence for p in parts if p.informative and p.jump_evidence != 0.0), 0.0)
+        return Observation(np.asarray(log_ratio, dtype=np.float64), float(new), True, support, top, float(jump))
 
 
 #: Places from which :class:`CombinedObservation` observes its first part on a second
@@ -1452,6 +1462,13 @@ class TemperedObservation:
       the next frame is compared with the last frame before it. On a map of fewer
       than three places (where any two frames correlate ±1) the weight is 1.
 
+    * The same correlation ``ρ_k`` gives the frame's *jump evidence*
+      (``jump_evidence=True``, :mod:`catgraph.jumps`): the log-likelihood ratio of a
+      change as large as ``1 − ρ_k`` between a jump and a step, learned online from the
+      query's consecutive frames and its frames far apart, kept where positive
+      (``Observation.jump_evidence``; the filters raise the frame's jump rate by it).
+      It leaves the ratios ``r_j`` as they are.
+
     The new-place log-ratio is ``log mean_j e^{r_j}``: a place not in the map looks,
     to this model, like a place drawn at random from the map.
 
@@ -1482,6 +1499,8 @@ class TemperedObservation:
         Weight frames by their novelty.
     novelty_cap : float
         Largest novelty weight.
+    jump_evidence : bool
+        Report each frame's jump evidence (:mod:`catgraph.jumps`).
 
     Attributes
     ----------
@@ -1489,6 +1508,8 @@ class TemperedObservation:
     agreement_ : float
     novelty_ : float
         ``ν`` of the latest frame.
+    jump_evidence_ : float
+        The latest frame's jump evidence (0: none, or switched off).
     hub_shrinkage_ : float
         ``w`` of the hub correction.
     n_hubs_ : int
@@ -1505,13 +1526,15 @@ class TemperedObservation:
                  temperature_scale: float = 4.0,
                  temperatures: Sequence[float] = DEFAULT_TEMPERATURES, hub_weights: Sequence[float] = (1.0,),
                  memory: float = 200.0, n_bins: int = 64, prior_strength: float = 50.0,
-                 hub_threshold: float = 3.0, novelty: bool = True, novelty_cap: float = 2.0) -> None:
+                 hub_threshold: float = 3.0, novelty: bool = True, novelty_cap: float = 2.0,
+                 jump_evidence: bool = True) -> None:
         self.likelihood = likelihood
         self.hub = hub
         self.hub_threshold = hub_threshold
         self.temperature_scale = temperature_scale
         self.novelty = novelty
         self.novelty_cap = novelty_cap
+        self.jump_evidence = jump_evidence
         self.temperature = temperature
         self.temperatures = temperatures
         self.hub_weights = hub_weights
@@ -1521,7 +1544,7 @@ class TemperedObservation:
 
     def reset(self) -> None:
         params = {"likelihood", "hub", "temperature", "temperature_scale", "temperatures", "hub_weights", "memory",
-                  "n_bins", "prior_strength", "hub_threshold", "novelty", "novelty_cap"}
+                  "n_bins", "prior_strength", "hub_threshold", "novelty", "novelty_cap", "jump_evidence"}
         for k in [k for k in self.__dict__ if k not in params]:
             del self.__dict__[k]
 
@@ -1546,8 +1569,10 @@ class TemperedObservation:
         check_scalar(self.prior_strength, "prior_strength", owner, float, 0.0)
         check_scalar(self.hub_threshold, "hub_threshold", owner, float, 0.0)
         check_scalar(self.novelty_cap, "novelty_cap", owner, float, 0.0, low_inclusive=False)
-        if not isinstance(self.novelty, (bool, np.bool_)):
-            raise InvalidParameterError(f"The 'novelty' parameter of {owner} must be a bool. Got {self.novelty!r} instead.")
+        for name in ("novelty", "jump_evidence"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise InvalidParameterError(f"The '{name}' parameter of {owner} must be a bool. "
+                                            f"Got {getattr(self, name)!r} instead.")
         n = len(row)
         if isinstance(self.hub, str) or self.hub is None:
             if self.hub not in ("online", None):
@@ -1577,6 +1602,8 @@ class TemperedObservation:
         self._hits, self._trials = 0.0, 0.0
         self._rho_sum, self._rho_n, self.novelty_ = 0.0, 0.0, 1.0
         self._kept = None  # the previous frame's centred row and its sum of squares (novelty weight)
+        self._jumps = JumpEvidence().reset() if self.jump_evidence else None
+        self.jump_evidence_ = 0.0
         self.agreement_ = 0.5
         first = float(self.temperature_scale) * 0.5 if self.temperature == "agreement" else float(taus[len(taus) // 2])
         self.temperature_, self.hub_weight_ = first, float(lams[0])
@@ -1780,7 +1807,8 @@ class TemperedObservation:
         a temperature not chosen by the predictive score, no new-place ratio), ``s``
         contiguous and of the model's length."""
         return (getattr(self, "n_reference_", None) == len(s) and s.flags.c_contiguous and not self._new_place
-                and self.likelihood == "linear" and self.hub is None and not self.novelty and len(self._lams) == 1
+                and self.likelihood == "linear" and self.hub is None and not self.novelty and not self.jump_evidence
+                and len(self._lams) == 1
                 and self.temperature != "predictive")
 
     def _observe_standardised(self, scores: np.ndarray, mean: float, sd: float,
@@ -1813,12 +1841,12 @@ class TemperedObservation:
         self._bases = bases
         self._row = row
         if not self._new_place:
-            return Observation(r, 0.0, True)
+            return Observation(r, 0.0, True, jump_evidence=self.jump_evidence_)
         work = self._buffer("_select", len(r))
         np.subtract(r, top, out=work)
         np.exp(work, out=work)
         new = top + math.log(float(np.mean(work)))
-        return Observation(r, new, True, None, top)
+        return Observation(r, new, True, None, top, self.jump_evidence_)
 
     def _novelty(self, row: np.ndarray) -> float:
         """How much of this frame is new: ``(1 − ρ_k) / (1 − ρ̄)``, clipped to
@@ -1828,8 +1856,10 @@ class TemperedObservation:
         (after a jump) counts more."""
         # The previous row enters only centred, with its sum of squares: both are kept
         # from its own frame (the same values ``prev − prev.mean()`` would give again).
+        # The same correlation gives the frame's jump evidence (``jump_evidence``).
         self._blank = False
-        if not self.novelty or len(row) < 3:  # two places: any two frames correlate ±1
+        self.jump_evidence_ = 0.0
+        if not (self.novelty or self.jump_evidence) or len(row) < 3:  # two places: any two frames correlate ±1
             return 1.0
         first = self._kept is None
         n = len(row)
@@ -1851,9 +1881,9 @@ class TemperedObservation:
             # a blank frame (a constant row: e.g. a textureless image, normalised to 0)
             # holds no measurement: it adds nothing, and the next frame is compared with
             # the last frame that held one
-            self._blank = True
+            self._blank = bool(self.novelty)
             self.novelty_ = 0.0
-            return 0.0
+            return 0.0 if self.novelty else 1.0
         # the previous row was kept as a contiguous copy, whose mean numpy may sum in
         # another order than a strided row's
         kept = self._centred_b_next(row, a, aa)
@@ -1885,7 +1915,10 @@ class TemperedObservation:
             self._rho_n = self._decay * self._rho_n + 1.0
         mean = self._rho_sum / self._rho_n if self._rho_n > 0 else rho
         self.novelty_ = float(np.clip((1.0 - rho) / max(1.0 - mean, 1e-6), 0.0, self.novelty_cap))
-        return self.novelty_
+        if self._jumps is not None and 1.0 - rho > DUPLICATE_TOLERANCE:
+            # a repeated frame is no measurement of a jump either (its evidence stays 0)
+            self.jump_evidence_ = self._jumps.observe(1.0 - rho, a, float(aa))
+        return self.novelty_ if self.novelty else 1.0
 
     def _centred_b_next(self, row: np.ndarray, a: np.ndarray, aa) -> tuple[np.ndarray, float]:
         """This row centred as the next frame will need it, with its sum of squares."""

@@ -11,6 +11,7 @@ import pytest
 from catgraph.exceptions import InvalidParameterError
 from catgraph.graph import PlaceGraph
 from catgraph.grid import RECOVERY_MEMORY, RECOVERY_PRIOR_FRAMES, RIGID_JUMP_RATE, GridLocalizer, learn_jump_rate
+from catgraph.observation import Observation
 
 from .test_grid_hazard import SETTINGS, VELOCITIES, _Float64, _motion, _Ratios, _rows
 from .test_grid_jump_velocity import _General
@@ -19,7 +20,7 @@ PRIOR = 0.2
 RECOVERY = 0.1
 
 
-def _reference(rows, learn, jump_velocity, home_speed_odds=1.0):
+def _reference(rows, learn, jump_velocity, home_speed_odds=1.0, change=None):
     """Two filters as vectors over (place, velocity), each with its motion as one matrix:
     the settings' (``velocity_stay``, ``reverse_probability``, ``blur``, jump rate
     ``RECOVERY``, learned from its own evidence when ``learn``) and the rigid line's
@@ -29,8 +30,11 @@ def _reference(rows, learn, jump_velocity, home_speed_odds=1.0):
     marginals so far and the velocity prior, written out as a weighted mean); the two
     weighed by their evidence (Bayes' rule), starting at ``1 − PRIOR`` and ``PRIOR``. The
     velocity prior (the start, the landing's prior part) gives each of ``±1``
-    ``home_speed_odds`` times each other velocity's weight (1: uniform). Returns per frame
-    the place posterior, ``P(new)`` and the weights."""
+    ``home_speed_odds`` times each other velocity's weight (1: uniform). ``change``: per
+    frame, the likelihood ratio ``λ`` of the frame's change (jump against step), which
+    multiplies each filter's landing mass before anything is normalised (the jump
+    transitions' likelihood). Returns per frame the place posterior, ``P(new)`` and the
+    weights."""
     n = rows.shape[1]
     nb = len(VELOCITIES)
     motion = [_motion(n, VELOCITIES, SETTINGS["velocity_stay"], SETTINGS["reverse_probability"], SETTINGS["blur"]),
@@ -58,10 +62,12 @@ def _reference(rows, learn, jump_velocity, home_speed_odds=1.0):
                     weight.sum() + RECOVERY_PRIOR_FRAMES)
             land = np.tile(land_v / n, n)
             moved = [motion[i] @ x[i] for i in range(2)]
-            pred = [(1 - eps[i]) * moved[i] / moved[i].sum() + eps[i] * land for i in range(2)]
+            lam = 1.0 if change is None else change[t]
+            pred = [(1 - eps[i]) * moved[i] / moved[i].sum() + eps[i] * lam * land for i in range(2)]
         evidence = [float((pred[i] * like).sum()) for i in range(2)]  # each component's Σ prior e^r
         if t > 0 and learn:
-            jumps, frames, eps[0] = learn_jump_rate(jumps, frames, RECOVERY, eps[0],
+            # the posterior probability of a jump: ε λ mean e^r over the evidence
+            jumps, frames, eps[0] = learn_jump_rate(jumps, frames, RECOVERY, eps[0] * lam,
                                                     float(np.exp(-row).mean()) / evidence[0])
         z = [w[i] * pred[i] * like for i in range(2)]
         total = sum(zi.sum() for zi in z)
@@ -91,6 +97,42 @@ def test_rigid_line_equals_dense_reference(kind, learn, jump_velocity):
         assert est.new_place_probability == pytest.approx(p_new, rel=1e-9, abs=1e-15)
         np.testing.assert_allclose(loc.rate_weights_, w, rtol=1e-9, atol=1e-15)
         assert est.place == int(np.argmax(mass))
+
+
+class _Changing(_Ratios):
+    """The negated rows with a given jump evidence per frame (``Observation.jump_evidence``)."""
+
+    def __init__(self, evidence):
+        self.evidence, self.t = evidence, 0
+
+    def reset(self):
+        self.t = 0
+
+    def observe(self, row):
+        obs = super().observe(row)
+        self.t += 1
+        return Observation(obs.log_ratio, obs.new_place_log_ratio, True, jump_evidence=float(self.evidence[self.t - 1]))
+
+
+@pytest.mark.parametrize("learn", [True, False])
+@pytest.mark.parametrize("kind", [_Float64, _General])
+def test_jump_evidence_equals_dense_reference(kind, learn):
+    """A frame's jump evidence ``log λ`` multiplies each motion model's landing mass by
+    ``λ`` before the models are weighed: the frame's rate and the models' change factors
+    of the grid filter are that Bayes filter (rates below the cap)."""
+    n = 11
+    rows = _rows(n, 17, seed=5)
+    lam = np.exp(np.random.default_rng(2).uniform(0.0, 1.5, len(rows)))
+    lam[[3, 8]] = 1.0  # frames without evidence
+    loc = kind(PlaceGraph.chain(n), _Changing(np.log(lam)), rigid_prior=PRIOR, recovery=RECOVERY,
+               learn_recovery=learn, jump_velocity="long-run", **SETTINGS).reset()
+    reference = _reference(rows, learn, "long-run", change=lam)
+    plain = _reference(rows, learn, "long-run")
+    assert not np.allclose(reference[-1][2], plain[-1][2], rtol=1e-3, atol=0)  # the evidence moves the weights
+    for row, (mass, p_new, w) in zip(rows, reference):
+        est = loc.step(row)
+        np.testing.assert_allclose(loc.place_posterior_, mass, rtol=1e-9, atol=1e-15)
+        np.testing.assert_allclose(loc.rate_weights_, w, rtol=1e-9, atol=1e-15)
 
 
 @pytest.mark.parametrize("jump_velocity", ["long-run", "current"])

@@ -124,7 +124,7 @@ def test_standardised_scores_that_are_not_finite_are_refused_as_before():
     it forms them and hands them to ``observe``, which refuses them (as before)."""
     from catgraph.exceptions import CatgraphError
 
-    model = TemperedObservation(hub=None, novelty=False, temperature_scale=4.0)
+    model = TemperedObservation(hub=None, novelty=False, jump_evidence=False, temperature_scale=4.0)
     model._new_place = False
     scores = np.random.default_rng(3).standard_normal(50)
     model.observe(-scores)  # started

@@ -53,6 +53,7 @@ def _digest(mode: str, hubs: bool, seed: int = 0, n_places: int = 3000, n_frames
     p = resolve_params("filter", {"model": "combined", "mode": mode, "rule": "unrivalled", **extra})
     obs = observation_model(p, n_places, None)
     obs.models[1].temperature = "window"  # the sequence part's temperature then (the default is now "longest")
+    obs.models[0].jump_evidence = False  # no jump evidence then (catgraph.jumps)
     loc = make_filter(p, PlaceGraph.chain(n_places), obs)
     if mode == "grid":
         loc.blur = 0.01  # the grid filter's blur then (the default is now 0.005)
