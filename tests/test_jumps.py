@@ -65,6 +65,13 @@ def _jumping_places(n: int, rng, segments: int = 12, length: int = 25) -> tuple[
     return places, jumps
 
 
+def _jumping_rows(seed: int, n: int, noise: float = 0.3, **segments) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(places, jumps, rows)`` of a query jumping between stretches of an ``n``-place route."""
+    rng = np.random.default_rng(seed)
+    places, jumps = _jumping_places(n, rng, **segments)
+    return places, jumps, _bump_rows(places, n, rng, noise=noise)
+
+
 def test_frame_jump_rate_is_bayes_rule_on_the_odds():
     assert frame_jump_rate(0.01, 0.0) == 0.01
     rates = [frame_jump_rate(0.01, e) for e in np.linspace(0.0, 3.0, 7)]
@@ -97,10 +104,7 @@ def test_evidence_matches_the_histograms_written_out(seed):
 
 
 def test_evidence_is_zero_until_both_kinds_of_change_are_seen_and_then_finds_the_jumps():
-    rng = np.random.default_rng(3)
-    n = 400
-    places, jumps = _jumping_places(n, rng, segments=16, length=30)
-    rows = _bump_rows(places, n, rng)
+    places, jumps, rows = _jumping_rows(3, 400, segments=16, length=30)
     model = TemperedObservation()
     evidence = np.array([model.observe(r).jump_evidence for r in rows])
     assert np.all(evidence[:2] == 0.0)  # the first frames: the histograms are still even
@@ -110,10 +114,7 @@ def test_evidence_is_zero_until_both_kinds_of_change_are_seen_and_then_finds_the
 
 
 def test_no_jump_evidence_where_switched_off_or_nothing_changes():
-    rng = np.random.default_rng(4)
-    n = 200
-    places, _ = _jumping_places(n, rng)
-    rows = _bump_rows(places, n, rng)
+    rows = _jumping_rows(4, 200)[2]
     off = TemperedObservation(jump_evidence=False)
     assert all(off.observe(r).jump_evidence == 0.0 for r in rows)
     on, plain = TemperedObservation(), TemperedObservation(jump_evidence=False)
@@ -129,10 +130,7 @@ def test_no_jump_evidence_where_switched_off_or_nothing_changes():
 
 
 def test_combined_model_hands_on_the_whole_image_models_evidence():
-    rng = np.random.default_rng(5)
-    n = 300
-    places, _ = _jumping_places(n, rng, segments=10, length=30)
-    rows = _bump_rows(places, n, rng)
+    rows = _jumping_rows(5, 300, segments=10, length=30)[2]
     alone = TemperedObservation()
     combined = CombinedObservation([TemperedObservation(), TemperedObservation(jump_evidence=False)], reliability=None)
     for r in rows:
@@ -150,10 +148,8 @@ def _frames_to_relocalise(places, jumps, answers, tolerance=2) -> np.ndarray:
 
 
 def test_the_grid_filter_follows_a_jump_sooner_with_the_evidence():
-    rng = np.random.default_rng(8)
     n = 500
-    places, jumps = _jumping_places(n, rng, segments=24, length=30)
-    rows = _bump_rows(places, n, rng, noise=1.2)
+    places, jumps, rows = _jumping_rows(8, n, noise=1.2, segments=24, length=30)
     lags = []
     for evidence in (False, True):
         loc = GridLocalizer(PlaceGraph.chain(n), TemperedObservation(jump_evidence=evidence))
