@@ -27,7 +27,8 @@ Cases (per N):
 ``grid``       :meth:`GridLocalizer.step` alone on a line graph (a precomputed observation, as
                ``bench_filter.py speed``), beside that benchmark's reference (one ``np.add``
                over ``8 × N`` float64); ``grid-1t``: one thread
-``live``       :meth:`LiveLocalizer.step`, combined model, 2000 particles: front-end +
+``live``       :meth:`LiveLocalizer.step`, combined model, the registry's filter (the grid up
+               to 10⁵ places, 2000 particles above): front-end +
                difference + matcher + filter, the full per-frame path
 ``live-u8``    the same on a ``LiveMap(..., layout="uint8")``
 
@@ -217,6 +218,14 @@ def _commit() -> str:
     return rev + ("+" if dirty else "")
 
 
+def _particles(n: int) -> dict:
+    """The live step's filter options: 2,000 particles where the registry runs the particle
+    filter (above ``GRID_MAX_PLACES``); none where it runs the grid, which refuses them."""
+    from catgraph.methods import GRID_MAX_PLACES
+
+    return {"n_particles": 2000} if n > GRID_MAX_PLACES else {}
+
+
 def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> dict:
     """One measurement, in this process."""
     from catgraph.differences import PreparedReference, difference_row
@@ -313,7 +322,7 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
         live_map = LiveMap(the_map, layout=layout)
         del the_map  # the compact map keeps only its codes; the float32 map is its own kernel array
         gc.collect()
-        live = LiveLocalizer(live_map, model="combined", n_particles=2000, l_max=l_max, anchor_rows=anchor_rows)
+        live = LiveLocalizer(live_map, model="combined", l_max=l_max, anchor_rows=anchor_rows, **_particles(n))
         out["prepare_s"] = time.perf_counter() - start
         out["prepare_peak_rss_mb"] = _status_mb("VmHWM")  # float map, codes, bootstrap blocks
         out["streaming_window"] = _reset_peak()  # from here: the streaming peak
@@ -547,7 +556,7 @@ def profile_rest(n: int, frames: int = 60, l_max: int = 500) -> dict:
     rng = np.random.default_rng(1)
     the_map = CatgraphMap(_reference(n), "sad", {"size": None, "patch": 4, "metric": None, "normalise": True},
                           PlaceGraph.chain(n), meta={"kind": "images"})
-    live = LiveLocalizer(LiveMap(the_map, layout="uint8"), model="combined", n_particles=2000, l_max=l_max)
+    live = LiveLocalizer(LiveMap(the_map, layout="uint8"), model="combined", l_max=l_max, **_particles(n))
     del the_map
     images = rng.uniform(0, 255, (frames + 4, 16, 32)).astype(np.float32)
     live.step(images[0])
@@ -685,7 +694,7 @@ live_map = LiveMap(world.reference, layout=LAYOUT)
 t1 = time.perf_counter()
 live_map.reference.row(live_map.describe(world.query.frames[0]), normalise=True)
 t2 = time.perf_counter()
-live = LiveLocalizer(live_map, model="combined", n_particles=500)
+live = LiveLocalizer(live_map, model="combined")
 for f in world.query.frames[:20]:
     live.step(f)
 t3 = time.perf_counter()
@@ -957,13 +966,13 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
     row("grid filter step alone (line graph, 8 velocities in 10 bins, a precomputed observation), all cores, "
         "against one `np.add` over 8 × N float64 (`bench_filter.py speed`'s reference)", "grid")
     row("the same, one thread", "grid-1t")
-    row("full live step, combined model, 2000 particles", "live")
+    row("full live step, combined model (the grid up to 10⁵ places, 2000 particles above)", "live")
     row("… of which front-end", "live", "frontend_ms", ratio=False)
     row("… of which difference row", "live", "difference_ms", ratio=False)
     row("… of which models + filter", "live", "model_ms", ratio=False)
     row("… … of which the sequence matcher (`SequenceMatcher.step`)", "live", "matcher_ms", ratio=False)
     row("… … of which the rest (whole-image model, combination, filter)", "live", "model_rest_ms", ratio=False)
-    row("**full live step on the compact map** (combined, 2000 particles)", "live-u8", floor="floor_u8_ms")
+    row("**full live step on the compact map** (combined; the grid up to 10⁵ places, 2000 particles above)", "live-u8", floor="floor_u8_ms")
     row("… of which front-end", "live-u8", "frontend_ms", ratio=False)
     row("… of which difference row", "live-u8", "difference_ms", ratio=False)
     row("… of which models + filter", "live-u8", "model_ms", ratio=False)
