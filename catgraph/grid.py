@@ -1141,8 +1141,8 @@ class GridLocalizer:
     recovery_ : float
         The jump rate ``ε``: learned, or ``recovery``; with ``jump_rates`` or
         ``rigid_prior``, the mixture's hazard ``Σ_k w_k ε_k`` of the latest prediction.
-        Each frame's prediction uses it as its frame's jump evidence
-        (``Observation.jump_evidence``, :mod:`catgraph.jumps`) modulates it.
+        Each frame's prediction uses it modulated by that frame's jump evidence
+        (``Observation.jump_evidence``, :mod:`catgraph.jumps`).
     rate_weights_ : ndarray of float64, shape (len(jump_rates),)
         With ``jump_rates``: the posterior probability of each rate's component (the
         current run's rate). With ``rigid_prior``: shape (2,), the filter's own motion

@@ -946,8 +946,8 @@ class Localizer:
     new_place_probability_ : float
     recovery_ : float
         The jump rate ``ε`` (learned, or ``recovery``). Each frame's prediction uses it
-        as its frame's jump evidence (``Observation.jump_evidence``,
-        :mod:`catgraph.jumps`) modulates it.
+        modulated by that frame's jump evidence (``Observation.jump_evidence``,
+        :mod:`catgraph.jumps`).
     place_posterior_ : ndarray of float64, shape (n_places,)
     n_steps_ : int
     """
