@@ -198,7 +198,7 @@ from ._jit import njit
 from ._validation import check_array, check_scalar
 from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .graph import PlaceGraph
-from .jumps import frame_jump_rate
+from .jumps import JUMP_RATE_CAP, frame_jump_rate
 
 __all__ = ["GridLocalizer", "route_neighbours", "velocity_transition", "predict", "learn_jump_rate"]
 
@@ -208,7 +208,7 @@ _CHAIN, _REVERSE, _JUNCTION = 0, 1, 2
 #: the ``recovery`` prior, and its range.
 RECOVERY_MEMORY = 100.0
 RECOVERY_PRIOR_FRAMES = 20.0
-RECOVERY_RANGE = (1e-4, 0.5)
+RECOVERY_RANGE = (1e-4, JUMP_RATE_CAP)  # one owner of the largest rate: catgraph.jumps
 
 def learn_jump_rate(jumps: float, frames: float, prior: float, current: float,
                     ratio: float) -> tuple[float, float, float]:

@@ -78,9 +78,8 @@ JUMP_MEMORY = 1000.0
 JUMP_PRIOR_FRAMES = 10.0
 #: Bins of the change ``s`` over ``[0, 2]``.
 JUMP_BINS = 20
-#: The largest jump rate a frame's evidence may give (the learned rate's upper bound,
-#: :data:`catgraph.grid.RECOVERY_RANGE`): half the mass stays on the track and the
-#: frames that follow decide.
+#: The largest jump rate, learned (:data:`catgraph.grid.RECOVERY_RANGE` reads it) or given
+#: by a frame's evidence: half the mass stays on the track and the frames that follow decide.
 JUMP_RATE_CAP = 0.5
 
 
