@@ -406,11 +406,13 @@ def profile_step(n: int, rounds: int = 41, l_max: int = 500) -> dict:
     from catgraph._validation import check_array
     from catgraph._window_rule import _decide
     from catgraph.differences import PreparedReference
-    from catgraph.sequence import SequenceMatcher
+    from catgraph.sequence import DEFAULT_LINE_RULE, SequenceMatcher
 
     rng = np.random.default_rng(1)
     rows = rng.standard_normal((8, n))
-    matcher = SequenceMatcher(window="adaptive", l_max=l_max)
+    # the live step's matcher: the combined model's sequence part, whose window rule reads the
+    # matcher's statistics alone (the standalone default, "tracked", runs a filter beside it)
+    matcher = SequenceMatcher(window="adaptive", rule=DEFAULT_LINE_RULE, l_max=l_max)
     for k in range(l_max + 1):  # the ring filled: steady state
         matcher.step(rows[k % 8])
     cfg, st, buffers = matcher._cfg, matcher._stats, matcher._buffers
