@@ -150,8 +150,10 @@ def uji_walks(labels, conditions, full) -> None:
                                  "mtl": float(m["mtl"]), "seconds": result.seconds})
             print(f"UJI {walk} month {month:02d} done  {time.strftime('%X')}", flush=True)
     RESULTS.mkdir(parents=True, exist_ok=True)
+    # one row per line (5,600 rows for the full table)
     (RESULTS / "generalisation_uji_walks.json").write_text(
-        json.dumps({"machine": platform.platform(), "full": full, "rows": rows}, indent=1))
+        '{"machine": ' + json.dumps(platform.platform()) + ', "full": ' + json.dumps(full) + ', "rows": [\n'
+        + ",\n".join(json.dumps(r) for r in rows) + "\n]}\n")
     means = []
     for walk in UJI_WALKS:
         for condition in conditions:
