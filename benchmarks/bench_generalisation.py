@@ -110,21 +110,26 @@ def main(argv=None) -> None:
         for condition in conditions:
             prepared = case.under(condition) if condition.kind != "in-order" else case
             for label in labels:
-                method, params = METHODS[label]
-                result = run_method(method, params, prepared)
-                m = result.evaluate(prepared.ground_truth).metrics.as_dict()
+                row = _cell(METHODS[label], prepared)
                 rows.append({"world": name, "world_spec": {k: list(v) if isinstance(v, tuple) else v
                                                            for k, v in WORLDS[name].items()},
-                             "condition": condition.label, "method": label, "auc": float(m["auc"]),
-                             "recall_at_100p": float(m["recall_at_100p"]), "mtl": float(m["mtl"]),
-                             "seconds": result.seconds})
-                print(f"{name:34s} {condition.label:28s} {label:18s} AUC {m['auc']:.3f}  {time.strftime('%X')}",
+                             "condition": condition.label, "method": label, **row})
+                print(f"{name:34s} {condition.label:28s} {label:18s} AUC {row['auc']:.3f}  {time.strftime('%X')}",
                       flush=True)
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "generalisation.json").write_text(
         json.dumps({"machine": platform.platform(), "full": args.full, "rows": rows}, indent=1))
     (RESULTS / "generalisation.md").write_text(_markdown(rows, labels, worlds, conditions, args.full,
                                                                _worlds_intro(args.full)))
+
+
+def _cell(method_params, prepared) -> dict:
+    """One method (``(method, params)``) on one prepared case: its AUC, R@100P, MTL and seconds."""
+    method, params = method_params
+    result = run_method(method, params, prepared)
+    m = result.evaluate(prepared.ground_truth).metrics.as_dict()
+    return {"auc": float(m["auc"]), "recall_at_100p": float(m["recall_at_100p"]), "mtl": float(m["mtl"]),
+            "seconds": result.seconds}
 
 
 def uji_walks(labels, conditions, full) -> None:
@@ -142,12 +147,8 @@ def uji_walks(labels, conditions, full) -> None:
             for condition in conditions:
                 prepared = case.under(condition) if condition.kind != "in-order" else case
                 for label in labels:
-                    method, params = WALK_METHODS[label]
-                    result = run_method(method, params, prepared)
-                    m = result.evaluate(prepared.ground_truth).metrics.as_dict()
                     rows.append({"walk": walk, "month": month, "condition": condition.label, "method": label,
-                                 "auc": float(m["auc"]), "recall_at_100p": float(m["recall_at_100p"]),
-                                 "mtl": float(m["mtl"]), "seconds": result.seconds})
+                                 **_cell(WALK_METHODS[label], prepared)})
             print(f"UJI {walk} month {month:02d} done  {time.strftime('%X')}", flush=True)
     RESULTS.mkdir(parents=True, exist_ok=True)
     # one row per line (3,080 rows for the full table)
