@@ -25,6 +25,13 @@ either side, ``tst05`` the same points as ``tst01``, and ``tst04`` other points 
 scans) along the library's other axis, in an order the reference does not follow. Ground
 truth 3 m on the same floor; each cell the mean over the five months. Writes
 ``generalisation_uji_walks.md`` and ``.json`` (skipped where ``../shared/data`` is absent).
+
+``--nordland-sections`` runs short routes instead: Nordland 32×16 cut into ten disjoint
+sections of 357 frames (a tenth of the route), each section's summer frames the map and
+its winter frames the query (±2 frames). The defaults were chosen on the whole route; on a
+tenth of it every shuffle's segments are ten times shorter in frames (2–20 %: 7–71 frames;
+0.5–3 %: 2–10), and the start-up is a tenth of the query. Writes
+``generalisation_nordland_sections.md`` and ``.json`` (skipped where the data are absent).
 """
 
 from __future__ import annotations
@@ -39,7 +46,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from datasets import DATA, WIFI_METRES, benchmark_conditions  # noqa: E402
+from datasets import DATA, NORDLAND_FRAMES, WIFI_METRES, benchmark_conditions  # noqa: E402
 
 from catgraph.experiment import Experiment, prepare, run_method  # noqa: E402
 
@@ -71,6 +78,9 @@ UJI_WALKS = ("tst02", "tst03", "tst04", "tst05")
 UJI_MONTHS = range(2, 7)
 #: the methods of ``--uji-walks``: those above and the filter with the combined model
 WALK_METHODS = {**METHODS, "filter + combined": ("filter", {"model": "combined"})}
+#: ``--nordland-sections``: frames per section (a tenth of the route) and how many
+SECTION_FRAMES = 357
+SECTIONS = 10
 
 
 def world_case(spec: dict):
@@ -85,15 +95,19 @@ def main(argv=None) -> None:
     ap.add_argument("--full", action="store_true", help="all fourteen conditions (default: the five quick ones)")
     ap.add_argument("--methods", default=None, help="comma-separated labels (default: every method of the mode)")
     ap.add_argument("--worlds", default=None, help="comma-separated world labels (default: all)")
-    ap.add_argument("--uji-walks", action="store_true",
-                    help="the UJI test walks 02–05 of months 02–06 instead of the synthetic worlds")
+    mode = ap.add_mutually_exclusive_group()
+    mode.add_argument("--uji-walks", action="store_true",
+                      help="the UJI test walks 02–05 of months 02–06 instead of the synthetic worlds")
+    mode.add_argument("--nordland-sections", action="store_true",
+                      help="ten 357-frame sections of Nordland instead of the synthetic worlds")
     args = ap.parse_args(argv)
-    if args.uji_walks:
+    if args.uji_walks or args.nordland_sections:
         labels = list(WALK_METHODS) if args.methods is None else [m.strip() for m in args.methods.split(",")]
         unknown = [m for m in labels if m not in WALK_METHODS]
         if unknown:
             raise SystemExit(f"unknown methods {unknown}; choose from {list(WALK_METHODS)}")
-        uji_walks(labels, benchmark_conditions(not args.full), args.full)
+        run = uji_walks if args.uji_walks else nordland_sections
+        run(labels, benchmark_conditions(not args.full), args.full)
         return
     labels = list(METHODS) if args.methods is None else [m.strip() for m in args.methods.split(",")]
     unknown = [m for m in labels if m not in METHODS]
@@ -174,6 +188,77 @@ def uji_walks(labels, conditions, full) -> None:
              "with hindsight.\n")
     (RESULTS / "generalisation_uji_walks.md").write_text(
         _markdown(means, labels, [f"UJI {w}" for w in UJI_WALKS], conditions, full, intro))
+
+
+def nordland_sections(labels, conditions, full) -> None:
+    """Every method on every section of :data:`SECTIONS` × :data:`SECTION_FRAMES` frames of
+    Nordland 32×16 (module docstring); one table per section, then every cell against the
+    best fixed window, per condition."""
+    from catgraph.traverse import Traverse
+
+    d = DATA / "nordland" / "32x16"
+    if not d.is_dir():
+        print(f"no Nordland data under {d}: nothing to run", file=sys.stderr)
+        return
+    whole = prepare(Experiment(query=d / "winter", reference=d / "summer", tolerance=NORDLAND_FRAMES))
+    rows, worlds = [], []
+    for k in range(SECTIONS):
+        a, b = k * SECTION_FRAMES, (k + 1) * SECTION_FRAMES
+        name = f"frames {a}–{b - 1}"
+        worlds.append(name)
+        case = prepare(Experiment(query=Traverse(whole.query.frames[a:b], name=f"winter {name}"),
+                                  reference=Traverse(whole.reference.frames[a:b], name=f"summer {name}"),
+                                  tolerance=NORDLAND_FRAMES))
+        for condition in conditions:
+            prepared = case.under(condition) if condition.kind != "in-order" else case
+            for label in labels:
+                method, params = WALK_METHODS[label]
+                if isinstance(params.get("window"), int) and params["window"] > len(prepared.query):
+                    continue  # a window longer than the query (speed 2: 179 frames): no cell
+                rows.append({"world": name, "condition": condition.label, "method": label,
+                             **_cell((method, params), prepared)})
+        print(f"Nordland {name} done  {time.strftime('%X')}", flush=True)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "generalisation_nordland_sections.json").write_text(
+        '{"machine": ' + json.dumps(platform.platform()) + ', "full": ' + json.dumps(full) + ', "rows": [\n'
+        + ",\n".join(json.dumps(r) for r in rows) + "\n]}\n")
+    intro = ("# The defaults on short routes: ten sections of Nordland\n\n"
+             "Generated by `benchmarks/bench_generalisation.py --nordland-sections" + (" --full" if full else "")
+             + f"`: registry defaults, unchanged, on Nordland 32×16 cut into {SECTIONS} disjoint sections of "
+             f"{SECTION_FRAMES} frames, each section's summer frames the map and its winter frames the query "
+             "(ground truth ±2 frames). The defaults were chosen on the whole route: here every shuffle's segments "
+             "are ten times shorter in frames (2–20 %: 7–71 frames; 0.5–3 %: 2–10) and the start-up is a tenth of "
+             "the query. Each cell: AUC. *best fixed* is the best fixed window of the row, chosen with hindsight.\n")
+    (RESULTS / "generalisation_nordland_sections.md").write_text(
+        _markdown(rows, labels, worlds, conditions, full, intro) + _by_condition(rows, labels))
+
+
+def _by_condition(rows, labels) -> str:
+    """Per condition (the shuffles' seeds together), each method's mean AUC and its margin
+    to the best fixed window of each cell: mean, worst, and cells below it by more than 0.01."""
+    fixed = [label for label in labels if label.startswith("fixed")]
+    if not fixed:
+        return ""
+    group = lambda condition: condition.split(" (seed")[0]  # noqa: E731
+    conditions = list(dict.fromkeys(group(r["condition"]) for r in rows))
+    others = [label for label in labels if label not in fixed]
+    parts = ["\n## Per condition, every section (and seed) together\n\nMean AUC; then the margin to the best fixed "
+             "window of each cell: mean, worst, and the cells more than 0.01 below it.\n\n| condition | "
+             + " | ".join(others) + " |\n|---|" + "---|" * len(others) + "\n"]
+    for c in conditions:
+        cells = sorted({(r["world"], r["condition"]) for r in rows if group(r["condition"]) == c})
+        out = []
+        for label in others:
+            aucs, diffs = [], []
+            for cell in cells:
+                auc = {r["method"]: r["auc"] for r in rows if (r["world"], r["condition"]) == cell}
+                if label in auc:
+                    aucs.append(auc[label])
+                    diffs.append(auc[label] - max(auc[f] for f in fixed if f in auc))
+            out.append(f"{np.mean(aucs):.3f}; {np.mean(diffs):+.3f}, worst {min(diffs):+.3f}, "
+                       f"{sum(x < -0.01 for x in diffs)} / {len(diffs)} below" if aucs else "—")
+        parts.append(f"| {c} | " + " | ".join(out) + " |\n")
+    return "".join(parts)
 
 
 def _worlds_intro(full) -> str:
