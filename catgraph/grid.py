@@ -127,6 +127,20 @@ rises, so the confidence ``P(map) · mass near the answer`` falls at once, befor
 mass has moved to the new place. :attr:`Estimate.score` and the confidence drop as
 soon as either happens.
 
+Outlier frames (``outlier_probability`` ``p``, default 0). A camera frame with a lorry in
+front of it, a blank image or a Wi-Fi scan that missed its access points shows no place of
+the map, and the linear evidence of the tempered model would let such a frame move a track
+by ten nats or more. With ``p > 0`` each frame shows no mapped place with probability
+``p``, in which case its likelihood at every place is the new-place hypothesis's (a frame
+as a place drawn at random from the map would look); place ``j``'s likelihood is then
+``(1 − p) e^{r_j} + p e^{r_new}``. Computed on the ``e_j = e^{r_j − top}`` the update uses
+anyway: ``e_j + c`` with ``c = p/(1 − p) · e^{r_new − top}``, rescaled to a largest value of
+1 (one pass over the places). The map's evidence for the new-place step is the same
+mixture. A frame that explains nothing costs a track at most about ``log(1/p)`` nats against
+a place that the frame explains no better than a new place would; a real jump then moves
+the mass once the frames after it confirm the new place rather than at its first frame
+(measured in ``docs/particle_filter.md``, "Outlier frames").
+
 Estimate. Mass per place ``m_j = (1 − P(new)) Σ_b P[j, b]``; the answer ``argmax_j m_j``,
 its confidence the mass within ``confidence_radius`` places of it along the route (or
 metres, on a graph with positions, ``confidence_radius_m``), its log-odds the log-odds of
@@ -1128,6 +1142,14 @@ class GridLocalizer:
         method: :data:`catgraph.methods.HOME_SPEED_ODDS`; a traverse is most often driven
         at about the reference's speed, and a weak start-up otherwise holds a neighbouring
         speed, ``docs/particle_filter.md``, "The reference's own speed").
+    outlier_probability : float in [0, 1)
+        The prior probability that a frame shows no place of the map (a glitch, an
+        occlusion, a blank scan): its likelihood at every place is then the new-place
+        hypothesis's, so place ``j``'s is ``(1 − p) e^{r_j} + p e^{r_new}`` (module
+        docstring, "Outlier frames"). A frame that no place explains costs a track at most
+        about ``log(1/p)`` against a place the frame explains no better than a new place
+        would. Default 0: off (the registry's ``filter`` method: 0.01,
+        :data:`catgraph.methods.OUTLIER_PROBABILITY`).
 
     Attributes
     ----------
@@ -1163,7 +1185,7 @@ class GridLocalizer:
                  learn_recovery: bool = True, converged_log_odds: float = 1.0, converged_frames: int = 8,
                  unconverged_penalty: float = 1.0, max_phases: int = 4, smooth_feedback: bool = True,
                  jump_rates=None, jump_rate_scope: str = "query", jump_velocity: str = "current",
-                 rigid_prior: float = 0.0, home_speed_odds: float = 1.0) -> None:
+                 rigid_prior: float = 0.0, home_speed_odds: float = 1.0, outlier_probability: float = 0.0) -> None:
         self.graph = graph
         self.model = model
         self.velocities = velocities
@@ -1187,6 +1209,7 @@ class GridLocalizer:
         self.jump_velocity = jump_velocity
         self.rigid_prior = rigid_prior
         self.home_speed_odds = home_speed_odds
+        self.outlier_probability = outlier_probability
 
     @property
     def state_(self) -> np.ndarray:
@@ -1249,6 +1272,7 @@ class GridLocalizer:
                                         f"{JUMP_RATE_SCOPES}. Got {self.jump_rate_scope!r} instead.")
         check_scalar(self.rigid_prior, "rigid_prior", owner, float, 0.0, 1.0, True, False)
         check_scalar(self.home_speed_odds, "home_speed_odds", owner, float, 0.0, 1e6, False)
+        check_scalar(self.outlier_probability, "outlier_probability", owner, float, 0.0, 1.0, True, False)
         if self.rigid_prior > 0 and self.jump_rates is not None:
             raise InvalidParameterError(f"The 'rigid_prior' and 'jump_rates' parameters of {owner} cannot be combined: "
                                         "give one of them (rigid_prior=0 or jump_rates=None).")
@@ -1459,7 +1483,15 @@ class GridLocalizer:
             return None
         e = self._e
         np.exp(np.subtract(r, top, out=e), out=e)
-        return e, top, float(obs.new_place_log_ratio)
+        new = float(obs.new_place_log_ratio)
+        p = float(self.outlier_probability)
+        if p > 0.0 and new > -math.inf:
+            # (1 − p) e^{r_j} + p e^{r_new}, kept as e_j · e^{top} with max_j e_j = 1
+            c = p / (1.0 - p) * math.exp(min(new - top, 700.0))
+            e += c
+            e *= 1.0 / (1.0 + c)
+            top += math.log1p(-p) + math.log1p(c)
+        return e, top, new
 
     def _predict(self, odometry: float | None, ratio=None) -> None:
         self._summed = None

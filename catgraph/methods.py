@@ -466,7 +466,7 @@ def observation_model(params: dict, n_places: int, bootstrap_samples: Callable[[
 
 _PARTICLE_KEYS = ("n_particles", "resampler", "ess_threshold", "redraw_fraction", "proposal", "jump_graduation")
 #: the grid filter's own parameters (the particle filter has none of them)
-_GRID_KEYS = ("jump_velocity", "rigid_prior", "home_speed_odds")
+_GRID_KEYS = ("jump_velocity", "rigid_prior", "home_speed_odds", "outlier_probability")
 #: ``mode="auto"`` runs the exact grid filter on maps up to this many places
 GRID_MAX_PLACES = 100_000
 
@@ -501,6 +501,14 @@ RIGID_MAX_PLACES = 10_000
 #: jump lands. A weak start-up (UJI 06: the first 37 frames held at half speed) follows the speed
 #: a traverse most often has (``docs/particle_filter.md``, "The reference's own speed")
 HOME_SPEED_ODDS = 3.0
+
+#: the grid filter's prior probability that a frame shows no place of the map
+#: (``GridLocalizer(outlier_probability=...)``), where the method leaves it unset: a frame's
+#: likelihood at each place is ``(1 − p) e^{r_j} + p e^{r_new}``, so one glitch, occlusion or
+#: blank frame cannot move a track by more than about ``log(1/p)`` nats. Chosen on the condition
+#: table, ten 357-frame sections of Nordland and the UJI walks (``docs/particle_filter.md``,
+#: "Outlier frames")
+OUTLIER_PROBABILITY = 0.01
 
 #: the grid filter's ``jump_velocity`` where the method leaves it unset: a jump lands with the
 #: query's long-run velocity distribution (``GridLocalizer(jump_velocity=...)``)
@@ -581,6 +589,8 @@ def concrete_params(params: dict, n_places: int) -> dict[str, Any]:
         out["rigid_prior"] = rigid_prior(params, n_places)
         if params.get("home_speed_odds") is None:
             out["home_speed_odds"] = HOME_SPEED_ODDS
+        if params.get("outlier_probability") is None:
+            out["outlier_probability"] = OUTLIER_PROBABILITY
         return out
     from .localizer import Localizer
 
@@ -606,7 +616,8 @@ def make_filter(params: dict, graph, model):
         common.pop("seed", None)
         return GridLocalizer(graph, model, jump_velocity=params["jump_velocity"],
                              rigid_prior=params["rigid_prior"],
-                             home_speed_odds=params["home_speed_odds"], **common)
+                             home_speed_odds=params["home_speed_odds"],
+                             outlier_probability=params["outlier_probability"], **common)
     from .localizer import Localizer
     from .motion import VelocityMotion
 
@@ -681,6 +692,7 @@ def _filter_not_applicable(params: dict) -> dict[str, str]:
         out["jump_velocity"] = "it sets the grid filter's jumps; the particle filter's recovery particles are drawn"
         out["rigid_prior"] = "the rigid line is the grid filter's; the particle filter has none"
         out["home_speed_odds"] = "it sets the grid filter's velocity prior; the particle filter's is uniform"
+        out["outlier_probability"] = "the outlier frames are the grid filter's; the particle filter has none"
     if model not in sequence_models:
         for k in ("window", *_WINDOW_ADAPTIVE):
             out[k] = f"model {model!r} has no sequence matcher"
@@ -764,6 +776,10 @@ def _filter_params() -> tuple[Param, ...]:
         Param("home_speed_odds", "float", None, "grid: prior odds of the reference's own speed (one "
               "place per frame, either direction) against each other velocity, at the start and where a jump lands "
               f"(1: uniform; default {HOME_SPEED_ODDS:g})", low=1.0, high=1000.0, optional=True),
+        Param("outlier_probability", "float", None, "grid: prior probability that a frame shows no place of "
+              "the map (a glitch, an occlusion, a blank scan), its likelihood then the new-place hypothesis's, so "
+              f"that one such frame cannot pull a track away (0: off; default {OUTLIER_PROBABILITY:g})",
+              low=0.0, high=0.99, optional=True),
         *seq.values(),
         hist["n_init"], hist["exclusion_radius"], hist["gap"], hist["max_different"],
     )

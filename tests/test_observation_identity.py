@@ -60,6 +60,7 @@ def _digest(mode: str, hubs: bool, seed: int = 0, n_places: int = 3000, n_frames
         loc.jump_velocity = "current"  # a jump's velocity then (the registry's is now "long-run")
         loc.rigid_prior = 0.0  # no rigid line then (the registry's is now 0.05 on maps of this size)
         loc.home_speed_odds = 1.0  # a uniform velocity prior then (the registry's now favours ±1)
+        loc.outlier_probability = 0.0  # no outlier frames then (the registry's are now 1 %)
     else:
         loc.motion.blur = 0.01  # the particles follow the grid's blur unless given one
         loc.motion.max_phases = 1  # one bin per speed then (the particles' marginal motion now has phase bins)

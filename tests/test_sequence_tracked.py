@@ -33,9 +33,9 @@ def _reference_rule(d: np.ndarray, l_min: int, l_max: int, grid):
     best = np.stack([match_sequences(d, window=int(L), velocities=(1.0,)).match for L in lengths], axis=1)
     # the registry's default filter method, as the grid: its model, the long-run jump velocity, the
     # velocity prior's odds on ±1 and, on a map this small (at most 10,000 places), the rigid line
-    # beside its motion
+    # beside its motion, and outlier frames at 1 %
     filt = GridLocalizer(PlaceGraph.chain(d.shape[1]), TemperedObservation(), jump_velocity="long-run",
-                         rigid_prior=0.05, home_speed_odds=3.0)
+                         rigid_prior=0.05, home_speed_odds=3.0, outlier_probability=0.01)
     match, conf, length = [], [], []
     for t, row in enumerate(d):
         filt.step(row)
