@@ -185,7 +185,7 @@ def _methods():
 
     def registry(case, graph):
         # the registry's filter method as a user gets it on these maps: the grid with its defaults
-        # (the long-run jump velocity, the rigid line on maps of at most 10,000 places)
+        # (the long-run jump velocity, the rigid line on maps of at most 10,000 places, outlier frames)
         from catgraph.methods import make_filter, observation_model, resolve_params
 
         params = resolve_params("filter", {"mode": "grid"})
@@ -251,7 +251,7 @@ def _markdown(results: dict) -> str:
              "`Localizer(graph, TemperedObservation(), n_particles=2000, motion=VelocityMotion(), seed=0)`; "
              "filter method (registry defaults, grid) = the `filter` method as `catgraph localize` runs it on "
              "these maps (`methods.make_filter`: the grid, the long-run jump velocity, the rigid line on maps of "
-             "at most 10,000 places; the goals of the filter are read on this row); "
+             "at most 10,000 places, outlier frames at 1 %; the goals of the filter are read on this row); "
              "single frame = best place per row, confidence = margin to the best place outside ±10 frames. "
              "Filters are ranked by their score (`LocalizationResult.score`): the posterior log-odds of the "
              "answer's neighbourhood (±2 mean spacings along the route), for the grid filter less 1 nat until it "
@@ -345,7 +345,8 @@ def threshold() -> str:
              "precision at P is applied to every traverse; the table gives the worst and the mean per-traverse "
              "recall (recall = correct frames above the threshold / frames with a true match). The filter method is "
              "the registry's `filter` as `catgraph localize` runs it (`bench_filter.py conditions`' row of that name: "
-             "the grid, the long-run jump velocity, the rigid line on these maps); the grid filter is "
+             "the grid, the long-run jump velocity, the rigid line on these maps, outlier frames at 1 %); the grid "
+             "filter is "
              "`GridLocalizer(graph, TemperedObservation())`, its own defaults. Both run on the registry's map graph "
              "(`catgraph.io.place_graph`); their score is the log-odds less the unconverged penalty "
              "(`GridLocalizer`, module docstring).", "",
