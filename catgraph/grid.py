@@ -141,6 +141,20 @@ a place that the frame explains no better than a new place would; a real jump th
 the mass once the frames after it confirm the new place rather than at its first frame
 (measured in ``docs/particle_filter.md``, "Outlier frames").
 
+Speeds between the bins. A track moves at its bin's speed, so a query driven at a speed
+between two bins drifts from every bin by the difference, and only the blur and the
+velocity transition (a few nats each time) bring it back: with :data:`DEFAULT_VELOCITIES`
+(±0.5, 1, 2, 3) Nordland at 1.5 times the reference's speed scored AUC 0.13, at 0.75
+0.40 and at 1.1 0.77, against 0.98–0.99 at 0.5, 1 and 2
+(``benchmarks/results/generalisation_speeds.md``). A speed split between the places
+either side of its move (a bin of 1.1 moves one place, and a tenth of its mass two) blurs
+a track by ``f (1 − f)`` places² a frame, which absorbs a drift of a twentieth of a place
+per frame: a bin at 1.1 held Nordland at 1.05, 1.1 and 1.15 (AUC 0.980, 0.982, 0.968) and
+lost it at 1.2 (0.912). :data:`DENSE_VELOCITIES` has a bin every tenth of a place per
+frame from 0.4 to 4, and, because that blur grows relatively the slower the speed (0.25
+between bins at 0.2 and 0.3 scored 0.77), the slow speeds a quarter and a third as phase
+bins (``docs/particle_filter.md``, "Speeds between the bins").
+
 Estimate. Mass per place ``m_j = (1 − P(new)) Σ_b P[j, b]``; the answer ``argmax_j m_j``,
 its confidence the mass within ``confidence_radius`` places of it along the route (or
 metres, on a graph with positions, ``confidence_radius_m``), its log-odds the log-odds of
@@ -260,6 +274,13 @@ JUMP_VELOCITIES = ("current", "long-run")
 
 #: Default signed velocity bins (places per query frame).
 DEFAULT_VELOCITIES = (-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0)
+
+#: Signed velocity bins for a query at any speed from a quarter of the reference's to four
+#: times it (the registry's on maps of at most ``methods.DENSE_VELOCITY_MAX_PLACES``
+#: places): a third and a quarter, and every tenth of a place per frame from 0.4 to 4,
+#: both ways (module docstring, "Speeds between the bins").
+DENSE_VELOCITIES = tuple(sorted({s * v for s in (-1.0, 1.0)
+                                 for v in (1.0 / 4.0, 1.0 / 3.0, *(k / 10.0 for k in range(4, 41)))}))
 
 
 def route_neighbours(graph: PlaceGraph) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -1054,7 +1075,10 @@ class GridLocalizer:
     model : ObservationModel
         Gives the per-place log-likelihood ratios (reset by :meth:`reset`).
     velocities : sequence of float
-        Signed speed bins, places per query frame (default ``±0.5, ±1, ±2, ±3``).
+        Signed speed bins, places per query frame (default :data:`DEFAULT_VELOCITIES`,
+        ``±0.5, ±1, ±2, ±3``; the registry's ``filter`` method: :data:`DENSE_VELOCITIES` on
+        maps of at most ``methods.DENSE_VELOCITY_MAX_PLACES`` places, module docstring,
+        "Speeds between the bins").
     velocity_stay : float in [0, 1]
         Probability of keeping the velocity bin from one frame to the next (default
         0.99: a query's speed changes slowly, and a looser velocity lets a slow
@@ -1139,7 +1163,8 @@ class GridLocalizer:
         backwards (``velocities`` ``±1``), against each other velocity: the velocity prior
         of the start and of the recovery share where a jump lands (with ``"long-run"``, the
         prior its learning starts from). Default 1: uniform (the registry's ``filter``
-        method: :data:`catgraph.methods.HOME_SPEED_ODDS`; a traverse is most often driven
+        method: the odds that give ``±1`` together :data:`catgraph.methods.HOME_SPEED_SHARE`
+        of the prior, :func:`catgraph.methods.home_speed_odds`; a traverse is most often driven
         at about the reference's speed, and a weak start-up otherwise holds a neighbouring
         speed, ``docs/particle_filter.md``, "The reference's own speed").
     outlier_probability : float in [0, 1)

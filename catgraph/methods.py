@@ -73,8 +73,9 @@ class Param:
     """One method parameter: its type, range or choices, default and help.
 
     ``kind`` is ``"int"``, ``"float"``, ``"bool"``, ``"str"`` (with ``choices``),
-    ``"window"`` (an int ≥ 1 or ``"adaptive"``) or ``"grid"`` (``"geometric"``, ``"all"``,
-    an int ≥ 1 or a list of ints ≥ 1). ``default=None`` with ``optional=True`` means
+    ``"window"`` (an int ≥ 1 or ``"adaptive"``), ``"grid"`` (``"geometric"``, ``"all"``,
+    an int ≥ 1 or a list of ints ≥ 1) or ``"floats"`` (a list of at most ``high``, default
+    64, finite numbers: velocities). ``default=None`` with ``optional=True`` means
     "not set" (the method decides). ``flag`` is the command-line option.
     """
 
@@ -87,6 +88,11 @@ class Param:
     high: float | None = None
     optional: bool = False
     flag: str | None = None
+
+    @property
+    def _max_count(self) -> int:
+        """``"floats"``: the most values a list may hold (``high``, default 64)."""
+        return int(self.high) if self.high is not None else 64
 
     @property
     def option(self) -> str:
@@ -105,7 +111,7 @@ class Param:
         if self.kind == "floats":
             from .sequence import MAX_VELOCITY
 
-            return f"a list of 1 to 64 numbers in [-{MAX_VELOCITY:g}, {MAX_VELOCITY:g}]"
+            return f"a list of 1 to {self._max_count} numbers in [-{MAX_VELOCITY:g}, {MAX_VELOCITY:g}]"
         what = {"int": "an int", "float": "a number", "str": "a string"}[self.kind]
         if self.low is not None and self.high is not None:
             return f"{what} in [{self.low:g}, {self.high:g}]"
@@ -144,7 +150,7 @@ class Param:
         if self.kind == "floats":  # the velocities of the sequence lines
             from .sequence import MAX_VELOCITY
 
-            ok = isinstance(value, (list, tuple)) and 0 < len(value) <= 64 and all(
+            ok = isinstance(value, (list, tuple)) and 0 < len(value) <= self._max_count and all(
                 isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
                 and abs(v) <= MAX_VELOCITY for v in value)
             if not ok:
@@ -466,7 +472,7 @@ def observation_model(params: dict, n_places: int, bootstrap_samples: Callable[[
 
 _PARTICLE_KEYS = ("n_particles", "resampler", "ess_threshold", "redraw_fraction", "proposal", "jump_graduation")
 #: the grid filter's own parameters (the particle filter has none of them)
-_GRID_KEYS = ("jump_velocity", "rigid_prior", "home_speed_odds", "outlier_probability")
+_GRID_KEYS = ("jump_velocity", "rigid_prior", "home_speed_odds", "outlier_probability", "velocity_bins")
 #: ``mode="auto"`` runs the exact grid filter on maps up to this many places
 GRID_MAX_PLACES = 100_000
 
@@ -496,11 +502,52 @@ RIGID_PRIOR = 0.05
 RIGID_MAX_PLACES = 10_000
 
 
-#: the grid filter's prior odds of the reference's own speed (``GridLocalizer(home_speed_odds=...)``):
-#: ``±1`` place per frame three times as likely as each other velocity at the start and where a
-#: jump lands. A weak start-up (UJI 06: the first 37 frames held at half speed) follows the speed
-#: a traverse most often has (``docs/particle_filter.md``, "The reference's own speed")
+#: the share of the grid filter's velocity prior on the reference's own speed, ``±1`` place per
+#: frame together, at the start and where a jump lands, where the method leaves ``home_speed_odds``
+#: unset: a weak start-up (UJI 06: the first 37 frames held at half speed) follows the speed a
+#: traverse most often has (``docs/particle_filter.md``, "The reference's own speed"). The odds
+#: against each other velocity follow from the velocity bins (:func:`home_speed_odds`)
+HOME_SPEED_SHARE = 0.5
+#: the odds that share gives the eight velocities of ``grid.DEFAULT_VELOCITIES``: ``±1`` three
+#: times as likely as each other velocity
 HOME_SPEED_ODDS = 3.0
+
+#: the grid filter's velocity bins are ``grid.DENSE_VELOCITIES`` (a third and a quarter, and every
+#: tenth from 0.4 to 4 places per frame, both ways: 96 bins) on maps of at most this many places
+#: where the method leaves ``velocity_bins`` unset, and ``grid.DEFAULT_VELOCITIES`` (±0.5, 1, 2, 3:
+#: 10 bins) above. A query driven between the bins' speeds drifts from every track
+#: (``docs/particle_filter.md``, "Speeds between the bins"); the dense bins cost a step about
+#: ten times the state, held back on large maps as the rigid line is
+DENSE_VELOCITY_MAX_PLACES = 10_000
+
+
+def home_speed_odds(velocities, share: float = HOME_SPEED_SHARE) -> float:
+    """The odds of each of ``±1`` against each other velocity of ``velocities`` that give
+    the two together ``share`` of the prior (every velocity where ``±1`` are not among them:
+    1).
+
+    Examples
+    --------
+    >>> home_speed_odds((-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0))
+    3.0
+    """
+    v = np.abs(np.asarray(velocities, dtype=np.float64))
+    home = int(np.count_nonzero(np.abs(v - 1.0) < 1e-12))
+    other = len(v) - home
+    if home == 0 or other == 0:
+        return 1.0
+    return float(share * other / (home * (1.0 - share)))
+
+
+def velocity_bins(params: dict, n_places: int) -> list[float]:
+    """The grid filter's velocity bins on a map of ``n_places``: the method's
+    ``velocity_bins`` where set, else ``grid.DENSE_VELOCITIES`` up to
+    :data:`DENSE_VELOCITY_MAX_PLACES` places, else ``grid.DEFAULT_VELOCITIES``."""
+    if params.get("velocity_bins") is not None:
+        return [float(v) for v in params["velocity_bins"]]
+    from .grid import DEFAULT_VELOCITIES, DENSE_VELOCITIES
+
+    return list(DENSE_VELOCITIES if n_places <= DENSE_VELOCITY_MAX_PLACES else DEFAULT_VELOCITIES)
 
 #: the grid filter's prior probability that a frame shows no place of the map
 #: (``GridLocalizer(outlier_probability=...)``), where the method leaves it unset: a frame's
@@ -587,8 +634,9 @@ def concrete_params(params: dict, n_places: int) -> dict[str, Any]:
     if mode == "grid":
         out["jump_velocity"] = params.get("jump_velocity") or JUMP_VELOCITY
         out["rigid_prior"] = rigid_prior(params, n_places)
+        out["velocity_bins"] = velocity_bins(params, n_places)
         if params.get("home_speed_odds") is None:
-            out["home_speed_odds"] = HOME_SPEED_ODDS
+            out["home_speed_odds"] = home_speed_odds(out["velocity_bins"])
         if params.get("outlier_probability") is None:
             out["outlier_probability"] = OUTLIER_PROBABILITY
         return out
@@ -614,7 +662,8 @@ def make_filter(params: dict, graph, model):
         from .grid import GridLocalizer
 
         common.pop("seed", None)
-        return GridLocalizer(graph, model, jump_velocity=params["jump_velocity"],
+        return GridLocalizer(graph, model, velocities=tuple(params["velocity_bins"]),
+                             jump_velocity=params["jump_velocity"],
                              rigid_prior=params["rigid_prior"],
                              home_speed_odds=params["home_speed_odds"],
                              outlier_probability=params["outlier_probability"], **common)
@@ -775,7 +824,13 @@ def _filter_params() -> tuple[Param, ...]:
               low=0.0, high=0.99, optional=True),
         Param("home_speed_odds", "float", None, "grid: prior odds of the reference's own speed (one "
               "place per frame, either direction) against each other velocity, at the start and where a jump lands "
-              f"(1: uniform; default {HOME_SPEED_ODDS:g})", low=1.0, high=1000.0, optional=True),
+              f"(1: uniform; default: the odds that give the two {HOME_SPEED_SHARE:g} of the prior, "
+              f"{HOME_SPEED_ODDS:g} with the 8 velocities above {DENSE_VELOCITY_MAX_PLACES:,} places)", low=1.0,
+              high=1000.0, optional=True),
+        Param("velocity_bins", "floats", None, "grid: the signed speeds of the motion's velocity bins, places "
+              "per frame (negative: driven backwards; default: a third, a quarter and every tenth from 0.4 to 4 "
+              f"both ways on maps of at most {DENSE_VELOCITY_MAX_PLACES:,} places, ±0.5, 1, 2, 3 above)",
+              high=256, optional=True),
         Param("outlier_probability", "float", None, "grid: prior probability that a frame shows no place of "
               "the map (a glitch, an occlusion, a blank scan), its likelihood then the new-place hypothesis's, so "
               f"that one such frame cannot pull a track away (0: off; default {OUTLIER_PROBABILITY:g})",

@@ -260,7 +260,7 @@ def test_auto_mode_refuses_the_options_of_the_filter_it_does_not_run(capsys):
         assert concrete_params(resolve_params("filter", given), GRID_MAX_PLACES + 1)[key] == value
     # above the grid's size auto runs particles, which have no grid
     for key, value in (("rigid_prior", 0.1), ("jump_velocity", "current"), ("home_speed_odds", 2.0),
-                       ("outlier_probability", 0.1)):
+                       ("outlier_probability", 0.1), ("velocity_bins", [-1.0, 1.0])):
         with pytest.raises(InvalidParameterError, match=f"'{key}' does not apply here: mode 'auto' runs the particle"):
             concrete_params(resolve_params("filter", {key: value}), GRID_MAX_PLACES + 1)
         assert concrete_params(resolve_params("filter", {key: value}), 100)[key] == value
@@ -268,7 +268,8 @@ def test_auto_mode_refuses_the_options_of_the_filter_it_does_not_run(capsys):
 
 def test_filter_runs_record_the_parameters_of_the_filter_that_ran(tmp_path):
     from catgraph.localizer import Localizer
-    from catgraph.methods import HOME_SPEED_ODDS, JUMP_VELOCITY, OUTLIER_PROBABILITY, RIGID_PRIOR, particle_defaults
+    from catgraph.grid import DENSE_VELOCITIES
+    from catgraph.methods import JUMP_VELOCITY, OUTLIER_PROBABILITY, RIGID_PRIOR, home_speed_odds, particle_defaults
 
     out = tmp_path / "grid.json"
     assert main(["localize", "synthetic:2", "synthetic:2", "-o", str(out), "-q"]) == 0
@@ -276,7 +277,8 @@ def test_filter_runs_record_the_parameters_of_the_filter_that_ran(tmp_path):
     assert params["mode"] == "grid"
     assert not {"n_particles", "resampler", "motion", "proposal", "jump_graduation"} & set(params)
     assert (params["jump_velocity"], params["rigid_prior"], params["home_speed_odds"],
-            params["outlier_probability"]) == (JUMP_VELOCITY, RIGID_PRIOR, HOME_SPEED_ODDS, OUTLIER_PROBABILITY)
+            params["outlier_probability"]) == (JUMP_VELOCITY, RIGID_PRIOR, 38.0, OUTLIER_PROBABILITY)
+    assert params["velocity_bins"] == list(DENSE_VELOCITIES) and home_speed_odds(DENSE_VELOCITIES) == 38.0
     out = tmp_path / "particles.json"
     assert main(["compare", "synthetic:2", "synthetic:2", "--mode", "particles", "--particles", "50", "-o", str(out),
                  "-q"]) == 0
@@ -288,7 +290,7 @@ def test_filter_runs_record_the_parameters_of_the_filter_that_ran(tmp_path):
         p = run["params"]
         assert p["mode"] == "particles" and p["n_particles"] == 50 and p["motion"] == "velocity"
         assert {k: p[k] for k in own if k != "n_particles"} == {k: v for k, v in own.items() if k != "n_particles"}
-        assert not {"jump_velocity", "rigid_prior", "home_speed_odds", "outlier_probability"} & set(p)
+        assert not {"jump_velocity", "rigid_prior", "home_speed_odds", "outlier_probability", "velocity_bins"} & set(p)
 
 
 def test_compare_checks_every_filters_options_before_its_first_run(monkeypatch, capsys):

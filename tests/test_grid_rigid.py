@@ -176,14 +176,42 @@ def test_home_speed_odds_validated(bad):
 
 
 def test_registry_filter_passes_the_home_speed_odds():
-    from catgraph.methods import HOME_SPEED_ODDS, make_filter, observation_model, resolve_params
+    from catgraph.methods import HOME_SPEED_ODDS, HOME_SPEED_SHARE, make_filter, observation_model, resolve_params
 
-    for given, expected in (({}, HOME_SPEED_ODDS), ({"home_speed_odds": 1.0}, 1.0)):
+    for given, expected in (({}, 38.0), ({"home_speed_odds": 1.0}, 1.0)):
         params = resolve_params("filter", {"mode": "grid", **given})
         loc = make_filter(params, PlaceGraph.chain(40), observation_model(params, 40, None))
         assert loc.home_speed_odds == expected
+    # the default odds give ±1 half the prior, whatever the velocity bins: the dense ones on a
+    # small map, the eight of the class default above DENSE_VELOCITY_MAX_PLACES, or the user's
+    for given, n in (({}, 40), ({"velocity_bins": [-2.0, -1.0, 1.0, 2.0, 3.0]}, 40), ({}, 20_000)):
+        params = resolve_params("filter", {"mode": "grid", **given})
+        loc = make_filter(params, PlaceGraph.chain(n), observation_model(params, n, None)).reset()
+        home = np.abs(np.abs(loc._v[loc._owner]) - 1.0) < 1e-12
+        assert loc._velocity_prior[home].sum() == pytest.approx(HOME_SPEED_SHARE, abs=1e-12)
+        assert loc._velocity_prior.sum() == pytest.approx(1.0, abs=1e-12)
+    assert loc.home_speed_odds == HOME_SPEED_ODDS
     with pytest.raises(InvalidParameterError, match="home_speed_odds"):
         resolve_params("filter", {"mode": "particles", "home_speed_odds": 2.0})
+
+
+def test_registry_filter_velocity_bins_by_map_size():
+    from catgraph.grid import DEFAULT_VELOCITIES, DENSE_VELOCITIES
+    from catgraph.methods import (DENSE_VELOCITY_MAX_PLACES, concrete_params, make_filter, observation_model,
+                                  resolve_params)
+
+    assert len(DENSE_VELOCITIES) == 78 and min(np.abs(DENSE_VELOCITIES)) == 0.25 and max(DENSE_VELOCITIES) == 4.0
+    for n, expected in ((DENSE_VELOCITY_MAX_PLACES, DENSE_VELOCITIES), (DENSE_VELOCITY_MAX_PLACES + 1,
+                                                                        DEFAULT_VELOCITIES)):
+        assert concrete_params(resolve_params("filter", {}), n)["velocity_bins"] == list(expected)
+    params = resolve_params("filter", {"mode": "grid", "velocity_bins": [-1, 1, 1.5]})
+    loc = make_filter(params, PlaceGraph.chain(30), observation_model(params, 30, None))
+    assert loc.velocities == (-1.0, 1.0, 1.5)
+    with pytest.raises(InvalidParameterError, match="velocity_bins"):
+        resolve_params("filter", {"velocity_bins": [1.0, float("nan")]})
+    with pytest.raises(InvalidParameterError, match="velocities"):  # the filter refuses repeated speeds
+        make_filter(resolve_params("filter", {"mode": "grid", "velocity_bins": [1.0, 1.0]}), PlaceGraph.chain(30),
+                    observation_model(params, 30, None)).reset()
 
 
 def test_float32_line_path_agrees_with_float64():

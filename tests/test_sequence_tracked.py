@@ -5,7 +5,7 @@ import pytest
 
 from catgraph.exceptions import InvalidParameterError
 from catgraph.graph import PlaceGraph
-from catgraph.grid import GridLocalizer
+from catgraph.grid import DENSE_VELOCITIES, GridLocalizer
 from catgraph.hubs import hub_offsets
 from catgraph.observation import TemperedObservation
 from catgraph.sequence import (DEFAULT_CONFIDENCE, DEFAULT_LINE_RULE, DEFAULT_RULE, SequenceMatcher,
@@ -32,10 +32,10 @@ def _reference_rule(d: np.ndarray, l_min: int, l_max: int, grid):
     lengths = window_grid(l_min, l_max, grid)
     best = np.stack([match_sequences(d, window=int(L), velocities=(1.0,)).match for L in lengths], axis=1)
     # the registry's default filter method, as the grid: its model, the long-run jump velocity, the
-    # velocity prior's odds on ±1 and, on a map this small (at most 10,000 places), the rigid line
-    # beside its motion, and outlier frames at 1 %
-    filt = GridLocalizer(PlaceGraph.chain(d.shape[1]), TemperedObservation(), jump_velocity="long-run",
-                         rigid_prior=0.05, home_speed_odds=3.0, outlier_probability=0.01)
+    # velocity prior's odds on ±1 (half the prior) and, on a map this small (at most 10,000 places),
+    # the dense velocity bins and the rigid line beside its motion, and outlier frames at 1 %
+    filt = GridLocalizer(PlaceGraph.chain(d.shape[1]), TemperedObservation(), velocities=DENSE_VELOCITIES,
+                         jump_velocity="long-run", rigid_prior=0.05, home_speed_odds=38.0, outlier_probability=0.01)
     match, conf, length = [], [], []
     for t, row in enumerate(d):
         filt.step(row)
