@@ -151,9 +151,13 @@ either side of its move (a bin of 1.1 moves one place, and a tenth of its mass t
 a track by ``f (1 − f)`` places² a frame, which absorbs a drift of a twentieth of a place
 per frame: a bin at 1.1 held Nordland at 1.05, 1.1 and 1.15 (AUC 0.980, 0.982, 0.968) and
 lost it at 1.2 (0.912). :data:`DENSE_VELOCITIES` has a bin every tenth of a place per
-frame from 0.4 to 4, and, because that blur grows relatively the slower the speed (0.25
-between bins at 0.2 and 0.3 scored 0.77), the slow speeds a quarter and a third as phase
-bins (``docs/particle_filter.md``, "Speeds between the bins").
+frame from 0.9 to 4, and below it only a half, two thirds and three quarters, as phase
+bins: every slow bin is a track that can creep along a stretch of look-alike places, and
+on short routes they cost more than they were worth (ten 357-frame sections of Nordland:
+bins at a quarter, a third and every tenth from 0.4 lowered the mean AUC in order from
+0.937 to 0.912, one section from 0.976 to 0.812), so a query slower than half the
+reference's speed, or between the slow bins, is not followed (``docs/particle_filter.md``,
+"Speeds between the bins").
 
 Estimate. Mass per place ``m_j = (1 − P(new)) Σ_b P[j, b]``; the answer ``argmax_j m_j``,
 its confidence the mass within ``confidence_radius`` places of it along the route (or
@@ -275,12 +279,12 @@ JUMP_VELOCITIES = ("current", "long-run")
 #: Default signed velocity bins (places per query frame).
 DEFAULT_VELOCITIES = (-3.0, -2.0, -1.0, -0.5, 0.5, 1.0, 2.0, 3.0)
 
-#: Signed velocity bins for a query at any speed from a quarter of the reference's to four
-#: times it (the registry's on maps of at most ``methods.DENSE_VELOCITY_MAX_PLACES``
-#: places): a third and a quarter, and every tenth of a place per frame from 0.4 to 4,
-#: both ways (module docstring, "Speeds between the bins").
+#: Signed velocity bins for a query at any speed from half the reference's to four times
+#: it (the registry's on maps of at most ``methods.DENSE_VELOCITY_MAX_PLACES`` places):
+#: every tenth of a place per frame from 0.9 to 4, and below it a half, two thirds and
+#: three quarters (phase bins), both ways (module docstring, "Speeds between the bins").
 DENSE_VELOCITIES = tuple(sorted({s * v for s in (-1.0, 1.0)
-                                 for v in (1.0 / 4.0, 1.0 / 3.0, *(k / 10.0 for k in range(4, 41)))}))
+                                 for v in (1.0 / 2.0, 2.0 / 3.0, 3.0 / 4.0, *(k / 10.0 for k in range(9, 41)))}))
 
 
 def route_neighbours(graph: PlaceGraph) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -512,10 +512,10 @@ HOME_SPEED_SHARE = 0.5
 #: times as likely as each other velocity
 HOME_SPEED_ODDS = 3.0
 
-#: the grid filter's velocity bins are ``grid.DENSE_VELOCITIES`` (a third and a quarter, and every
-#: tenth from 0.4 to 4 places per frame, both ways: 96 bins) on maps of at most this many places
-#: where the method leaves ``velocity_bins`` unset, and ``grid.DEFAULT_VELOCITIES`` (±0.5, 1, 2, 3:
-#: 10 bins) above. A query driven between the bins' speeds drifts from every track
+#: the grid filter's velocity bins are ``grid.DENSE_VELOCITIES`` (every tenth from 0.9 to 4 places
+#: per frame, and a half, two thirds and three quarters, both ways: 88 bins with the phases) on
+#: maps of at most this many places where the method leaves ``velocity_bins`` unset, and
+#: ``grid.DEFAULT_VELOCITIES`` (±0.5, 1, 2, 3: 10 bins) above. A query driven between the bins' speeds drifts from every track
 #: (``docs/particle_filter.md``, "Speeds between the bins"); the dense bins cost a step about
 #: ten times the state, held back on large maps as the rigid line is
 DENSE_VELOCITY_MAX_PLACES = 10_000
@@ -828,8 +828,8 @@ def _filter_params() -> tuple[Param, ...]:
               f"{HOME_SPEED_ODDS:g} with the 8 velocities above {DENSE_VELOCITY_MAX_PLACES:,} places)", low=1.0,
               high=1000.0, optional=True),
         Param("velocity_bins", "floats", None, "grid: the signed speeds of the motion's velocity bins, places "
-              "per frame (negative: driven backwards; default: a third, a quarter and every tenth from 0.4 to 4 "
-              f"both ways on maps of at most {DENSE_VELOCITY_MAX_PLACES:,} places, ±0.5, 1, 2, 3 above)",
+              "per frame (negative: driven backwards; default: every tenth from 0.9 to 4, and 1/2, 2/3 and 3/4, "
+              f"both ways, on maps of at most {DENSE_VELOCITY_MAX_PLACES:,} places; ±0.5, 1, 2, 3 above)",
               high=256, optional=True),
         Param("outlier_probability", "float", None, "grid: prior probability that a frame shows no place of "
               "the map (a glitch, an occlusion, a blank scan), its likelihood then the new-place hypothesis's, so "

@@ -277,8 +277,8 @@ def test_filter_runs_record_the_parameters_of_the_filter_that_ran(tmp_path):
     assert params["mode"] == "grid"
     assert not {"n_particles", "resampler", "motion", "proposal", "jump_graduation"} & set(params)
     assert (params["jump_velocity"], params["rigid_prior"], params["home_speed_odds"],
-            params["outlier_probability"]) == (JUMP_VELOCITY, RIGID_PRIOR, 38.0, OUTLIER_PROBABILITY)
-    assert params["velocity_bins"] == list(DENSE_VELOCITIES) and home_speed_odds(DENSE_VELOCITIES) == 38.0
+            params["outlier_probability"]) == (JUMP_VELOCITY, RIGID_PRIOR, 34.0, OUTLIER_PROBABILITY)
+    assert params["velocity_bins"] == list(DENSE_VELOCITIES) and home_speed_odds(DENSE_VELOCITIES) == 34.0
     out = tmp_path / "particles.json"
     assert main(["compare", "synthetic:2", "synthetic:2", "--mode", "particles", "--particles", "50", "-o", str(out),
                  "-q"]) == 0

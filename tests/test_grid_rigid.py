@@ -178,7 +178,7 @@ def test_home_speed_odds_validated(bad):
 def test_registry_filter_passes_the_home_speed_odds():
     from catgraph.methods import HOME_SPEED_ODDS, HOME_SPEED_SHARE, make_filter, observation_model, resolve_params
 
-    for given, expected in (({}, 38.0), ({"home_speed_odds": 1.0}, 1.0)):
+    for given, expected in (({}, 34.0), ({"home_speed_odds": 1.0}, 1.0)):
         params = resolve_params("filter", {"mode": "grid", **given})
         loc = make_filter(params, PlaceGraph.chain(40), observation_model(params, 40, None))
         assert loc.home_speed_odds == expected
@@ -200,7 +200,7 @@ def test_registry_filter_velocity_bins_by_map_size():
     from catgraph.methods import (DENSE_VELOCITY_MAX_PLACES, concrete_params, make_filter, observation_model,
                                   resolve_params)
 
-    assert len(DENSE_VELOCITIES) == 78 and min(np.abs(DENSE_VELOCITIES)) == 0.25 and max(DENSE_VELOCITIES) == 4.0
+    assert len(DENSE_VELOCITIES) == 70 and min(np.abs(DENSE_VELOCITIES)) == 0.5 and max(DENSE_VELOCITIES) == 4.0
     for n, expected in ((DENSE_VELOCITY_MAX_PLACES, DENSE_VELOCITIES), (DENSE_VELOCITY_MAX_PLACES + 1,
                                                                         DEFAULT_VELOCITIES)):
         assert concrete_params(resolve_params("filter", {}), n)["velocity_bins"] == list(expected)

@@ -1,6 +1,6 @@
-"""The grid filter follows a query driven at any speed between a quarter and four times the
-reference's (the registry's dense velocity bins), where the eight bins of the class default
-lose every speed between theirs."""
+"""The grid filter follows a query driven at any speed from 0.9 to four times the
+reference's, and at a half, two thirds and three quarters of it (the registry's dense
+velocity bins), where the eight bins of the class default lose every speed between theirs."""
 
 import numpy as np
 import pytest
@@ -39,7 +39,7 @@ def test_single_frames_cannot_see_the_track():
     assert np.mean(np.abs(np.argmin(d, axis=1) - truth) <= 2) < 0.2
 
 
-@pytest.mark.parametrize("speed", [1.0, 1.5, 0.75, 1 / 3, 2.5, 1.1, 3.7])
+@pytest.mark.parametrize("speed", [1.0, 1.5, 0.75, 2 / 3, 2.5, 1.1, 3.7, 0.95])
 def test_the_registry_filter_follows_speeds_between_the_eight_bins(speed):
     assert _accuracy(speed, seed=0) >= 0.95
 
@@ -50,9 +50,9 @@ def test_the_eight_bins_lose_a_speed_between_theirs(speed):
     assert _accuracy(1.0, seed=0, bins=DEFAULT_VELOCITIES) >= 0.95  # and hold their own
 
 
-def test_dense_bins_cover_a_quarter_to_four_times_the_speed_both_ways():
+def test_dense_bins_cover_half_to_four_times_the_speed_both_ways():
     v = np.asarray(DENSE_VELOCITIES)
     assert np.array_equal(v, -v[::-1]) and np.all(np.diff(v) > 0)
     speeds = v[v > 0]
-    assert speeds[0] == 0.25 and speeds[1] == pytest.approx(1 / 3) and speeds[-1] == 4.0
-    assert np.max(np.diff(speeds[2:])) == pytest.approx(0.1)  # every tenth from 0.4
+    assert speeds[:4] == pytest.approx([1 / 2, 2 / 3, 3 / 4, 0.9]) and speeds[-1] == 4.0
+    assert np.max(np.diff(speeds[3:])) == pytest.approx(0.1)  # every tenth from 0.9

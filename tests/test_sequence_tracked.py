@@ -35,7 +35,7 @@ def _reference_rule(d: np.ndarray, l_min: int, l_max: int, grid):
     # velocity prior's odds on ±1 (half the prior) and, on a map this small (at most 10,000 places),
     # the dense velocity bins and the rigid line beside its motion, and outlier frames at 1 %
     filt = GridLocalizer(PlaceGraph.chain(d.shape[1]), TemperedObservation(), velocities=DENSE_VELOCITIES,
-                         jump_velocity="long-run", rigid_prior=0.05, home_speed_odds=38.0, outlier_probability=0.01)
+                         jump_velocity="long-run", rigid_prior=0.05, home_speed_odds=34.0, outlier_probability=0.01)
     match, conf, length = [], [], []
     for t, row in enumerate(d):
         filt.step(row)
