@@ -5,7 +5,7 @@ import pytest
 
 from catgraph.exceptions import InvalidParameterError
 from catgraph.graph import PlaceGraph
-from catgraph.grid import DENSE_VELOCITIES, GridLocalizer
+from catgraph.grid import GridLocalizer
 from catgraph.hubs import hub_offsets
 from catgraph.observation import TemperedObservation
 from catgraph.sequence import (DEFAULT_CONFIDENCE, DEFAULT_LINE_RULE, DEFAULT_RULE, SequenceMatcher,
@@ -33,9 +33,10 @@ def _reference_rule(d: np.ndarray, l_min: int, l_max: int, grid):
     best = np.stack([match_sequences(d, window=int(L), velocities=(1.0,)).match for L in lengths], axis=1)
     # the registry's default filter method, as the grid: its model, the long-run jump velocity, the
     # velocity prior's odds on ±1 (half the prior) and, on a map this small (at most 10,000 places),
-    # the dense velocity bins and the rigid line beside its motion, and outlier frames at 1 %
-    filt = GridLocalizer(PlaceGraph.chain(d.shape[1]), TemperedObservation(), velocities=DENSE_VELOCITIES,
-                         jump_velocity="long-run", rigid_prior=0.05, home_speed_odds=34.0, outlier_probability=0.01)
+    # the rigid line beside its motion, and outlier frames at 1 %; its velocity bins the matcher's
+    # velocities (here +1 alone, so the prior has no other velocity to favour ±1 against)
+    filt = GridLocalizer(PlaceGraph.chain(d.shape[1]), TemperedObservation(), velocities=(1.0,),
+                         jump_velocity="long-run", rigid_prior=0.05, home_speed_odds=1.0, outlier_probability=0.01)
     match, conf, length = [], [], []
     for t, row in enumerate(d):
         filt.step(row)
@@ -50,6 +51,22 @@ def _reference_rule(d: np.ndarray, l_min: int, l_max: int, grid):
 
 def test_tracked_is_the_default_rule():
     assert DEFAULT_RULE == "tracked"
+
+
+def test_tracked_filter_has_the_matchers_velocities_as_its_bins():
+    from catgraph.grid import DEFAULT_VELOCITIES
+    from catgraph.methods import HOME_SPEED_ODDS
+
+    d, _ = _route()
+    for velocities in (None, (-1.0, 1.0, 1.5)):
+        m = SequenceMatcher(window="adaptive", rule="tracked", l_min=3, l_max=40, grid=6,
+                            **({} if velocities is None else {"velocities": velocities}))
+        for row in d[:3]:
+            m.step(row)
+        filt = m._record.tracker.filter
+        assert filt.velocities == tuple(DEFAULT_VELOCITIES if velocities is None else velocities)
+    assert match_sequences(d[:5], rule="tracked", l_min=3, l_max=40, grid=6) is not None
+    assert HOME_SPEED_ODDS == 3.0  # the eight velocities' odds: ±1 half the prior
 
 
 def test_tracked_rule_matches_its_definition():
