@@ -111,7 +111,7 @@ class Param:
         if self.kind == "floats":
             from .sequence import MAX_VELOCITY
 
-            return f"a list of 1 to {self._max_count} numbers in [-{MAX_VELOCITY:g}, {MAX_VELOCITY:g}]"
+            return f"a list of 1 to {self._max_count} distinct numbers in [-{MAX_VELOCITY:g}, {MAX_VELOCITY:g}]"
         what = {"int": "an int", "float": "a number", "str": "a string"}[self.kind]
         if self.low is not None and self.high is not None:
             return f"{what} in [{self.low:g}, {self.high:g}]"
@@ -153,6 +153,7 @@ class Param:
             ok = isinstance(value, (list, tuple)) and 0 < len(value) <= self._max_count and all(
                 isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
                 and abs(v) <= MAX_VELOCITY for v in value)
+            ok = ok and len({float(v) for v in value}) == len(value)
             if not ok:
                 raise bad()
             return [float(v) for v in value]

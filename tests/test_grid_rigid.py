@@ -209,9 +209,10 @@ def test_registry_filter_velocity_bins_by_map_size():
     assert loc.velocities == (-1.0, 1.0, 1.5)
     with pytest.raises(InvalidParameterError, match="velocity_bins"):
         resolve_params("filter", {"velocity_bins": [1.0, float("nan")]})
-    with pytest.raises(InvalidParameterError, match="velocities"):  # the filter refuses repeated speeds
-        make_filter(resolve_params("filter", {"mode": "grid", "velocity_bins": [1.0, 1.0]}), PlaceGraph.chain(30),
-                    observation_model(params, 30, None)).reset()
+    with pytest.raises(InvalidParameterError, match="'velocity_bins' .* distinct numbers"):
+        resolve_params("filter", {"mode": "grid", "velocity_bins": [1.0, 1.0]})
+    with pytest.raises(InvalidParameterError, match="'velocities' .* distinct"):  # and the filter itself
+        GridLocalizer(PlaceGraph.chain(30), observation_model(params, 30, None), velocities=(1.0, 1.0)).reset()
 
 
 def test_float32_line_path_agrees_with_float64():
