@@ -516,9 +516,10 @@ HOME_SPEED_ODDS = 3.0
 #: the grid filter's velocity bins are ``grid.DENSE_VELOCITIES`` (every tenth from 0.9 to 4 places
 #: per frame, and a half, two thirds and three quarters, both ways: 88 bins with the phases) on
 #: maps of at most this many places where the method leaves ``velocity_bins`` unset, and
-#: ``grid.DEFAULT_VELOCITIES`` (±0.5, 1, 2, 3: 10 bins) above. A query driven between the bins' speeds drifts from every track
-#: (``docs/particle_filter.md``, "Speeds between the bins"); the dense bins cost a step about
-#: ten times the state, held back on large maps as the rigid line is
+#: ``grid.DEFAULT_VELOCITIES`` (±0.5, 1, 2, 3: 10 bins) above. A query driven between the bins'
+#: speeds drifts from every track (``docs/particle_filter.md``, "Speeds between the bins"). The
+#: dense bins make the state nine times as large (the live step's filter at 10⁴ places 2.4 ms
+#: against 0.55 ms, ``benchmarks/results/live.md``), held back on large maps as the rigid line is
 DENSE_VELOCITY_MAX_PLACES = 10_000
 
 
@@ -549,6 +550,7 @@ def velocity_bins(params: dict, n_places: int) -> list[float]:
     from .grid import DEFAULT_VELOCITIES, DENSE_VELOCITIES
 
     return list(DENSE_VELOCITIES if n_places <= DENSE_VELOCITY_MAX_PLACES else DEFAULT_VELOCITIES)
+
 
 #: the grid filter's prior probability that a frame shows no place of the map
 #: (``GridLocalizer(outlier_probability=...)``), where the method leaves it unset: a frame's
