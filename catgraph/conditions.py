@@ -15,6 +15,13 @@ under that condition, by *reordering* its frames:
 ``speed``
     ``factor`` times the reference's speed: frame ``floor(k · factor)`` for
     ``k = 0, 1, …`` — factor 2 keeps every second frame, 0.5 shows each frame twice.
+``vary``
+    A speed that changes all the time, as a driver's does: the route is cut into
+    stretches of ``segment_range`` of its length (default 2–20 %), a speed is drawn
+    log-uniformly from ``speed_range`` (default 0.5–2 times the recorded speed) at each
+    stretch's start, and over the stretch the speed moves from that value to the next
+    one (geometric interpolation along the stretch), seeded; frame ``floor(x_k)`` at
+    position ``x_{k+1} = x_k + v(x_k)`` (:func:`varying_speed_order`).
 
 Every per-frame array, ``index`` included, travels with its frame, so ground truth
 (which speaks of frames *as loaded*) follows. Odometry is recomputed for the new order:
@@ -37,16 +44,49 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ._validation import as_generator
 from .exceptions import InvalidParameterError
 from .traverse import Traverse, segment_order
 
-__all__ = ["Condition", "CONDITION_KINDS", "condition_table", "segment_order"]
+__all__ = ["Condition", "CONDITION_KINDS", "condition_table", "segment_order", "varying_speed_order"]
 
-CONDITION_KINDS = ("in-order", "shuffle", "reverse", "speed")
+CONDITION_KINDS = ("in-order", "shuffle", "reverse", "speed", "vary")
 
 #: The range of speed factors (``kind="speed"``): a query driven at most 100 times slower
 #: (each frame 100 times) or faster (every 100th frame).
 MIN_SPEED, MAX_SPEED = 0.01, 100.0
+
+#: The speeds a ``vary`` condition draws from by default: the condition table's two speeds.
+VARY_SPEEDS = (0.5, 2.0)
+#: The stretches over which a ``shuffle`` cuts its segments and a ``vary`` changes its speed.
+SEGMENT_RANGE = (0.02, 0.20)
+
+
+def varying_speed_order(n: int, seed: int | np.random.Generator | None, speed_range=VARY_SPEEDS,
+                        stretch_range=SEGMENT_RANGE) -> np.ndarray:
+    """Frame order of a query driven at a speed that changes all the time (``vary``).
+
+    The route (``n`` loaded frames) is cut into stretches of ``stretch_range`` of ``n``
+    (at least one frame), as a shuffle cuts its segments; at each stretch's start a speed
+    is drawn log-uniformly from ``speed_range`` (loaded frames per driven frame), and
+    along the stretch the speed moves geometrically from it to the next stretch's, so it
+    never jumps. Driven frame ``k`` is loaded frame ``floor(x_k)``, ``x_0 = 0``,
+    ``x_{k+1} = x_k + v(x_k)``, until the route's end. Same seed, same order.
+    """
+    rng = as_generator(seed)
+    lo, hi = (math.log(float(v)) for v in speed_range)
+    frames: list[int] = []
+    x, v0 = 0.0, math.exp(rng.uniform(lo, hi))
+    last = n - 1
+    while n and x <= last + 1e-9:
+        start, length = x, max(1.0, rng.uniform(*stretch_range) * n)
+        v1 = math.exp(rng.uniform(lo, hi))
+        while x - start < length and x <= last + 1e-9:
+            frames.append(int(math.floor(x + 1e-9)))
+            f = (x - start) / length
+            x += v0 ** (1.0 - f) * v1 ** f
+        v0 = v1
+    return np.minimum(np.asarray(frames, dtype=np.int64), max(last, 0))
 
 def _odometry(odometry: np.ndarray, order: np.ndarray, driven: np.ndarray) -> np.ndarray:
     """Odometry (metres since the previous frame) of the frames ``order``; ``driven[k]``:
@@ -60,7 +100,8 @@ def _odometry(odometry: np.ndarray, order: np.ndarray, driven: np.ndarray) -> np
 
 
 #: the fields each kind reads (the others must be left at their defaults)
-_USES = {"in-order": (), "reverse": (), "speed": ("factor",), "shuffle": ("seed", "segment_range")}
+_USES = {"in-order": (), "reverse": (), "speed": ("factor",), "shuffle": ("seed", "segment_range"),
+         "vary": ("seed", "segment_range", "speed_range")}
 
 
 def _is_int(value) -> bool:
@@ -81,49 +122,67 @@ def _given(value, default) -> bool:
         return True
 
 
+def _pair(values, name: str, what: str) -> tuple[float, float]:
+    """Two real numbers, or a typed error naming ``name`` and ``what`` they must be."""
+    if isinstance(values, (str, bytes)) or not hasattr(values, "__len__") or len(values) != 2 or \
+            not all(_is_real(v) for v in values):
+        raise InvalidParameterError(f"{name} must be {what}; got {values!r}.")
+    return float(values[0]), float(values[1])
+
+
 @dataclass(frozen=True)
 class Condition:
     """How the query is driven. See the module docstring.
 
     Parameters
     ----------
-    kind : {"in-order", "shuffle", "reverse", "speed"}
+    kind : {"in-order", "shuffle", "reverse", "speed", "vary"}
     seed : int, optional
-        The shuffle's seed (``kind="shuffle"`` only).
+        The shuffle's or the varying speed's seed (``kind="shuffle"`` or ``"vary"``).
     segment_range : (float, float)
-        Shuffle segment lengths as fractions of the query length (``kind="shuffle"``).
+        Shuffle segment lengths, or the stretches over which a varying speed moves from
+        one drawn speed to the next, as fractions of the query length (``kind="shuffle"``
+        or ``"vary"``).
     factor : float
         Speed relative to the recorded query (``kind="speed"``), in ``[0.01, 100]``
         (:data:`MIN_SPEED`, :data:`MAX_SPEED`).
+    speed_range : (float, float)
+        The speeds a varying speed draws from (``kind="vary"``; default 0.5–2), in
+        ``[0.01, 100]``.
     """
 
     kind: str = "in-order"
     seed: int | None = None
-    segment_range: tuple[float, float] = (0.02, 0.20)
+    segment_range: tuple[float, float] = SEGMENT_RANGE
     factor: float = 1.0
+    speed_range: tuple[float, float] = VARY_SPEEDS
 
     def __post_init__(self) -> None:
         if not isinstance(self.kind, str) or self.kind not in CONDITION_KINDS:
             raise InvalidParameterError(f"unknown condition {self.kind!r}; choose one of {', '.join(CONDITION_KINDS)}.")
-        unused = [name for name, default in (("seed", None), ("segment_range", (0.02, 0.20)), ("factor", 1.0))
+        unused = [name for name, default in (("seed", None), ("segment_range", SEGMENT_RANGE), ("factor", 1.0),
+                                             ("speed_range", VARY_SPEEDS))
                   if name not in _USES[self.kind] and _given(getattr(self, name), default)]
         if unused:
             raise InvalidParameterError(f"{', '.join(unused)} do{'es' if len(unused) == 1 else ''} not apply to the "
                                         f"condition {self.kind!r}; leave {'it' if len(unused) == 1 else 'them'} out.")
-        if self.kind == "shuffle":
+        if self.kind in ("shuffle", "vary"):
+            what = "a shuffle" if self.kind == "shuffle" else "a varying speed"
             if not _is_int(self.seed) or self.seed < 0:
-                raise InvalidParameterError(f"a shuffle needs a seed ≥ 0 (an int); got {self.seed!r}.")
+                raise InvalidParameterError(f"{what} needs a seed ≥ 0 (an int); got {self.seed!r}.")
             object.__setattr__(self, "seed", int(self.seed))
-            bounds = self.segment_range
-            if isinstance(bounds, (str, bytes)) or not hasattr(bounds, "__len__") or len(bounds) != 2 or \
-                    not all(_is_real(v) for v in bounds):
-                raise InvalidParameterError(f"the segment range must be two fractions (MIN, MAX) of the query; got "
-                                            f"{bounds!r}.")
-            lo, hi = (float(v) for v in bounds)
+            lo, hi = _pair(self.segment_range, "the segment range", "two fractions (MIN, MAX) of the query")
             if not (0.0 < lo <= hi <= 1.0):
                 raise InvalidParameterError(
                     f"the segment range must satisfy 0 < MIN ≤ MAX ≤ 1 (fractions of the query); got {lo}:{hi}.")
             object.__setattr__(self, "segment_range", (lo, hi))
+        if self.kind == "vary":
+            lo, hi = _pair(self.speed_range, "the speed range", "two speeds (MIN, MAX)")
+            if not (math.isfinite(lo) and math.isfinite(hi) and MIN_SPEED <= lo <= hi <= MAX_SPEED):
+                raise InvalidParameterError(
+                    f"the speed range must satisfy {MIN_SPEED:g} ≤ MIN ≤ MAX ≤ {MAX_SPEED:g} (times the recorded "
+                    f"speed); got {lo}:{hi}.")
+            object.__setattr__(self, "speed_range", (lo, hi))
         if self.kind == "speed":
             if not _is_real(self.factor):
                 raise InvalidParameterError(f"the speed factor must be a number; got {self.factor!r}.")
@@ -137,13 +196,14 @@ class Condition:
     # -- construction ---------------------------------------------------------------
     @classmethod
     def parse(cls, text: str) -> "Condition":
-        """From ``in-order``, ``reverse``, ``speed:F``, ``shuffle:SEED`` or ``shuffle:SEED:MIN:MAX``."""
+        """From ``in-order``, ``reverse``, ``speed:F``, ``shuffle:SEED``, ``shuffle:SEED:MIN:MAX``,
+        ``vary:SEED`` or ``vary:SEED:SLOWEST:FASTEST`` (the speed range)."""
         parts = str(text).strip().split(":")
         kind, args = parts[0], parts[1:]
-        shapes = {"in-order": (0,), "reverse": (0,), "speed": (1,), "shuffle": (1, 3)}
+        shapes = {"in-order": (0,), "reverse": (0,), "speed": (1,), "shuffle": (1, 3), "vary": (1, 3)}
         try:
             if kind in shapes and len(args) in shapes[kind]:
-                numbers = [int(args[0])] + [float(v) for v in args[1:]] if kind == "shuffle" else \
+                numbers = [int(args[0])] + [float(v) for v in args[1:]] if kind in ("shuffle", "vary") else \
                     [float(v) for v in args]
             else:
                 numbers = None
@@ -151,10 +211,12 @@ class Condition:
             numbers = None
         if numbers is None:
             raise InvalidParameterError(
-                f"cannot read condition {text!r}; write in-order, reverse, speed:FACTOR, shuffle:SEED or "
-                "shuffle:SEED:MIN:MAX.")
+                f"cannot read condition {text!r}; write in-order, reverse, speed:FACTOR, shuffle:SEED, "
+                "shuffle:SEED:MIN:MAX, vary:SEED or vary:SEED:SLOWEST:FASTEST.")
         if kind == "shuffle":
-            return cls("shuffle", seed=numbers[0], segment_range=tuple(numbers[1:]) or (0.02, 0.20))
+            return cls("shuffle", seed=numbers[0], segment_range=tuple(numbers[1:]) or SEGMENT_RANGE)
+        if kind == "vary":
+            return cls("vary", seed=numbers[0], speed_range=tuple(numbers[1:]) or VARY_SPEEDS)
         if kind == "speed":
             return cls("speed", factor=numbers[0])
         return cls(kind)
@@ -165,15 +227,16 @@ class Condition:
         if not values:
             return cls()
         if not isinstance(values, dict):
-            raise InvalidParameterError(f"a condition is a dict (kind, seed, segment_range, factor) or a string such "
-                                        f"as 'shuffle:0'; got {values!r}.")
-        unknown = set(values) - {"kind", "seed", "segment_range", "factor"}
+            raise InvalidParameterError(f"a condition is a dict (kind, seed, segment_range, factor, speed_range) or a "
+                                        f"string such as 'shuffle:0'; got {values!r}.")
+        unknown = set(values) - {"kind", "seed", "segment_range", "factor", "speed_range"}
         if unknown:
             raise InvalidParameterError(f"unknown condition keys {sorted(unknown)}; allowed: kind, seed, "
-                                        "segment_range, factor.")
+                                        "segment_range, factor, speed_range.")
         v = dict(values)
-        if "segment_range" in v:
-            v["segment_range"] = tuple(v["segment_range"])
+        for key in ("segment_range", "speed_range"):
+            if key in v and isinstance(v[key], list):
+                v[key] = tuple(v[key])
         return cls(**v)
 
     def as_dict(self) -> dict:
@@ -182,6 +245,9 @@ class Condition:
             return {"kind": "shuffle", "seed": int(self.seed), "segment_range": list(self.segment_range)}
         if self.kind == "speed":
             return {"kind": "speed", "factor": self.factor}
+        if self.kind == "vary":
+            return {"kind": "vary", "seed": int(self.seed), "segment_range": list(self.segment_range),
+                    "speed_range": list(self.speed_range)}
         return {"kind": self.kind}
 
     @property
@@ -192,6 +258,11 @@ class Condition:
             return f"shuffled {lo:g}–{hi:g} % (seed {self.seed})"
         if self.kind == "speed":
             return f"speed {self.factor:g}"
+        if self.kind == "vary":
+            lo, hi = self.speed_range
+            stretches = "" if self.segment_range == SEGMENT_RANGE else \
+                f", stretches {100 * self.segment_range[0]:g}–{100 * self.segment_range[1]:g} %"
+            return f"varying speed {lo:g}–{hi:g}{stretches} (seed {self.seed})"
         return {"in-order": "in order", "reverse": "reversed"}[self.kind]
 
     # -- application ----------------------------------------------------------------
@@ -204,6 +275,8 @@ class Condition:
         if self.kind == "speed":
             count = int(math.ceil(n / self.factor - 1e-9)) if n else 0
             return np.minimum(np.floor(np.arange(count) * self.factor + 1e-9).astype(np.int64), max(n - 1, 0))
+        if self.kind == "vary":
+            return varying_speed_order(n, self.seed, self.speed_range, self.segment_range)
         return segment_order(n, self.seed, *self.segment_range)[0]
 
     def apply(self, traverse: Traverse) -> Traverse:
@@ -216,8 +289,8 @@ class Condition:
         meta["traversal"] = self.as_dict()
         if self.kind == "shuffle":
             meta["segments"] = segment_order(len(traverse), self.seed, *self.segment_range)[1]
-        # a shuffle drives its segments one frame at a time and jumps between them; a reversed
-        # or sped-up query is driven all the way (at speed K, K loaded steps per frame)
+        # a shuffle drives its segments one frame at a time and jumps between them; a reversed,
+        # sped-up or varying query is driven all the way (at speed K, K loaded steps per frame)
         driven = np.diff(order) == 1 if self.kind == "shuffle" else np.ones(max(len(order) - 1, 0), dtype=bool)
         odometry = None if traverse.odometry is None else _odometry(traverse.odometry, order, driven)
         return replace(out, odometry=odometry, meta=meta, name=f"{traverse.name} ({self.label})")

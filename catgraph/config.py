@@ -43,7 +43,8 @@ Format
 
 Every ``[[method]]`` runs on every dataset it applies to, for every condition of the
 dataset (:meth:`catgraph.conditions.Condition.parse`: ``in-order``, ``reverse``,
-``speed:FACTOR``, ``shuffle:SEED`` or ``shuffle:SEED:MIN:MAX``) and every combination of
+``speed:FACTOR``, ``shuffle:SEED``, ``shuffle:SEED:MIN:MAX``, ``vary:SEED`` or
+``vary:SEED:SLOWEST:FASTEST``) and every combination of
 its ``grid`` values (the Cartesian product, in the order written). ``grid`` is separate
 from ``params`` because some parameters are lists themselves (a window ``grid``):
 ``params`` are never expanded. TOML has no null, so ``false`` stands for "no shuffle".
@@ -54,7 +55,8 @@ works from any working directory); ``"synthetic:SEED"`` names the built-in world
 Run names
 ---------
 Expanded runs are named ``DATASET/METHOD[/KEY=VALUE…][/CONDITION]`` (the condition part
-— ``in-order``, ``shuffle=SEED``, ``shuffle=SEED,MIN-MAX``, ``reverse``, ``speed=F`` — only
+— ``in-order``, ``shuffle=SEED``, ``shuffle=SEED,MIN-MAX``, ``reverse``, ``speed=F``,
+``vary=SEED,SLOWEST-FASTEST`` — only
 when the dataset lists ``conditions`` or ``shuffle``), e.g.
 ``summer-winter/fixed/window=25/shuffle=0``. Names are unique; the bench command uses
 them for the result files.
@@ -84,7 +86,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .conditions import Condition
+from .conditions import SEGMENT_RANGE, Condition
 from .exceptions import ConfigError, DataNotFoundError
 
 __all__ = ["ExperimentConfig", "load_config", "parse_config", "run_file_name"]
@@ -229,7 +231,8 @@ def _check_conditions(where: _Where, table: str, value: Any, key: str = "conditi
     values = value if isinstance(value, list) else [value]
     if not values or not all(isinstance(v, str) for v in values):
         raise where.error(table, f"'{key}' must be a list of conditions such as \"in-order\", \"reverse\", "
-                                 f"\"speed:2\", \"shuffle:0\" or \"shuffle:0:0.005:0.03\", got {_show(value)}.")
+                                 f"\"speed:2\", \"shuffle:0\", \"shuffle:0:0.005:0.03\" or \"vary:0\", got "
+                                 f"{_show(value)}.")
     try:
         out = [Condition.parse(v).as_dict() for v in values]
     except InvalidParameterError as exc:
@@ -253,9 +256,13 @@ def _condition_name(condition: dict) -> str:
     c = Condition.from_dict(condition)
     if c.kind == "shuffle":
         lo, hi = c.segment_range
-        return f"shuffle={c.seed}" if (lo, hi) == (0.02, 0.20) else f"shuffle={c.seed},{lo:g}-{hi:g}"
+        return f"shuffle={c.seed}" if (lo, hi) == SEGMENT_RANGE else f"shuffle={c.seed},{lo:g}-{hi:g}"
     if c.kind == "speed":
         return f"speed={c.factor:g}"
+    if c.kind == "vary":
+        (lo, hi), (s_lo, s_hi) = c.speed_range, c.segment_range
+        stretches = "" if (s_lo, s_hi) == SEGMENT_RANGE else f",{s_lo:g}-{s_hi:g}"
+        return f"vary={c.seed},{lo:g}-{hi:g}{stretches}"
     return c.kind
 
 

@@ -315,6 +315,11 @@ CASES = [
     E("reverse-and-shuffle", *M, "--reverse", "--shuffle", "1", message="not allowed|--reverse|--shuffle"),
     E("segment-range-inverted", *M, "--shuffle", "1", "--segment-range", "0.5:0.1", message="segment"),
     E("segment-range-alone", *M, "--segment-range", "0.02:0.2", message="--shuffle"),
+    E("vary-negative", *M, "--vary", "-3", message="seed"),
+    E("vary-speeds-inverted", *M, "--vary", "1", "--speed-range", "2:0.5", message=r"MIN ≤ MAX"),
+    E("vary-speeds-not-numbers", *M, "--vary", "1", "--speed-range", "slow:fast", message="SLOWEST:FASTEST"),
+    E("speed-range-alone", *M, "--speed-range", "0.5:2", message="--vary"),
+    E("vary-and-speed", *M, "--vary", "1", "--speed", "2", message="not allowed|--vary|--speed"),
     # --- front-end
     E("patch-negative", "match", "{ref_img}", "{qry_img}", "--tolerance", "2", "--patch", "-1", message="patch"),
     E("patch-larger-than-image", "match", "{ref_img}", "{qry_img}", "--tolerance", "2", "--patch", "1000",

@@ -54,11 +54,12 @@ def test_odometry_is_route_distance():
 
 def test_parse_round_trip_and_errors():
     for text in ("in-order", "reverse", "speed:2", "speed:0.5", "speed:0.01", "speed:100", "shuffle:3",
-                 "shuffle:1:0.005:0.03"):
+                 "shuffle:1:0.005:0.03", "vary:0", "vary:4:0.25:3"):
         c = Condition.parse(text)
         assert Condition.from_dict(c.as_dict()) == c
     for bad in ("sideways", "speed:0", "speed:-1", "speed:x", "speed:1e-9", "speed:0.009", "speed:101", "speed:inf",
-                "shuffle", "shuffle:-1", "shuffle:1:0.3:0.1", "shuffle:1:0:0.1", "reverse:2"):
+                "shuffle", "shuffle:-1", "shuffle:1:0.3:0.1", "shuffle:1:0:0.1", "reverse:2", "vary", "vary:-1",
+                "vary:0:2:1", "vary:0:0:1", "vary:0:0.5", "vary:0:0.5:inf", "vary:1.5"):
         with pytest.raises(InvalidParameterError):
             Condition.parse(bad)
 
@@ -92,7 +93,9 @@ def test_conditions_built_in_python_give_typed_errors():
     for bad in (dict(kind="speed", factor="abc"), dict(kind="shuffle", seed="abc"), dict(kind="shuffle", seed=2.0),
                 dict(kind="shuffle", seed=True), dict(kind="shuffle", seed=0, segment_range=0.1),
                 dict(kind="shuffle", seed=0, segment_range=("a", 0.2)), dict(kind=5), dict(seed=1),
-                dict(kind="reverse", factor=2.0), dict(kind="speed", factor=2.0, seed=1)):
+                dict(kind="reverse", factor=2.0), dict(kind="speed", factor=2.0, seed=1),
+                dict(kind="vary"), dict(kind="vary", seed=0, speed_range=(0.5,)),
+                dict(kind="vary", seed=0, speed_range="0.5:2"), dict(kind="speed", factor=2.0, speed_range=(1, 3))):
         with pytest.raises(InvalidParameterError):
             Condition(**bad)
     for bad in ({"seed": 1}, 123, {"kind": "speed", "factor": "abc"}, {"kind": "shuffle", "seed": 0, "speed": 2}):
@@ -102,7 +105,8 @@ def test_conditions_built_in_python_give_typed_errors():
 
 
 @pytest.mark.parametrize("condition", [Condition("reverse"), Condition("speed", factor=2.0),
-                                       Condition("speed", factor=0.5), Condition("shuffle", seed=3)])
+                                       Condition("speed", factor=0.5), Condition("shuffle", seed=3),
+                                       Condition("vary", seed=1)])
 def test_per_frame_meta_travels_with_its_frames(condition):
     """An image folder's file names and the synthetic world's per-frame flags stay with
     their frames under every condition (they stayed in the loaded order); what describes
@@ -130,3 +134,56 @@ def test_shuffle_segments_carries_per_frame_meta():
     out = shuffle_segments(t, seed=0)
     np.testing.assert_array_equal(out.meta["new_place"], out.index)
     assert out.meta["files"] == [str(k) for k in out.index]
+
+
+def _varying_reference(n, seed, speed_range=(0.5, 2.0), stretch_range=(0.02, 0.2)):
+    """The definition written out: draw each stretch's length and end speed in turn (the
+    same generator calls), and step ``x`` by the speed interpolated along the stretch."""
+    rng = np.random.default_rng(seed)
+    lo, hi = np.log(speed_range[0]), np.log(speed_range[1])
+    speed, x, out = np.exp(rng.uniform(lo, hi)), 0.0, []
+    while x <= n - 1 + 1e-9:
+        start, length = x, max(1.0, rng.uniform(*stretch_range) * n)
+        end = np.exp(rng.uniform(lo, hi))
+        while x - start < length and x <= n - 1 + 1e-9:
+            out.append(int(np.floor(x + 1e-9)))
+            f = (x - start) / length
+            x += np.exp((1 - f) * np.log(speed) + f * np.log(end))
+        speed = end
+    return out
+
+
+@pytest.mark.parametrize("n,seed,speeds", [(200, 0, (0.5, 2.0)), (1000, 3, (0.25, 4.0)), (57, 9, (1.0, 1.0)),
+                                           (300, 1, (2.0, 3.0))])
+def test_varying_speed_order_is_the_definition(n, seed, speeds):
+    c = Condition("vary", seed=seed, speed_range=speeds)
+    order = c.order(n)
+    assert order.tolist() == _varying_reference(n, seed, speeds)
+    np.testing.assert_array_equal(order, Condition("vary", seed=seed, speed_range=speeds).order(n))  # seeded
+    steps = np.diff(order)
+    # driven forwards along the whole route at speeds within the range, never jumping
+    assert order[0] == 0 and order[-1] >= n - 1 - np.ceil(speeds[1]) and (steps >= 0).all()
+    assert steps.max() <= np.ceil(speeds[1]) and len(order) == pytest.approx((n - 1) / np.sqrt(np.prod(speeds)),
+                                                                              rel=0.6)
+    if speeds[0] == speeds[1]:  # one speed: the speed condition's frames
+        np.testing.assert_array_equal(order, Condition("speed", factor=speeds[0]).order(n)[:len(order)])
+
+
+def test_varying_speed_changes_and_stays_in_its_range():
+    n = 5000
+    order = Condition("vary", seed=2).order(n)
+    local = np.convolve(np.diff(order), np.ones(50) / 50, mode="valid")  # speed over 50 driven frames
+    assert local.min() >= 0.5 - 0.05 and local.max() <= 2.0 + 0.05
+    assert local.max() - local.min() > 0.5  # it does vary
+    assert not np.array_equal(order[:500], Condition("vary", seed=3).order(n)[:500])
+
+
+def test_varying_speed_odometry_is_the_route_driven():
+    t = _traverse(80)
+    travelled = np.concatenate([[0.0], np.cumsum(t.odometry[1:])])
+    c = Condition("vary", seed=5, segment_range=(0.1, 0.3))
+    order, out = c.order(len(t)), c.apply(t)
+    np.testing.assert_allclose(out.odometry[1:], np.abs(np.diff(travelled[order])), atol=1e-12)
+    assert out.meta["traversal"] == {"kind": "vary", "seed": 5, "segment_range": [0.1, 0.3], "speed_range": [0.5, 2.0]}
+    assert c.label == "varying speed 0.5–2, stretches 10–30 % (seed 5)"
+    assert Condition("vary", seed=1).label == "varying speed 0.5–2 (seed 1)"

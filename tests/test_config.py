@@ -245,3 +245,22 @@ def test_values_that_would_fail_or_be_ignored_once_running_are_refused_at_once(m
     assert resolve_params("sequence", {"window": "adaptive", "rule": "challenged", "exclusion": 3})["exclusion"] == 3
     assert resolve_params("filter", {"mode": "particles", "redraw_fraction": 0.0, "ess_threshold": 0.9})[
         "ess_threshold"] == 0.9
+
+
+def test_varying_speed_conditions_name_their_runs(tmp_path):
+    text = """
+    [[dataset]]
+    name = "d"
+    reference = "r.npy"
+    query = "q.npy"
+    tolerance = 1
+    conditions = ["vary:0", "vary:1:0.25:4", "speed:2"]
+
+    [[method]]
+    method = "single-frame"
+    """
+    config = load_config(write(tmp_path, text))
+    assert [s["name"] for s in config.specs] == ["d/single-frame/vary=0,0.5-2", "d/single-frame/vary=1,0.25-4",
+                                                 "d/single-frame/speed=2"]
+    assert config.specs[1]["condition"] == {"kind": "vary", "seed": 1, "segment_range": [0.02, 0.2],
+                                            "speed_range": [0.25, 4.0]}

@@ -111,13 +111,19 @@ def _number(kind):
     return parse
 
 
-def _segment_range(text: str) -> tuple[float, float]:
-    try:
-        lo, hi = (float(v) for v in text.split(":"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected MIN:MAX fractions of the query such as 0.02:0.2, got {text!r}") \
-            from None
-    return lo, hi
+def _range(what: str):
+    """An argparse type: two numbers ``A:B`` (``what`` names them in the error)."""
+    def parse(text: str) -> tuple[float, float]:
+        try:
+            lo, hi = (float(v) for v in text.split(":"))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+        return lo, hi
+
+    return parse
+
+
+_segment_range = _range("MIN:MAX fractions of the query such as 0.02:0.2")
 
 
 def _floats(text: str) -> list[float]:
@@ -218,8 +224,13 @@ def add_common_inputs(p: argparse.ArgumentParser, graph_options: bool = False) -
     how.add_argument("--reverse", action="store_true", help="drive the query backwards")
     how.add_argument("--speed", type=_number(float), metavar="FACTOR",
                      help="FACTOR times the recorded speed: 2 keeps every second frame, 0.5 shows each twice")
+    how.add_argument("--vary", type=_number(int), metavar="SEED",
+                     help="drive the query at a speed that changes all the time (seeded; see --speed-range)")
     cond.add_argument("--segment-range", type=_segment_range, metavar="MIN:MAX",
-                      help="--shuffle segment lengths as fractions of the query (default 0.02:0.2)")
+                      help="--shuffle segment lengths, or the stretches over which --vary moves from one speed to the "
+                           "next, as fractions of the query (default 0.02:0.2)")
+    cond.add_argument("--speed-range", type=_range("SLOWEST:FASTEST speeds such as 0.5:2"), metavar="SLOWEST:FASTEST",
+                      help="the speeds --vary draws from, times the recorded speed (default 0.5:2)")
     fe = p.add_argument_group("front-end (when the map is built from REFERENCE)")
     fe.add_argument("--size", type=_size, metavar="WxH", help="resize images to WxH before patch normalisation")
     fe.add_argument("--patch", type=_number(int), metavar="PIXELS",
@@ -237,10 +248,18 @@ def add_common_inputs(p: argparse.ArgumentParser, graph_options: bool = False) -
 def condition_from(args):
     from ..conditions import Condition
 
-    if args.segment_range is not None and args.shuffle is None:
-        raise InvalidParameterError("--segment-range sets the shuffle's segments; add --shuffle SEED.")
+    from ..conditions import SEGMENT_RANGE, VARY_SPEEDS
+
+    if args.segment_range is not None and args.shuffle is None and args.vary is None:
+        raise InvalidParameterError("--segment-range sets the shuffle's segments or the varying speed's stretches; "
+                                    "add --shuffle SEED or --vary SEED.")
+    if args.speed_range is not None and args.vary is None:
+        raise InvalidParameterError("--speed-range sets the speeds of a varying speed; add --vary SEED.")
     if args.shuffle is not None:
-        return Condition("shuffle", seed=args.shuffle, segment_range=args.segment_range or (0.02, 0.20))
+        return Condition("shuffle", seed=args.shuffle, segment_range=args.segment_range or SEGMENT_RANGE)
+    if args.vary is not None:
+        return Condition("vary", seed=args.vary, segment_range=args.segment_range or SEGMENT_RANGE,
+                         speed_range=args.speed_range or VARY_SPEEDS)
     if args.reverse:
         return Condition("reverse")
     if args.speed is not None:
