@@ -195,7 +195,7 @@ def tracking_filter(n_places: int, velocities=None):
     from .methods import make_filter, observation_model, resolve_params
 
     given = {} if velocities is None else {"velocity_bins": [float(v) for v in velocities]}
-    params = resolve_params("filter", {"mode": "grid", **given})
+    params = resolve_params("filter", {"mode": "grid", "varying_prior": 0.0, **given})
     return make_filter(params, PlaceGraph.chain(n_places), observation_model(params, n_places, None))
 
 

@@ -268,6 +268,12 @@ def learn_jump_rate(jumps: float, frames: float, prior: float, current: float,
 #: leave a track on a map of 3,576 places.
 RIGID_JUMP_RATE = 1e-12
 
+#: The velocity of the varying speed's motion (``varying_prior``) keeps its bin with this
+#: probability per frame, and moves to a neighbouring speed otherwise: ten times as often as
+#: the filter's own (``velocity_stay`` 0.99), so that a speed that changes all the time is
+#: followed through the dense bins (module docstring, "A speed that changes all the time").
+VARYING_VELOCITY_STAY = 0.9
+
 #: What ``jump_rates`` are the rates of: the whole query (Bayesian model averaging over
 #: the rates) or each run between two jumps (a run-length hazard).
 JUMP_RATE_SCOPES = ("query", "run")
@@ -1162,6 +1168,14 @@ class GridLocalizer:
         jump rate :data:`RIGID_JUMP_RATE`) of this prior weight (module docstring). Default
         0: off (the registry's ``filter`` method: 0.05 on maps of at most 10,000 places).
         Not with ``jump_rates``. Time and memory per frame × 2.
+    varying_prior : float in [0, 1)
+        The prior probability that the query's speed changes all the time: the filter's
+        motion averaged by Bayes' rule with a second motion of its own kind whose velocity
+        changes ten times as often (``velocity_stay`` :data:`VARYING_VELOCITY_STAY`; the same
+        blur, and the jump rate the filter's own motion learns) of this prior weight (module
+        docstring, "A speed that changes all the time"). ``rigid_prior + varying_prior < 1``.
+        Default 0: off (the registry's ``filter`` method: 0.475 on maps of at most 10,000
+        places). Not with ``jump_rates``. Time and memory per frame: one more component.
     home_speed_odds : float > 0
         The prior odds of the reference's own speed, one place per frame forwards or
         backwards (``velocities`` ``±1``), against each other velocity: the velocity prior
@@ -1196,8 +1210,9 @@ class GridLocalizer:
         (``Observation.jump_evidence``, :mod:`catgraph.jumps`).
     rate_weights_ : ndarray of float64, shape (len(jump_rates),)
         With ``jump_rates``: the posterior probability of each rate's component (the
-        current run's rate). With ``rigid_prior``: shape (2,), the filter's own motion
-        and the rigid line.
+        current run's rate). With ``rigid_prior`` or ``varying_prior``: the posterior
+        probability of each motion model, the filter's own first, then the varying speed's
+        and the rigid line (those whose prior is not 0).
     converged_ : bool
         Whether the filter has converged (see ``converged_log_odds``).
     n_steps_ : int
@@ -1214,7 +1229,8 @@ class GridLocalizer:
                  learn_recovery: bool = True, converged_log_odds: float = 1.0, converged_frames: int = 8,
                  unconverged_penalty: float = 1.0, max_phases: int = 4, smooth_feedback: bool = True,
                  jump_rates=None, jump_rate_scope: str = "query", jump_velocity: str = "current",
-                 rigid_prior: float = 0.0, home_speed_odds: float = 1.0, outlier_probability: float = 0.0) -> None:
+                 rigid_prior: float = 0.0, home_speed_odds: float = 1.0, outlier_probability: float = 0.0,
+                 varying_prior: float = 0.0) -> None:
         self.graph = graph
         self.model = model
         self.velocities = velocities
@@ -1239,6 +1255,7 @@ class GridLocalizer:
         self.rigid_prior = rigid_prior
         self.home_speed_odds = home_speed_odds
         self.outlier_probability = outlier_probability
+        self.varying_prior = varying_prior
 
     @property
     def state_(self) -> np.ndarray:
@@ -1302,9 +1319,15 @@ class GridLocalizer:
         check_scalar(self.rigid_prior, "rigid_prior", owner, float, 0.0, 1.0, True, False)
         check_scalar(self.home_speed_odds, "home_speed_odds", owner, float, 0.0, 1e6, False)
         check_scalar(self.outlier_probability, "outlier_probability", owner, float, 0.0, 1.0, True, False)
-        if self.rigid_prior > 0 and self.jump_rates is not None:
-            raise InvalidParameterError(f"The 'rigid_prior' and 'jump_rates' parameters of {owner} cannot be combined: "
-                                        "give one of them (rigid_prior=0 or jump_rates=None).")
+        check_scalar(self.varying_prior, "varying_prior", owner, float, 0.0, 1.0, True, False)
+        for name in ("rigid_prior", "varying_prior"):
+            if getattr(self, name) > 0 and self.jump_rates is not None:
+                raise InvalidParameterError(f"The '{name}' and 'jump_rates' parameters of {owner} cannot be combined: "
+                                            f"give one of them ({name}=0 or jump_rates=None).")
+        if not self.rigid_prior + self.varying_prior < 1.0:
+            raise InvalidParameterError(
+                f"The 'rigid_prior' and 'varying_prior' parameters of {owner} must leave the filter's own motion a "
+                f"share: their sum must be below 1. Got {self.rigid_prior!r} + {self.varying_prior!r}.")
         if self.jump_velocity not in JUMP_VELOCITIES:
             raise InvalidParameterError(f"The 'jump_velocity' parameter of {owner} must be one of "
                                         f"{JUMP_VELOCITIES}. Got {self.jump_velocity!r} instead.")
@@ -1396,7 +1419,7 @@ class GridLocalizer:
                                                              getattr(self, "_tree", None), self._route,
                                                              self._route_radius)
         self._components = None
-        if self.jump_rates is not None or self.rigid_prior > 0:
+        if self.jump_rates is not None or self.rigid_prior > 0 or self.varying_prior > 0:
             self._reset_components(FramePool)
         return self
 
@@ -1405,13 +1428,24 @@ class GridLocalizer:
                          "_pool")
 
     def _reset_components(self, pool) -> None:
-        """One posterior per jump rate (or per motion model, ``rigid_prior``), each
-        uniform, the rates' weights even (the motion models' their prior)."""
-        rigid = self.jump_rates is None
-        self._rates = np.asarray((self.recovery, RIGID_JUMP_RATE) if rigid else self.jump_rates, dtype=np.float64)
+        """One posterior per jump rate (or per motion model, ``rigid_prior`` and
+        ``varying_prior``), each uniform, the rates' weights even (the motion models' their
+        prior)."""
+        motions = self.jump_rates is None
+        if motions:
+            # the filter's own motion, the varying speed's (its jump rate the own one's, as
+            # learned) and the rigid line: those whose prior is not 0
+            kept = [(1.0 - self.rigid_prior - self.varying_prior, self.recovery, self.velocity_stay, self.blur),
+                    (self.varying_prior, self.recovery, VARYING_VELOCITY_STAY, self.blur),
+                    (self.rigid_prior, RIGID_JUMP_RATE, 1.0, 0.0)]
+            kept = [kept[0]] + [m for m in kept[1:] if m[0] > 0.0]
+            self._rates = np.array([m[1] for m in kept], dtype=np.float64)
+            self._rate_prior = np.array([m[0] for m in kept], dtype=np.float64)
+            self._flexible = 1 + int(self.varying_prior > 0.0)  # the components that share the learned rate
+        else:
+            self._rates = np.asarray(self.jump_rates, dtype=np.float64)
+            self._rate_prior = np.full(len(self._rates), 1.0 / len(self._rates))
         k = len(self._rates)
-        self._rate_prior = (np.array([1.0 - self.rigid_prior, self.rigid_prior]) if rigid
-                            else np.full(k, 1.0 / k))
         self._rate_runs = np.ones(k)  # the rates of ended runs, counted (a uniform Dirichlet prior)
         self.rate_weights_ = self._rate_prior.copy()
         self._components = [{"_state": self._state.copy(), "_spare": np.empty_like(self._spare), "_like": self._ones,
@@ -1422,13 +1456,15 @@ class GridLocalizer:
         self._own_pool = self._pool
         self.recovery_ = float(self._rate_prior @ self._rates)
         self._motions = None
-        if rigid:
+        if motions:
             # each component's velocity transition (sparse columns, as the line kernel reads
-            # them) and blur: the filter's own, then the rigid line's
-            rigid_transition = phase_transition(velocity_transition(self._v, 1.0, 0.0), self._owner,
-                                                phase_bins(self._v, self.max_phases)[5])
-            self._motions = [(self._transition, self._t_sparse, float(self.blur)),
-                             (rigid_transition, _sparse_columns(rigid_transition), 0.0)]
+            # them) and blur: the filter's own first
+            successor = phase_bins(self._v, self.max_phases)[5]
+            self._motions = [(self._transition, self._t_sparse, float(self.blur))]
+            for _, _, stay, blur in kept[1:]:
+                t = phase_transition(velocity_transition(self._v, stay, self.reverse_probability if stay < 1.0 else 0.0),
+                                     self._owner, successor)
+                self._motions.append((t, _sparse_columns(t), float(blur)))
             self._rigid_jumps = (0.0, 0.0)  # the filter's own component's learned jump rate: its sums
 
     # ------------------------------------------------------------------ one step
@@ -1715,8 +1751,9 @@ class GridLocalizer:
             self._velocity = velocity
             return
         if self.n_steps_ > 0 and self.learn_recovery and self.recovery > 0.0 and totals[0] > 0.0:
-            jumps, frames, self._rates[0] = learn_jump_rate(*self._rigid_jumps, float(self.recovery),
-                                                            float(rates[0]), means[0] / totals[0])
+            jumps, frames, learned = learn_jump_rate(*self._rigid_jumps, float(self.recovery),
+                                                     float(rates[0]), means[0] / totals[0])
+            self._rates[:self._flexible] = learned
             self._rigid_jumps = (jumps, frames)
         self.rate_weights_ = evidence / total
         self._mass = _weighted_sum(self.rate_weights_, [c["_mass"] for c in components],

@@ -473,7 +473,8 @@ def observation_model(params: dict, n_places: int, bootstrap_samples: Callable[[
 
 _PARTICLE_KEYS = ("n_particles", "resampler", "ess_threshold", "redraw_fraction", "proposal", "jump_graduation")
 #: the grid filter's own parameters (the particle filter has none of them)
-_GRID_KEYS = ("jump_velocity", "rigid_prior", "home_speed_odds", "outlier_probability", "velocity_bins")
+_GRID_KEYS = ("jump_velocity", "rigid_prior", "home_speed_odds", "outlier_probability", "velocity_bins",
+              "varying_prior")
 #: ``mode="auto"`` runs the exact grid filter on maps up to this many places
 GRID_MAX_PLACES = 100_000
 
@@ -521,6 +522,24 @@ HOME_SPEED_ODDS = 3.0
 #: dense bins make the state nine times as large (the live step's filter at 10⁴ places 2.4 ms
 #: against 0.55 ms, ``benchmarks/results/live.md``), held back on large maps as the rigid line is
 DENSE_VELOCITY_MAX_PLACES = 10_000
+
+
+#: the share of what the rigid line leaves that the grid filter's varying speed
+#: (``GridLocalizer(varying_prior=...)``) takes as its prior where the method leaves
+#: ``varying_prior`` unset, on maps of at most :data:`DENSE_VELOCITY_MAX_PLACES` places (it moves
+#: through the dense bins): the filter's own motion and the varying speed's share evenly, and Bayes'
+#: rule weighs them by the frames. A query whose speed changes all the time drifts off the own
+#: motion's sticky velocity (``docs/particle_filter.md``, "A speed that changes all the time")
+VARYING_SHARE = 0.5
+
+
+def varying_prior(params: dict, n_places: int, rigid: float) -> float:
+    """The grid filter's ``varying_prior`` on a map of ``n_places`` beside a rigid line of
+    prior ``rigid``: the method's parameter where set, else :data:`VARYING_SHARE` of ``1 −
+    rigid`` up to :data:`DENSE_VELOCITY_MAX_PLACES` places, else 0."""
+    if params.get("varying_prior") is not None:
+        return float(params["varying_prior"])
+    return VARYING_SHARE * (1.0 - rigid) if n_places <= DENSE_VELOCITY_MAX_PLACES else 0.0
 
 
 def home_speed_odds(velocities, share: float = HOME_SPEED_SHARE) -> float:
@@ -637,6 +656,7 @@ def concrete_params(params: dict, n_places: int) -> dict[str, Any]:
     if mode == "grid":
         out["jump_velocity"] = params.get("jump_velocity") or JUMP_VELOCITY
         out["rigid_prior"] = rigid_prior(params, n_places)
+        out["varying_prior"] = varying_prior(params, n_places, out["rigid_prior"])
         out["velocity_bins"] = velocity_bins(params, n_places)
         if params.get("home_speed_odds") is None:
             out["home_speed_odds"] = home_speed_odds(out["velocity_bins"])
@@ -667,7 +687,7 @@ def make_filter(params: dict, graph, model):
         common.pop("seed", None)
         return GridLocalizer(graph, model, velocities=tuple(params["velocity_bins"]),
                              jump_velocity=params["jump_velocity"],
-                             rigid_prior=params["rigid_prior"],
+                             rigid_prior=params["rigid_prior"], varying_prior=params["varying_prior"],
                              home_speed_odds=params["home_speed_odds"],
                              outlier_probability=params["outlier_probability"], **common)
     from .localizer import Localizer
@@ -743,6 +763,7 @@ def _filter_not_applicable(params: dict) -> dict[str, str]:
     if params["mode"] == "particles":
         out["jump_velocity"] = "it sets the grid filter's jumps; the particle filter's recovery particles are drawn"
         out["rigid_prior"] = "the rigid line is the grid filter's; the particle filter has none"
+        out["varying_prior"] = "the varying speed's motion is the grid filter's; the particle filter has none"
         out["home_speed_odds"] = "it sets the grid filter's velocity prior; the particle filter's is uniform"
         out["outlier_probability"] = "the outlier frames are the grid filter's; the particle filter has none"
     if model not in sequence_models:
@@ -825,6 +846,11 @@ def _filter_params() -> tuple[Param, ...]:
               "unbroken traverses through weak stretches and is slower to follow real jumps (default: 0.05 on "
               "maps of at most 10,000 places, 0 above: it doubles the grid's state and step)",
               low=0.0, high=0.99, optional=True),
+        Param("varying_prior", "float", None, "grid: prior probability that the query's speed changes all "
+              "the time (a motion whose velocity changes ten times as often as the filter's own, averaged with it "
+              "by Bayes' rule; 0: off). It follows a speed that keeps changing (default: half of what the rigid "
+              f"line leaves on maps of at most {DENSE_VELOCITY_MAX_PLACES:,} places, 0 above: one more copy of the "
+              "grid's state and step)", low=0.0, high=0.99, optional=True),
         Param("home_speed_odds", "float", None, "grid: prior odds of the reference's own speed (one "
               "place per frame, either direction) against each other velocity, at the start and where a jump lands "
               f"(1: uniform; default: the odds that give the two {HOME_SPEED_SHARE:g} of the prior, "

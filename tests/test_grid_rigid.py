@@ -10,7 +10,8 @@ import pytest
 
 from catgraph.exceptions import InvalidParameterError
 from catgraph.graph import PlaceGraph
-from catgraph.grid import RECOVERY_MEMORY, RECOVERY_PRIOR_FRAMES, RIGID_JUMP_RATE, GridLocalizer, learn_jump_rate
+from catgraph.grid import (RECOVERY_MEMORY, RECOVERY_PRIOR_FRAMES, RIGID_JUMP_RATE, VARYING_VELOCITY_STAY, GridLocalizer,
+                           learn_jump_rate)
 from catgraph.observation import Observation
 
 from .test_grid_hazard import SETTINGS, VELOCITIES, _Float64, _motion, _Ratios, _rows
@@ -20,7 +21,7 @@ PRIOR = 0.2
 RECOVERY = 0.1
 
 
-def _reference(rows, learn, jump_velocity, home_speed_odds=1.0, change=None):
+def _reference(rows, learn, jump_velocity, home_speed_odds=1.0, change=None, varying=0.0, stay=None):
     """Two filters as vectors over (place, velocity), each with its motion as one matrix:
     the settings' (``velocity_stay``, ``reverse_probability``, ``blur``, jump rate
     ``RECOVERY``, learned from its own evidence when ``learn``) and the rigid line's
@@ -33,18 +34,29 @@ def _reference(rows, learn, jump_velocity, home_speed_odds=1.0, change=None):
     ``home_speed_odds`` times each other velocity's weight (1: uniform). ``change``: per
     frame, the likelihood ratio ``λ`` of the frame's change (jump against step), which
     multiplies each filter's landing mass before anything is normalised (the jump
-    transitions' likelihood). Returns per frame the place posterior, ``P(new)`` and the
-    weights."""
+    transitions' likelihood). ``varying``: a third filter between the two, of this prior
+    weight (the settings' first less it), its velocity kept with ``VARYING_VELOCITY_STAY``,
+    the settings' blur and turning, and the first filter's jump rate (as learned). Returns
+    per frame the place posterior, ``P(new)`` and the weights. ``stay``: the first filter's
+    ``velocity_stay`` instead of the settings'."""
     n = rows.shape[1]
     nb = len(VELOCITIES)
-    motion = [_motion(n, VELOCITIES, SETTINGS["velocity_stay"], SETTINGS["reverse_probability"], SETTINGS["blur"]),
+    stay = SETTINGS["velocity_stay"] if stay is None else stay
+    motion = [_motion(n, VELOCITIES, stay, SETTINGS["reverse_probability"], SETTINGS["blur"]),
               _motion(n, VELOCITIES, 1.0, 0.0, 0.0)]
     eps = [RECOVERY, RIGID_JUMP_RATE]
+    w = [1.0 - PRIOR, PRIOR]
+    if varying:
+        motion.insert(1, _motion(n, VELOCITIES, VARYING_VELOCITY_STAY, SETTINGS["reverse_probability"],
+                                 SETTINGS["blur"]))
+        eps.insert(1, RECOVERY)
+        w = [1.0 - PRIOR - varying, varying, PRIOR]
+    k = len(motion)
+    w = np.array(w)
     jumps, frames = 0.0, 0.0
     vprior = np.array([home_speed_odds if abs(v) == 1.0 else 1.0 for v in VELOCITIES])
     vprior /= vprior.sum()
-    x = [np.tile(vprior / n, n) for _ in range(2)]
-    w = np.array([1.0 - PRIOR, PRIOR])
+    x = [np.tile(vprior / n, n) for _ in range(k)]
     marginals = []
     p_new = 0.0
     out = []
@@ -61,15 +73,17 @@ def _reference(rows, learn, jump_velocity, home_speed_odds=1.0, change=None):
                 land_v = ((weight[:, None] * np.array(marginals)).sum(0) + RECOVERY_PRIOR_FRAMES * vprior) / (
                     weight.sum() + RECOVERY_PRIOR_FRAMES)
             land = np.tile(land_v / n, n)
-            moved = [motion[i] @ x[i] for i in range(2)]
+            moved = [motion[i] @ x[i] for i in range(k)]
             lam = 1.0 if change is None else change[t]
-            pred = [(1 - eps[i]) * moved[i] / moved[i].sum() + eps[i] * lam * land for i in range(2)]
-        evidence = [float((pred[i] * like).sum()) for i in range(2)]  # each component's Σ prior e^r
+            pred = [(1 - eps[i]) * moved[i] / moved[i].sum() + eps[i] * lam * land for i in range(k)]
+        evidence = [float((pred[i] * like).sum()) for i in range(k)]  # each component's Σ prior e^r
         if t > 0 and learn:
             # the posterior probability of a jump: ε λ mean e^r over the evidence
             jumps, frames, eps[0] = learn_jump_rate(jumps, frames, RECOVERY, eps[0] * lam,
                                                     float(np.exp(-row).mean()) / evidence[0])
-        z = [w[i] * pred[i] * like for i in range(2)]
+            if varying:
+                eps[1] = eps[0]
+        z = [w[i] * pred[i] * like for i in range(k)]
         total = sum(zi.sum() for zi in z)
         w = np.array([zi.sum() for zi in z]) / total
         x = [zi / zi.sum() for zi in z]
@@ -97,6 +111,57 @@ def test_rigid_line_equals_dense_reference(kind, learn, jump_velocity):
         assert est.new_place_probability == pytest.approx(p_new, rel=1e-9, abs=1e-15)
         np.testing.assert_allclose(loc.rate_weights_, w, rtol=1e-9, atol=1e-15)
         assert est.place == int(np.argmax(mass))
+
+
+@pytest.mark.parametrize("learn", [True, False])
+@pytest.mark.parametrize("kind", [_Float64, _General])
+def test_varying_speed_equals_dense_reference(kind, learn):
+    """A third motion model whose velocity changes ten times as often
+    (``varying_prior``), beside the filter's own and the rigid line, sharing the own
+    one's learned jump rate, with jump evidence: the dense Bayes filter over three models."""
+    n = 11
+    rows = _rows(n, 17, seed=5)
+    lam = np.exp(np.random.default_rng(3).uniform(0.0, 1.0, len(rows)))
+    settings = {**SETTINGS, "velocity_stay": 0.97}  # the own velocity stickier than the varying one's
+    assert VARYING_VELOCITY_STAY < 0.97
+    loc = kind(PlaceGraph.chain(n), _Changing(np.log(lam)), rigid_prior=PRIOR, varying_prior=0.3, recovery=RECOVERY,
+               learn_recovery=learn, jump_velocity="long-run", **settings).reset()
+    reference = _reference(rows, learn, "long-run", change=lam, varying=0.3, stay=0.97)
+    assert len(reference[-1][2]) == 3
+    for row, (mass, p_new, w) in zip(rows, reference):
+        est = loc.step(row)
+        np.testing.assert_allclose(loc.place_posterior_, mass, rtol=1e-9, atol=1e-15)
+        assert est.new_place_probability == pytest.approx(p_new, rel=1e-9, abs=1e-15)
+        np.testing.assert_allclose(loc.rate_weights_, w, rtol=1e-9, atol=1e-15)
+        assert est.place == int(np.argmax(mass))
+
+
+def test_varying_speed_without_the_rigid_line():
+    """Two motion models, the own one and the varying speed's: weights that sum to one, and
+    a filter unlike the one without it."""
+    n = 11
+    rows = _rows(n, 17, seed=5)
+    settings = {**SETTINGS, "velocity_stay": 0.97}  # the own velocity stickier than the varying one's
+    both = GridLocalizer(PlaceGraph.chain(n), _Ratios(), varying_prior=0.5, **settings).reset()
+    plain = GridLocalizer(PlaceGraph.chain(n), _Ratios(), **settings).reset()
+    differ = False
+    for row in rows:
+        a, b = both.step(row), plain.step(row)
+        assert both.rate_weights_.shape == (2,) and both.rate_weights_.sum() == pytest.approx(1.0)
+        differ |= not np.allclose(both.place_posterior_, plain.place_posterior_, rtol=1e-6)
+    assert differ
+
+
+@pytest.mark.parametrize("rigid, varying, needle", [(0.5, 0.5, "below 1"), (0.0, -0.1, "varying_prior"),
+                                                    (0.0, 1.0, "varying_prior"), (0.2, float("nan"), "varying_prior")])
+def test_varying_prior_validated(rigid, varying, needle):
+    with pytest.raises(InvalidParameterError, match=needle):
+        GridLocalizer(PlaceGraph.chain(5), _Ratios(), rigid_prior=rigid, varying_prior=varying).reset()
+
+
+def test_varying_prior_and_jump_rates_exclusive():
+    with pytest.raises(InvalidParameterError, match="varying_prior"):
+        GridLocalizer(PlaceGraph.chain(5), _Ratios(), varying_prior=0.2, jump_rates=(0.1, 0.01)).reset()
 
 
 class _Changing(_Ratios):
@@ -345,3 +410,22 @@ def test_registry_filter_passes_the_rigid_prior():
     assert methods.make_filter(params, graph, _Ratios()).rigid_prior == PRIOR
     with pytest.raises(InvalidParameterError, match="particle filter has none"):
         methods.resolve_params("filter", {"mode": "particles", "rigid_prior": PRIOR})
+
+
+def test_registry_filter_passes_the_varying_prior():
+    from catgraph import methods
+
+    graph = PlaceGraph.chain(5)
+    params = methods.resolve_params("filter", {"mode": "grid"})
+    assert params["varying_prior"] is None  # unset: half of what the rigid line leaves, on small maps
+    assert methods.make_filter(params, graph, _Ratios()).varying_prior == pytest.approx(0.5 * (1 - 0.05))
+    assert methods.varying_prior(params, methods.DENSE_VELOCITY_MAX_PLACES, 0.2) == pytest.approx(0.4)
+    assert methods.varying_prior(params, methods.DENSE_VELOCITY_MAX_PLACES + 1, 0.0) == 0.0  # off on large maps
+    given = methods.resolve_params("filter", {"mode": "grid", "varying_prior": 0.1, "rigid_prior": 0.3})
+    loc = methods.make_filter(given, graph, _Ratios())
+    assert (loc.varying_prior, loc.rigid_prior) == (0.1, 0.3)
+    with pytest.raises(InvalidParameterError, match="particle filter has none"):
+        methods.resolve_params("filter", {"mode": "particles", "varying_prior": 0.1})
+    with pytest.raises(InvalidParameterError, match="below 1"):
+        methods.make_filter(methods.resolve_params("filter", {"mode": "grid", "varying_prior": 0.6,
+                                                              "rigid_prior": 0.5}), graph, _Ratios()).reset()
