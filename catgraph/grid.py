@@ -159,6 +159,22 @@ bins at a quarter, a third and every tenth from 0.4 lowered the mean AUC in orde
 reference's speed, or between the slow bins, is not followed (``docs/particle_filter.md``,
 "Speeds between the bins").
 
+A speed that changes all the time (``varying_prior``; off in this class by default, on in the
+registry's ``filter`` method on maps of at most 10,000 places, ``catgraph.methods.VARYING_SHARE``).
+With bins a tenth of a place per frame apart, the filter's own velocity (kept with
+``velocity_stay`` 0.99) moves a tenth at ``log 0.005`` nats a time, so a query whose speed keeps
+changing falls off its track at each change (UJI months 02–06 at a speed that moves between
+0.5 and 2 times the reference's all the time, ``Condition("vary")``: AUC 0.57–0.70, against
+0.91–0.98 at a constant 0.5 or 2), and a looser own velocity costs the shuffles
+(``velocity_stay`` 0.95: a Nordland shuffle down by 0.07). With ``varying_prior = q`` a third
+motion model joins the average with the rigid line (the same Bayes' rule: its own posterior
+over (place, velocity), weighted by its evidence frame by frame): the filter's own kind of
+motion with its velocity kept with :data:`VARYING_VELOCITY_STAY`, the same blur and turning,
+and the jump rate the own motion learns, prior weight ``q`` (the own motion ``1 − p − q``). A
+query at one speed gives it little weight, one whose speed keeps changing most of it (UJI
+0.68–0.79; ``docs/particle_filter.md``, "A speed that changes all the time"). Time and memory:
+one more component.
+
 Estimate. Mass per place ``m_j = (1 − P(new)) Σ_b P[j, b]``; the answer ``argmax_j m_j``,
 its confidence the mass within ``confidence_radius`` places of it along the route (or
 metres, on a graph with positions, ``confidence_radius_m``), its log-odds the log-odds of
