@@ -1478,7 +1478,8 @@ class GridLocalizer:
             successor = phase_bins(self._v, self.max_phases)[5]
             self._motions = [(self._transition, self._t_sparse, float(self.blur))]
             for _, _, stay, blur in kept[1:]:
-                t = phase_transition(velocity_transition(self._v, stay, self.reverse_probability if stay < 1.0 else 0.0),
+                # turning as the own motion does, within what the motion's stay leaves (the rigid line: none)
+                t = phase_transition(velocity_transition(self._v, stay, min(self.reverse_probability, 1.0 - stay)),
                                      self._owner, successor)
                 self._motions.append((t, _sparse_columns(t), float(blur)))
             self._rigid_jumps = (0.0, 0.0)  # the filter's own component's learned jump rate: its sums

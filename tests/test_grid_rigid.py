@@ -429,3 +429,17 @@ def test_registry_filter_passes_the_varying_prior():
     with pytest.raises(InvalidParameterError, match="below 1"):
         methods.make_filter(methods.resolve_params("filter", {"mode": "grid", "varying_prior": 0.6,
                                                               "rigid_prior": 0.5}), graph, _Ratios()).reset()
+
+
+def test_varying_motion_turns_within_what_its_stay_leaves():
+    """An own motion loose enough to turn more often than the varying motion's stay allows
+    (``reverse_probability`` 0.3 beside ``velocity_stay`` 0.5): every motion's transition stays
+    a probability matrix."""
+    loc = GridLocalizer(PlaceGraph.chain(12), _Ratios(), velocities=VELOCITIES, velocity_stay=0.5,
+                        reverse_probability=0.3, varying_prior=0.3, rigid_prior=0.1).reset()
+    assert len(loc._motions) == 3
+    for transition, _, _ in loc._motions:
+        assert transition.min() >= 0.0
+        np.testing.assert_allclose(transition.sum(axis=1), 1.0, rtol=1e-12)
+    loc.run(_rows(12, 10, seed=1))
+    assert np.isfinite(loc.place_posterior_).all() and loc.rate_weights_.sum() == pytest.approx(1.0)
