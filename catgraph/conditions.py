@@ -22,6 +22,12 @@ under that condition, by *reordering* its frames:
     stretch's start, and over the stretch the speed moves from that value to the next
     one (geometric interpolation along the stretch), seeded; frame ``floor(x_k)`` at
     position ``x_{k+1} = x_k + v(x_k)`` (:func:`varying_speed_order`).
+``stop``
+    The query in order, stopping as a vehicle stops at lights or stations: the route is
+    cut into stretches of ``segment_range`` of its length (default 2–20 %) and after each
+    stretch but the last the query stands still for ``stop_frames`` frames (drawn
+    uniformly from 5–50 by default, seeded), its last frame shown again each of them
+    (:func:`stopping_order`), as ``speed`` below 1 shows a frame again.
 
 Every per-frame array, ``index`` included, travels with its frame, so ground truth
 (which speaks of frames *as loaded*) follows. Odometry is recomputed for the new order:
@@ -48,9 +54,9 @@ from ._validation import as_generator
 from .exceptions import InvalidParameterError
 from .traverse import Traverse, segment_order
 
-__all__ = ["Condition", "CONDITION_KINDS", "condition_table", "segment_order", "varying_speed_order"]
+__all__ = ["Condition", "CONDITION_KINDS", "condition_table", "segment_order", "stopping_order", "varying_speed_order"]
 
-CONDITION_KINDS = ("in-order", "shuffle", "reverse", "speed", "vary")
+CONDITION_KINDS = ("in-order", "shuffle", "reverse", "speed", "vary", "stop")
 
 #: The range of speed factors (``kind="speed"``): a query driven at most 100 times slower
 #: (each frame 100 times) or faster (every 100th frame).
@@ -58,8 +64,13 @@ MIN_SPEED, MAX_SPEED = 0.01, 100.0
 
 #: The speeds a ``vary`` condition draws from by default: the condition table's two speeds.
 VARY_SPEEDS = (0.5, 2.0)
-#: The stretches over which a ``shuffle`` cuts its segments and a ``vary`` changes its speed.
+#: The stretches over which a ``shuffle`` cuts its segments, a ``vary`` changes its speed and
+#: a ``stop`` drives between its stops.
 SEGMENT_RANGE = (0.02, 0.20)
+#: How long a ``stop`` condition stands still, in frames (each stop drawn uniformly from it).
+STOP_FRAMES = (5, 50)
+#: The longest stop a ``stop`` condition may ask for, in frames.
+MAX_STOP_FRAMES = 100_000
 
 
 def varying_speed_order(n: int, seed: int | np.random.Generator | None, speed_range=VARY_SPEEDS,
@@ -88,6 +99,29 @@ def varying_speed_order(n: int, seed: int | np.random.Generator | None, speed_ra
         v0 = v1
     return np.minimum(np.asarray(frames, dtype=np.int64), max(last, 0))
 
+def stopping_order(n: int, seed: int | np.random.Generator | None, stop_frames=STOP_FRAMES,
+                   stretch_range=SEGMENT_RANGE) -> np.ndarray:
+    """Frame order of a query driven in order that stops now and then (``stop``).
+
+    The route (``n`` loaded frames) is cut into stretches of ``stretch_range`` of ``n``
+    (at least one frame), as a shuffle cuts its segments; the query drives each stretch
+    frame by frame and, after every stretch but the last, stands still for a number of
+    frames drawn uniformly from ``stop_frames`` (both ends included), showing the
+    stretch's last frame again each of them. Same seed, same order.
+    """
+    rng = as_generator(seed)
+    lo, hi = (int(v) for v in stop_frames)
+    frames: list[int] = []
+    start = 0
+    while start < n:
+        end = min(n, start + max(1, int(round(rng.uniform(*stretch_range) * n))))
+        frames.extend(range(start, end))
+        if end < n:
+            frames.extend([end - 1] * int(rng.integers(lo, hi + 1)))
+        start = end
+    return np.asarray(frames, dtype=np.int64)
+
+
 def _odometry(odometry: np.ndarray, order: np.ndarray, driven: np.ndarray) -> np.ndarray:
     """Odometry (metres since the previous frame) of the frames ``order``; ``driven[k]``:
     the query is driven from frame ``order[k]`` to ``order[k + 1]`` (else a jump), see the
@@ -101,7 +135,7 @@ def _odometry(odometry: np.ndarray, order: np.ndarray, driven: np.ndarray) -> np
 
 #: the fields each kind reads (the others must be left at their defaults)
 _USES = {"in-order": (), "reverse": (), "speed": ("factor",), "shuffle": ("seed", "segment_range"),
-         "vary": ("seed", "segment_range", "speed_range")}
+         "vary": ("seed", "segment_range", "speed_range"), "stop": ("seed", "segment_range", "stop_frames")}
 
 
 def _is_int(value) -> bool:
@@ -136,19 +170,23 @@ class Condition:
 
     Parameters
     ----------
-    kind : {"in-order", "shuffle", "reverse", "speed", "vary"}
+    kind : {"in-order", "shuffle", "reverse", "speed", "vary", "stop"}
     seed : int, optional
-        The shuffle's or the varying speed's seed (``kind="shuffle"`` or ``"vary"``).
+        The shuffle's, the varying speed's or the stops' seed (``kind="shuffle"``,
+        ``"vary"`` or ``"stop"``).
     segment_range : (float, float)
-        Shuffle segment lengths, or the stretches over which a varying speed moves from
-        one drawn speed to the next, as fractions of the query length (``kind="shuffle"``
-        or ``"vary"``).
+        Shuffle segment lengths, the stretches over which a varying speed moves from one
+        drawn speed to the next, or the stretches driven between stops, as fractions of
+        the query length (``kind="shuffle"``, ``"vary"`` or ``"stop"``).
     factor : float
         Speed relative to the recorded query (``kind="speed"``), in ``[0.01, 100]``
         (:data:`MIN_SPEED`, :data:`MAX_SPEED`).
     speed_range : (float, float)
         The speeds a varying speed draws from (``kind="vary"``; default 0.5–2), in
         ``[0.01, 100]``.
+    stop_frames : (int, int)
+        How many frames each stop lasts, drawn uniformly from ``MIN``–``MAX`` (``kind="stop"``;
+        default 5–50), ``1 ≤ MIN ≤ MAX ≤`` :data:`MAX_STOP_FRAMES`.
     """
 
     kind: str = "in-order"
@@ -156,18 +194,19 @@ class Condition:
     segment_range: tuple[float, float] = SEGMENT_RANGE
     factor: float = 1.0
     speed_range: tuple[float, float] = VARY_SPEEDS
+    stop_frames: tuple[int, int] = STOP_FRAMES
 
     def __post_init__(self) -> None:
         if not isinstance(self.kind, str) or self.kind not in CONDITION_KINDS:
             raise InvalidParameterError(f"unknown condition {self.kind!r}; choose one of {', '.join(CONDITION_KINDS)}.")
         unused = [name for name, default in (("seed", None), ("segment_range", SEGMENT_RANGE), ("factor", 1.0),
-                                             ("speed_range", VARY_SPEEDS))
+                                             ("speed_range", VARY_SPEEDS), ("stop_frames", STOP_FRAMES))
                   if name not in _USES[self.kind] and _given(getattr(self, name), default)]
         if unused:
             raise InvalidParameterError(f"{', '.join(unused)} do{'es' if len(unused) == 1 else ''} not apply to the "
                                         f"condition {self.kind!r}; leave {'it' if len(unused) == 1 else 'them'} out.")
-        if self.kind in ("shuffle", "vary"):
-            what = "a shuffle" if self.kind == "shuffle" else "a varying speed"
+        if self.kind in ("shuffle", "vary", "stop"):
+            what = {"shuffle": "a shuffle", "vary": "a varying speed", "stop": "a stopping query"}[self.kind]
             if not _is_int(self.seed) or self.seed < 0:
                 raise InvalidParameterError(f"{what} needs a seed ≥ 0 (an int); got {self.seed!r}.")
             object.__setattr__(self, "seed", int(self.seed))
@@ -183,6 +222,13 @@ class Condition:
                     f"the speed range must satisfy {MIN_SPEED:g} ≤ MIN ≤ MAX ≤ {MAX_SPEED:g} (times the recorded "
                     f"speed); got {lo}:{hi}.")
             object.__setattr__(self, "speed_range", (lo, hi))
+        if self.kind == "stop":
+            lo, hi = _pair(self.stop_frames, "the stop lengths", "two whole numbers of frames (MIN, MAX)")
+            if not (1 <= lo <= hi <= MAX_STOP_FRAMES and lo == int(lo) and hi == int(hi)):
+                raise InvalidParameterError(
+                    f"the stop lengths must be whole numbers of frames with 1 ≤ MIN ≤ MAX ≤ {MAX_STOP_FRAMES}; got "
+                    f"{self.stop_frames[0]:g}:{self.stop_frames[1]:g}.")
+            object.__setattr__(self, "stop_frames", (int(lo), int(hi)))
         if self.kind == "speed":
             if not _is_real(self.factor):
                 raise InvalidParameterError(f"the speed factor must be a number; got {self.factor!r}.")
@@ -197,13 +243,14 @@ class Condition:
     @classmethod
     def parse(cls, text: str) -> "Condition":
         """From ``in-order``, ``reverse``, ``speed:F``, ``shuffle:SEED``, ``shuffle:SEED:MIN:MAX``,
-        ``vary:SEED`` or ``vary:SEED:SLOWEST:FASTEST`` (the speed range)."""
+        ``vary:SEED``, ``vary:SEED:SLOWEST:FASTEST`` (the speed range), ``stop:SEED`` or
+        ``stop:SEED:MIN:MAX`` (the stop lengths in frames)."""
         parts = str(text).strip().split(":")
         kind, args = parts[0], parts[1:]
-        shapes = {"in-order": (0,), "reverse": (0,), "speed": (1,), "shuffle": (1, 3), "vary": (1, 3)}
+        shapes = {"in-order": (0,), "reverse": (0,), "speed": (1,), "shuffle": (1, 3), "vary": (1, 3), "stop": (1, 3)}
         try:
             if kind in shapes and len(args) in shapes[kind]:
-                numbers = [int(args[0])] + [float(v) for v in args[1:]] if kind in ("shuffle", "vary") else \
+                numbers = [int(args[0])] + [float(v) for v in args[1:]] if kind in ("shuffle", "vary", "stop") else \
                     [float(v) for v in args]
             else:
                 numbers = None
@@ -212,11 +259,13 @@ class Condition:
         if numbers is None:
             raise InvalidParameterError(
                 f"cannot read condition {text!r}; write in-order, reverse, speed:FACTOR, shuffle:SEED, "
-                "shuffle:SEED:MIN:MAX, vary:SEED or vary:SEED:SLOWEST:FASTEST.")
+                "shuffle:SEED:MIN:MAX, vary:SEED, vary:SEED:SLOWEST:FASTEST, stop:SEED or stop:SEED:MIN:MAX.")
         if kind == "shuffle":
             return cls("shuffle", seed=numbers[0], segment_range=tuple(numbers[1:]) or SEGMENT_RANGE)
         if kind == "vary":
             return cls("vary", seed=numbers[0], speed_range=tuple(numbers[1:]) or VARY_SPEEDS)
+        if kind == "stop":
+            return cls("stop", seed=numbers[0], stop_frames=tuple(numbers[1:]) or STOP_FRAMES)
         if kind == "speed":
             return cls("speed", factor=numbers[0])
         return cls(kind)
@@ -227,14 +276,15 @@ class Condition:
         if not values:
             return cls()
         if not isinstance(values, dict):
-            raise InvalidParameterError(f"a condition is a dict (kind, seed, segment_range, factor, speed_range) or a "
+            raise InvalidParameterError(f"a condition is a dict (kind, seed, segment_range, factor, speed_range, "
+                                        f"stop_frames) or a "
                                         f"string such as 'shuffle:0'; got {values!r}.")
-        unknown = set(values) - {"kind", "seed", "segment_range", "factor", "speed_range"}
+        unknown = set(values) - {"kind", "seed", "segment_range", "factor", "speed_range", "stop_frames"}
         if unknown:
             raise InvalidParameterError(f"unknown condition keys {sorted(unknown)}; allowed: kind, seed, "
-                                        "segment_range, factor, speed_range.")
+                                        "segment_range, factor, speed_range, stop_frames.")
         v = dict(values)
-        for key in ("segment_range", "speed_range"):
+        for key in ("segment_range", "speed_range", "stop_frames"):
             if key in v and isinstance(v[key], list):
                 v[key] = tuple(v[key])
         return cls(**v)
@@ -248,6 +298,9 @@ class Condition:
         if self.kind == "vary":
             return {"kind": "vary", "seed": int(self.seed), "segment_range": list(self.segment_range),
                     "speed_range": list(self.speed_range)}
+        if self.kind == "stop":
+            return {"kind": "stop", "seed": int(self.seed), "segment_range": list(self.segment_range),
+                    "stop_frames": list(self.stop_frames)}
         return {"kind": self.kind}
 
     @property
@@ -263,6 +316,11 @@ class Condition:
             stretches = "" if self.segment_range == SEGMENT_RANGE else \
                 f", stretches {100 * self.segment_range[0]:g}–{100 * self.segment_range[1]:g} %"
             return f"varying speed {lo:g}–{hi:g}{stretches} (seed {self.seed})"
+        if self.kind == "stop":
+            lo, hi = self.stop_frames
+            stretches = "" if self.segment_range == SEGMENT_RANGE else \
+                f", every {100 * self.segment_range[0]:g}–{100 * self.segment_range[1]:g} %"
+            return f"stops of {lo}–{hi} frames{stretches} (seed {self.seed})"
         return {"in-order": "in order", "reverse": "reversed"}[self.kind]
 
     # -- application ----------------------------------------------------------------
@@ -277,6 +335,8 @@ class Condition:
             return np.minimum(np.floor(np.arange(count) * self.factor + 1e-9).astype(np.int64), max(n - 1, 0))
         if self.kind == "vary":
             return varying_speed_order(n, self.seed, self.speed_range, self.segment_range)
+        if self.kind == "stop":
+            return stopping_order(n, self.seed, self.stop_frames, self.segment_range)
         return segment_order(n, self.seed, *self.segment_range)[0]
 
     def apply(self, traverse: Traverse) -> Traverse:

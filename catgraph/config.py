@@ -43,8 +43,8 @@ Format
 
 Every ``[[method]]`` runs on every dataset it applies to, for every condition of the
 dataset (:meth:`catgraph.conditions.Condition.parse`: ``in-order``, ``reverse``,
-``speed:FACTOR``, ``shuffle:SEED``, ``shuffle:SEED:MIN:MAX``, ``vary:SEED`` or
-``vary:SEED:SLOWEST:FASTEST``) and every combination of
+``speed:FACTOR``, ``shuffle:SEED``, ``shuffle:SEED:MIN:MAX``, ``vary:SEED``,
+``vary:SEED:SLOWEST:FASTEST``, ``stop:SEED`` or ``stop:SEED:MIN:MAX``) and every combination of
 its ``grid`` values (the Cartesian product, in the order written). ``grid`` is separate
 from ``params`` because some parameters are lists themselves (a window ``grid``):
 ``params`` are never expanded. TOML has no null, so ``false`` stands for "no shuffle".
@@ -56,7 +56,7 @@ Run names
 ---------
 Expanded runs are named ``DATASET/METHOD[/KEY=VALUE…][/CONDITION]`` (the condition part
 — ``in-order``, ``shuffle=SEED``, ``shuffle=SEED,MIN-MAX``, ``reverse``, ``speed=F``,
-``vary=SEED,SLOWEST-FASTEST`` — only
+``vary=SEED,SLOWEST-FASTEST``, ``stop=SEED,MIN-MAX`` — only
 when the dataset lists ``conditions`` or ``shuffle``), e.g.
 ``summer-winter/fixed/window=25/shuffle=0``. Names are unique; the bench command uses
 them for the result files.
@@ -231,7 +231,7 @@ def _check_conditions(where: _Where, table: str, value: Any, key: str = "conditi
     values = value if isinstance(value, list) else [value]
     if not values or not all(isinstance(v, str) for v in values):
         raise where.error(table, f"'{key}' must be a list of conditions such as \"in-order\", \"reverse\", "
-                                 f"\"speed:2\", \"shuffle:0\", \"shuffle:0:0.005:0.03\" or \"vary:0\", got "
+                                 f"\"speed:2\", \"shuffle:0\", \"shuffle:0:0.005:0.03\", \"vary:0\" or \"stop:0\", got "
                                  f"{_show(value)}.")
     try:
         out = [Condition.parse(v).as_dict() for v in values]
@@ -263,6 +263,10 @@ def _condition_name(condition: dict) -> str:
         (lo, hi), (s_lo, s_hi) = c.speed_range, c.segment_range
         stretches = "" if (s_lo, s_hi) == SEGMENT_RANGE else f",{s_lo:g}-{s_hi:g}"
         return f"vary={c.seed},{lo:g}-{hi:g}{stretches}"
+    if c.kind == "stop":
+        (lo, hi), (s_lo, s_hi) = c.stop_frames, c.segment_range
+        stretches = "" if (s_lo, s_hi) == SEGMENT_RANGE else f",{s_lo:g}-{s_hi:g}"
+        return f"stop={c.seed},{lo}-{hi}{stretches}"
     return c.kind
 
 

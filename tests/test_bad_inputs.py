@@ -320,6 +320,12 @@ CASES = [
     E("vary-speeds-not-numbers", *M, "--vary", "1", "--speed-range", "slow:fast", message="SLOWEST:FASTEST"),
     E("speed-range-alone", *M, "--speed-range", "0.5:2", message="--vary"),
     E("vary-and-speed", *M, "--vary", "1", "--speed", "2", message="not allowed|--vary|--speed"),
+    E("stop-negative", *M, "--stop", "-1", message="seed"),
+    E("stop-frames-inverted", *M, "--stop", "1", "--stop-frames", "9:3", message=r"1 ≤ MIN ≤ MAX"),
+    E("stop-frames-fractional", *M, "--stop", "1", "--stop-frames", "2.5:4", message="whole numbers"),
+    E("stop-frames-not-numbers", *M, "--stop", "1", "--stop-frames", "short:long", message="MIN:MAX frames"),
+    E("stop-frames-alone", *M, "--stop-frames", "5:50", message="--stop SEED"),
+    E("stop-and-vary", *M, "--stop", "1", "--vary", "2", message="not allowed|--stop|--vary"),
     # --- front-end
     E("patch-negative", "match", "{ref_img}", "{qry_img}", "--tolerance", "2", "--patch", "-1", message="patch"),
     E("patch-larger-than-image", "match", "{ref_img}", "{qry_img}", "--tolerance", "2", "--patch", "1000",

@@ -54,12 +54,13 @@ def test_odometry_is_route_distance():
 
 def test_parse_round_trip_and_errors():
     for text in ("in-order", "reverse", "speed:2", "speed:0.5", "speed:0.01", "speed:100", "shuffle:3",
-                 "shuffle:1:0.005:0.03", "vary:0", "vary:4:0.25:3"):
+                 "shuffle:1:0.005:0.03", "vary:0", "vary:4:0.25:3", "stop:0", "stop:2:1:1", "stop:3:10:200"):
         c = Condition.parse(text)
         assert Condition.from_dict(c.as_dict()) == c
     for bad in ("sideways", "speed:0", "speed:-1", "speed:x", "speed:1e-9", "speed:0.009", "speed:101", "speed:inf",
                 "shuffle", "shuffle:-1", "shuffle:1:0.3:0.1", "shuffle:1:0:0.1", "reverse:2", "vary", "vary:-1",
-                "vary:0:2:1", "vary:0:0:1", "vary:0:0.5", "vary:0:0.5:inf", "vary:1.5"):
+                "vary:0:2:1", "vary:0:0:1", "vary:0:0.5", "vary:0:0.5:inf", "vary:1.5", "stop", "stop:-1",
+                "stop:0:0:5", "stop:0:6:5", "stop:0:2.5:5", "stop:0:5", "stop:0:1:inf", "stop:0:1:100001", "stop:0.5"):
         with pytest.raises(InvalidParameterError):
             Condition.parse(bad)
 
@@ -95,7 +96,10 @@ def test_conditions_built_in_python_give_typed_errors():
                 dict(kind="shuffle", seed=0, segment_range=("a", 0.2)), dict(kind=5), dict(seed=1),
                 dict(kind="reverse", factor=2.0), dict(kind="speed", factor=2.0, seed=1),
                 dict(kind="vary"), dict(kind="vary", seed=0, speed_range=(0.5,)),
-                dict(kind="vary", seed=0, speed_range="0.5:2"), dict(kind="speed", factor=2.0, speed_range=(1, 3))):
+                dict(kind="vary", seed=0, speed_range="0.5:2"), dict(kind="speed", factor=2.0, speed_range=(1, 3)),
+                dict(kind="stop"), dict(kind="stop", seed=0, stop_frames=(5,)), dict(kind="stop", seed=0, stop_frames="5:50"),
+                dict(kind="stop", seed=0, stop_frames=(0, 5)), dict(kind="vary", seed=0, stop_frames=(1, 2)),
+                dict(kind="shuffle", seed=0, stop_frames=(1, 2))):
         with pytest.raises(InvalidParameterError):
             Condition(**bad)
     for bad in ({"seed": 1}, 123, {"kind": "speed", "factor": "abc"}, {"kind": "shuffle", "seed": 0, "speed": 2}):
@@ -106,7 +110,7 @@ def test_conditions_built_in_python_give_typed_errors():
 
 @pytest.mark.parametrize("condition", [Condition("reverse"), Condition("speed", factor=2.0),
                                        Condition("speed", factor=0.5), Condition("shuffle", seed=3),
-                                       Condition("vary", seed=1)])
+                                       Condition("vary", seed=1), Condition("stop", seed=2)])
 def test_per_frame_meta_travels_with_its_frames(condition):
     """An image folder's file names and the synthetic world's per-frame flags stay with
     their frames under every condition (they stayed in the loaded order); what describes
@@ -187,3 +191,52 @@ def test_varying_speed_odometry_is_the_route_driven():
     assert out.meta["traversal"] == {"kind": "vary", "seed": 5, "segment_range": [0.1, 0.3], "speed_range": [0.5, 2.0]}
     assert c.label == "varying speed 0.5–2, stretches 10–30 % (seed 5)"
     assert Condition("vary", seed=1).label == "varying speed 0.5–2 (seed 1)"
+
+
+def _stopping_reference(n, seed, stop_frames=(5, 50), stretch_range=(0.02, 0.2)):
+    """The definition written out: a stretch's length, then (unless it reaches the end)
+    its stop's length, in turn from one generator; each stop repeats the stretch's last frame."""
+    rng = np.random.default_rng(seed)
+    out, start = [], 0
+    while start < n:
+        length = max(1, int(round(rng.uniform(*stretch_range) * n)))
+        end = min(n, start + length)
+        out += list(range(start, end))
+        if end < n:
+            out += [end - 1] * int(rng.integers(stop_frames[0], stop_frames[1] + 1))
+        start = end
+    return out
+
+
+@pytest.mark.parametrize("n,seed,stops,stretches", [(200, 0, (5, 50), (0.02, 0.2)), (1000, 3, (1, 1), (0.02, 0.2)),
+                                                    (57, 9, (2, 7), (0.1, 0.5)), (3, 1, (5, 50), (0.02, 0.2))])
+def test_stopping_order_is_the_definition(n, seed, stops, stretches):
+    c = Condition("stop", seed=seed, stop_frames=stops, segment_range=stretches)
+    order = c.order(n)
+    assert order.tolist() == _stopping_reference(n, seed, stops, stretches)
+    np.testing.assert_array_equal(order, Condition("stop", seed=seed, stop_frames=stops,
+                                                   segment_range=stretches).order(n))  # seeded
+    # every frame once in order, the stops in between: each a run of one frame of a length in range
+    np.testing.assert_array_equal(np.unique(order), np.arange(n))
+    steps = np.diff(order)
+    assert set(steps.tolist()) <= {0, 1} and order[0] == 0 and order[-1] == n - 1
+    edges = np.flatnonzero(np.diff(np.r_[0, (steps == 0).astype(int), 0]))
+    runs = edges[1::2] - edges[::2]  # stop lengths
+    assert ((runs >= stops[0]) & (runs <= stops[1])).all()
+    assert len(order) - n == runs.sum()
+
+
+def test_stops_stand_still_on_the_route_and_ground_truth_follows():
+    t = _traverse(120)
+    c = Condition("stop", seed=4, stop_frames=(3, 9), segment_range=(0.1, 0.3))
+    order, out = c.order(len(t)), c.apply(t)
+    stopped = np.r_[False, np.diff(order) == 0]
+    assert stopped.sum() >= 3
+    np.testing.assert_allclose(out.odometry[1:][stopped[1:]], 0.0)  # standing still: no distance
+    np.testing.assert_allclose(out.odometry[1:][~stopped[1:]], t.odometry[order[1:][~stopped[1:]]])
+    np.testing.assert_array_equal(out.index, order)  # ground truth speaks of frames as loaded
+    np.testing.assert_array_equal(out.frames, t.frames[order])
+    assert out.meta["traversal"] == {"kind": "stop", "seed": 4, "segment_range": [0.1, 0.3], "stop_frames": [3, 9]}
+    assert c.label == "stops of 3–9 frames, every 10–30 % (seed 4)"
+    assert Condition("stop", seed=1).label == "stops of 5–50 frames (seed 1)"
+    assert not np.array_equal(Condition("stop", seed=1).order(2000), Condition("stop", seed=2).order(2000))

@@ -264,3 +264,24 @@ def test_varying_speed_conditions_name_their_runs(tmp_path):
                                                  "d/single-frame/speed=2"]
     assert config.specs[1]["condition"] == {"kind": "vary", "seed": 1, "segment_range": [0.02, 0.2],
                                             "speed_range": [0.25, 4.0]}
+
+
+def test_stopping_conditions_name_their_runs(tmp_path):
+    text = """
+    [[dataset]]
+    name = "d"
+    reference = "r.npy"
+    query = "q.npy"
+    tolerance = 1
+    conditions = ["stop:0", "stop:1:2:9", "in-order"]
+
+    [[method]]
+    method = "single-frame"
+    """
+    config = load_config(write(tmp_path, text))
+    assert [s["name"] for s in config.specs] == ["d/single-frame/stop=0,5-50", "d/single-frame/stop=1,2-9",
+                                                 "d/single-frame/in-order"]
+    assert config.specs[1]["condition"] == {"kind": "stop", "seed": 1, "segment_range": [0.02, 0.2],
+                                            "stop_frames": [2, 9]}
+    with pytest.raises(ConfigError, match="stop lengths"):
+        load_config(write(tmp_path, text.replace('"stop:1:2:9"', '"stop:1:9:2"')))

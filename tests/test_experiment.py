@@ -112,7 +112,8 @@ def test_ground_truth_file_gives_the_same_metrics_as_the_tolerance(image_pair, t
 
 @pytest.mark.parametrize("condition", [["--reverse"], ["--speed", "2"], ["--speed", "0.5"],
                                        ["--shuffle", "1", "--segment-range", "0.005:0.03"],
-                                       ["--vary", "2", "--speed-range", "0.5:3"]])
+                                       ["--vary", "2", "--speed-range", "0.5:3"],
+                                       ["--stop", "3", "--stop-frames", "2:6", "--segment-range", "0.1:0.3"]])
 def test_conditions_score_against_the_moved_ground_truth(condition, image_pair, tmp_path):
     ref, qry = image_pair
     out = tmp_path / "c.json"
@@ -120,15 +121,19 @@ def test_conditions_score_against_the_moved_ground_truth(condition, image_pair, 
                 + condition) == 0
     p = json.loads(out.read_text())
     f = p["frames"]
-    order = Condition.parse({"--reverse": "reverse", "--speed": f"speed:{condition[-1]}",
-                             "--shuffle": "shuffle:1:0.005:0.03", "--vary": "vary:2:0.5:3"}[condition[0]]).order(60)
+    expected = {"--reverse": "reverse", "--speed": f"speed:{condition[-1]}", "--shuffle": "shuffle:1:0.005:0.03",
+                "--vary": "vary:2:0.5:3", "--stop": None}[condition[0]]
+    expected = Condition.parse(expected) if expected else Condition("stop", seed=3, stop_frames=(2, 6),
+                                                                     segment_range=(0.1, 0.3))
+    order = expected.order(60)
+    assert (np.diff(order) == 0).any() if condition[0] == "--stop" else True  # the query does stop
     assert f["query_index"] == order.tolist()
     match = np.array([-1 if v is None else v for v in f["match"]])
     ev = evaluate(np.array(f["query_index"]), match, np.array([0.0 if c is None else c for c in f["confidence"]]),
                   FrameTolerance(60, 2))
     assert [bool(c) for c in ev.correct] == f["correct"]
     assert p["metrics"]["auc"] == pytest.approx(ev.metrics.auc)
-    assert p["params"]["condition"]["kind"] in ("reverse", "speed", "shuffle", "vary")
+    assert p["params"]["condition"]["kind"] in ("reverse", "speed", "shuffle", "vary", "stop")
 
 
 def test_filter_options_reach_the_filter_from_the_cli_and_a_sweep(tmp_path):
@@ -160,7 +165,8 @@ def test_filter_options_reach_the_filter_from_the_cli_and_a_sweep(tmp_path):
     (["match", "QRY", "--map", "MAP", "--patch", "2", "--metric", "ssd"], "--patch, --metric do not apply"),
     (["localize", "QRY", "--map", "MAP", "--junction-radius-m", "3"], "--junction-radius-m does not apply"),
     (["localize", "REF", "QRY", "--junction-radius-m", "3"], "the reference has no positions"),
-    (["match", "REF", "QRY", "--segment-range", "0.1:0.2"], "add --shuffle SEED or --vary SEED"),
+    (["match", "REF", "QRY", "--segment-range", "0.1:0.2"], "add --shuffle SEED, --vary SEED or --stop SEED"),
+    (["match", "REF", "QRY", "--stop-frames", "1:2"], "add --stop SEED"),
     (["match", "REF", "QRY", "--speed-range", "1:2"], "add --vary SEED"),
     (["match", "REF", "QRY", "--speed", "0"], "speed factor must be in [0.01, 100]"),
     (["match", "REF", "QRY", "--shuffle", "1", "--segment-range", "0.3:0.1"], "0 < MIN ≤ MAX ≤ 1"),

@@ -226,11 +226,16 @@ def add_common_inputs(p: argparse.ArgumentParser, graph_options: bool = False) -
                      help="FACTOR times the recorded speed: 2 keeps every second frame, 0.5 shows each twice")
     how.add_argument("--vary", type=_number(int), metavar="SEED",
                      help="drive the query at a speed that changes all the time (seeded; see --speed-range)")
+    how.add_argument("--stop", type=_number(int), metavar="SEED",
+                     help="drive the query in order, stopping now and then (seeded; see --stop-frames)")
     cond.add_argument("--segment-range", type=_segment_range, metavar="MIN:MAX",
-                      help="--shuffle segment lengths, or the stretches over which --vary moves from one speed to the "
-                           "next, as fractions of the query (default 0.02:0.2)")
+                      help="--shuffle segment lengths, the stretches over which --vary moves from one speed to the "
+                           "next, or the stretches --stop drives between stops, as fractions of the query "
+                           "(default 0.02:0.2)")
     cond.add_argument("--speed-range", type=_range("SLOWEST:FASTEST speeds such as 0.5:2"), metavar="SLOWEST:FASTEST",
                       help="the speeds --vary draws from, times the recorded speed (default 0.5:2)")
+    cond.add_argument("--stop-frames", type=_range("MIN:MAX frames such as 5:50"), metavar="MIN:MAX",
+                      help="how long each --stop lasts, in frames (default 5:50)")
     fe = p.add_argument_group("front-end (when the map is built from REFERENCE)")
     fe.add_argument("--size", type=_size, metavar="WxH", help="resize images to WxH before patch normalisation")
     fe.add_argument("--patch", type=_number(int), metavar="PIXELS",
@@ -248,18 +253,23 @@ def add_common_inputs(p: argparse.ArgumentParser, graph_options: bool = False) -
 def condition_from(args):
     from ..conditions import Condition
 
-    from ..conditions import SEGMENT_RANGE, VARY_SPEEDS
+    from ..conditions import SEGMENT_RANGE, STOP_FRAMES, VARY_SPEEDS
 
-    if args.segment_range is not None and args.shuffle is None and args.vary is None:
-        raise InvalidParameterError("--segment-range sets the shuffle's segments or the varying speed's stretches; "
-                                    "add --shuffle SEED or --vary SEED.")
+    if args.segment_range is not None and args.shuffle is None and args.vary is None and args.stop is None:
+        raise InvalidParameterError("--segment-range sets the shuffle's segments, the varying speed's stretches or "
+                                    "the stretches between stops; add --shuffle SEED, --vary SEED or --stop SEED.")
     if args.speed_range is not None and args.vary is None:
         raise InvalidParameterError("--speed-range sets the speeds of a varying speed; add --vary SEED.")
+    if args.stop_frames is not None and args.stop is None:
+        raise InvalidParameterError("--stop-frames sets how long the query stops; add --stop SEED.")
     if args.shuffle is not None:
         return Condition("shuffle", seed=args.shuffle, segment_range=args.segment_range or SEGMENT_RANGE)
     if args.vary is not None:
         return Condition("vary", seed=args.vary, segment_range=args.segment_range or SEGMENT_RANGE,
                          speed_range=args.speed_range or VARY_SPEEDS)
+    if args.stop is not None:
+        return Condition("stop", seed=args.stop, segment_range=args.segment_range or SEGMENT_RANGE,
+                         stop_frames=args.stop_frames or STOP_FRAMES)
     if args.reverse:
         return Condition("reverse")
     if args.speed is not None:
