@@ -1209,6 +1209,18 @@ class GridLocalizer:
         about ``log(1/p)`` against a place the frame explains no better than a new place
         would. Default 0: off (the registry's ``filter`` method: 0.01,
         :data:`catgraph.methods.OUTLIER_PROBABILITY`).
+    repeat_prior : float in [0, 1]
+        The prior probability that the query stood still while its frame came again
+        unchanged. A frame equal to the previous one (the same row, informative, no
+        odometry) says nothing of whether the robot moved: a vehicle stopped at lights
+        shows it, and so does a camera that froze or a scanner that delivered its last
+        scan again while the robot went on (both are in the real data, module docstring,
+        "Frames that come again"). Through such a run the filter keeps both: the posterior
+        of the run's first frame, held, with this weight, and the filter moved on, with the
+        rest; its answers are the mixture's, and at the first new frame the two merge and the
+        frames after them decide. Default 0: off (the filter moves on; the registry's
+        ``filter`` method: :data:`catgraph.methods.REPEAT_PRIOR` where the query has no
+        odometry). Memory: one more posterior while a run lasts.
 
     Attributes
     ----------
@@ -1246,7 +1258,7 @@ class GridLocalizer:
                  unconverged_penalty: float = 1.0, max_phases: int = 4, smooth_feedback: bool = True,
                  jump_rates=None, jump_rate_scope: str = "query", jump_velocity: str = "current",
                  rigid_prior: float = 0.0, home_speed_odds: float = 1.0, outlier_probability: float = 0.0,
-                 varying_prior: float = 0.0) -> None:
+                 varying_prior: float = 0.0, repeat_prior: float = 0.0) -> None:
         self.graph = graph
         self.model = model
         self.velocities = velocities
@@ -1272,6 +1284,7 @@ class GridLocalizer:
         self.home_speed_odds = home_speed_odds
         self.outlier_probability = outlier_probability
         self.varying_prior = varying_prior
+        self.repeat_prior = repeat_prior
 
     @property
     def state_(self) -> np.ndarray:
@@ -1336,6 +1349,7 @@ class GridLocalizer:
         check_scalar(self.home_speed_odds, "home_speed_odds", owner, float, 0.0, 1e6, False)
         check_scalar(self.outlier_probability, "outlier_probability", owner, float, 0.0, 1.0, True, False)
         check_scalar(self.varying_prior, "varying_prior", owner, float, 0.0, 1.0, True, False)
+        check_scalar(self.repeat_prior, "repeat_prior", owner, float, 0.0, 1.0)
         for name in ("rigid_prior", "varying_prior"):
             if getattr(self, name) > 0 and self.jump_rates is not None:
                 raise InvalidParameterError(f"The '{name}' and 'jump_rates' parameters of {owner} cannot be combined: "
@@ -1414,6 +1428,8 @@ class GridLocalizer:
         self.n_steps_ = 0
         self.converged_ = self.converged_frames == 0
         self._held = 0
+        self._last_row = None  # the previous frame's row (repeat_prior > 0)
+        self._standing = None  # while frames repeat: the posterior of the run's first frame
         from .observation import claim_model
 
         claim_model(self.model, self)
@@ -1509,7 +1525,10 @@ class GridLocalizer:
         row = _check_observation(observation, self.graph.n_places)
         odometry = check_odometry(odometry)
         check_model(self.model, self)
+        repeated = self._repeated(row, odometry)
         obs = self.model.observe(row)
+        if repeated and obs.informative and self._standing is None:
+            self._standing = self._posterior_parts()  # the run's first frame's, held
         ratio = self._exp_ratio(obs)
         self._frame_rates(obs.jump_evidence)
         if self._components is None:
@@ -1524,6 +1543,81 @@ class GridLocalizer:
         self._feedback(near)
         self.n_steps_ += 1
         return estimate
+
+    # ------------------------------------------------------------------ frames that come again
+    def _repeated(self, row: np.ndarray, odometry: float | None) -> bool:
+        """Whether this frame repeats the previous one (``repeat_prior``; the same row and
+        no odometry to tell whether the robot moved). A new frame after a run of repeats
+        first merges the held posterior into the moved one (:meth:`_merge_standing`)."""
+        if not self.repeat_prior > 0.0:
+            return False
+        last = self._last_row
+        repeated = odometry is None and last is not None and np.array_equal(row, last)
+        if last is None:
+            self._last_row = row.astype(np.float64, copy=True)
+        elif not repeated:
+            np.copyto(last, row)
+        if not repeated and self._standing is not None:
+            self._merge_standing()
+        return repeated
+
+    def _posterior_parts(self) -> list:
+        """The posterior now, as ``[(weight, state, mass, velocity), …]`` per component
+        (one where there are none): each component's posterior over (state bin, place),
+        its place and state-bin marginals; copies."""
+        if self._components is None:
+            parts = [(1.0, self._state, self._like, self._mass, self._velocity)]
+        else:
+            parts = [(float(w), c["_state"], c["_like"], c["_mass"], c["_velocity"])
+                     for w, c in zip(self.rate_weights_, self._components)]
+        out = [(w, state * like, np.array(mass, dtype=np.float64), np.array(velocity, dtype=np.float64))
+               for w, state, like, mass, velocity in parts]
+        held = _weighted_sum([w for w, *_ in out], [m for _, _, m, _ in out], np.empty(self.graph.n_places))
+        return out + [(held, self.new_place_probability_)]
+
+    def _standing_shares(self, held_new: float, moved_new: float) -> tuple[float, float, float]:
+        """The held and the moved posterior's shares of the map (``q (1 − P_held(new))``
+        and ``(1 − q)(1 − P_moved(new))``, normalised) and the mixture's ``P(new)``."""
+        q = float(self.repeat_prior)
+        a, b = q * (1.0 - held_new), (1.0 - q) * (1.0 - moved_new)
+        p_new = q * held_new + (1.0 - q) * moved_new
+        return (a / (a + b), b / (a + b), p_new) if a + b > 0.0 else (q, 1.0 - q, p_new)
+
+    def _merge_standing(self) -> None:
+        """The run of repeats is over: the posterior becomes ``q`` times the held one plus
+        ``1 − q`` times the moved one (``q = repeat_prior``; over the map and the new place
+        together), component by component, each component's weight the mixture of its two
+        weights. The frames after the run tell the two apart."""
+        held, moved = self._standing, self._posterior_parts()
+        self._standing = None
+        *held_parts, (_, held_new) = held
+        *moved_parts, (_, moved_new) = moved
+        share_h, share_m, p_new = self._standing_shares(held_new, moved_new)
+        weights = []
+        merged = []
+        for (wh, sh, mh, vh), (wm, sm, mm, vm) in zip(held_parts, moved_parts):
+            w = share_h * wh + share_m * wm
+            a, b = (share_h * wh / w, share_m * wm / w) if w > 0.0 else (share_h, share_m)
+            merged.append((a * sh + b * sm, a * mh + b * mm, a * vh + b * vm))
+            weights.append(w)
+        dtype = self._state.dtype
+        if self._components is None:
+            state, mass, velocity = merged[0]
+            self._state = state.astype(dtype, copy=False)
+            self._like, self._mass, self._velocity = self._ones, mass, velocity
+            self.prior_ = mass.copy()
+            self._spare = np.empty_like(self._state)
+        else:
+            for c, (state, mass, velocity) in zip(self._components, merged):
+                c["_state"] = state.astype(dtype, copy=False)
+                c["_spare"] = np.empty_like(c["_state"])
+                c["_like"], c["_mass"], c["_velocity"], c["prior_"] = self._ones, mass, velocity, mass.copy()
+            self.rate_weights_ = np.asarray(weights, dtype=np.float64)
+            self._mass = _weighted_sum(self.rate_weights_, [m for _, m, _ in merged], np.empty(self.graph.n_places))
+            self._velocity = _weighted_sum(self.rate_weights_, [v for _, _, v in merged], np.empty(len(self._owner)))
+            self.prior_ = self._mass.copy()
+        self._summed, self._summed_evidence, self._deferred = None, False, None
+        self.new_place_probability_ = p_new
 
     def _frame_rates(self, evidence: float) -> None:
         """This frame's jump rate(s): the prior rate(s) given the frame's jump evidence
@@ -1818,6 +1912,16 @@ class GridLocalizer:
             self.place_posterior_ = np.multiply(mass, 1.0 - self.new_place_probability_,
                                                 out=self._pool.take(len(mass)))
             best = int(np.argmax(mass))
+        p_new, log_map, log_new = self.new_place_probability_, self._log_map, self._log_new
+        if self._standing is not None:
+            # a run of repeats: the answer is the mixture's, the held posterior with weight q
+            held, held_new = self._standing[-1]
+            share_h, share_m, p_new = self._standing_shares(held_new, p_new)
+            mass = share_h * held + share_m * mass
+            self.place_posterior_ = mass * (1.0 - p_new)
+            best = int(np.argmax(mass))
+            log_new = math.log(p_new) if p_new > 0.0 else -math.inf
+            log_map = math.log1p(-p_new)
         if self.confidence_radius_m is not None:
             near = np.zeros(g.n_places, dtype=bool)
             near[self._tree.query_ball_point(g.positions[best], self.confidence_radius_m)] = True
@@ -1828,9 +1932,9 @@ class GridLocalizer:
         else:
             near = slice(max(0, best - self.confidence_radius), best + self.confidence_radius + 1)
         w_in, w_out = _inside_outside(mass, near)
-        confidence, log_odds = confidence_log_odds(w_in, w_out, self._log_map, self._log_new)
+        confidence, log_odds = confidence_log_odds(w_in, w_out, log_map, log_new)
         position = None if g.positions is None else g.positions[best].copy()
-        return Estimate(best, position, confidence, self.new_place_probability_, float(g.n_places), False,
+        return Estimate(best, position, confidence, p_new, float(g.n_places), False,
                         log_odds, self._score(log_odds)), near
 
     def _score(self, log_odds: float) -> float:

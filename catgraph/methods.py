@@ -474,7 +474,7 @@ def observation_model(params: dict, n_places: int, bootstrap_samples: Callable[[
 _PARTICLE_KEYS = ("n_particles", "resampler", "ess_threshold", "redraw_fraction", "proposal", "jump_graduation")
 #: the grid filter's own parameters (the particle filter has none of them)
 _GRID_KEYS = ("jump_velocity", "rigid_prior", "home_speed_odds", "outlier_probability", "velocity_bins",
-              "varying_prior")
+              "varying_prior", "repeat_prior")
 #: ``mode="auto"`` runs the exact grid filter on maps up to this many places
 GRID_MAX_PLACES = 100_000
 
@@ -558,6 +558,14 @@ def home_speed_odds(velocities, share: float = HOME_SPEED_SHARE) -> float:
     if home == 0 or other == 0:
         return 1.0
     return float(share * other / (home * (1.0 - share)))
+
+
+#: The grid filter's ``repeat_prior`` where the ``filter`` method leaves it unset: off. A
+#: frame that comes again unchanged is, in the real data, a camera or scanner that repeated
+#: itself while the robot moved on (Nordland's winter video at its two ends, a Wi-Fi scan
+#: delivered twice on UJI), and the held posterior's answers cost those traverses; the
+#: measurements are in ``docs/particle_filter.md``, "Frames that come again".
+REPEAT_PRIOR = 0.0
 
 
 def velocity_bins(params: dict, n_places: int) -> list[float]:
@@ -662,6 +670,7 @@ def concrete_params(params: dict, n_places: int) -> dict[str, Any]:
             out["home_speed_odds"] = home_speed_odds(out["velocity_bins"])
         if params.get("outlier_probability") is None:
             out["outlier_probability"] = OUTLIER_PROBABILITY
+        out["repeat_prior"] = REPEAT_PRIOR if params.get("repeat_prior") is None else float(params["repeat_prior"])
         return out
     from .localizer import Localizer
 
@@ -689,7 +698,8 @@ def make_filter(params: dict, graph, model):
                              jump_velocity=params["jump_velocity"],
                              rigid_prior=params["rigid_prior"], varying_prior=params["varying_prior"],
                              home_speed_odds=params["home_speed_odds"],
-                             outlier_probability=params["outlier_probability"], **common)
+                             outlier_probability=params["outlier_probability"],
+                             repeat_prior=params["repeat_prior"], **common)
     from .localizer import Localizer
     from .motion import VelocityMotion
 
@@ -766,6 +776,8 @@ def _filter_not_applicable(params: dict) -> dict[str, str]:
         out["varying_prior"] = "the varying speed's motion is the grid filter's; the particle filter has none"
         out["home_speed_odds"] = "it sets the grid filter's velocity prior; the particle filter's is uniform"
         out["outlier_probability"] = "the outlier frames are the grid filter's; the particle filter has none"
+        out["repeat_prior"] = "the held posterior through frames that come again is the grid filter's; the " \
+                              "particle filter has none"
     if model not in sequence_models:
         for k in ("window", *_WINDOW_ADAPTIVE):
             out[k] = f"model {model!r} has no sequence matcher"
@@ -851,6 +863,11 @@ def _filter_params() -> tuple[Param, ...]:
               "by Bayes' rule; 0: off). It follows a speed that keeps changing (default: half of what the rigid "
               f"line leaves on maps of at most {DENSE_VELOCITY_MAX_PLACES:,} places, 0 above: one more copy of the "
               "grid's state and step)", low=0.0, high=0.99, optional=True),
+        Param("repeat_prior", "float", None, "grid: prior probability that the query stood still while its "
+              "frame came again unchanged (the same frame twice in a row, without odometry): through such a run "
+              "the filter keeps the run's first posterior, held, beside the filter moved on, and the frames after "
+              "it tell the two apart (0: off, the filter moves on; default 0; docs/particle_filter.md, \"Frames "
+              "that come again\")", low=0.0, high=1.0, optional=True),
         Param("home_speed_odds", "float", None, "grid: prior odds of the reference's own speed (one "
               "place per frame, either direction) against each other velocity, at the start and where a jump lands "
               f"(1: uniform; default: the odds that give the two {HOME_SPEED_SHARE:g} of the prior, "
