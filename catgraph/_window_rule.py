@@ -190,12 +190,14 @@ def tracking_filter(n_places: int, velocities=None):
     searches), its velocity bins ``velocities`` where given: the matcher's, the slopes of
     the lines whose places it weighs. (The registry's dense bins on small maps,
     ``grid.DENSE_VELOCITIES``, follow speeds between those slopes, where no candidate line
-    lies, and cost the whole-Nordland adaptive window 5.19 s against 2.06 s.)"""
+    lies, and cost the whole-Nordland adaptive window 5.19 s against 2.06 s.) Neither the
+    varying speed's motion nor the twin that stands still through repeated frames
+    (``repeat_prior``): the matcher's lines move on through them."""
     from .graph import PlaceGraph
     from .methods import make_filter, observation_model, resolve_params
 
     given = {} if velocities is None else {"velocity_bins": [float(v) for v in velocities]}
-    params = resolve_params("filter", {"mode": "grid", "varying_prior": 0.0, **given})
+    params = resolve_params("filter", {"mode": "grid", "varying_prior": 0.0, "repeat_prior": 0.0, **given})
     return make_filter(params, PlaceGraph.chain(n_places), observation_model(params, n_places, None))
 
 

@@ -1210,17 +1210,19 @@ class GridLocalizer:
         would. Default 0: off (the registry's ``filter`` method: 0.01,
         :data:`catgraph.methods.OUTLIER_PROBABILITY`).
     repeat_prior : float in [0, 1]
-        The prior probability that the query stood still while its frame came again
-        unchanged. A frame equal to the previous one (the same row, informative, no
-        odometry) says nothing of whether the robot moved: a vehicle stopped at lights
-        shows it, and so does a camera that froze or a scanner that delivered its last
-        scan again while the robot went on (both are in the real data, module docstring,
-        "Frames that come again"). Through such a run the filter keeps both: the posterior
-        of the run's first frame, held, with this weight, and the filter moved on, with the
-        rest; its answers are the mixture's, and at the first new frame the two merge and the
-        frames after them decide. Default 0: off (the filter moves on; the registry's
-        ``filter`` method: :data:`catgraph.methods.REPEAT_PRIOR` where the query has no
-        odometry). Memory: one more posterior while a run lasts.
+        The prior probability that the query stands still while its frame comes again
+        unchanged. A frame equal to the previous one (the same row, informative, without
+        odometry) does not say whether the robot moved: a vehicle stopped at lights shows
+        it, a query driven at a fraction of the reference's speed too, and so does a camera
+        that froze or a scanner that delivered its last scan again while the robot went on
+        (both are in the real data: module docstring, "Frames that come again"). From the
+        first such frame on, the filter runs a twin that stands still through every run of
+        them (it advances on new frames only) beside itself, which moves on, and answers
+        with their mixture, each weighed by its evidence frame by frame from this prior
+        (``repeat_log_odds_``); once the two posteriors agree (:data:`TWIN_AGREEMENT`) the
+        twin is dropped until the next repeat. Default 0: off (the filter moves on; the
+        registry's ``filter`` method: :data:`catgraph.methods.REPEAT_PRIOR`). Time and
+        memory while the twin lives: twice the filter's.
 
     Attributes
     ----------
@@ -1243,6 +1245,15 @@ class GridLocalizer:
         and the rigid line (those whose prior is not 0).
     converged_ : bool
         Whether the filter has converged (see ``converged_log_odds``).
+    repeat_log_odds_ : float
+        With ``repeat_prior``: the log-odds that the query stands still through its repeated
+        frames against that it moves on (``place_posterior_``, the answer and
+        ``new_place_probability_`` are the two readings' mixture; ``state_``, ``prior_`` and
+        ``rate_weights_`` the moving one's).
+    frame_log_evidence_ : float
+        The latest frame's log evidence, ``log(P(new)' e^{r_new} + (1 − P(new)') Σ_j
+        prior_j e^{r_j})`` (``P(new)'`` the new place's prior for the frame); 0 for a frame
+        without information.
     n_steps_ : int
     """
 
@@ -1429,7 +1440,11 @@ class GridLocalizer:
         self.converged_ = self.converged_frames == 0
         self._held = 0
         self._last_row = None  # the previous frame's row (repeat_prior > 0)
-        self._standing = None  # while frames repeat: the posterior of the run's first frame
+        self._twin = None  # from the first repeat on: the filter of a query that stood still through its repeats
+        q = float(self.repeat_prior)
+        # log-odds of "the query stood still through its repeats" against "it moved on"
+        self.repeat_log_odds_ = math.log(q) - math.log1p(-q) if 0.0 < q < 1.0 else (math.inf if q == 1.0 else -math.inf)
+        self.frame_log_evidence_ = 0.0
         from .observation import claim_model
 
         claim_model(self.model, self)
@@ -1527,10 +1542,28 @@ class GridLocalizer:
         check_model(self.model, self)
         repeated = self._repeated(row, odometry)
         obs = self.model.observe(row)
-        if repeated and obs.informative and self._standing is None:
-            self._standing = self._posterior_parts()  # the run's first frame's, held
+        twin = self._twin
+        if repeated and obs.informative and twin is None and self.repeat_prior > 0.0:
+            twin = self._twin = self._fork()  # this frame's prior: the robot where the run began
+        self._advance(obs, odometry)
+        if twin is not None and not repeated:
+            twin._advance(obs, odometry)
+            twin._resolve()
+            change = twin.frame_log_evidence_ - self.frame_log_evidence_
+            if math.isfinite(change):
+                self.repeat_log_odds_ += change
+        estimate, near = self._summarise()
+        if twin is not None and not repeated and self._agrees(twin):
+            self._twin = None  # one posterior again: the twin is forked anew at the next repeat
+        self._feedback(near)
+        self.n_steps_ += 1
+        return estimate
+
+    def _advance(self, obs, odometry: float | None) -> None:
+        """Predict and update the posterior with the frame's observation ``obs``."""
         ratio = self._exp_ratio(obs)
         self._frame_rates(obs.jump_evidence)
+        self.frame_log_evidence_ = 0.0
         if self._components is None:
             self._predict(odometry, ratio)
             self._update(ratio)
@@ -1539,16 +1572,11 @@ class GridLocalizer:
             self._rigid_step(odometry, ratio)
         else:
             self._hazard_step(odometry, ratio)
-        estimate, near = self._summarise()
-        self._feedback(near)
-        self.n_steps_ += 1
-        return estimate
 
     # ------------------------------------------------------------------ frames that come again
     def _repeated(self, row: np.ndarray, odometry: float | None) -> bool:
         """Whether this frame repeats the previous one (``repeat_prior``; the same row and
-        no odometry to tell whether the robot moved). A new frame after a run of repeats
-        first merges the held posterior into the moved one (:meth:`_merge_standing`)."""
+        no odometry to tell whether the robot moved)."""
         if not self.repeat_prior > 0.0:
             return False
         last = self._last_row
@@ -1557,67 +1585,71 @@ class GridLocalizer:
             self._last_row = row.astype(np.float64, copy=True)
         elif not repeated:
             np.copyto(last, row)
-        if not repeated and self._standing is not None:
-            self._merge_standing()
         return repeated
 
-    def _posterior_parts(self) -> list:
-        """The posterior now, as ``[(weight, state, mass, velocity), …]`` per component
-        (one where there are none): each component's posterior over (state bin, place),
-        its place and state-bin marginals; copies."""
-        if self._components is None:
-            parts = [(1.0, self._state, self._like, self._mass, self._velocity)]
-        else:
-            parts = [(float(w), c["_state"], c["_like"], c["_mass"], c["_velocity"])
-                     for w, c in zip(self.rate_weights_, self._components)]
-        out = [(w, state * like, np.array(mass, dtype=np.float64), np.array(velocity, dtype=np.float64))
-               for w, state, like, mass, velocity in parts]
-        held = _weighted_sum([w for w, *_ in out], [m for _, _, m, _ in out], np.empty(self.graph.n_places))
-        return out + [(held, self.new_place_probability_)]
+    def _fork(self) -> "GridLocalizer":
+        """The filter of a query that stands still through its repeats: a copy of this one
+        now (its posterior the robot where the run began), sharing the observation model
+        and the graph; it advances on the frames that are not repeats only."""
+        import copy
 
-    def _standing_shares(self, held_new: float, moved_new: float) -> tuple[float, float, float]:
-        """The held and the moved posterior's shares of the map (``q (1 − P_held(new))``
-        and ``(1 − q)(1 − P_moved(new))``, normalised) and the mixture's ``P(new)``."""
-        q = float(self.repeat_prior)
-        a, b = q * (1.0 - held_new), (1.0 - q) * (1.0 - moved_new)
-        p_new = q * held_new + (1.0 - q) * moved_new
-        return (a / (a + b), b / (a + b), p_new) if a + b > 0.0 else (q, 1.0 - q, p_new)
+        memo = {id(self.model): self.model, id(self.graph): self.graph}
+        for name in ("_tree", "_route", "_neighbourhoods", "_neighbours", "_t_sparse", "_transition", "_motions",
+                     "_last_row"):
+            value = self.__dict__.get(name)
+            if value is not None:
+                memo[id(value)] = value
+        twin = copy.deepcopy(self, memo)
+        twin._twin, twin._last_row = None, None
+        twin.repeat_prior = 0.0
+        return twin
 
-    def _merge_standing(self) -> None:
-        """The run of repeats is over: the posterior becomes ``q`` times the held one plus
-        ``1 − q`` times the moved one (``q = repeat_prior``; over the map and the new place
-        together), component by component, each component's weight the mixture of its two
-        weights. The frames after the run tell the two apart."""
-        held, moved = self._standing, self._posterior_parts()
-        self._standing = None
-        *held_parts, (_, held_new) = held
-        *moved_parts, (_, moved_new) = moved
-        share_h, share_m, p_new = self._standing_shares(held_new, moved_new)
-        weights = []
-        merged = []
-        for (wh, sh, mh, vh), (wm, sm, mm, vm) in zip(held_parts, moved_parts):
-            w = share_h * wh + share_m * wm
-            a, b = (share_h * wh / w, share_m * wm / w) if w > 0.0 else (share_h, share_m)
-            merged.append((a * sh + b * sm, a * mh + b * mm, a * vh + b * vm))
-            weights.append(w)
-        dtype = self._state.dtype
+    #: The twin of :meth:`_fork` is dropped once its posterior and the filter's agree within
+    #: this total variation distance, over place, state bin and motion model (and ``P(new)``).
+    TWIN_AGREEMENT = 1e-12
+
+    def _agrees(self, twin: "GridLocalizer") -> bool:
+        """Whether ``twin``'s posterior is this filter's (:data:`TWIN_AGREEMENT`): the
+        marginals first, then the whole posterior."""
+        tol = 2.0 * self.TWIN_AGREEMENT
+        if abs(twin.new_place_probability_ - self.new_place_probability_) > tol / 2.0:
+            return False
+        if self._components is not None and np.abs(twin.rate_weights_ - self.rate_weights_).sum() > tol:
+            return False
+        if np.abs(twin._velocity - self._velocity).sum() > tol or np.abs(twin._mass - self._mass).sum() > tol:
+            return False
         if self._components is None:
-            state, mass, velocity = merged[0]
-            self._state = state.astype(dtype, copy=False)
-            self._like, self._mass, self._velocity = self._ones, mass, velocity
-            self.prior_ = mass.copy()
-            self._spare = np.empty_like(self._state)
+            pairs = [(1.0, 1.0, self, twin)]
         else:
-            for c, (state, mass, velocity) in zip(self._components, merged):
-                c["_state"] = state.astype(dtype, copy=False)
-                c["_spare"] = np.empty_like(c["_state"])
-                c["_like"], c["_mass"], c["_velocity"], c["prior_"] = self._ones, mass, velocity, mass.copy()
-            self.rate_weights_ = np.asarray(weights, dtype=np.float64)
-            self._mass = _weighted_sum(self.rate_weights_, [m for _, m, _ in merged], np.empty(self.graph.n_places))
-            self._velocity = _weighted_sum(self.rate_weights_, [v for _, _, v in merged], np.empty(len(self._owner)))
-            self.prior_ = self._mass.copy()
-        self._summed, self._summed_evidence, self._deferred = None, False, None
-        self.new_place_probability_ = p_new
+            pairs = [(float(a), float(b), ca, cb) for a, b, ca, cb in
+                     zip(self.rate_weights_, twin.rate_weights_, self._components, twin._components)]
+        total = 0.0
+        for a, b, ca, cb in pairs:
+            get = (lambda c, k: getattr(c, k)) if isinstance(ca, GridLocalizer) else (lambda c, k: c[k])
+            mine = get(ca, "_state") * get(ca, "_like")
+            total += float(np.abs(a * mine - b * get(cb, "_state") * get(cb, "_like")).sum())
+            if total > tol:
+                return False
+        return True
+
+    def _resolve(self) -> tuple[np.ndarray, int]:
+        """The update's writes left to the summary (:func:`_posterior_pass`): the place
+        masses (given the map), ``place_posterior_`` and the best place."""
+        self.__dict__.pop("place_posterior_", None)  # the previous frame's: reusable if no one else holds it
+        if self._deferred is not None:  # the update's writes, the place posterior and the answer in one pass
+            e, inv = self._deferred
+            self._deferred = None
+            mass = self._pool.take(len(e))
+            self.place_posterior_ = self._pool.take(len(e))
+            best = int(_posterior_pass(e, inv, self.prior_, self._like_buffer, mass, self.place_posterior_,
+                                       1.0 - self.new_place_probability_))
+            self._like, self._mass = self._like_buffer, mass
+        else:
+            mass = self._mass
+            self.place_posterior_ = np.multiply(mass, 1.0 - self.new_place_probability_,
+                                                out=self._pool.take(len(mass)))
+            best = int(np.argmax(mass))
+        return mass, best
 
     def _frame_rates(self, evidence: float) -> None:
         """This frame's jump rate(s): the prior rate(s) given the frame's jump evidence
@@ -1884,8 +1916,10 @@ class GridLocalizer:
             t = np.logaddexp(a_new, a_map)
             self._log_new, self._log_map = a_new - t, a_map - t
             self.new_place_probability_ = float(math.exp(self._log_new))
+            self.frame_log_evidence_ = float(t)
         else:
             self._log_new, self._log_map, self.new_place_probability_ = -math.inf, 0.0, 0.0
+            self.frame_log_evidence_ = float(log_map)
 
     def _learn_recovery(self, ratio: float) -> None:
         """Online EM for the jump rate (:func:`learn_jump_rate`)."""
@@ -1898,27 +1932,17 @@ class GridLocalizer:
         from .localizer import Estimate, confidence_log_odds
 
         g = self.graph
-        self.__dict__.pop("place_posterior_", None)  # the previous frame's: reusable if no one else holds it
-        if self._deferred is not None:  # the update's writes, the place posterior and the answer in one pass
-            e, inv = self._deferred
-            self._deferred = None
-            mass = self._pool.take(len(e))
-            self.place_posterior_ = self._pool.take(len(e))
-            best = int(_posterior_pass(e, inv, self.prior_, self._like_buffer, mass, self.place_posterior_,
-                                       1.0 - self.new_place_probability_))
-            self._like, self._mass = self._like_buffer, mass
-        else:
-            mass = self._mass
-            self.place_posterior_ = np.multiply(mass, 1.0 - self.new_place_probability_,
-                                                out=self._pool.take(len(mass)))
-            best = int(np.argmax(mass))
+        mass, best = self._resolve()
         p_new, log_map, log_new = self.new_place_probability_, self._log_map, self._log_new
-        if self._standing is not None:
-            # a run of repeats: the answer is the mixture's, the held posterior with weight q
-            held, held_new = self._standing[-1]
-            share_h, share_m, p_new = self._standing_shares(held_new, p_new)
-            mass = share_h * held + share_m * mass
-            self.place_posterior_ = mass * (1.0 - p_new)
+        twin = self._twin
+        if twin is not None:
+            # the two readings of the repeats, each weighed by its evidence (Bayes' rule): the
+            # answer is the mixture's, over the map and the new place together
+            w_held = _logistic(self.repeat_log_odds_)
+            own_posterior = self.place_posterior_
+            self.place_posterior_ = w_held * twin.place_posterior_ + (1.0 - w_held) * own_posterior
+            p_new = w_held * twin.new_place_probability_ + (1.0 - w_held) * p_new
+            mass = self.place_posterior_ / (1.0 - p_new) if p_new < 1.0 else self.place_posterior_
             best = int(np.argmax(mass))
             log_new = math.log(p_new) if p_new > 0.0 else -math.inf
             log_map = math.log1p(-p_new)
@@ -2018,6 +2042,11 @@ def _sparse_columns(transition: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
     nz = transition.T != 0
     return (np.concatenate([[0], np.cumsum(nz.sum(1))]).astype(np.int64), np.nonzero(nz)[1].astype(np.int64),
             np.ascontiguousarray(transition.T[nz], dtype=np.float64))
+
+
+def _logistic(x: float) -> float:
+    """``1 / (1 + e^{−x})`` without overflow (``±inf`` give 1 and 0)."""
+    return 1.0 / (1.0 + math.exp(-x)) if x >= 0 else math.exp(x) / (1.0 + math.exp(x))
 
 
 def _weighted_sum(weights: np.ndarray, arrays: list, out: np.ndarray) -> np.ndarray:

@@ -560,12 +560,14 @@ def home_speed_odds(velocities, share: float = HOME_SPEED_SHARE) -> float:
     return float(share * other / (home * (1.0 - share)))
 
 
-#: The grid filter's ``repeat_prior`` where the ``filter`` method leaves it unset: off. A
-#: frame that comes again unchanged is, in the real data, a camera or scanner that repeated
-#: itself while the robot moved on (Nordland's winter video at its two ends, a Wi-Fi scan
-#: delivered twice on UJI), and the held posterior's answers cost those traverses; the
-#: measurements are in ``docs/particle_filter.md``, "Frames that come again".
-REPEAT_PRIOR = 0.0
+#: The grid filter's ``repeat_prior`` where the ``filter`` method leaves it unset: the prior
+#: probability that a query stands still while its frame comes again unchanged. Low, because
+#: in the real data such a frame is a camera or scanner that repeated itself while the robot
+#: moved on (Nordland's winter video at its two ends, a Wi-Fi scan delivered twice on UJI);
+#: the frames after a run decide for a query that does stand still (stops, slow speeds).
+#: Chosen between 0.1 and 0.5 on the condition table, stops and speeds
+#: (``docs/particle_filter.md``, "Frames that come again").
+REPEAT_PRIOR = 0.1
 
 
 def velocity_bins(params: dict, n_places: int) -> list[float]:
@@ -863,11 +865,12 @@ def _filter_params() -> tuple[Param, ...]:
               "by Bayes' rule; 0: off). It follows a speed that keeps changing (default: half of what the rigid "
               f"line leaves on maps of at most {DENSE_VELOCITY_MAX_PLACES:,} places, 0 above: one more copy of the "
               "grid's state and step)", low=0.0, high=0.99, optional=True),
-        Param("repeat_prior", "float", None, "grid: prior probability that the query stood still while its "
-              "frame came again unchanged (the same frame twice in a row, without odometry): through such a run "
-              "the filter keeps the run's first posterior, held, beside the filter moved on, and the frames after "
-              "it tell the two apart (0: off, the filter moves on; default 0; docs/particle_filter.md, \"Frames "
-              "that come again\")", low=0.0, high=1.0, optional=True),
+        Param("repeat_prior", "float", None, "grid: prior probability that the query stands still while its "
+              "frame comes again unchanged (the same frame twice in a row, without odometry): from the first such "
+              "frame the filter runs a twin that stands still through them beside itself, which moves on, and "
+              "answers with both, each weighed by its evidence (0: off, the filter moves on; default "
+              f"{REPEAT_PRIOR:g}; docs/particle_filter.md, \"Frames that come again\")", low=0.0, high=1.0,
+              optional=True),
         Param("home_speed_odds", "float", None, "grid: prior odds of the reference's own speed (one "
               "place per frame, either direction) against each other velocity, at the start and where a jump lands "
               f"(1: uniform; default: the odds that give the two {HOME_SPEED_SHARE:g} of the prior, "

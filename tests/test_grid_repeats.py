@@ -1,9 +1,9 @@
-"""Frames that come again (``GridLocalizer(repeat_prior=q)``): through a run of frames
-equal to the one before, the filter keeps the posterior of the run's first frame, held,
-beside the filter moved on, and merges the two with weights ``q`` and ``1 − q`` at the
-first new frame. Checked against a plain dense-matrix Bayes filter over (motion model,
-place, velocity) that does the same with whole vectors, and against the filter run on
-the frames without their repeats (``q = 1``)."""
+"""Frames that come again (``GridLocalizer(repeat_prior=q)``): from the first frame equal
+to the one before, the filter runs a twin that stands still through every such run (it
+advances on new frames only) beside itself, which moves on, and answers with the mixture
+of the two, each weighed by its evidence frame by frame from the prior ``q``. Checked as
+two plain filters composed by Bayes' rule — the query as it comes, and the query without
+its repeats — whose frame evidence is checked against a dense-matrix Bayes filter."""
 
 import math
 
@@ -19,6 +19,7 @@ from .test_grid_jump_velocity import _General
 
 PRIOR = 0.2
 RECOVERY = 0.1
+RUNS = [0, 0, 3, 0, 1, 0, 0, 0, 2, 0, 0, 4, 0, 0, 0, 0, 1]
 
 
 def _with_repeats(rows, runs):
@@ -26,16 +27,12 @@ def _with_repeats(rows, runs):
     return np.repeat(rows, 1 + np.asarray(runs), axis=0)
 
 
-def _reference(rows, q, learn, rigid=True):
-    """The filter's motion (the settings', jump rate ``RECOVERY`` learned from its own
-    evidence when ``learn``) and, with ``rigid``, the rigid line (velocity kept, no blur,
-    ``RIGID_JUMP_RATE``), weighed by their evidence; each jump uniform over places with
-    half the previous posterior velocity marginal and half the (uniform) velocity prior.
-    A row equal to the previous one starts (or continues) a run: the posterior of the
-    frame before the run is kept, and the answers are the mixture of it (weight ``q``)
-    and the filter moved on (``1 − q``), over the map and the new place together; at the
-    first new row the two are merged so, component by component, before that row is
-    processed. Returns per frame the place posterior and ``P(new)``."""
+def _dense_evidence(rows, learn, rigid=True):
+    """Each frame's log evidence ``log(P(new)' e^{r_new} + (1 − P(new)') Σ_j prior_j e^{r_j})``
+    (``P(new)'`` the new place's prior for the frame) of a plain dense-matrix Bayes filter:
+    the filter's motion (jump rate ``RECOVERY``, learned when ``learn``) and, with
+    ``rigid``, the rigid line, weighed by their evidence; jumps land uniformly with half the
+    previous posterior velocity marginal and half the uniform velocity prior."""
     n = rows.shape[1]
     nb = len(VELOCITIES)
     motion = [_motion(n, VELOCITIES, SETTINGS["velocity_stay"], SETTINGS["reverse_probability"], SETTINGS["blur"])]
@@ -49,32 +46,14 @@ def _reference(rows, q, learn, rigid=True):
     vprior = np.full(nb, 1.0 / nb)
     x = [np.tile(vprior / n, n) for _ in range(k)]
     jumps, frames, p_new = 0.0, 0.0, 0.0
-    last_marginal = vprior
-    standing = None
+    marginal = vprior
     out = []
-
-    def mixture(xs, ws):
-        return sum(wi * xi for wi, xi in zip(ws, xs))
-
     for t, row in enumerate(rows):
-        repeated = t > 0 and np.array_equal(row, rows[t - 1])
-        if not repeated and standing is not None:
-            xh, wh, ph = standing
-            a, b = q * (1 - ph), (1 - q) * (1 - p_new)
-            a, b = a / (a + b), b / (a + b)
-            joint = [a * wh[i] * xh[i] + b * w[i] * x[i] for i in range(k)]
-            w = np.array([j.sum() for j in joint])
-            x = [j / j.sum() for j in joint]
-            p_new = q * ph + (1 - q) * p_new
-            last_marginal = mixture(x, w).reshape(n, nb).sum(0)
-            standing = None
-        if repeated and standing is None:
-            standing = ([xi.copy() for xi in x], w.copy(), p_new)
         like = np.repeat(np.exp(-row), nb)
         if t == 0:
             pred = [xi.copy() for xi in x]
         else:
-            land = np.tile((0.5 * last_marginal + 0.5 * vprior) / n, n)
+            land = np.tile((0.5 * marginal + 0.5 * vprior) / n, n)
             moved = [motion[i] @ x[i] for i in range(k)]
             pred = [(1 - eps[i]) * moved[i] / moved[i].sum() + eps[i] * land for i in range(k)]
         evidence = [float((pred[i] * like).sum()) for i in range(k)]
@@ -85,58 +64,110 @@ def _reference(rows, q, learn, rigid=True):
         total = sum(zi.sum() for zi in z)
         w = np.array([zi.sum() for zi in z]) / total
         x = [zi / zi.sum() for zi in z]
-        last_marginal = mixture(x, w).reshape(n, nb).sum(0)
+        marginal = sum(wi * xi for wi, xi in zip(w, x)).reshape(n, nb).sum(0)
         prior = SETTINGS["new_place_stay"] * p_new + SETTINGS["new_place_prior"] * (1 - p_new)
         a_new = math.log(prior) - 1.0
         a_map = math.log1p(-prior) + math.log(total)
+        out.append(float(np.logaddexp(a_new, a_map)))
         p_new = math.exp(a_new - np.logaddexp(a_new, a_map))
-        posterior, p_out = (1 - p_new) * mixture(x, w).reshape(n, nb).sum(1), p_new
-        if standing is not None:  # the answer of a run: the held posterior beside the moved one
-            xh, wh, ph = standing
-            posterior = q * (1 - ph) * mixture(xh, wh).reshape(n, nb).sum(1) + (1 - q) * posterior
-            p_out = q * ph + (1 - q) * p_new
-        out.append((posterior, p_out))
     return out
 
 
-def _filter(kind, q, learn, rigid=True, **kwargs):
+def _filter(kind, q, learn, rigid=True, n=11):
     extra = {"rigid_prior": PRIOR} if rigid else {}
-    return kind(PlaceGraph.chain(11), _Ratios(), recovery=RECOVERY, learn_recovery=learn, jump_velocity="current",
-                repeat_prior=q, **extra, **SETTINGS, **kwargs).reset()
+    return kind(PlaceGraph.chain(n), _Ratios(), recovery=RECOVERY, learn_recovery=learn, jump_velocity="current",
+                repeat_prior=q, **extra, **SETTINGS).reset()
 
 
 @pytest.mark.parametrize("rigid", [True, False])
-@pytest.mark.parametrize("q", [0.5, 0.2, 1.0])
 @pytest.mark.parametrize("learn", [True, False])
 @pytest.mark.parametrize("kind", [_Float64, _General])
-def test_repeats_equal_dense_reference(kind, learn, q, rigid):
-    rows = _with_repeats(_rows(11, 17, seed=5), [0, 0, 3, 0, 1, 0, 0, 0, 2, 0, 0, 4, 0, 0, 0, 0, 1])
+def test_frame_evidence_equals_dense_reference(kind, learn, rigid):
+    rows = _rows(11, 17, seed=5)
+    loc = _filter(kind, 0.0, learn, rigid)
+    for row, evidence in zip(rows, _dense_evidence(rows, learn, rigid)):
+        loc.step(row)
+        assert loc.frame_log_evidence_ == pytest.approx(evidence, rel=1e-9, abs=1e-12)
+
+
+@pytest.mark.parametrize("rigid", [True, False])
+@pytest.mark.parametrize("q", [0.5, 0.2, 0.9, 1.0])
+@pytest.mark.parametrize("learn", [True, False])
+@pytest.mark.parametrize("kind", [_Float64, _General])
+def test_repeats_are_two_filters_weighed_by_their_evidence(kind, learn, q, rigid, monkeypatch):
+    """The filter with ``repeat_prior = q`` against two plain filters: one on the frames as
+    they come (the robot moved on), one on the frames without their repeats (it stood
+    still), each repeat answered by the latter with its run's first frame's posterior;
+    from the first repeat on the answer is their mixture, weighed by ``q`` and then by each
+    frame's evidence where both advanced (the twin kept throughout: never agreeing)."""
+    monkeypatch.setattr(GridLocalizer, "TWIN_AGREEMENT", -1.0)
+    base = _rows(11, 17, seed=5)
+    rows = _with_repeats(base, RUNS)
     loc = _filter(kind, q, learn, rigid)
-    for row, (posterior, p_new) in zip(rows, _reference(rows, q, learn, rigid)):
+    moved, still = _filter(kind, 0.0, learn, rigid), _filter(kind, 0.0, learn, rigid)
+    log_odds = math.log(q / (1 - q)) if q < 1 else math.inf
+    forked = False
+    for t, row in enumerate(rows):
+        repeat = t > 0 and np.array_equal(row, rows[t - 1])
+        forked |= repeat
         est = loc.step(row)
+        moved.step(row)
+        if not repeat:
+            still.step(row)
+            log_odds += still.frame_log_evidence_ - moved.frame_log_evidence_
+        if not forked:
+            posterior, p_new = moved.place_posterior_, moved.new_place_probability_
+        else:
+            w = 1.0 if log_odds == math.inf else 1.0 / (1.0 + math.exp(-log_odds))
+            posterior = w * still.place_posterior_ + (1 - w) * moved.place_posterior_
+            p_new = w * still.new_place_probability_ + (1 - w) * moved.new_place_probability_
+            assert loc.repeat_log_odds_ == pytest.approx(log_odds, rel=1e-9, abs=1e-12)
         np.testing.assert_allclose(loc.place_posterior_, posterior, rtol=1e-9, atol=1e-15)
         assert est.new_place_probability == pytest.approx(p_new, rel=1e-9, abs=1e-15)
         assert est.place == int(np.argmax(posterior))
+    assert forked
 
 
 @pytest.mark.parametrize("kind", [_Float64, _General])
-def test_held_for_certain_is_the_query_without_its_repeats(kind):
-    """``q = 1``: the robot stood still through every run, so the filter is the filter run
-    on the frames without their repeats, and each repeat's answer its run's first frame's
-    (with the jump rate fixed: its learning reads every frame, the repeats too)."""
+def test_standing_still_for_certain_is_the_query_without_its_repeats(kind):
+    """``q = 1``: the robot stood still through every run, so the answers are the filter's
+    on the frames without their repeats, each repeat answered as its run's first frame."""
     base = _rows(11, 17, seed=7)
     runs = [0, 2, 0, 0, 5, 0, 1, 0, 0, 0, 3, 0, 0, 0, 0, 0, 2]
-    held, plain = _filter(kind, 1.0, False), _filter(kind, 0.0, False)
+    held, plain = _filter(kind, 1.0, True), _filter(kind, 0.0, True)
     answers = [plain.step(row) for row in base]
-    k = 0
     for i, row in enumerate(base):
         for _ in range(1 + runs[i]):
             est = held.step(row)
             assert est.place == answers[i].place
             assert est.confidence == pytest.approx(answers[i].confidence, rel=1e-9, abs=1e-15)
             assert est.new_place_probability == pytest.approx(answers[i].new_place_probability, rel=1e-9, abs=1e-15)
-            k += 1
-    assert k == len(_with_repeats(base, runs))
+
+
+@pytest.mark.parametrize("kind", [_Float64, _General])
+def test_the_twin_goes_once_the_two_agree_and_comes_back_at_the_next_repeat(kind, monkeypatch):
+    """Frames that place the robot beyond doubt make the two posteriors one: the twin is
+    dropped (the answers those of the filter that keeps it, to round-off), its evidence
+    kept in the log-odds, and the next repeat forks it anew."""
+    n = 200
+    rows = np.full((n, n), 30.0)
+    rows[np.arange(n), np.arange(n)] = 0.0  # each frame is one place, beyond doubt
+    runs = np.zeros(n, dtype=int)
+    runs[[1, 180]] = (2, 1)
+    rows = _with_repeats(rows, runs)
+    monkeypatch.setattr(GridLocalizer, "TWIN_AGREEMENT", -1.0)
+    kept = _filter(kind, 0.5, False, rigid=False, n=n)
+    keeping = [kept.step(row) for row in rows]
+    monkeypatch.undo()
+    loc = _filter(kind, 0.5, False, rigid=False, n=n)
+    twins = []
+    for row, other in zip(rows, keeping):
+        est = loc.step(row)
+        twins.append(loc._twin is not None)
+        assert est.place == other.place
+        assert est.confidence == pytest.approx(other.confidence, rel=1e-9, abs=1e-12)
+    assert twins[2] and not twins[150] and twins[183] and not twins[1]  # forked, dropped, forked again
+    assert loc.repeat_log_odds_ == pytest.approx(kept.repeat_log_odds_, rel=1e-9, abs=1e-9)
 
 
 def test_off_by_default_and_left_to_odometry():
@@ -153,7 +184,7 @@ def test_off_by_default_and_left_to_odometry():
         a, b = plain.step(row), mixed.step(row)
         differ |= a.place != b.place or not math.isclose(a.confidence, b.confidence, rel_tol=1e-12)
         c, d = with_odometry.step(row, odometry=1.0), plain_odometry.step(row, odometry=1.0)
-        assert with_odometry._standing is None
+        assert with_odometry._twin is None
         assert (c.place, c.confidence, c.new_place_probability) == (d.place, d.confidence, d.new_place_probability)
     assert differ
 
