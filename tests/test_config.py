@@ -1,3 +1,4 @@
+import json
 import os
 import textwrap
 import tomllib
@@ -247,41 +248,26 @@ def test_values_that_would_fail_or_be_ignored_once_running_are_refused_at_once(m
         "ess_threshold"] == 0.9
 
 
-def test_varying_speed_conditions_name_their_runs(tmp_path):
-    text = """
+@pytest.mark.parametrize("conditions,names,second,bad", [
+    (["vary:0", "vary:1:0.25:4", "speed:2"], ["vary=0,0.5-2", "vary=1,0.25-4", "speed=2"],
+     {"kind": "vary", "seed": 1, "segment_range": [0.02, 0.2], "speed_range": [0.25, 4.0]}, ("vary:1:0.25:4", "vary:1:4:0.25")),
+    (["stop:0", "stop:1:2:9", "in-order"], ["stop=0,5-50", "stop=1,2-9", "in-order"],
+     {"kind": "stop", "seed": 1, "segment_range": [0.02, 0.2], "stop_frames": [2, 9]}, ("stop:1:2:9", "stop:1:9:2")),
+])
+def test_varying_and_stopping_conditions_name_their_runs(tmp_path, conditions, names, second, bad):
+    text = f"""
     [[dataset]]
     name = "d"
     reference = "r.npy"
     query = "q.npy"
     tolerance = 1
-    conditions = ["vary:0", "vary:1:0.25:4", "speed:2"]
+    conditions = {json.dumps(conditions)}
 
     [[method]]
     method = "single-frame"
     """
     config = load_config(write(tmp_path, text))
-    assert [s["name"] for s in config.specs] == ["d/single-frame/vary=0,0.5-2", "d/single-frame/vary=1,0.25-4",
-                                                 "d/single-frame/speed=2"]
-    assert config.specs[1]["condition"] == {"kind": "vary", "seed": 1, "segment_range": [0.02, 0.2],
-                                            "speed_range": [0.25, 4.0]}
-
-
-def test_stopping_conditions_name_their_runs(tmp_path):
-    text = """
-    [[dataset]]
-    name = "d"
-    reference = "r.npy"
-    query = "q.npy"
-    tolerance = 1
-    conditions = ["stop:0", "stop:1:2:9", "in-order"]
-
-    [[method]]
-    method = "single-frame"
-    """
-    config = load_config(write(tmp_path, text))
-    assert [s["name"] for s in config.specs] == ["d/single-frame/stop=0,5-50", "d/single-frame/stop=1,2-9",
-                                                 "d/single-frame/in-order"]
-    assert config.specs[1]["condition"] == {"kind": "stop", "seed": 1, "segment_range": [0.02, 0.2],
-                                            "stop_frames": [2, 9]}
-    with pytest.raises(ConfigError, match="stop lengths"):
-        load_config(write(tmp_path, text.replace('"stop:1:2:9"', '"stop:1:9:2"')))
+    assert [s["name"] for s in config.specs] == [f"d/single-frame/{n}" for n in names]
+    assert config.specs[1]["condition"] == second
+    with pytest.raises(ConfigError, match="MIN ≤ MAX"):
+        load_config(write(tmp_path, text.replace(f'"{bad[0]}"', f'"{bad[1]}"')))

@@ -3,7 +3,8 @@ to the one before, the filter runs a twin that stands still through every such r
 advances on new frames only) beside itself, which moves on, and answers with the mixture
 of the two, each weighed by its evidence frame by frame from the prior ``q``. Checked as
 two plain filters composed by Bayes' rule — the query as it comes, and the query without
-its repeats — whose frame evidence is checked against a dense-matrix Bayes filter."""
+its repeats — whose frame evidence is checked against the dense-matrix Bayes filter of
+``test_grid_rigid``."""
 
 import math
 
@@ -12,65 +13,18 @@ import pytest
 
 from catgraph.exceptions import InvalidParameterError
 from catgraph.graph import PlaceGraph
-from catgraph.grid import RIGID_JUMP_RATE, GridLocalizer, learn_jump_rate
+from catgraph.grid import GridLocalizer
 
-from .test_grid_hazard import SETTINGS, VELOCITIES, _Float64, _motion, _Ratios, _rows
+from .test_grid_hazard import SETTINGS, _Float64, _Ratios, _rows
 from .test_grid_jump_velocity import _General
+from .test_grid_rigid import PRIOR, RECOVERY, _reference
 
-PRIOR = 0.2
-RECOVERY = 0.1
 RUNS = [0, 0, 3, 0, 1, 0, 0, 0, 2, 0, 0, 4, 0, 0, 0, 0, 1]
 
 
 def _with_repeats(rows, runs):
     """``rows`` with row ``k`` shown ``1 + runs[k]`` times (in order)."""
     return np.repeat(rows, 1 + np.asarray(runs), axis=0)
-
-
-def _dense_evidence(rows, learn, rigid=True):
-    """Each frame's log evidence ``log(P(new)' e^{r_new} + (1 − P(new)') Σ_j prior_j e^{r_j})``
-    (``P(new)'`` the new place's prior for the frame) of a plain dense-matrix Bayes filter:
-    the filter's motion (jump rate ``RECOVERY``, learned when ``learn``) and, with
-    ``rigid``, the rigid line, weighed by their evidence; jumps land uniformly with half the
-    previous posterior velocity marginal and half the uniform velocity prior."""
-    n = rows.shape[1]
-    nb = len(VELOCITIES)
-    motion = [_motion(n, VELOCITIES, SETTINGS["velocity_stay"], SETTINGS["reverse_probability"], SETTINGS["blur"])]
-    eps, w = [RECOVERY], [1.0]
-    if rigid:
-        motion.append(_motion(n, VELOCITIES, 1.0, 0.0, 0.0))
-        eps.append(RIGID_JUMP_RATE)
-        w = [1.0 - PRIOR, PRIOR]
-    k = len(motion)
-    w = np.array(w)
-    vprior = np.full(nb, 1.0 / nb)
-    x = [np.tile(vprior / n, n) for _ in range(k)]
-    jumps, frames, p_new = 0.0, 0.0, 0.0
-    marginal = vprior
-    out = []
-    for t, row in enumerate(rows):
-        like = np.repeat(np.exp(-row), nb)
-        if t == 0:
-            pred = [xi.copy() for xi in x]
-        else:
-            land = np.tile((0.5 * marginal + 0.5 * vprior) / n, n)
-            moved = [motion[i] @ x[i] for i in range(k)]
-            pred = [(1 - eps[i]) * moved[i] / moved[i].sum() + eps[i] * land for i in range(k)]
-        evidence = [float((pred[i] * like).sum()) for i in range(k)]
-        if t > 0 and learn:
-            jumps, frames, eps[0] = learn_jump_rate(jumps, frames, RECOVERY, eps[0],
-                                                    float(np.exp(-row).mean()) / evidence[0])
-        z = [w[i] * pred[i] * like for i in range(k)]
-        total = sum(zi.sum() for zi in z)
-        w = np.array([zi.sum() for zi in z]) / total
-        x = [zi / zi.sum() for zi in z]
-        marginal = sum(wi * xi for wi, xi in zip(w, x)).reshape(n, nb).sum(0)
-        prior = SETTINGS["new_place_stay"] * p_new + SETTINGS["new_place_prior"] * (1 - p_new)
-        a_new = math.log(prior) - 1.0
-        a_map = math.log1p(-prior) + math.log(total)
-        out.append(float(np.logaddexp(a_new, a_map)))
-        p_new = math.exp(a_new - np.logaddexp(a_new, a_map))
-    return out
 
 
 def _filter(kind, q, learn, rigid=True, n=11):
@@ -85,7 +39,7 @@ def _filter(kind, q, learn, rigid=True, n=11):
 def test_frame_evidence_equals_dense_reference(kind, learn, rigid):
     rows = _rows(11, 17, seed=5)
     loc = _filter(kind, 0.0, learn, rigid)
-    for row, evidence in zip(rows, _dense_evidence(rows, learn, rigid)):
+    for row, (*_, evidence) in zip(rows, _reference(rows, learn, "current", rigid=rigid, with_evidence=True)):
         loc.step(row)
         assert loc.frame_log_evidence_ == pytest.approx(evidence, rel=1e-9, abs=1e-12)
 

@@ -21,7 +21,8 @@ PRIOR = 0.2
 RECOVERY = 0.1
 
 
-def _reference(rows, learn, jump_velocity, home_speed_odds=1.0, change=None, varying=0.0, stay=None):
+def _reference(rows, learn, jump_velocity, home_speed_odds=1.0, change=None, varying=0.0, stay=None, rigid=True,
+               with_evidence=False):
     """Two filters as vectors over (place, velocity), each with its motion as one matrix:
     the settings' (``velocity_stay``, ``reverse_probability``, ``blur``, jump rate
     ``RECOVERY``, learned from its own evidence when ``learn``) and the rigid line's
@@ -37,8 +38,10 @@ def _reference(rows, learn, jump_velocity, home_speed_odds=1.0, change=None, var
     transitions' likelihood). ``varying``: a third filter between the two, of this prior
     weight (the settings' first less it), its velocity kept with ``VARYING_VELOCITY_STAY``,
     the settings' blur and turning, and the first filter's jump rate (as learned). Returns
-    per frame the place posterior, ``P(new)`` and the weights. ``stay``: the first filter's
-    ``velocity_stay`` instead of the settings'."""
+    per frame the place posterior, ``P(new)`` and the weights (and, with ``with_evidence``, the
+    frame's log evidence ``log(P(new)' e^{r_new} + (1 − P(new)') Σ prior e^r)``, ``P(new)'``
+    the new place's prior for the frame). ``stay``: the first filter's ``velocity_stay``
+    instead of the settings'. ``rigid=False``: the first filter alone."""
     n = rows.shape[1]
     nb = len(VELOCITIES)
     stay = SETTINGS["velocity_stay"] if stay is None else stay
@@ -46,6 +49,8 @@ def _reference(rows, learn, jump_velocity, home_speed_odds=1.0, change=None, var
               _motion(n, VELOCITIES, 1.0, 0.0, 0.0)]
     eps = [RECOVERY, RIGID_JUMP_RATE]
     w = [1.0 - PRIOR, PRIOR]
+    if not rigid:
+        motion, eps, w = motion[:1], eps[:1], [1.0]
     if varying:
         motion.insert(1, _motion(n, VELOCITIES, VARYING_VELOCITY_STAY, SETTINGS["reverse_probability"],
                                  SETTINGS["blur"]))
@@ -93,7 +98,7 @@ def _reference(rows, learn, jump_velocity, home_speed_odds=1.0, change=None, var
         a_new = math.log(prior) - 1.0
         a_map = math.log1p(-prior) + math.log(total)
         p_new = math.exp(a_new - np.logaddexp(a_new, a_map))
-        out.append(((1 - p_new) * mass, p_new, w))
+        out.append(((1 - p_new) * mass, p_new, w) + ((float(np.logaddexp(a_new, a_map)),) if with_evidence else ()))
     return out
 
 
