@@ -1644,15 +1644,12 @@ class GridLocalizer:
         if np.abs(twin._velocity - self._velocity).sum() > tol or np.abs(twin._mass - self._mass).sum() > tol:
             return False
         if self._components is None:
-            pairs = [(1.0, 1.0, self, twin)]
+            pairs = [(1.0, self.__dict__, 1.0, twin.__dict__)]
         else:
-            pairs = [(float(a), float(b), ca, cb) for a, b, ca, cb in
-                     zip(self.rate_weights_, twin.rate_weights_, self._components, twin._components)]
+            pairs = zip(self.rate_weights_, self._components, twin.rate_weights_, twin._components)
         total = 0.0
-        for a, b, ca, cb in pairs:
-            get = (lambda c, k: getattr(c, k)) if isinstance(ca, GridLocalizer) else (lambda c, k: c[k])
-            mine = get(ca, "_state") * get(ca, "_like")
-            total += float(np.abs(a * mine - b * get(cb, "_state") * get(cb, "_like")).sum())
+        for a, mine, b, theirs in pairs:
+            total += float(np.abs(a * mine["_state"] * mine["_like"] - b * theirs["_state"] * theirs["_like"]).sum())
             if total > tol:
                 return False
         return True
