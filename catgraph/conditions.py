@@ -99,6 +99,7 @@ def varying_speed_order(n: int, seed: int | np.random.Generator | None, speed_ra
         v0 = v1
     return np.minimum(np.asarray(frames, dtype=np.int64), max(last, 0))
 
+
 def stopping_order(n: int, seed: int | np.random.Generator | None, stop_frames=STOP_FRAMES,
                    stretch_range=SEGMENT_RANGE) -> np.ndarray:
     """Frame order of a query driven in order that stops now and then (``stop``).
@@ -276,9 +277,8 @@ class Condition:
         if not values:
             return cls()
         if not isinstance(values, dict):
-            raise InvalidParameterError(f"a condition is a dict (kind, seed, segment_range, factor, speed_range, "
-                                        f"stop_frames) or a "
-                                        f"string such as 'shuffle:0'; got {values!r}.")
+            raise InvalidParameterError("a condition is a dict (kind, seed, segment_range, factor, speed_range, "
+                                        f"stop_frames) or a string such as 'shuffle:0'; got {values!r}.")
         unknown = set(values) - {"kind", "seed", "segment_range", "factor", "speed_range", "stop_frames"}
         if unknown:
             raise InvalidParameterError(f"unknown condition keys {sorted(unknown)}; allowed: kind, seed, "

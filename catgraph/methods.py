@@ -778,8 +778,8 @@ def _filter_not_applicable(params: dict) -> dict[str, str]:
         out["varying_prior"] = "the varying speed's motion is the grid filter's; the particle filter has none"
         out["home_speed_odds"] = "it sets the grid filter's velocity prior; the particle filter's is uniform"
         out["outlier_probability"] = "the outlier frames are the grid filter's; the particle filter has none"
-        out["repeat_prior"] = "the held posterior through frames that come again is the grid filter's; the " \
-                              "particle filter has none"
+        out["repeat_prior"] = "the twin that stands still through frames that come again is the grid " \
+                              "filter's; the particle filter has none"
     if model not in sequence_models:
         for k in ("window", *_WINDOW_ADAPTIVE):
             out[k] = f"model {model!r} has no sequence matcher"

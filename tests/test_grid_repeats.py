@@ -127,7 +127,7 @@ def test_the_twin_goes_once_the_two_agree_and_comes_back_at_the_next_repeat(kind
 def test_off_by_default_and_left_to_odometry():
     """``repeat_prior = 0`` (the class's default): the filter moves on through a run as it
     always did; with ``q > 0`` the runs change the answers; where odometry says whether the
-    robot moved, the filter keeps no held posterior and is the filter without it."""
+    robot moved, the filter keeps no twin and is the filter without it."""
     rows = _with_repeats(_rows(11, 17, seed=5), [0, 0, 3, 0, 1, 0, 0, 0, 2, 0, 0, 4, 0, 0, 0, 0, 1])
     make = lambda **kw: GridLocalizer(PlaceGraph.chain(11), _Ratios(), rigid_prior=PRIOR, **SETTINGS, **kw).reset()  # noqa: E731
     plain, mixed = make(), make(repeat_prior=0.5)
