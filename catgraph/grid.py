@@ -191,9 +191,10 @@ R@100P 0.98 → 0.34. So the filter keeps both readings: from the first repeat i
 that stands still through every run (it advances on new frames only) beside itself, which
 moves on; each is weighed by its evidence frame by frame (Bayes' rule over the two readings
 of the whole query, from the prior ``repeat_prior``), the answer is their mixture, and once
-their posteriors agree (:data:`GridLocalizer.TWIN_AGREEMENT`) the twin goes until the next
-repeat. A reading per run instead (the held posterior merged back at each run's end with a
-fixed weight) made speed 0.5 erratic (Nordland 0.71–0.985 as that weight went from 0.05 to
+keeping one reading moves the mixture by no more than round-off (the lighter one's weight
+times the distance between the two posteriors: :data:`GridLocalizer.TWIN_AGREEMENT`) the
+heavier one goes on alone until the next repeat. A reading per run instead (the held
+posterior merged back at each run's end with a fixed weight) made speed 0.5 erratic (Nordland 0.71–0.985 as that weight went from 0.05 to
 0.9): with runs every other frame, each merge mixed two tracks of different speeds.
 
 Estimate. Mass per place ``m_j = (1 − P(new)) Σ_b P[j, b]``; the answer ``argmax_j m_j``,
@@ -1240,10 +1241,11 @@ class GridLocalizer:
         first such frame on, the filter runs a twin that stands still through every run of
         them (it advances on new frames only) beside itself, which moves on, and answers
         with their mixture, each weighed by its evidence frame by frame from this prior
-        (``repeat_log_odds_``); once the two posteriors agree (:data:`TWIN_AGREEMENT`) the
-        twin is dropped until the next repeat. Default 0: off (the filter moves on; the
-        registry's ``filter`` method: :data:`catgraph.methods.REPEAT_PRIOR`). Time and
-        memory while the twin lives: twice the filter's.
+        (``repeat_log_odds_``); once the two posteriors agree, or the lighter reading's
+        weight makes its part of the mixture negligible (:data:`TWIN_AGREEMENT`), one
+        reading goes (the heavier kept) until the next repeat. Default 0: off (the filter
+        moves on; the registry's ``filter`` method: :data:`catgraph.methods.REPEAT_PRIOR`).
+        Time and memory while the twin lives: twice the filter's.
 
     Attributes
     ----------
@@ -1574,8 +1576,8 @@ class GridLocalizer:
             if math.isfinite(change):
                 self.repeat_log_odds_ += change
         estimate, near = self._summarise()
-        if twin is not None and not repeated and self._agrees(twin):
-            self._twin = None  # one posterior again: the twin is forked anew at the next repeat
+        if twin is not None and not repeated:
+            self._settle(twin)
         self._feedback(near)
         self.n_steps_ += 1
         return estimate
@@ -1629,14 +1631,39 @@ class GridLocalizer:
         twin.repeat_prior = 0.0
         return twin
 
-    #: The twin of :meth:`_fork` is dropped once its posterior and the filter's agree within
-    #: this total variation distance, over place, state bin and motion model (and ``P(new)``).
+    #: The two readings become one once that moves the answer's posterior by at most this:
+    #: the lighter reading's weight in the mixture times the total variation distance
+    #: between the two posteriors, over place, state bin and motion model (and ``P(new)``).
+    #: Two readings that agree become one; so do two of which the evidence has ruled one out.
     TWIN_AGREEMENT = 1e-12
 
-    def _agrees(self, twin: "GridLocalizer") -> bool:
-        """Whether ``twin``'s posterior is this filter's (:data:`TWIN_AGREEMENT`): the
-        marginals first, then the whole posterior."""
-        tol = 2.0 * self.TWIN_AGREEMENT
+    #: What the filter keeps of its own when it takes the twin's reading (:meth:`_settle`):
+    #: the repeats it watches for, the odds of the two readings, and its answers' history.
+    _OWN_WHEN_SETTLED = ("repeat_prior", "_last_row", "repeat_log_odds_", "n_steps_", "converged_", "_held",
+                         "place_posterior_")
+
+    def _settle(self, twin: "GridLocalizer") -> None:
+        """Keep one reading where the mixture is it to within :data:`TWIN_AGREEMENT`: the
+        filter drops the twin, or, where the twin's reading outweighs its own, takes the
+        twin's posterior (and what it learned) as its own. Either way the twin is forked
+        anew at the next repeat, the odds of the two readings kept."""
+        w_held, w_own = _logistic(self.repeat_log_odds_), _logistic(-self.repeat_log_odds_)
+        if not self._agrees(twin, min(w_held, w_own)):
+            return
+        self._twin = None
+        if w_held > w_own:
+            own = {name: self.__dict__[name] for name in self._OWN_WHEN_SETTLED}
+            self.__dict__.update(twin.__dict__)
+            self.__dict__.update(own)
+            self._twin = None
+
+    def _agrees(self, twin: "GridLocalizer", weight: float) -> bool:
+        """Whether ``weight`` times the distance between ``twin``'s posterior and this
+        filter's is at most :data:`TWIN_AGREEMENT`: the marginals first, then the whole
+        posterior."""
+        if weight <= 0.0:
+            return self.TWIN_AGREEMENT >= 0.0
+        tol = 2.0 * self.TWIN_AGREEMENT / weight
         if abs(twin.new_place_probability_ - self.new_place_probability_) > tol / 2.0:
             return False
         if self._components is not None and np.abs(twin.rate_weights_ - self.rate_weights_).sum() > tol:

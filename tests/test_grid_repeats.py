@@ -124,6 +124,43 @@ def test_the_twin_goes_once_the_two_agree_and_comes_back_at_the_next_repeat(kind
     assert loc.repeat_log_odds_ == pytest.approx(kept.repeat_log_odds_, rel=1e-9, abs=1e-9)
 
 
+@pytest.mark.parametrize("rigid", [True, False])
+@pytest.mark.parametrize("learn", [True, False])
+@pytest.mark.parametrize("q", [1e-15, 1.0 - 1e-15])
+@pytest.mark.parametrize("kind", [_Float64, _General])
+def test_a_reading_whose_weight_makes_it_negligible_goes(kind, q, learn, rigid, monkeypatch):
+    """Two readings whose posteriors still differ become one once the lighter one's part of
+    the mixture is negligible (weight × distance ≤ ``TWIN_AGREEMENT``): a prior of 10⁻¹⁵
+    leaves the twin no say, so it goes at the first new frame after each run; one of
+    1 − 10⁻¹⁵ leaves the filter's own reading none, so the filter takes the twin's. Either
+    way the twin comes back at the next run, and the answers are those of the filter that
+    keeps both, to round-off."""
+    rows = _with_repeats(_rows(11, 17, seed=5), RUNS)
+    monkeypatch.setattr(GridLocalizer, "TWIN_AGREEMENT", -1.0)
+    kept = _filter(kind, q, learn, rigid)
+    keeping, apart = [], []
+    for row in rows:
+        keeping.append((kept.step(row), kept.place_posterior_.copy()))
+        own = kept._mass * (1.0 - kept.new_place_probability_) if kept._twin is not None else None
+        apart.append(0.0 if own is None else float(np.abs(own - kept._twin.place_posterior_).sum()))
+    monkeypatch.undo()
+    loc = _filter(kind, q, learn, rigid)
+    twins = []
+    for row, (other, posterior) in zip(rows, keeping):
+        est = loc.step(row)
+        twins.append(loc._twin is not None)
+        assert est.place == other.place
+        np.testing.assert_allclose(loc.place_posterior_, posterior, rtol=0, atol=1e-12)
+        assert est.confidence == pytest.approx(other.confidence, rel=1e-9, abs=1e-12)
+        assert est.new_place_probability == pytest.approx(other.new_place_probability, rel=1e-9, abs=1e-12)
+    settled = [t for t in range(1, len(rows)) if twins[t - 1] and not twins[t]]
+    assert len(settled) >= 2
+    assert all(apart[t] > 1e-6 for t in settled)  # the two posteriors had not agreed: the weight settled it
+    odds = math.log(1e-12)  # the lighter reading negligible throughout
+    assert max(loc.repeat_log_odds_, kept.repeat_log_odds_) < odds if q < 0.5 else \
+        min(loc.repeat_log_odds_, kept.repeat_log_odds_) > -odds
+
+
 def test_off_by_default_and_left_to_odometry():
     """``repeat_prior = 0`` (the class's default): the filter moves on through a run as it
     always did; with ``q > 0`` the runs change the answers; where odometry says whether the
