@@ -455,6 +455,20 @@ def _shift_frames(p, out, whole, frac, sign, mirror, fwd, bwd, jptr, jdst, p_jun
 
 
 @njit
+def _transition_product(p, out, t_ptr, t_src, t_val):  # pragma: no cover - compiled
+    """``out = p @ transition`` for a transition given as sparse columns (:func:`_sparse_columns`):
+    ``out[j, b] = Σ_c p[j, t_src[c]] t_val[c]`` for ``c`` in ``t_ptr[b]:t_ptr[b+1]``, in
+    the order :func:`_shift_walk` sums them."""
+    n, nb = out.shape
+    for j in range(n):
+        for b in range(nb):
+            acc = 0.0
+            for c in range(t_ptr[b], t_ptr[b + 1]):
+                acc += p[j, t_src[c]] * t_val[c]
+            out[j, b] = acc
+
+
+@njit
 def _shift_walk(p, out, whole, frac, sign, fwd, bwd, t_ptr, t_src, t_val):  # pragma: no cover
     """Velocity transition then ``_shift_frames`` for a graph without junctions, fused:
     each place's mass walks its hops. The transition comes as sparse columns:
@@ -1067,7 +1081,8 @@ def _bin_moves(velocities: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
 
 def predict(state: np.ndarray, transition: np.ndarray, velocities: np.ndarray, neighbours: tuple,
             blur: float, recovery: float, velocity_prior: np.ndarray, junction_probability: float,
-            odometry: float | None = None, moves: tuple | None = None) -> np.ndarray:
+            odometry: float | None = None, moves: tuple | None = None,
+            t_sparse: tuple | None = None) -> np.ndarray:
     """One prediction of the grid filter (see the module docstring).
 
     Parameters
@@ -1085,6 +1100,9 @@ def predict(state: np.ndarray, transition: np.ndarray, velocities: np.ndarray, n
         Distance travelled (graph units); replaces the bins' speeds.
     moves : tuple, optional
         Precomputed ``_bin_moves(velocities)``.
+    t_sparse : tuple, optional
+        Precomputed ``_sparse_columns(transition)`` (the velocity transition is applied in
+        this sparse form: a few entries per bin instead of ``n_bins²``).
 
     Returns
     -------
@@ -1094,15 +1112,14 @@ def predict(state: np.ndarray, transition: np.ndarray, velocities: np.ndarray, n
     fwd, bwd, fl, bl, jptr, jdst = neighbours
     whole, frac, sign, mirror = _bin_moves(velocities) if moves is None else moves
     moved = np.empty_like(state)
+    t_ptr, t_src, t_val = _sparse_columns(transition) if t_sparse is None else t_sparse
+    state = np.ascontiguousarray(state, dtype=np.float64)
     if odometry is None and len(jdst) == 0:
-        nz = transition.T != 0  # columns of the transition, sparse
-        t_ptr = np.concatenate([[0], np.cumsum(nz.sum(1))]).astype(np.int64)
-        t_src = np.nonzero(nz)[1].astype(np.int64)
-        t_val = np.ascontiguousarray(transition.T[nz], dtype=np.float64)
         _shift_walk(state, moved, whole, frac, sign, fwd, bwd, t_ptr, t_src, t_val)
         p = state
     else:
-        p = np.ascontiguousarray(state @ transition)
+        p = np.empty_like(state)
+        _transition_product(state, p, t_ptr, t_src, t_val)
     if odometry is None and len(jdst) == 0:
         pass
     elif odometry is None:
@@ -1777,7 +1794,8 @@ class GridLocalizer:
             if self._neighbours is None:
                 self._neighbours = route_neighbours(self.graph)
             state = predict(np.ascontiguousarray(self._bin_state()), self._transition, self._v, self._neighbours,
-                            self.blur, self.recovery_, jump_velocity, self.junction_probability, odometry, self._moves)
+                            self.blur, self.recovery_, jump_velocity, self.junction_probability, odometry, self._moves,
+                            self._t_sparse)
             self._state = np.ascontiguousarray(state.T, dtype=self._spare.dtype if self._line else np.float64)
             self._like = self._ones
         self.prior_ = self._state.sum(0, dtype=np.float64)

@@ -8,8 +8,8 @@ import pytest
 
 from catgraph.exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from catgraph.graph import PlaceGraph
-from catgraph.grid import (GridLocalizer, _bin_moves, _shift_frames, predict, route_neighbours,
-                           velocity_transition)
+from catgraph.grid import (GridLocalizer, _bin_moves, _shift_frames, _sparse_columns, _transition_product, predict,
+                           route_neighbours, velocity_transition)
 from catgraph.localizer import Localizer
 from catgraph.motion import VelocityMotion
 from catgraph.observation import CombinedObservation, SequenceObservation, TemperedObservation
@@ -86,6 +86,18 @@ def test_predict_matches_slow_reference(junctions):
     want = _reference_predict(state, v, 0.8, 0.05, 0.1, 0.02, g, 0.2)
     np.testing.assert_allclose(got, want, atol=1e-12)
     assert got.sum() == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("density", [0.0, 0.05, 0.3, 1.0])
+def test_sparse_transition_product_equals_the_dense_product(density):
+    """The velocity transition applied from its sparse columns (junctions, odometry) is
+    ``state @ transition``, empty columns and a dense matrix included."""
+    rng = np.random.default_rng(int(density * 100))
+    transition = rng.random((13, 13)) * (rng.random((13, 13)) < density)
+    state = rng.random((40, 13))
+    got = np.full_like(state, np.nan)
+    _transition_product(state, got, *_sparse_columns(transition))
+    np.testing.assert_allclose(got, state @ transition, rtol=1e-13, atol=1e-15)
 
 
 def test_frames_kernel_equals_walk_kernel_without_junctions():
