@@ -964,6 +964,89 @@ def _shift_distance(p, out, distance, sign, fwd, bwd, fl, bl):  # pragma: no cov
 
 
 @njit
+def _distance_moves(distance, step, lengths):  # pragma: no cover - compiled
+    """Where ``distance`` along the route takes each place's mass one way (``step``: the
+    next place that way, ``lengths``: the edge lengths to it), as :func:`_shift_distance`
+    walks it: ``(first, second, w_first, w_second)`` per place (``first = -1``: it ran off
+    the route's end; ``second = -1``: all of it on ``first``)."""
+    n = step.shape[0]
+    first, second = np.full(n, -1, np.int64), np.full(n, -1, np.int64)
+    w_first, w_second = np.zeros(n), np.zeros(n)
+    for j in range(n):
+        left = distance
+        cur = j
+        while True:
+            t = step[cur]
+            if t < 0:
+                if left <= 0.0:  # reached the route's end exactly, or stood still there: it stays
+                    first[j] = cur
+                    w_first[j] = 1.0
+                break  # else it ran off the route's end
+            ln = lengths[cur]
+            if left < ln:
+                a = left / ln if ln > 0 else 1.0
+                first[j], second[j] = cur, t
+                w_first[j], w_second[j] = 1.0 - a, a
+                break
+            left -= ln
+            cur = t
+    return first, second, w_first, w_second
+
+
+@njit
+def _odometry_rows(p, out, t_ptr, t_src, t_val, sign, forward, backward, q, fwd, bwd, recovery,
+                   velocity_prior, work):  # pragma: no cover - compiled
+    """:func:`predict` with odometry on the filter's own layout, ``(n_bins, n_places)``
+    rows: the velocity transition (sparse columns), the shift by the distance (each
+    direction's moves from :func:`_distance_moves`, walked once per place instead of once
+    per place and bin), and :func:`_blur`; every sum in the order those kernels take it,
+    so ``out`` is their result transposed, bit for bit. ``work``: an ``(n_bins, n_places)``
+    buffer."""
+    nb, n = p.shape
+    for b in range(nb):  # the velocity transition, into out
+        row = out[b]
+        row[:] = 0.0
+        for c in range(t_ptr[b], t_ptr[b + 1]):
+            src, v = t_src[c], t_val[c]
+            for j in range(n):
+                row[j] += p[src, j] * v
+    for b in range(nb):  # the shift by the distance, into work
+        first, second, w_first, w_second = forward if sign[b] > 0 else backward
+        row, src = work[b], out[b]
+        row[:] = 0.0
+        for j in range(n):
+            m = src[j]
+            if m == 0.0:
+                continue
+            c1 = first[j]
+            if c1 < 0:
+                continue
+            row[c1] += w_first[j] * m
+            c2 = second[j]
+            if c2 >= 0:
+                row[c2] += w_second[j] * m
+    total = 0.0  # the blur, into out
+    for j in range(n):
+        for b in range(nb):
+            total += work[b, j]
+    for b in range(nb):
+        for j in range(n):
+            out[b, j] = (1.0 - 2.0 * q) * work[b, j]
+    for b in range(nb):
+        for j in range(n):
+            f = fwd[j] if fwd[j] >= 0 else j
+            k = bwd[j] if bwd[j] >= 0 else j
+            m = q * work[b, j]
+            out[b, f] += m
+            out[b, k] += m
+    keep = (1.0 - recovery) / total if total > 0 else 0.0
+    share = recovery / n if total > 0 else 1.0 / n
+    for b in range(nb):
+        for j in range(n):
+            out[b, j] = keep * out[b, j] + share * velocity_prior[b]
+
+
+@njit
 def _blur(p, out, q, fwd, bwd, recovery, velocity_prior):  # pragma: no cover
     """Blur one place either way, normalise, mix in the recovery share."""
     n, nb = p.shape
@@ -1793,6 +1876,19 @@ class GridLocalizer:
                 return
             if self._neighbours is None:
                 self._neighbours = route_neighbours(self.graph)
+            if odometry is not None:  # on the filter's own layout: no transposes, each place walked once a way
+                fwd, bwd, fl, bl, _, _ = self._neighbours
+                distance = float(odometry)
+                p = np.multiply(self._state, self._like, dtype=np.float64)
+                out, work = np.empty_like(p), np.empty_like(p)
+                _odometry_rows(p, out, *self._t_sparse, self._moves[2], _distance_moves(distance, fwd, fl),
+                               _distance_moves(distance, bwd, bl), float(self.blur), fwd, bwd, float(self.recovery_),
+                               np.asarray(jump_velocity, dtype=np.float64), work)
+                self._state = out if not self._line else out.astype(self._spare.dtype)
+                self._like = self._ones
+                self.prior_ = self._state.sum(0, dtype=np.float64)
+                self._mass = self.prior_
+                return
             state = predict(np.ascontiguousarray(self._bin_state()), self._transition, self._v, self._neighbours,
                             self.blur, self.recovery_, jump_velocity, self.junction_probability, odometry, self._moves,
                             self._t_sparse)
