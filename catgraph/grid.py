@@ -994,25 +994,27 @@ def _distance_moves(distance, step, lengths):  # pragma: no cover - compiled
 
 
 @njit
-def _odometry_rows(p, out, t_ptr, t_src, t_val, sign, forward, backward, q, fwd, bwd, recovery,
-                   velocity_prior, work):  # pragma: no cover - compiled
-    """:func:`predict` with odometry on the filter's own layout, ``(n_bins, n_places)``
-    rows: the velocity transition (sparse columns), the shift by the distance (each
-    direction's moves from :func:`_distance_moves`, walked once per place instead of once
-    per place and bin), and :func:`_blur`; every sum in the order those kernels take it,
-    so ``out`` is their result transposed, bit for bit. ``work``: an ``(n_bins, n_places)``
-    buffer."""
-    nb, n = p.shape
-    for b in range(nb):  # the velocity transition, into out
+def _transition_rows(p, out, t_ptr, t_src, t_val):  # pragma: no cover - compiled
+    """:func:`_transition_product` on the filter's own layout, ``(n_bins, n_places)`` rows:
+    ``out[b] = Σ_c p[t_src[c]] t_val[c]``, each element summed in the same order."""
+    nb, n = out.shape
+    for b in range(nb):
         row = out[b]
         row[:] = 0.0
         for c in range(t_ptr[b], t_ptr[b + 1]):
             src, v = t_src[c], t_val[c]
             for j in range(n):
                 row[j] += p[src, j] * v
-    for b in range(nb):  # the shift by the distance, into work
+
+
+@njit
+def _distance_rows(p, out, sign, forward, backward):  # pragma: no cover - compiled
+    """:func:`_shift_distance` on ``(n_bins, n_places)`` rows, each direction's moves from
+    :func:`_distance_moves` (each place walked once a way instead of once per bin)."""
+    nb, n = p.shape
+    for b in range(nb):
         first, second, w_first, w_second = forward if sign[b] > 0 else backward
-        row, src = work[b], out[b]
+        row, src = out[b], p[b]
         row[:] = 0.0
         for j in range(n):
             m = src[j]
@@ -1025,18 +1027,75 @@ def _odometry_rows(p, out, t_ptr, t_src, t_val, sign, forward, backward, q, fwd,
             c2 = second[j]
             if c2 >= 0:
                 row[c2] += w_second[j] * m
-    total = 0.0  # the blur, into out
+
+
+@njit
+def _frames_rows(p, out, whole, frac, sign, mirror, fwd, bwd, jptr, jdst, p_junction):  # pragma: no cover
+    """:func:`_shift_frames` on ``(n_bins, n_places)`` rows (``p`` is used as the work
+    buffer and overwritten), every sum in the same order."""
+    nb, n = p.shape
+    cur = p
+    out[:] = 0.0
+    max_h = 0
+    for b in range(nb):
+        if whole[b] + 1 > max_h:
+            max_h = whole[b] + 1
+        if whole[b] == 0:
+            for j in range(n):
+                out[b, j] += (1.0 - frac[b]) * cur[b, j]
+                cur[b, j] *= frac[b]
+    nxt = np.empty_like(cur)
+    for h in range(1, max_h + 1):
+        nxt[:] = 0.0
+        for b in range(nb):
+            if not (whole[b] >= h or (whole[b] + 1 == h and frac[b] > 0.0)):
+                continue
+            s = sign[b]
+            for j in range(n):
+                m = cur[b, j]
+                if m == 0.0:
+                    continue
+                nj = jptr[j + 1] - jptr[j]
+                pj = p_junction * nj
+                if pj > 0.5:
+                    pj = 0.5
+                t = fwd[j] if s > 0 else bwd[j]
+                if t >= 0:  # at a dead end the mass leaves the map (renormalised)
+                    nxt[b, t] += m * (1.0 - pj)
+                if nj > 0:
+                    share = m * pj / nj * 0.5
+                    for c in range(jptr[j], jptr[j + 1]):
+                        k = jdst[c]
+                        nxt[b, k] += share
+                        nxt[mirror[b], k] += share
+        cur, nxt = nxt, cur
+        for b in range(nb):
+            if whole[b] == h:
+                for j in range(n):
+                    out[b, j] += (1.0 - frac[b]) * cur[b, j]
+                    cur[b, j] *= frac[b]
+            elif whole[b] + 1 == h:
+                for j in range(n):
+                    out[b, j] += cur[b, j]
+                    cur[b, j] = 0.0
+
+
+@njit
+def _blur_rows(p, out, q, fwd, bwd, recovery, velocity_prior):  # pragma: no cover - compiled
+    """:func:`_blur` on ``(n_bins, n_places)`` rows, every sum in the same order."""
+    nb, n = p.shape
+    total = 0.0
     for j in range(n):
         for b in range(nb):
-            total += work[b, j]
+            total += p[b, j]
     for b in range(nb):
         for j in range(n):
-            out[b, j] = (1.0 - 2.0 * q) * work[b, j]
+            out[b, j] = (1.0 - 2.0 * q) * p[b, j]
     for b in range(nb):
         for j in range(n):
             f = fwd[j] if fwd[j] >= 0 else j
             k = bwd[j] if bwd[j] >= 0 else j
-            m = q * work[b, j]
+            m = q * p[b, j]
             out[b, f] += m
             out[b, k] += m
     keep = (1.0 - recovery) / total if total > 0 else 0.0
@@ -1044,6 +1103,25 @@ def _odometry_rows(p, out, t_ptr, t_src, t_val, sign, forward, backward, q, fwd,
     for b in range(nb):
         for j in range(n):
             out[b, j] = keep * out[b, j] + share * velocity_prior[b]
+
+
+def _predict_rows(p: np.ndarray, t_sparse: tuple, moves: tuple, neighbours: tuple, blur: float, recovery: float,
+                  velocity_prior: np.ndarray, junction_probability: float, odometry: float | None) -> np.ndarray:
+    """:func:`predict` on the filter's own layout: ``p`` the posterior as ``(n_bins,
+    n_places)`` float64 rows (overwritten), the result the same rows, :func:`predict`'s
+    result transposed bit for bit; for odometry, or a graph with junctions."""
+    fwd, bwd, fl, bl, jptr, jdst = neighbours
+    whole, frac, sign, mirror = moves
+    moved = np.empty_like(p)
+    _transition_rows(p, moved, *t_sparse)
+    shifted = p  # p is spent: its buffer takes the shift
+    if odometry is None:
+        _frames_rows(moved, shifted, whole, frac, sign, mirror, fwd, bwd, jptr, jdst, float(junction_probability))
+    else:
+        distance = float(odometry)
+        _distance_rows(moved, shifted, sign, _distance_moves(distance, fwd, fl), _distance_moves(distance, bwd, bl))
+    _blur_rows(shifted, moved, float(blur), fwd, bwd, float(recovery), np.asarray(velocity_prior, dtype=np.float64))
+    return moved
 
 
 @njit
@@ -1876,23 +1954,11 @@ class GridLocalizer:
                 return
             if self._neighbours is None:
                 self._neighbours = route_neighbours(self.graph)
-            if odometry is not None:  # on the filter's own layout: no transposes, each place walked once a way
-                fwd, bwd, fl, bl, _, _ = self._neighbours
-                distance = float(odometry)
-                p = np.multiply(self._state, self._like, dtype=np.float64)
-                out, work = np.empty_like(p), np.empty_like(p)
-                _odometry_rows(p, out, *self._t_sparse, self._moves[2], _distance_moves(distance, fwd, fl),
-                               _distance_moves(distance, bwd, bl), float(self.blur), fwd, bwd, float(self.recovery_),
-                               np.asarray(jump_velocity, dtype=np.float64), work)
-                self._state = out if not self._line else out.astype(self._spare.dtype)
-                self._like = self._ones
-                self.prior_ = self._state.sum(0, dtype=np.float64)
-                self._mass = self.prior_
-                return
-            state = predict(np.ascontiguousarray(self._bin_state()), self._transition, self._v, self._neighbours,
-                            self.blur, self.recovery_, jump_velocity, self.junction_probability, odometry, self._moves,
-                            self._t_sparse)
-            self._state = np.ascontiguousarray(state.T, dtype=self._spare.dtype if self._line else np.float64)
+            # odometry, or junctions: on the filter's own layout (no transposes), predict's result bit for bit
+            out = _predict_rows(np.multiply(self._state, self._like, dtype=np.float64), self._t_sparse, self._moves,
+                                self._neighbours, self.blur, self.recovery_, jump_velocity, self.junction_probability,
+                                odometry)
+            self._state = out if not self._line else out.astype(self._spare.dtype)
             self._like = self._ones
         self.prior_ = self._state.sum(0, dtype=np.float64)
         self._mass = self.prior_

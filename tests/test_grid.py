@@ -100,20 +100,23 @@ def test_sparse_transition_product_equals_the_dense_product(density):
     np.testing.assert_allclose(got, state @ transition, rtol=1e-13, atol=1e-15)
 
 
-@pytest.mark.parametrize("junctions", [None, [(4, 17), (20, 9)]])
-@pytest.mark.parametrize("distance", [0.0, 0.7, 2.0, 3.3, 9.5, 500.0])
-def test_odometry_on_the_filters_layout_is_the_prediction_bit_for_bit(distance, junctions):
-    """The filter's odometry step (its own ``(bins, places)`` layout, each place walked once
-    a way) gives :func:`predict`'s result transposed, bit for bit: uneven edge lengths,
-    both route ends, junctions, phase bins."""
-    from catgraph.grid import _distance_moves, _odometry_rows, phase_bins, phase_transition
+_JUNCTIONS = [(4, 17), (20, 9)]
+
+
+@pytest.mark.parametrize("distance, junctions", [(None, _JUNCTIONS)] + [
+    (d, j) for d in (0.0, 0.7, 2.0, 3.3, 9.5, 500.0) for j in (None, _JUNCTIONS)])
+def test_the_prediction_on_the_filters_layout_is_predict_bit_for_bit(distance, junctions):
+    """The filter's prediction on its own ``(bins, places)`` layout (odometry: each place
+    walked once a way; junctions) gives :func:`predict`'s result transposed, bit for bit:
+    uneven edge lengths, both route ends, junctions, phase bins up to 4 places a frame."""
+    from catgraph.grid import _predict_rows, phase_bins, phase_transition
     from catgraph.traverse import Traverse
 
-    rng = np.random.default_rng(int(distance * 10) + (0 if junctions is None else 1))
+    rng = np.random.default_rng(int((distance or 0.0) * 10) + (0 if junctions is None else 1))
     n = 25
     xy = np.c_[np.cumsum(rng.uniform(0.5, 3.0, n)), np.zeros(n)]
     g = PlaceGraph.from_traverse(Traverse(xy), junctions=None if junctions is None else np.array(junctions))
-    v = np.array([-2.0, -1.0, -0.5, 0.5, 1.0, 2.5])
+    v = np.array([-2.0, -1.0, -0.5, 0.5, 1.0, 2.5, 4.0])
     owner, _, _, _, _, successor = phase_bins(v, 4)
     transition = phase_transition(velocity_transition(v, 0.8, 0.05), owner, successor)
     state = rng.random((n, len(owner)))
@@ -122,12 +125,10 @@ def test_odometry_on_the_filters_layout_is_the_prediction_bit_for_bit(distance, 
     jump = rng.random(len(owner))
     jump /= jump.sum()
     neighbours = route_neighbours(g)
-    want = predict(state, transition, v[owner], neighbours, 0.1, 0.02, jump, 0.3, odometry=distance)
-    fwd, bwd, fl, bl, _, _ = neighbours
-    p = np.ascontiguousarray(state.T)
-    got, work = np.full_like(p, np.nan), np.empty_like(p)
-    _odometry_rows(p, got, *_sparse_columns(transition), _bin_moves(v[owner])[2], _distance_moves(distance, fwd, fl),
-                   _distance_moves(distance, bwd, bl), 0.1, fwd, bwd, 0.02, jump, work)
+    moves = _bin_moves(v[owner])
+    want = predict(state, transition, v[owner], neighbours, 0.1, 0.02, jump, 0.3, odometry=distance, moves=moves)
+    got = _predict_rows(np.ascontiguousarray(state.T), _sparse_columns(transition), moves, neighbours, 0.1, 0.02,
+                        jump, 0.3, distance)
     assert np.array_equal(got, want.T)
 
 
