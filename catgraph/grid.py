@@ -193,9 +193,11 @@ moves on; each is weighed by its evidence frame by frame (Bayes' rule over the t
 of the whole query, from the prior ``repeat_prior``), the answer is their mixture, and once
 keeping one reading moves the mixture by no more than round-off (the lighter one's weight
 times the distance between the two posteriors: :data:`GridLocalizer.TWIN_AGREEMENT`) the
-heavier one goes on alone until the next repeat. A reading per run instead (the held
-posterior merged back at each run's end with a fixed weight) made speed 0.5 erratic (Nordland 0.71–0.985 as that weight went from 0.05 to
-0.9): with runs every other frame, each merge mixed two tracks of different speeds.
+heavier one goes on alone, with what it learned, until the next repeat (the answers after
+it can differ from keeping both: ``docs/particle_filter.md``). A reading per run instead (the held
+posterior merged back at each run's end with a fixed weight) made speed 0.5 erratic
+(Nordland 0.71–0.985 as that weight went from 0.05 to 0.9): with runs every other frame,
+each merge mixed two tracks of different speeds.
 
 Estimate. Mass per place ``m_j = (1 − P(new)) Σ_b P[j, b]``; the answer ``argmax_j m_j``,
 its confidence the mass within ``confidence_radius`` places of it along the route (or
@@ -404,73 +406,8 @@ def velocity_transition(velocities: np.ndarray, stay: float, reverse: float) -> 
 
 
 @njit
-def _shift_frames(p, out, whole, frac, sign, mirror, fwd, bwd, jptr, jdst, p_junction):  # pragma: no cover
-    n, nb = p.shape
-    cur = p.copy()
-    out[:] = 0.0
-    max_h = 0
-    for b in range(nb):
-        if whole[b] + 1 > max_h:
-            max_h = whole[b] + 1
-        if whole[b] == 0:
-            for j in range(n):
-                out[j, b] += (1.0 - frac[b]) * cur[j, b]
-                cur[j, b] *= frac[b]
-    nxt = np.zeros_like(cur)
-    for h in range(1, max_h + 1):
-        nxt[:] = 0.0
-        for b in range(nb):
-            if not (whole[b] >= h or (whole[b] + 1 == h and frac[b] > 0.0)):
-                continue
-            s = sign[b]
-            for j in range(n):
-                m = cur[j, b]
-                if m == 0.0:
-                    continue
-                nj = jptr[j + 1] - jptr[j]
-                pj = p_junction * nj
-                if pj > 0.5:
-                    pj = 0.5
-                t = fwd[j] if s > 0 else bwd[j]
-                if t >= 0:  # at a dead end the mass leaves the map (renormalised)
-                    nxt[t, b] += m * (1.0 - pj)
-                if nj > 0:
-                    share = m * pj / nj * 0.5
-                    for c in range(jptr[j], jptr[j + 1]):
-                        k = jdst[c]
-                        nxt[k, b] += share
-                        nxt[k, mirror[b]] += share
-        for j in range(n):
-            for b in range(nb):
-                cur[j, b] = nxt[j, b]
-        for b in range(nb):
-            if whole[b] == h:
-                for j in range(n):
-                    out[j, b] += (1.0 - frac[b]) * cur[j, b]
-                    cur[j, b] *= frac[b]
-            elif whole[b] + 1 == h:
-                for j in range(n):
-                    out[j, b] += cur[j, b]
-                    cur[j, b] = 0.0
-
-
-@njit
-def _transition_product(p, out, t_ptr, t_src, t_val):  # pragma: no cover - compiled
-    """``out = p @ transition`` for a transition given as sparse columns (:func:`_sparse_columns`):
-    ``out[j, b] = Σ_c p[j, t_src[c]] t_val[c]`` for ``c`` in ``t_ptr[b]:t_ptr[b+1]``, in
-    the order :func:`_shift_walk` sums them."""
-    n, nb = out.shape
-    for j in range(n):
-        for b in range(nb):
-            acc = 0.0
-            for c in range(t_ptr[b], t_ptr[b + 1]):
-                acc += p[j, t_src[c]] * t_val[c]
-            out[j, b] = acc
-
-
-@njit
 def _shift_walk(p, out, whole, frac, sign, fwd, bwd, t_ptr, t_src, t_val):  # pragma: no cover
-    """Velocity transition then ``_shift_frames`` for a graph without junctions, fused:
+    """Velocity transition then :func:`_frames_rows`' hops for a graph without junctions, fused:
     each place's mass walks its hops. The transition comes as sparse columns:
     ``q_b = Σ_c p[t_src[c]] t_val[c]`` for ``c`` in ``t_ptr[b]:t_ptr[b+1]``."""
     n, nb = p.shape
@@ -935,40 +872,12 @@ def _line_predict(p, like, prior_mass, out, mass, t_ptr, t_src, t_val, whole, fr
 
 
 @njit
-def _shift_distance(p, out, distance, sign, fwd, bwd, fl, bl):  # pragma: no cover
-    """Move every bin ``distance`` along the route (edge lengths), direction sign[b]."""
-    n, nb = p.shape
-    out[:] = 0.0
-    for b in range(nb):
-        s = sign[b]
-        for j in range(n):
-            m = p[j, b]
-            if m == 0.0:
-                continue
-            left = distance
-            cur = j
-            while True:
-                t = fwd[cur] if s > 0 else bwd[cur]
-                if t < 0:
-                    if left <= 0.0:  # reached the route's end exactly, or stood still there: it stays
-                        out[cur, b] += m
-                    break  # else it ran off the route's end
-                ln = fl[cur] if s > 0 else bl[cur]
-                if left < ln:
-                    a = left / ln if ln > 0 else 1.0
-                    out[cur, b] += (1.0 - a) * m
-                    out[t, b] += a * m
-                    break
-                left -= ln
-                cur = t
-
-
-@njit
 def _distance_moves(distance, step, lengths):  # pragma: no cover - compiled
     """Where ``distance`` along the route takes each place's mass one way (``step``: the
-    next place that way, ``lengths``: the edge lengths to it), as :func:`_shift_distance`
-    walks it: ``(first, second, w_first, w_second)`` per place (``first = -1``: it ran off
-    the route's end; ``second = -1``: all of it on ``first``)."""
+    next place that way, ``lengths``: the edge lengths to it): ``(first, second, w_first,
+    w_second)`` per place, the mass landing between ``first`` and ``second`` in those shares
+    (``first = -1``: it ran off the route's end; ``second = -1``: all of it on ``first``, which
+    is where mass that reaches a route end exactly, or stands there, stays)."""
     n = step.shape[0]
     first, second = np.full(n, -1, np.int64), np.full(n, -1, np.int64)
     w_first, w_second = np.zeros(n), np.zeros(n)
@@ -995,8 +904,9 @@ def _distance_moves(distance, step, lengths):  # pragma: no cover - compiled
 
 @njit
 def _transition_rows(p, out, t_ptr, t_src, t_val):  # pragma: no cover - compiled
-    """:func:`_transition_product` on the filter's own layout, ``(n_bins, n_places)`` rows:
-    ``out[b] = Σ_c p[t_src[c]] t_val[c]``, each element summed in the same order."""
+    """The velocity transition on the filter's own layout, ``(n_bins, n_places)`` rows, from
+    its sparse columns (:func:`_sparse_columns`): ``out[b] = Σ_c p[t_src[c]] t_val[c]`` for
+    ``c`` in ``t_ptr[b]:t_ptr[b+1]``, in that order."""
     nb, n = out.shape
     for b in range(nb):
         row = out[b]
@@ -1009,8 +919,9 @@ def _transition_rows(p, out, t_ptr, t_src, t_val):  # pragma: no cover - compile
 
 @njit
 def _distance_rows(p, out, sign, forward, backward):  # pragma: no cover - compiled
-    """:func:`_shift_distance` on ``(n_bins, n_places)`` rows, each direction's moves from
-    :func:`_distance_moves` (each place walked once a way instead of once per bin)."""
+    """Move every bin's row the frame's distance along the route in its direction
+    (``sign[b]``), each direction's moves from :func:`_distance_moves` (each place walked
+    once a way, not once per bin)."""
     nb, n = p.shape
     for b in range(nb):
         first, second, w_first, w_second = forward if sign[b] > 0 else backward
@@ -1031,8 +942,11 @@ def _distance_rows(p, out, sign, forward, backward):  # pragma: no cover - compi
 
 @njit
 def _frames_rows(p, out, whole, frac, sign, mirror, fwd, bwd, jptr, jdst, p_junction):  # pragma: no cover
-    """:func:`_shift_frames` on ``(n_bins, n_places)`` rows (``p`` is used as the work
-    buffer and overwritten), every sum in the same order."""
+    """Move every bin's row its velocity's places along the route, hop by hop: ``whole``
+    hops, then a ``frac`` share one hop further; at a place with junctions a share
+    ``p_junction`` per junction (at most one half) turns into them, half into the bin, half
+    into its mirror (``mirror[b]``: the other direction). ``p`` is the work buffer
+    (overwritten)."""
     nb, n = p.shape
     cur = p
     out[:] = 0.0
@@ -1082,7 +996,8 @@ def _frames_rows(p, out, whole, frac, sign, mirror, fwd, bwd, jptr, jdst, p_junc
 
 @njit
 def _blur_rows(p, out, q, fwd, bwd, recovery, velocity_prior):  # pragma: no cover - compiled
-    """:func:`_blur` on ``(n_bins, n_places)`` rows, every sum in the same order."""
+    """Blur one place either way, normalise, mix in the recovery share (``recovery / n``
+    per place, spread over the bins as ``velocity_prior``)."""
     nb, n = p.shape
     total = 0.0
     for j in range(n):
@@ -1107,9 +1022,9 @@ def _blur_rows(p, out, q, fwd, bwd, recovery, velocity_prior):  # pragma: no cov
 
 def _predict_rows(p: np.ndarray, t_sparse: tuple, moves: tuple, neighbours: tuple, blur: float, recovery: float,
                   velocity_prior: np.ndarray, junction_probability: float, odometry: float | None) -> np.ndarray:
-    """:func:`predict` on the filter's own layout: ``p`` the posterior as ``(n_bins,
-    n_places)`` float64 rows (overwritten), the result the same rows, :func:`predict`'s
-    result transposed bit for bit; for odometry, or a graph with junctions."""
+    """:func:`predict` on the filter's own layout, for odometry or a graph with junctions:
+    ``p`` the posterior as ``(n_bins, n_places)`` float64 rows (overwritten), the result the
+    same rows."""
     fwd, bwd, fl, bl, jptr, jdst = neighbours
     whole, frac, sign, mirror = moves
     moved = np.empty_like(p)
@@ -1122,29 +1037,6 @@ def _predict_rows(p: np.ndarray, t_sparse: tuple, moves: tuple, neighbours: tupl
         _distance_rows(moved, shifted, sign, _distance_moves(distance, fwd, fl), _distance_moves(distance, bwd, bl))
     _blur_rows(shifted, moved, float(blur), fwd, bwd, float(recovery), np.asarray(velocity_prior, dtype=np.float64))
     return moved
-
-
-@njit
-def _blur(p, out, q, fwd, bwd, recovery, velocity_prior):  # pragma: no cover
-    """Blur one place either way, normalise, mix in the recovery share."""
-    n, nb = p.shape
-    total = 0.0
-    for j in range(n):
-        for b in range(nb):
-            out[j, b] = (1.0 - 2.0 * q) * p[j, b]
-            total += p[j, b]
-    for j in range(n):
-        f = fwd[j] if fwd[j] >= 0 else j
-        k = bwd[j] if bwd[j] >= 0 else j
-        for b in range(nb):
-            m = q * p[j, b]
-            out[f, b] += m
-            out[k, b] += m
-    keep = (1.0 - recovery) / total if total > 0 else 0.0
-    share = recovery / n if total > 0 else 1.0 / n
-    for j in range(n):
-        for b in range(nb):
-            out[j, b] = keep * out[j, b] + share * velocity_prior[b]
 
 
 def phase_bins(velocities, max_phases: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
@@ -1270,26 +1162,21 @@ def predict(state: np.ndarray, transition: np.ndarray, velocities: np.ndarray, n
     ndarray, shape (n_places, n_bins)
         The predicted state (sums to 1).
     """
-    fwd, bwd, fl, bl, jptr, jdst = neighbours
-    whole, frac, sign, mirror = _bin_moves(velocities) if moves is None else moves
-    moved = np.empty_like(state)
-    t_ptr, t_src, t_val = _sparse_columns(transition) if t_sparse is None else t_sparse
+    fwd, bwd, _, _, _, jdst = neighbours
+    moves = _bin_moves(velocities) if moves is None else moves
+    t_sparse = _sparse_columns(transition) if t_sparse is None else t_sparse
+    velocity_prior = np.asarray(velocity_prior, dtype=np.float64)
     state = np.ascontiguousarray(state, dtype=np.float64)
-    if odometry is None and len(jdst) == 0:
-        _shift_walk(state, moved, whole, frac, sign, fwd, bwd, t_ptr, t_src, t_val)
-        p = state
-    else:
-        p = np.empty_like(state)
-        _transition_product(state, p, t_ptr, t_src, t_val)
-    if odometry is None and len(jdst) == 0:
-        pass
-    elif odometry is None:
-        _shift_frames(p, moved, whole, frac, sign, mirror, fwd, bwd, jptr, jdst, float(junction_probability))
-    else:
-        _shift_distance(p, moved, float(odometry), sign, fwd, bwd, fl, bl)
-    out = np.empty_like(moved)
-    _blur(moved, out, float(blur), fwd, bwd, float(recovery), np.asarray(velocity_prior, dtype=np.float64))
-    return out
+    if odometry is None and len(jdst) == 0:  # no junctions: the transition fused into each place's walk
+        whole, frac, sign, _ = moves
+        moved = np.empty_like(state)
+        _shift_walk(state, moved, whole, frac, sign, fwd, bwd, *t_sparse)
+        out = np.empty((state.shape[1], state.shape[0]))
+        _blur_rows(np.ascontiguousarray(moved.T), out, float(blur), fwd, bwd, float(recovery), velocity_prior)
+    else:  # odometry, or junctions: the filter's own kernels, on its (bins, places) layout
+        out = _predict_rows(np.ascontiguousarray(state.T), t_sparse, moves, neighbours, blur, recovery, velocity_prior,
+                            junction_probability, odometry)
+    return np.ascontiguousarray(out.T)
 
 
 class GridLocalizer:

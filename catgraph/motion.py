@@ -219,7 +219,7 @@ def _velocity_kernel(edge, fraction, log_weight, velocity, uniform, speeds, cumu
     """One :class:`VelocityMotion` step for every particle, in place (see its Notes).
     ``uniform``: ``(4, n)`` — bin transition, fractional speed, junctions, blur.
     ``odometry < 0``: none (move ``|v|`` places, hop by hop, as the grid filter's
-    ``_shift_frames``). ``direction[e]``: +1 / −1 for the route's forward / backward
+    ``_frames_rows``). ``direction[e]``: +1 / −1 for the route's forward / backward
     edges, 0 for the rest; ``ahead[e]``: the route edge after ``e`` in its direction;
     ``out_fwd`` / ``out_bwd``: the route edge leaving each place; ``at_edge[0|1, j]``,
     ``at_fraction``: where a particle standing at place ``j`` facing backwards / forwards
@@ -566,7 +566,7 @@ class VelocityMotion(MotionModel):
     Notes
     -----
     Without odometry a particle moves ``|v_b|`` *hops* between places, as the grid
-    filter's ``_shift_frames`` moves mass: each hop follows the route edge of the
+    filter's ``_frames_rows`` moves mass: each hop follows the route edge of the
     direction of travel (``sign(v_b)``; the grid's :func:`~catgraph.grid.route_neighbours`),
     except that from a place with junction edges it takes each one with probability
     ``junction_probability`` (together at most 0.5) and then goes on, with probability

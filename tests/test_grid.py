@@ -8,7 +8,7 @@ import pytest
 
 from catgraph.exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from catgraph.graph import PlaceGraph
-from catgraph.grid import (GridLocalizer, _bin_moves, _shift_frames, _sparse_columns, _transition_product, predict,
+from catgraph.grid import (GridLocalizer, _bin_moves, _frames_rows, _sparse_columns, _transition_rows, predict,
                            route_neighbours, velocity_transition)
 from catgraph.localizer import Localizer
 from catgraph.motion import VelocityMotion
@@ -95,41 +95,44 @@ def test_sparse_transition_product_equals_the_dense_product(density):
     rng = np.random.default_rng(int(density * 100))
     transition = rng.random((13, 13)) * (rng.random((13, 13)) < density)
     state = rng.random((40, 13))
-    got = np.full_like(state, np.nan)
-    _transition_product(state, got, *_sparse_columns(transition))
-    np.testing.assert_allclose(got, state @ transition, rtol=1e-13, atol=1e-15)
+    got = np.full((13, 40), np.nan)  # the filter's layout: (bins, places)
+    _transition_rows(np.ascontiguousarray(state.T), got, *_sparse_columns(transition))
+    np.testing.assert_allclose(got.T, state @ transition, rtol=1e-13, atol=1e-15)
 
 
-_JUNCTIONS = [(4, 17), (20, 9)]
-
-
-@pytest.mark.parametrize("distance, junctions", [(None, _JUNCTIONS)] + [
-    (d, j) for d in (0.0, 0.7, 2.0, 3.3, 9.5, 500.0) for j in (None, _JUNCTIONS)])
-def test_the_prediction_on_the_filters_layout_is_predict_bit_for_bit(distance, junctions):
-    """The filter's prediction on its own ``(bins, places)`` layout (odometry: each place
-    walked once a way; junctions) gives :func:`predict`'s result transposed, bit for bit:
-    uneven edge lengths, both route ends, junctions, phase bins up to 4 places a frame."""
-    from catgraph.grid import _predict_rows, phase_bins, phase_transition
+@pytest.mark.parametrize("distance", [0.0, 0.7, 2.0, 3.3, 9.5, 30.0])
+def test_odometry_prediction_matches_slow_reference(distance):
+    """The odometry step (the filter's ``(bins, places)`` rows, each place walked once a way)
+    against the slow references: the dense velocity transition, each bin's mass walked the
+    distance along uneven edges (``_slow_odometry_shift``), the blur and the recovery share
+    written out; phase bins, both route ends."""
+    from catgraph.grid import phase_bins, phase_transition
     from catgraph.traverse import Traverse
 
-    rng = np.random.default_rng(int((distance or 0.0) * 10) + (0 if junctions is None else 1))
+    rng = np.random.default_rng(int(distance * 10))
     n = 25
-    xy = np.c_[np.cumsum(rng.uniform(0.5, 3.0, n)), np.zeros(n)]
-    g = PlaceGraph.from_traverse(Traverse(xy), junctions=None if junctions is None else np.array(junctions))
+    lengths = rng.uniform(0.5, 3.0, n - 1)
+    positions = np.c_[np.r_[0.0, np.cumsum(lengths)], np.zeros(n)]
+    g = PlaceGraph.from_traverse(Traverse(np.zeros((n, 2)), positions=positions))
+    np.testing.assert_allclose(route_neighbours(g)[2][:-1], lengths)  # the edges are as long as drawn
     v = np.array([-2.0, -1.0, -0.5, 0.5, 1.0, 2.5, 4.0])
     owner, _, _, _, _, successor = phase_bins(v, 4)
     transition = phase_transition(velocity_transition(v, 0.8, 0.05), owner, successor)
-    state = rng.random((n, len(owner)))
+    nb = len(owner)
+    state = rng.random((n, nb))
     state[[0, n - 1]] += 1.0
     state /= state.sum()
-    jump = rng.random(len(owner))
-    jump /= jump.sum()
-    neighbours = route_neighbours(g)
-    moves = _bin_moves(v[owner])
-    want = predict(state, transition, v[owner], neighbours, 0.1, 0.02, jump, 0.3, odometry=distance, moves=moves)
-    got = _predict_rows(np.ascontiguousarray(state.T), _sparse_columns(transition), moves, neighbours, 0.1, 0.02,
-                        jump, 0.3, distance)
-    assert np.array_equal(got, want.T)
+    blur, recovery = 0.1, 0.02
+    got = predict(state, transition, v[owner], route_neighbours(g), blur, recovery, np.full(nb, 1.0 / nb), 0.3,
+                  odometry=distance)
+    moved = _slow_odometry_shift(state @ transition, v[owner], lengths, distance)
+    want = (1 - 2 * blur) * moved
+    want[1:] += blur * moved[:-1]  # one place on (the last place keeps its own share)
+    want[-1] += blur * moved[-1]
+    want[:-1] += blur * moved[1:]  # one place back (the first keeps its own)
+    want[0] += blur * moved[0]
+    want = (1 - recovery) * want / want.sum() + recovery / (n * nb)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15)
 
 
 def test_frames_kernel_equals_walk_kernel_without_junctions():
@@ -139,10 +142,10 @@ def test_frames_kernel_equals_walk_kernel_without_junctions():
     fwd, bwd, _, _, jptr, jdst = route_neighbours(g)
     whole, frac, sign, mirror = _bin_moves(v)
     p = rng.random((30, len(v)))
-    a = np.empty_like(p)
-    _shift_frames(p, a, whole, frac, sign, mirror, fwd, bwd, jptr, jdst, 0.0)
+    a = np.empty((len(v), 30))
+    _frames_rows(np.ascontiguousarray(p.T), a, whole, frac, sign, mirror, fwd, bwd, jptr, jdst, 0.0)
     b = predict(p / p.sum(), np.eye(len(v)), v, (fwd, bwd, _, _, jptr, jdst), 0.0, 0.0, np.ones(len(v)), 0.0)
-    np.testing.assert_allclose(a / a.sum(), b, atol=1e-12)
+    np.testing.assert_allclose(a.T / a.sum(), b, atol=1e-12)
 
 
 def test_odometry_shift_follows_edge_lengths():
