@@ -1637,6 +1637,7 @@ class GridLocalizer:
         if twin is not None and not repeated:
             twin._advance(obs, odometry)
             twin._resolve()
+            twin.n_steps_ += 1  # its own frames: the long-run jump velocity learns once a frame of its own
             change = twin.frame_log_evidence_ - self.frame_log_evidence_
             if math.isfinite(change):
                 self.repeat_log_odds_ += change

@@ -27,9 +27,9 @@ def _with_repeats(rows, runs):
     return np.repeat(rows, 1 + np.asarray(runs), axis=0)
 
 
-def _filter(kind, q, learn, rigid=True, n=11):
+def _filter(kind, q, learn, rigid=True, n=11, jump_velocity="current"):
     extra = {"rigid_prior": PRIOR} if rigid else {}
-    return kind(PlaceGraph.chain(n), _Ratios(), recovery=RECOVERY, learn_recovery=learn, jump_velocity="current",
+    return kind(PlaceGraph.chain(n), _Ratios(), recovery=RECOVERY, learn_recovery=learn, jump_velocity=jump_velocity,
                 repeat_prior=q, **extra, **SETTINGS).reset()
 
 
@@ -44,11 +44,12 @@ def test_frame_evidence_equals_dense_reference(kind, learn, rigid):
         assert loc.frame_log_evidence_ == pytest.approx(evidence, rel=1e-9, abs=1e-12)
 
 
+@pytest.mark.parametrize("jump_velocity", ["current", "long-run"])
 @pytest.mark.parametrize("rigid", [True, False])
 @pytest.mark.parametrize("q", [0.5, 0.2, 0.9, 1.0])
 @pytest.mark.parametrize("learn", [True, False])
 @pytest.mark.parametrize("kind", [_Float64, _General])
-def test_repeats_are_two_filters_weighed_by_their_evidence(kind, learn, q, rigid, monkeypatch):
+def test_repeats_are_two_filters_weighed_by_their_evidence(kind, learn, q, rigid, jump_velocity, monkeypatch):
     """The filter with ``repeat_prior = q`` against two plain filters: one on the frames as
     they come (the robot moved on), one on the frames without their repeats (it stood
     still), each repeat answered by the latter with its run's first frame's posterior;
@@ -57,8 +58,9 @@ def test_repeats_are_two_filters_weighed_by_their_evidence(kind, learn, q, rigid
     monkeypatch.setattr(GridLocalizer, "TWIN_AGREEMENT", -1.0)
     base = _rows(11, 17, seed=5)
     rows = _with_repeats(base, RUNS)
-    loc = _filter(kind, q, learn, rigid)
-    moved, still = _filter(kind, 0.0, learn, rigid), _filter(kind, 0.0, learn, rigid)
+    loc = _filter(kind, q, learn, rigid, jump_velocity=jump_velocity)
+    moved = _filter(kind, 0.0, learn, rigid, jump_velocity=jump_velocity)
+    still = _filter(kind, 0.0, learn, rigid, jump_velocity=jump_velocity)
     log_odds = math.log(q / (1 - q)) if q < 1 else math.inf
     forked = False
     for t, row in enumerate(rows):
