@@ -1719,9 +1719,8 @@ class GridLocalizer:
         self._twin = None
         if w_held > w_own:
             own = {name: self.__dict__[name] for name in self._OWN_WHEN_SETTLED}
-            self.__dict__.update(twin.__dict__)
+            self.__dict__.update(twin.__dict__)  # the twin's own twin is None: none is kept
             self.__dict__.update(own)
-            self._twin = None
 
     def _agrees(self, twin: "GridLocalizer", weight: float) -> bool:
         """Whether ``weight`` times the distance between ``twin``'s posterior and this
@@ -1842,7 +1841,7 @@ class GridLocalizer:
                 return
             if self._neighbours is None:
                 self._neighbours = route_neighbours(self.graph)
-            # odometry, or junctions: on the filter's own layout (no transposes), predict's result bit for bit
+            # odometry, or junctions: the kernels of predict, on the filter's own layout (no transposes)
             out = _predict_rows(np.multiply(self._state, self._like, dtype=np.float64), self._t_sparse, self._moves,
                                 self._neighbours, self.blur, self.recovery_, jump_velocity, self.junction_probability,
                                 odometry)
