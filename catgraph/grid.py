@@ -176,7 +176,8 @@ query at one speed gives it little weight, one whose speed keeps changing most o
 one more component.
 
 Frames that come again (``repeat_prior``; off in this class by default, the registry's
-``filter`` method: ``catgraph.methods.REPEAT_PRIOR``). A query frame equal to the one before
+``filter`` method: ``catgraph.methods.REPEAT_PRIOR``; :mod:`catgraph._twin`, shared with the
+particle filter). A query frame equal to the one before
 (the same difference row, with no odometry) says nothing new about the place and nothing about
 whether the robot moved. The tempered model gives it almost no evidence, so through a run of
 them the filter moves on at its speed; a query that *stands still* — stopped at lights, or
@@ -267,6 +268,7 @@ import time
 import numpy as np
 
 from ._jit import njit
+from ._twin import TwinReadings, logistic as _logistic, mixed_answer
 from ._validation import check_array, check_scalar
 from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .graph import PlaceGraph
@@ -1179,7 +1181,7 @@ def predict(state: np.ndarray, transition: np.ndarray, velocities: np.ndarray, n
     return np.ascontiguousarray(out.T)
 
 
-class GridLocalizer:
+class GridLocalizer(TwinReadings):
     """Exact Bayes filter over (place, signed velocity) on a place graph.
 
     Parameters
@@ -1527,12 +1529,7 @@ class GridLocalizer:
         self.n_steps_ = 0
         self.converged_ = self.converged_frames == 0
         self._held = 0
-        self._last_row = None  # the previous frame's row (repeat_prior > 0)
-        self._twin = None  # from the first repeat on: the filter of a query that stood still through its repeats
-        q = float(self.repeat_prior)
-        # log-odds of "the query stood still through its repeats" against "it moved on"
-        self.repeat_log_odds_ = math.log(q) - math.log1p(-q) if 0.0 < q < 1.0 else (math.inf if q == 1.0 else -math.inf)
-        self.frame_log_evidence_ = 0.0
+        self._reset_twin()
         from .observation import claim_model
 
         claim_model(self.model, self)
@@ -1638,9 +1635,7 @@ class GridLocalizer:
             twin._advance(obs, odometry)
             twin._resolve()
             twin.n_steps_ += 1  # its own frames: the long-run jump velocity learns once a frame of its own
-            change = twin.frame_log_evidence_ - self.frame_log_evidence_
-            if math.isfinite(change):
-                self.repeat_log_odds_ += change
+            self._weigh_twin(twin)
         estimate, near = self._summarise()
         if twin is not None and not repeated:
             self._settle(twin)
@@ -1663,64 +1658,8 @@ class GridLocalizer:
             self._hazard_step(odometry, ratio)
 
     # ------------------------------------------------------------------ frames that come again
-    def _repeated(self, row: np.ndarray, odometry: float | None) -> bool:
-        """Whether this frame repeats the previous one (``repeat_prior``; the same row and
-        no odometry, which would tell whether the robot moved)."""
-        if not self.repeat_prior > 0.0:
-            return False
-        if odometry is not None:
-            self._last_row = None
-            return False
-        last = self._last_row
-        if last is None:
-            self._last_row = np.array(row, dtype=np.float64)
-            return False
-        if row[0] == last[0] and row[-1] == last[-1] and np.array_equal(row, last):
-            return True
-        np.copyto(last, row)
-        return False
-
-    def _fork(self) -> "GridLocalizer":
-        """The filter of a query that stands still through its repeats: a copy of this one
-        now (its posterior the robot where the run began), sharing the observation model
-        and the graph; it advances on the frames that are not repeats only."""
-        import copy
-
-        memo = {id(self.model): self.model, id(self.graph): self.graph}
-        for name in ("_tree", "_route", "_neighbourhoods", "_neighbours", "_t_sparse", "_transition", "_motions",
-                     "_last_row"):
-            value = self.__dict__.get(name)
-            if value is not None:
-                memo[id(value)] = value
-        twin = copy.deepcopy(self, memo)
-        twin._twin, twin._last_row = None, None
-        twin.repeat_prior = 0.0
-        return twin
-
-    #: The two readings become one once that moves the answer's posterior by at most this:
-    #: the lighter reading's weight in the mixture times the total variation distance
-    #: between the two posteriors, over place, state bin and motion model (and ``P(new)``).
-    #: Two readings that agree become one; so do two of which the evidence has ruled one out.
-    TWIN_AGREEMENT = 1e-12
-
-    #: What the filter keeps of its own when it takes the twin's reading (:meth:`_settle`):
-    #: the repeats it watches for, the odds of the two readings, and its answers' history.
-    _OWN_WHEN_SETTLED = ("repeat_prior", "_last_row", "repeat_log_odds_", "n_steps_", "converged_", "_held",
-                         "place_posterior_")
-
-    def _settle(self, twin: "GridLocalizer") -> None:
-        """Keep one reading where the mixture is it to within :data:`TWIN_AGREEMENT`: the
-        filter drops the twin, or, where the twin's reading outweighs its own, takes the
-        twin's posterior (and what it learned) as its own. Either way the twin is forked
-        anew at the next repeat, the odds of the two readings kept."""
-        w_held, w_own = _logistic(self.repeat_log_odds_), _logistic(-self.repeat_log_odds_)
-        if not self._agrees(twin, min(w_held, w_own)):
-            return
-        self._twin = None
-        if w_held > w_own:
-            own = {name: self.__dict__[name] for name in self._OWN_WHEN_SETTLED}
-            self.__dict__.update(twin.__dict__)  # the twin's own twin is None: none is kept
-            self.__dict__.update(own)
+    _FORK_SHARED = ("_tree", "_route", "_neighbourhoods", "_neighbours", "_t_sparse", "_transition", "_motions")
+    _OWN_WHEN_SETTLED = (*TwinReadings._OWN_WHEN_SETTLED, "converged_", "_held")
 
     def _agrees(self, twin: "GridLocalizer", weight: float) -> bool:
         """Whether ``weight`` times the distance between ``twin``'s posterior and this
@@ -2054,14 +1993,9 @@ class GridLocalizer:
         if twin is not None:
             # the two readings of the repeats, each weighed by its evidence (Bayes' rule): the
             # answer is the mixture's, over the map and the new place together
-            w_held = _logistic(self.repeat_log_odds_)
-            own_posterior = self.place_posterior_
-            self.place_posterior_ = w_held * twin.place_posterior_ + (1.0 - w_held) * own_posterior
-            p_new = w_held * twin.new_place_probability_ + (1.0 - w_held) * p_new
-            mass = self.place_posterior_ / (1.0 - p_new) if p_new < 1.0 else self.place_posterior_
-            best = int(np.argmax(mass))
-            log_new = math.log(p_new) if p_new > 0.0 else -math.inf
-            log_map = math.log1p(-p_new)
+            self.place_posterior_, p_new, mass, best, log_map, log_new = mixed_answer(
+                _logistic(self.repeat_log_odds_), self.place_posterior_, p_new, twin.place_posterior_,
+                twin.new_place_probability_)
         if self.confidence_radius_m is not None:
             near = np.zeros(g.n_places, dtype=bool)
             near[self._tree.query_ball_point(g.positions[best], self.confidence_radius_m)] = True
@@ -2158,11 +2092,6 @@ def _sparse_columns(transition: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
     nz = transition.T != 0
     return (np.concatenate([[0], np.cumsum(nz.sum(1))]).astype(np.int64), np.nonzero(nz)[1].astype(np.int64),
             np.ascontiguousarray(transition.T[nz], dtype=np.float64))
-
-
-def _logistic(x: float) -> float:
-    """``1 / (1 + e^{−x})`` without overflow (``±inf`` give 1 and 0)."""
-    return 1.0 / (1.0 + math.exp(-x)) if x >= 0 else math.exp(x) / (1.0 + math.exp(x))
 
 
 def _weighted_sum(weights: np.ndarray, arrays: list, out: np.ndarray) -> np.ndarray:

@@ -177,6 +177,7 @@ import numpy as np
 
 from ._jit import njit
 from ._observation_kernels import all_finite
+from ._twin import TwinReadings, logistic, mixed_answer
 from ._validation import as_generator, check_array, check_scalar
 from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .graph import PlaceGraph
@@ -850,7 +851,7 @@ PROPOSALS = ("likelihood", "best", "uniform", "sharpened")
 _PROPOSAL_CODE = {name: k for k, name in enumerate(PROPOSALS)}
 
 
-class Localizer:
+class Localizer(TwinReadings):
     """CAT-Graph particle filter over a place graph.
 
     Parameters
@@ -936,6 +937,17 @@ class Localizer:
         route by place index (about one grid-filter step; the particle step ×1.6 at 10⁴
         and ×1.85 at 10⁵ places on one thread, ``docs/particle_filter.md``), else
         :func:`catgraph.grid.predict`.
+    repeat_prior : float in [0, 1]
+        The prior probability that the query stands still while its frame comes again
+        unchanged (the grid filter's ``repeat_prior``, :mod:`catgraph._twin`): from the first
+        frame equal to the previous one (the same row, without odometry) the filter runs a
+        twin that stands still through every run of them beside itself, which moves on, and
+        answers with their mixture, each weighed by its evidence frame by frame from this
+        prior (``repeat_log_odds_``); once the lighter reading's weight is at most one
+        particle's share of the cloud (:data:`TWIN_PARTICLES`), it goes until the next repeat
+        (the heavier kept, with what it learned). Default 0:
+        off (the registry's ``filter`` method: :data:`catgraph.methods.REPEAT_PRIOR`). Time
+        and memory while the twin lives: twice the filter's.
     seed : int, Generator or None
 
     Attributes
@@ -949,6 +961,15 @@ class Localizer:
         modulated by that frame's jump evidence (``Observation.jump_evidence``,
         :mod:`catgraph.jumps`).
     place_posterior_ : ndarray of float64, shape (n_places,)
+        With ``repeat_prior``: the two readings' mixture (as the answer and
+        ``new_place_probability_``; ``particles_`` are the moving reading's).
+    repeat_log_odds_ : float
+        With ``repeat_prior``: the log-odds that the query stands still through its repeated
+        frames against that it moves on.
+    frame_log_evidence_ : float
+        The latest frame's log evidence, ``log(P(new)' e^{r_new} + (1 − P(new)') Σ prior ·
+        e^{ℓ})`` (the particles' estimate, ``P(new)'`` the new place's prior for the frame);
+        0 for a frame without information.
     n_steps_ : int
     """
 
@@ -960,7 +981,8 @@ class Localizer:
                  new_place_prior: float | None = None, new_place_stay: float = 0.8,
                  confidence_radius: int = 2, confidence_radius_m: float | None = None,
                  confidence_score: str = "joint", marginal_velocity: bool = True, smooth_feedback: bool = True,
-                 jump_graduation: float = 1.0, seed: int | np.random.Generator | None = 0) -> None:
+                 jump_graduation: float = 1.0, repeat_prior: float = 0.0,
+                 seed: int | np.random.Generator | None = 0) -> None:
         self.graph = graph
         self.model = model
         self.n_particles = n_particles
@@ -983,6 +1005,7 @@ class Localizer:
         self.marginal_velocity = marginal_velocity
         self.smooth_feedback = smooth_feedback
         self.jump_graduation = jump_graduation
+        self.repeat_prior = repeat_prior
         self.seed = seed
 
     # ------------------------------------------------------------------ setup
@@ -1014,6 +1037,7 @@ class Localizer:
                 f"The 'jump_graduation' parameter of {owner} below 1 draws the births from the jump grid, which "
                 f"needs proposal='likelihood'. Got proposal={self.proposal!r} instead.")
         check_scalar(self.recovery_frames, "recovery_frames", owner, int, 1)
+        check_scalar(self.repeat_prior, "repeat_prior", owner, float, 0.0, 1.0)
         if self.new_place_prior is None:  # the grid filter's, so that both filters share one model
             import inspect
 
@@ -1084,7 +1108,9 @@ class Localizer:
         self._log_recovery = -math.inf
         self.new_place_probability_ = 0.0
         self.n_steps_ = 0
+        self._advanced = 0  # frames this reading moved and weighed its particles on (its births' schedule)
         self._log_new, self._log_map = -math.inf, 0.0
+        self._reset_twin()
         self._support = None
         self._no_ratio = np.zeros(g.n_places)
         self._motions = (self.motion or FrameMotion(), self.motion or OdometryMotion())
@@ -1211,36 +1237,60 @@ class Localizer:
         if self.n_steps_ == 0:
             odometry = None  # ignored, as a query's odometry[0] (the marginal start must not hang on it)
         check_model(self.model, self)
+        repeated = self._repeated(row, odometry)
         self._log_ratio = None  # the previous frame's ratios: the model may reuse their array now
         obs = self.model.observe(row)
-        # the frame's jump rate while the frame is processed (catgraph.jumps); the learned one after it
-        self._prior_rate = self.recovery_
-        self.recovery_ = frame_jump_rate(self._prior_rate, obs.jump_evidence)
-        self._support = obs.support if obs.informative else None
-        ahead = None
+        twin = self._twin
+        if repeated and obs.informative and twin is None and self.repeat_prior > 0.0:
+            twin = self._twin = self._fork()  # this frame's prior: the robot where the run began
+        pending = []
         try:
-            self._evidence(obs)
-            ahead = self._form_support_ahead()  # after the evidence, whose exp terms take both cores
-            self._move(odometry)
-            self._inject()
-            # the prediction's place masses, where the model's feedback reads them
-            prior = self._predicted_mass() if self._has_feedback and feedback_reads_prior(self.model) else None
-            ess = self._reweight(obs)
-            mass = self._mass
-            resampled = self._resample_if_degenerate(ess)
-            estimate, near = self._summarise(mass, ess, resampled, joint=ahead is None)
+            prior, ess, resampled = self._advance(obs, odometry, pending)
+            if twin is not None and not repeated:  # the twin stands still through the repeats
+                twin._advance(obs, odometry)
+                twin._resolve(twin._mass)
+                twin._log_ratio = None
+                twin.recovery_ = twin._prior_rate
+                twin.n_steps_ += 1
+                self._weigh_twin(twin)
+            ahead = pending[0] if pending else None
+            estimate, near = self._summarise(self._mass, ess, resampled, joint=ahead is None)
+            if twin is not None and not repeated:
+                self._settle(twin)
             self._feedback(prior, near)
             if ahead is not None:
                 ahead.result()  # the support's scores and moments (and the worker's error, if any)
                 estimate = self._joint_score(estimate, near)
         finally:
-            if ahead is not None:  # done before the model's matcher can step again
+            if pending and pending[0] is not None:  # done before the model's matcher can step again
                 from concurrent.futures import wait
 
-                wait([ahead])
+                wait(pending)
         self.recovery_ = self._prior_rate
         self.n_steps_ += 1
         return estimate
+
+    def _advance(self, obs: Observation, odometry: float | None, pending: list | None = None):
+        """Predict and weigh the particles with the frame's observation ``obs``; returns the
+        prediction's place masses where the model's feedback reads them (else None), the
+        ESS and whether the cloud was resampled. ``pending``: gets the future of the
+        support's scores formed on a worker thread (:meth:`_form_support_ahead`; None: none)."""
+        # the frame's jump rate while the frame is processed (catgraph.jumps); the learned one after it
+        self._prior_rate = self.recovery_
+        self.recovery_ = frame_jump_rate(self._prior_rate, obs.jump_evidence)
+        self._support = obs.support if obs.informative else None
+        self.frame_log_evidence_ = 0.0
+        self._evidence(obs)
+        if pending is not None:
+            pending.append(self._form_support_ahead())  # after the evidence, whose exp terms take both cores
+        self._move(odometry)
+        self._inject()
+        # the prediction's place masses, where the model's feedback reads them
+        prior = self._predicted_mass() if self._has_feedback and feedback_reads_prior(self.model) else None
+        ess = self._reweight(obs)
+        resampled = self._resample_if_degenerate(ess)
+        self._advanced += 1
+        return prior, ess, resampled
 
     def _form_support_ahead(self):
         """The joint confidence score reads the recent support at the answer's places,
@@ -1310,8 +1360,8 @@ class Localizer:
             self._log_ratio = log_ratio = self._no_ratio
             self._r_max = r_max = likelihood_cumulative(log_ratio, self._like, math.nan)
         self._log_like_mean = r_max + math.log(self._like[-1] / g.n_places)  # log mean_j e^{r_j}
-        born = self._births > 0 and self.n_steps_ > 0
-        self._newborn = self._generation(self.n_steps_ - 1) if born else (0, 0)
+        born = self._births > 0 and self._advanced > 0
+        self._newborn = self._generation(self._advanced - 1) if born else (0, 0)
         self._log_recovery = math.log(self.recovery_) + self._log_like_mean if born else -math.inf
         # e^{r − max r}: where the jump grid reads it, every place now; else the places the
         # marginal motion reads, when it moves (_frame_ratio)
@@ -1337,7 +1387,7 @@ class Localizer:
         the velocity marginalised (``marginal_velocity``), the particles outside the
         coming births move with the frame's evidence and carry their share ``1 − ε``."""
         self._marginal_step = self._marginal and odometry is None
-        if self.n_steps_ == 0:
+        if self._advanced == 0:
             if self._marginal_step:
                 self._spread_from_frame(0, self.n_particles, 0.0)
             return  # the first frame: nothing has moved yet
@@ -1524,9 +1574,11 @@ class Localizer:
                 total = np.logaddexp(a_new, a_map)
                 self._log_new, self._log_map = a_new - total, a_map - total
                 self.new_place_probability_ = float(math.exp(self._log_new))
+                self.frame_log_evidence_ = float(total)
             else:
                 self.new_place_probability_ = 0.0
                 self._log_new, self._log_map = -math.inf, 0.0
+                self.frame_log_evidence_ = float(log_map)
         return float(ess)
 
     def _learn_recovery(self, ratio: float) -> None:
@@ -1545,7 +1597,7 @@ class Localizer:
         resample everything when ESS < ``ess_threshold · n_particles``."""
         n = self.n_particles
         if self._births > 0:
-            n_out, (start, stop) = self._n_cloud, self._generation(self.n_steps_)
+            n_out, (start, stop) = self._n_cloud, self._generation(self._advanced)
         elif ess < self.ess_threshold * n:
             n_out, start, stop = n, 0, 0
         else:
@@ -1572,17 +1624,15 @@ class Localizer:
         """The frame's estimate and the answer's neighbourhood; ``joint=False``: its score
         is the log-odds until :meth:`_joint_score` reads the support."""
         g = self.graph
-        self.__dict__.pop("place_posterior_", None)  # the previous frame's: reusable if no one else holds it
-        posterior = self._pool.take(len(mass))
-        if self._deferred is not None:  # the place masses, the posterior and the answer in one pass
-            scale, share, recover = self._deferred
-            self._deferred = None
-            best = int(_posterior_kernel(self._marginal_mass, scale, self._like, share, recover, mass, posterior,
-                                         1.0 - self.new_place_probability_))
-            self.place_posterior_ = posterior
-        else:
-            self.place_posterior_ = np.multiply(mass, 1.0 - self.new_place_probability_, out=posterior)
-            best = int(np.argmax(mass))
+        best = self._resolve(mass)
+        p_new, log_map, log_new = self.new_place_probability_, self._log_map, self._log_new
+        twin = self._twin
+        if twin is not None:
+            # the two readings of the repeats, each weighed by its evidence (Bayes' rule): the
+            # answer is the mixture's, over the map and the new place together
+            self.place_posterior_, p_new, mass, best, log_map, log_new = mixed_answer(
+                logistic(self.repeat_log_odds_), self.place_posterior_, p_new, twin.place_posterior_,
+                twin.new_place_probability_)
         if self.confidence_radius_m is not None:
             near = np.zeros(g.n_places, dtype=bool)
             near[self._tree.query_ball_point(g.positions[best], self.confidence_radius_m)] = True
@@ -1596,11 +1646,41 @@ class Localizer:
 
         w_in, w_out = _inside_outside(mass, near)
         # in log space, so that the new-place mass still ranks frames whose map mass is all inside
-        confidence, log_odds = confidence_log_odds(w_in, w_out, self._log_map, self._log_new)
+        confidence, log_odds = confidence_log_odds(w_in, w_out, log_map, log_new)
         position = None if g.positions is None else g.positions[best].copy()
-        estimate = Estimate(best, position, confidence, self.new_place_probability_, ess, resampled, log_odds,
-                            log_odds)
+        estimate = Estimate(best, position, confidence, p_new, ess, resampled, log_odds, log_odds)
         return (self._joint_score(estimate, near) if joint else estimate), near
+
+    def _resolve(self, mass: np.ndarray) -> int:
+        """The place masses where the reweighting left them to this pass, ``place_posterior_``
+        and the best place (given the map)."""
+        self.__dict__.pop("place_posterior_", None)  # the previous frame's: reusable if no one else holds it
+        posterior = self._pool.take(len(mass))
+        if self._deferred is not None:  # the place masses, the posterior and the answer in one pass
+            scale, share, recover = self._deferred
+            self._deferred = None
+            best = int(_posterior_kernel(self._marginal_mass, scale, self._like, share, recover, mass, posterior,
+                                         1.0 - self.new_place_probability_))
+            self.place_posterior_ = posterior
+        else:
+            self.place_posterior_ = np.multiply(mass, 1.0 - self.new_place_probability_, out=posterior)
+            best = int(np.argmax(mass))
+        return best
+
+    # ------------------------------------------------------------------ frames that come again
+    _FORK_SHARED = ("_tree", "_route", "_neighbourhoods", "_first_in", "_no_ratio")
+
+    #: The two readings become one once the lighter one's weight in the mixture is at most
+    #: this many particles' share of the cloud (``TWIN_PARTICLES / n_particles``): a cloud of
+    #: ``n_particles`` drawn from the mixture would hold none of it. Two clouds differ by their
+    #: sampling however alike the posteriors they stand for, so the distance between the
+    #: readings is not read (taken as its bound, 1), and the grid filter's round-off
+    #: (:data:`TWIN_AGREEMENT`) is below what a cloud can tell.
+    TWIN_PARTICLES = 1.0
+
+    def _agrees(self, twin: "Localizer", weight: float) -> bool:
+        """Whether the lighter reading's ``weight`` is at most :data:`TWIN_PARTICLES` particles'."""
+        return weight * self.n_particles <= self.TWIN_PARTICLES
 
     def _joint_score(self, estimate: Estimate, near) -> Estimate:
         """``estimate`` with the joint confidence score: ``min(log-odds, max support near the

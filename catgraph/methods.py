@@ -474,7 +474,7 @@ def observation_model(params: dict, n_places: int, bootstrap_samples: Callable[[
 _PARTICLE_KEYS = ("n_particles", "resampler", "ess_threshold", "redraw_fraction", "proposal", "jump_graduation")
 #: the grid filter's own parameters (the particle filter has none of them)
 _GRID_KEYS = ("jump_velocity", "rigid_prior", "home_speed_odds", "outlier_probability", "velocity_bins",
-              "varying_prior", "repeat_prior")
+              "varying_prior")
 #: ``mode="auto"`` runs the exact grid filter on maps up to this many places
 GRID_MAX_PLACES = 100_000
 
@@ -560,7 +560,7 @@ def home_speed_odds(velocities, share: float = HOME_SPEED_SHARE) -> float:
     return float(share * other / (home * (1.0 - share)))
 
 
-#: The grid filter's ``repeat_prior`` where the ``filter`` method leaves it unset: the prior
+#: The filters' ``repeat_prior`` (grid and particles) where the ``filter`` method leaves it unset: the prior
 #: probability that a query stands still while its frame comes again unchanged. Low, because
 #: in the real data such a frame is a camera or scanner that repeated itself while the robot
 #: moved on (Nordland's winter video at its two ends, a Wi-Fi scan delivered twice on UJI);
@@ -663,6 +663,7 @@ def concrete_params(params: dict, n_places: int) -> dict[str, Any]:
 
         owner = GridLocalizer if mode == "grid" else Localizer
         out["new_place_prior"] = inspect.signature(owner.__init__).parameters["new_place_prior"].default
+    out["repeat_prior"] = REPEAT_PRIOR if params.get("repeat_prior") is None else float(params["repeat_prior"])
     if mode == "grid":
         out["jump_velocity"] = params.get("jump_velocity") or JUMP_VELOCITY
         out["rigid_prior"] = rigid_prior(params, n_places)
@@ -672,7 +673,6 @@ def concrete_params(params: dict, n_places: int) -> dict[str, Any]:
             out["home_speed_odds"] = home_speed_odds(out["velocity_bins"])
         if params.get("outlier_probability") is None:
             out["outlier_probability"] = OUTLIER_PROBABILITY
-        out["repeat_prior"] = REPEAT_PRIOR if params.get("repeat_prior") is None else float(params["repeat_prior"])
         return out
     from .localizer import Localizer
 
@@ -707,7 +707,7 @@ def make_filter(params: dict, graph, model):
 
     motion = VelocityMotion() if params["motion"] == "velocity" else None
     particles = {k: params[k] for k in _PARTICLE_KEYS}
-    return Localizer(graph, model, motion=motion, **common, **particles)
+    return Localizer(graph, model, motion=motion, repeat_prior=params["repeat_prior"], **common, **particles)
 
 
 def check_use_odometry(use: bool | None, has_odometry: bool, unit: str) -> None:
@@ -778,8 +778,6 @@ def _filter_not_applicable(params: dict) -> dict[str, str]:
         out["varying_prior"] = "the varying speed's motion is the grid filter's; the particle filter has none"
         out["home_speed_odds"] = "it sets the grid filter's velocity prior; the particle filter's is uniform"
         out["outlier_probability"] = "the outlier frames are the grid filter's; the particle filter has none"
-        out["repeat_prior"] = "the twin that stands still through frames that come again is the grid " \
-                              "filter's; the particle filter has none"
     if model not in sequence_models:
         for k in ("window", *_WINDOW_ADAPTIVE):
             out[k] = f"model {model!r} has no sequence matcher"
@@ -865,7 +863,7 @@ def _filter_params() -> tuple[Param, ...]:
               "by Bayes' rule; 0: off). It follows a speed that keeps changing (default: half of what the rigid "
               f"line leaves on maps of at most {DENSE_VELOCITY_MAX_PLACES:,} places, 0 above: one more copy of the "
               "grid's state and step)", low=0.0, high=0.99, optional=True),
-        Param("repeat_prior", "float", None, "grid: prior probability that the query stands still while its "
+        Param("repeat_prior", "float", None, "prior probability that the query stands still while its "
               "frame comes again unchanged (the same frame twice in a row, without odometry): from the first such "
               "frame the filter runs a twin that stands still through them beside itself, which moves on, and "
               "answers with both, each weighed by its evidence (0: off, the filter moves on; default "
