@@ -943,9 +943,9 @@ class Localizer(TwinReadings):
         frame equal to the previous one (the same row, without odometry) the filter runs a
         twin that stands still through every run of them beside itself, which moves on, and
         answers with their mixture, each weighed by its evidence frame by frame from this
-        prior (``repeat_log_odds_``); once the lighter reading's weight is at most one
-        particle's share of the cloud (:data:`TWIN_PARTICLES`), it goes until the next repeat
-        (the heavier kept, with what it learned). Default 0:
+        prior (``repeat_log_odds_``); once the lighter reading's weight times the distance
+        between the two is at most one particle's share of the cloud (:data:`TWIN_PARTICLES`),
+        it goes until the next repeat (the heavier kept, with what it learned). Default 0:
         off (the registry's ``filter`` method: :data:`catgraph.methods.REPEAT_PRIOR`). Time
         and memory while the twin lives: twice the filter's.
     seed : int, Generator or None
@@ -1630,9 +1630,12 @@ class Localizer(TwinReadings):
         if twin is not None:
             # the two readings of the repeats, each weighed by its evidence (Bayes' rule): the
             # answer is the mixture's, over the map and the new place together
+            self._own_posterior = self.place_posterior_  # (read by _agrees)
             self.place_posterior_, p_new, mass, best, log_map, log_new = mixed_answer(
                 logistic(self.repeat_log_odds_), self.place_posterior_, p_new, twin.place_posterior_,
                 twin.new_place_probability_)
+        else:
+            self.__dict__.pop("_own_posterior", None)
         if self.confidence_radius_m is not None:
             near = np.zeros(g.n_places, dtype=bool)
             near[self._tree.query_ball_point(g.positions[best], self.confidence_radius_m)] = True
@@ -1670,17 +1673,31 @@ class Localizer(TwinReadings):
     # ------------------------------------------------------------------ frames that come again
     _FORK_SHARED = ("_tree", "_route", "_neighbourhoods", "_first_in", "_no_ratio")
 
-    #: The two readings become one once the lighter one's weight in the mixture is at most
-    #: this many particles' share of the cloud (``TWIN_PARTICLES / n_particles``): a cloud of
-    #: ``n_particles`` drawn from the mixture would hold none of it. Two clouds differ by their
-    #: sampling however alike the posteriors they stand for, so the distance between the
-    #: readings is not read (taken as its bound, 1), and the grid filter's round-off
-    #: (:data:`TWIN_AGREEMENT`) is below what a cloud can tell.
+    #: The two readings become one once that moves the answer's posterior by at most this many
+    #: particles' share of the cloud (``TWIN_PARTICLES / n_particles``): the lighter reading's
+    #: weight times the distance between the two readings, which a cloud of ``n_particles``
+    #: drawn from the mixture could not show. Two clouds differ by their sampling however
+    #: alike the posteriors they stand for, so the grid filter's round-off
+    #: (:data:`TWIN_AGREEMENT`) is below what they can tell.
     TWIN_PARTICLES = 1.0
 
     def _agrees(self, twin: "Localizer", weight: float) -> bool:
-        """Whether the lighter reading's ``weight`` is at most :data:`TWIN_PARTICLES` particles'."""
-        return weight * self.n_particles <= self.TWIN_PARTICLES
+        """Whether ``weight`` times the distance between the two readings is at most
+        :data:`TWIN_PARTICLES` particles' share: the total variation distance between their
+        place posteriors with ``P(new)``, or, where larger, between their velocity marginals
+        (the particles' distributions over the velocity bins, with the velocity marginalised)."""
+        limit = self.TWIN_PARTICLES / self.n_particles
+        if weight <= limit:
+            return True
+        own = self.__dict__.get("_own_posterior")
+        if own is None:
+            return False
+        distance = 0.5 * (float(np.abs(own - twin.place_posterior_).sum())
+                          + abs(self.new_place_probability_ - twin.new_place_probability_))
+        if self._marginal and distance * weight <= limit:
+            v, u = self._velocity_marginal, twin._velocity_marginal
+            distance = max(distance, 0.5 * float(np.abs(v / max(v.sum(), 1e-300) - u / max(u.sum(), 1e-300)).sum()))
+        return weight * distance <= limit
 
     def _joint_score(self, estimate: Estimate, near) -> Estimate:
         """``estimate`` with the joint confidence score: ``min(log-odds, max support near the
