@@ -27,6 +27,36 @@ def _with_repeats(rows, runs):
     return np.repeat(rows, 1 + np.asarray(runs), axis=0)
 
 
+def composed_by_bayes(loc, moved, still, rows, q):
+    """Step ``loc`` (``repeat_prior = q``) and two plain filters through ``rows`` — ``moved``
+    on every frame, ``still`` on the frames that are not repeats — checking, frame by frame,
+    that ``loc`` answers with their mixture weighed by ``q`` and then by each frame's evidence
+    where both advanced (from the first repeat on; before it, ``moved``'s answer). Yields
+    ``(repeat, forked)`` after each frame's checks."""
+    log_odds = math.log(q / (1 - q)) if q < 1 else math.inf
+    forked = False
+    for t, row in enumerate(rows):
+        repeat = t > 0 and np.array_equal(row, rows[t - 1])
+        forked |= repeat
+        est = loc.step(row)
+        moved.step(row)
+        if not repeat:
+            still.step(row)
+            log_odds += still.frame_log_evidence_ - moved.frame_log_evidence_
+        if not forked:
+            posterior, p_new = moved.place_posterior_, moved.new_place_probability_
+        else:
+            w = 1.0 if log_odds == math.inf else 1.0 / (1.0 + math.exp(-log_odds))
+            posterior = w * still.place_posterior_ + (1 - w) * moved.place_posterior_
+            p_new = w * still.new_place_probability_ + (1 - w) * moved.new_place_probability_
+            assert loc.repeat_log_odds_ == pytest.approx(log_odds, rel=1e-9, abs=1e-12)
+        np.testing.assert_allclose(loc.place_posterior_, posterior, rtol=1e-9, atol=1e-15)
+        assert est.new_place_probability == pytest.approx(p_new, rel=1e-9, abs=1e-15)
+        assert est.place == int(np.argmax(posterior))
+        yield repeat, forked
+    assert forked
+
+
 def _filter(kind, q, learn, rigid=True, n=11, jump_velocity="current"):
     extra = {"rigid_prior": PRIOR} if rigid else {}
     return kind(PlaceGraph.chain(n), _Ratios(), recovery=RECOVERY, learn_recovery=learn, jump_velocity=jump_velocity,
@@ -61,26 +91,8 @@ def test_repeats_are_two_filters_weighed_by_their_evidence(kind, learn, q, rigid
     loc = _filter(kind, q, learn, rigid, jump_velocity=jump_velocity)
     moved = _filter(kind, 0.0, learn, rigid, jump_velocity=jump_velocity)
     still = _filter(kind, 0.0, learn, rigid, jump_velocity=jump_velocity)
-    log_odds = math.log(q / (1 - q)) if q < 1 else math.inf
-    forked = False
-    for t, row in enumerate(rows):
-        repeat = t > 0 and np.array_equal(row, rows[t - 1])
-        forked |= repeat
-        est = loc.step(row)
-        moved.step(row)
-        if not repeat:
-            still.step(row)
-            log_odds += still.frame_log_evidence_ - moved.frame_log_evidence_
-        if not forked:
-            posterior, p_new = moved.place_posterior_, moved.new_place_probability_
-        else:
-            w = 1.0 if log_odds == math.inf else 1.0 / (1.0 + math.exp(-log_odds))
-            posterior = w * still.place_posterior_ + (1 - w) * moved.place_posterior_
-            p_new = w * still.new_place_probability_ + (1 - w) * moved.new_place_probability_
-            assert loc.repeat_log_odds_ == pytest.approx(log_odds, rel=1e-9, abs=1e-12)
-        np.testing.assert_allclose(loc.place_posterior_, posterior, rtol=1e-9, atol=1e-15)
-        assert est.new_place_probability == pytest.approx(p_new, rel=1e-9, abs=1e-15)
-        assert est.place == int(np.argmax(posterior))
+    for _ in composed_by_bayes(loc, moved, still, rows, q):
+        pass
     assert forked
 
 

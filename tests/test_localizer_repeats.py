@@ -17,7 +17,7 @@ from catgraph.localizer import Localizer
 from catgraph.motion import VelocityMotion
 
 from .test_grid_hazard import _Ratios, _rows
-from .test_grid_repeats import RUNS, _with_repeats
+from .test_grid_repeats import RUNS, _with_repeats, composed_by_bayes
 
 N_PLACES = 11
 
@@ -40,30 +40,12 @@ def test_repeats_are_two_particle_filters_weighed_by_their_evidence(q, marginal,
     monkeypatch.setattr(Localizer, "TWIN_PARTICLES", -1.0)
     rows = _with_repeats(_rows(N_PLACES, 17, seed=5), RUNS)
     loc, moved, still = _filter(q, marginal), _filter(0.0, marginal), _filter(0.0, marginal)
-    log_odds = math.log(q / (1 - q)) if q < 1 else math.inf
-    forked = False
-    for t, row in enumerate(rows):
-        repeat = t > 0 and np.array_equal(row, rows[t - 1])
-        forked |= repeat
-        est = loc.step(row)
-        moved.step(row)
-        if not repeat:
-            still.step(row)
-            log_odds += still.frame_log_evidence_ - moved.frame_log_evidence_
+    for _, forked in composed_by_bayes(loc, moved, still, rows, q):
         np.testing.assert_array_equal(loc.particles_.edge, moved.particles_.edge)  # its own reading: the moved one
-        if not forked:
-            posterior, p_new = moved.place_posterior_, moved.new_place_probability_
-            assert loc._twin is None
-        else:
-            w = 1.0 if log_odds == math.inf else 1.0 / (1.0 + math.exp(-log_odds))
-            posterior = w * still.place_posterior_ + (1 - w) * moved.place_posterior_
-            p_new = w * still.new_place_probability_ + (1 - w) * moved.new_place_probability_
-            assert loc.repeat_log_odds_ == pytest.approx(log_odds, rel=1e-9, abs=1e-12)
+        if forked:
             np.testing.assert_array_equal(loc._twin.particles_.edge, still.particles_.edge)
-        np.testing.assert_allclose(loc.place_posterior_, posterior, rtol=1e-9, atol=1e-15)
-        assert est.new_place_probability == pytest.approx(p_new, rel=1e-9, abs=1e-15)
-        assert est.place == int(np.argmax(posterior))
-    assert forked
+        else:
+            assert loc._twin is None
 
 
 def test_frame_evidence_is_the_particles_predictive_likelihood():
