@@ -93,7 +93,6 @@ def test_repeats_are_two_filters_weighed_by_their_evidence(kind, learn, q, rigid
     still = _filter(kind, 0.0, learn, rigid, jump_velocity=jump_velocity)
     for _ in composed_by_bayes(loc, moved, still, rows, q):
         pass
-    assert forked
 
 
 @pytest.mark.parametrize("kind", [_Float64, _General])
