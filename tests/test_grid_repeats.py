@@ -57,6 +57,18 @@ def composed_by_bayes(loc, moved, still, rows, q):
     assert forked
 
 
+def answers_as_without_repeats(held, plain, base, runs=(0, 2, 0, 0, 5, 0, 1, 0, 0, 0, 3, 0, 0, 0, 0, 0, 2)):
+    """Check that ``held`` (``repeat_prior = 1``), given ``base`` with row ``k`` shown
+    ``1 + runs[k]`` times, answers every frame as ``plain`` answers its row on ``base``."""
+    answers = [plain.step(row) for row in base]
+    for i, row in enumerate(base):
+        for _ in range(1 + runs[i]):
+            est = held.step(row)
+            assert est.place == answers[i].place
+            assert est.confidence == pytest.approx(answers[i].confidence, rel=1e-9, abs=1e-15)
+            assert est.new_place_probability == pytest.approx(answers[i].new_place_probability, rel=1e-9, abs=1e-15)
+
+
 def _filter(kind, q, learn, rigid=True, n=11, jump_velocity="current"):
     extra = {"rigid_prior": PRIOR} if rigid else {}
     return kind(PlaceGraph.chain(n), _Ratios(), recovery=RECOVERY, learn_recovery=learn, jump_velocity=jump_velocity,
@@ -99,16 +111,7 @@ def test_repeats_are_two_filters_weighed_by_their_evidence(kind, learn, q, rigid
 def test_standing_still_for_certain_is_the_query_without_its_repeats(kind):
     """``q = 1``: the robot stood still through every run, so the answers are the filter's
     on the frames without their repeats, each repeat answered as its run's first frame."""
-    base = _rows(11, 17, seed=7)
-    runs = [0, 2, 0, 0, 5, 0, 1, 0, 0, 0, 3, 0, 0, 0, 0, 0, 2]
-    held, plain = _filter(kind, 1.0, True), _filter(kind, 0.0, True)
-    answers = [plain.step(row) for row in base]
-    for i, row in enumerate(base):
-        for _ in range(1 + runs[i]):
-            est = held.step(row)
-            assert est.place == answers[i].place
-            assert est.confidence == pytest.approx(answers[i].confidence, rel=1e-9, abs=1e-15)
-            assert est.new_place_probability == pytest.approx(answers[i].new_place_probability, rel=1e-9, abs=1e-15)
+    answers_as_without_repeats(_filter(kind, 1.0, True), _filter(kind, 0.0, True), _rows(11, 17, seed=7))
 
 
 @pytest.mark.parametrize("kind", [_Float64, _General])

@@ -17,7 +17,7 @@ from catgraph.localizer import Localizer
 from catgraph.motion import VelocityMotion
 
 from .test_grid_hazard import _Ratios, _rows
-from .test_grid_repeats import RUNS, _with_repeats, composed_by_bayes
+from .test_grid_repeats import RUNS, _with_repeats, answers_as_without_repeats, composed_by_bayes
 
 N_PLACES = 11
 
@@ -75,16 +75,7 @@ def test_standing_still_for_certain_is_the_query_without_its_repeats(marginal):
     """``q = 1``: the robot stood still through every run, so the answers are the filter's
     on the frames without their repeats (same seed), each repeat answered as its run's
     first frame."""
-    base = _rows(N_PLACES, 17, seed=7)
-    runs = [0, 2, 0, 0, 5, 0, 1, 0, 0, 0, 3, 0, 0, 0, 0, 0, 2]
-    held, plain = _filter(1.0, marginal), _filter(0.0, marginal)
-    answers = [plain.step(row) for row in base]
-    for i, row in enumerate(base):
-        for _ in range(1 + runs[i]):
-            est = held.step(row)
-            assert est.place == answers[i].place
-            assert est.confidence == pytest.approx(answers[i].confidence, rel=1e-9, abs=1e-15)
-            assert est.new_place_probability == pytest.approx(answers[i].new_place_probability, rel=1e-9, abs=1e-15)
+    answers_as_without_repeats(_filter(1.0, marginal), _filter(0.0, marginal), _rows(N_PLACES, 17, seed=7))
 
 
 @pytest.mark.parametrize("q", [1e-15, 1.0 - 1e-15])
