@@ -7,8 +7,9 @@ first such frame on, a filter runs a *twin* (a copy of itself) that advances on 
 that are not repeats only, beside itself, which moves on through them; each reading is
 weighed by its evidence frame by frame (Bayes' rule over the two readings of the whole
 query, from the prior ``repeat_prior``), the answer is their mixture, and once keeping one
-reading moves that mixture by no more than :attr:`TwinReadings.TWIN_AGREEMENT` the heavier
-one goes on alone until the next repeat. The grid filter
+reading moves that mixture by no more than what the filter can tell (the grid filter:
+round-off, :attr:`TwinReadings.TWIN_AGREEMENT`; the particle filter: one particle's share of
+its cloud) the heavier one goes on alone until the next repeat. The grid filter
 (:class:`catgraph.grid.GridLocalizer`) and the particle filter
 (:class:`catgraph.localizer.Localizer`) share this class; each says when its two readings
 agree (``_agrees``). The design and its measurements: ``docs/particle_filter.md``, "Frames

@@ -565,8 +565,10 @@ def home_speed_odds(velocities, share: float = HOME_SPEED_SHARE) -> float:
 #: in the real data such a frame is a camera or scanner that repeated itself while the robot
 #: moved on (Nordland's winter video at its two ends, a Wi-Fi scan delivered twice on UJI);
 #: the frames after a run decide for a query that does stand still (stops, slow speeds).
-#: Chosen between 0.1 and 0.5 on the condition table, stops and speeds
-#: (``docs/particle_filter.md``, "Frames that come again").
+#: Chosen between 0.1 and 0.5 for the grid filter on the condition table, stops and speeds
+#: (``docs/particle_filter.md``, "Frames that come again"); the particle filter takes the same
+#: value, measured at it on every cell of the table with seeds 0–4 and on the stops, not chosen
+#: among others (``docs/particle_filter.md``, "The particle filter's twin").
 REPEAT_PRIOR = 0.1
 
 
