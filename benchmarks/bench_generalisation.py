@@ -65,9 +65,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from datasets import DATA, NORDLAND_FRAMES, WIFI_METRES, benchmark_conditions, prepared_datasets  # noqa: E402
+from datasets import DATA, NORDLAND_FRAMES, WIFI_METRES, benchmark_conditions, prepare_kept, prepared_datasets  # noqa: E402
 
-from catgraph.experiment import Experiment, prepare, run_method  # noqa: E402
+from catgraph.experiment import Experiment, run_method  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -113,7 +113,7 @@ def world_case(spec: dict):
     from catgraph.datasets.synthetic import make_world
 
     world = make_world(**spec)
-    return prepare(Experiment(query=world.query, reference=world.reference, tolerance_m=world.tolerance_m))
+    return prepare_kept(Experiment(query=world.query, reference=world.reference, tolerance_m=world.tolerance_m))
 
 
 def main(argv=None) -> None:
@@ -197,7 +197,7 @@ def uji_walks(labels, conditions, full) -> None:
     rows = []
     for walk in UJI_WALKS:
         for month in UJI_MONTHS:
-            case = prepare(Experiment(query=db / f"{month:02d}" / walk, reference=db / "01" / "trn01",
+            case = prepare_kept(Experiment(query=db / f"{month:02d}" / walk, reference=db / "01" / "trn01",
                                       tolerance_m=WIFI_METRES))
             for condition in conditions:
                 prepared = case.under(condition) if condition.kind != "in-order" else case
@@ -237,13 +237,13 @@ def nordland_sections(labels, conditions, full) -> None:
     if not d.is_dir():
         print(f"no Nordland data under {d}: nothing to run", file=sys.stderr)
         return
-    whole = prepare(Experiment(query=d / "winter", reference=d / "summer", tolerance=NORDLAND_FRAMES))
+    whole = prepare_kept(Experiment(query=d / "winter", reference=d / "summer", tolerance=NORDLAND_FRAMES))
     rows, worlds = [], []
     for k in range(SECTIONS):
         a, b = k * SECTION_FRAMES, (k + 1) * SECTION_FRAMES
         name = f"frames {a}–{b - 1}"
         worlds.append(name)
-        case = prepare(Experiment(query=Traverse(whole.query.frames[a:b], name=f"winter {name}"),
+        case = prepare_kept(Experiment(query=Traverse(whole.query.frames[a:b], name=f"winter {name}"),
                                   reference=Traverse(whole.reference.frames[a:b], name=f"summer {name}"),
                                   tolerance=NORDLAND_FRAMES))
         for condition in conditions:

@@ -23,7 +23,6 @@ import json
 import platform
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -52,7 +51,7 @@ def with_glitches(prepared, share: float, seed: int = 0):
     bad = rng.choice(n, int(round(share * n)), replace=False)
     rows = prepared.differences.copy()
     rows[bad] = prepared.differences[rng.integers(0, n, len(bad))]
-    return replace(prepared, differences=rows)
+    return prepared.with_differences(rows)
 
 
 def main() -> None:

@@ -63,9 +63,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_filter import _FixedModel, _time_steps  # noqa: E402
-from datasets import benchmark_conditions, prepared_datasets  # noqa: E402
+from datasets import benchmark_conditions, prepare_kept, prepared_datasets  # noqa: E402
 
-from catgraph.experiment import Experiment, prepare, run_method  # noqa: E402
+from catgraph.experiment import Experiment, run_method  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -349,7 +349,7 @@ def convergence(seeds=range(3)) -> list[dict]:
     from catgraph.motion import VelocityMotion
     from catgraph.observation import TemperedObservation
 
-    p = prepare(Experiment(query="synthetic:0", reference="synthetic:0"))
+    p = prepare_kept(Experiment(query="synthetic:0", reference="synthetic:0"))
     g = p.graph()
     d = p.differences[:400]
 

@@ -49,9 +49,9 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import catgraph.grid as G  # noqa: E402
 from catgraph.conditions import condition_table  # noqa: E402
-from catgraph.experiment import Experiment, prepare, run_method  # noqa: E402
+from catgraph.experiment import Experiment, run_method  # noqa: E402
 from catgraph.localizer import confidence_log_odds  # noqa: E402
-from datasets import DATA, NORDLAND_FRAMES  # noqa: E402
+from datasets import DATA, NORDLAND_FRAMES, prepare_kept  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 
@@ -160,7 +160,7 @@ def _patched(name: str):
 def _prepared(size: str):
     d = DATA / "nordland" / size
     patch = 8 if size == "64x32" else 4
-    return prepare(Experiment(query=d / "winter", reference=d / "summer", tolerance=NORDLAND_FRAMES,
+    return prepare_kept(Experiment(query=d / "winter", reference=d / "summer", tolerance=NORDLAND_FRAMES,
                               frontend={"size": size, "patch": patch}))
 
 

@@ -77,7 +77,9 @@ Memory
 ------
 :func:`difference_matrix` works block by block (at most ``block_rows`` query rows at
 once); :func:`iter_difference_blocks` yields the blocks for callers that never want the
-whole ``n_query × N`` matrix; the live path holds one row.
+whole ``n_query × N`` matrix; :class:`DifferenceRows` hands such blocks to a consumer
+that walks the query frame by frame (the filters' ``run``, single-frame matching), so a
+batch command holds one block, not the matrix; the live path holds one row.
 
 Cold start
 ----------
@@ -101,6 +103,7 @@ __all__ = [
     "LAYOUTS",
     "METRICS",
     "PreparedReference",
+    "DifferenceRows",
     "code_scale",
     "difference_matrix",
     "difference_row",
@@ -575,6 +578,73 @@ def iter_difference_blocks(
     for start in range(0, q.shape[0], block_rows):
         part = q[start : start + block_rows]
         yield start, ref._fill(part, normalise, np.empty((part.shape[0], ref.n_places)))
+
+
+class DifferenceRows:
+    """The ``(n_query, N)`` difference rows of a query, block by block, without the matrix.
+
+    What a consumer that walks the query in order needs (the filters' ``run``, single-frame
+    matching): its shape, and ``(start, block)`` pairs, ``block`` the float64 rows
+    ``start .. start + len(block) − 1`` in processing order, one block held at a time. The
+    rows are computed on each pass by ``blocks_of(block_rows)`` (a callable returning such an
+    iterator), so a second pass computes them again; :meth:`matrix` stacks one pass.
+
+    Parameters
+    ----------
+    n_rows, n_places : int
+        The shape of the rows.
+    blocks_of : callable
+        ``blocks_of(block_rows)`` → iterator of ``(start, block)`` covering every row in
+        order (``block_rows=None``: about 32 MiB a block).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> d = np.arange(12.0).reshape(4, 3)
+    >>> rows = DifferenceRows.of(d)
+    >>> len(rows), rows.n_places, [s for s, _ in rows.blocks(3)]
+    (4, 3, [0, 3])
+    """
+
+    def __init__(self, n_rows: int, n_places: int, blocks_of) -> None:
+        self.n_rows, self.n_places, self._blocks_of = int(n_rows), int(n_places), blocks_of
+
+    @classmethod
+    def of(cls, matrix: np.ndarray) -> "DifferenceRows":
+        """The rows of a matrix already in memory (blocks are views of it)."""
+        d = np.asarray(matrix)
+        if d.ndim != 2:
+            raise DataError(f"the difference matrix must have 2 dimensions; got shape {d.shape}.")
+
+        def blocks_of(block_rows):
+            step = _auto_rows(d.shape[1]) if block_rows is None else int(block_rows)
+            for start in range(0, d.shape[0], step):
+                yield start, d[start:start + step]
+
+        return cls(d.shape[0], d.shape[1], blocks_of)
+
+    def __len__(self) -> int:
+        return self.n_rows
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.n_rows, self.n_places
+
+    def blocks(self, block_rows: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
+        """``(start, block)`` for every block of rows, in order (one pass)."""
+        if block_rows is not None:
+            check_scalar(block_rows, "block_rows", "DifferenceRows.blocks", int, 1)
+        return self._blocks_of(block_rows)
+
+    def matrix(self) -> np.ndarray:
+        """Every row in one ``(n_query, N)`` float64 matrix (the memory the blocks avoid)."""
+        out = np.empty(self.shape)
+        for start, block in self.blocks():
+            out[start:start + len(block)] = block
+        return out
+
+    def __repr__(self) -> str:
+        return f"DifferenceRows(n_rows={self.n_rows}, n_places={self.n_places})"
 
 
 def iter_difference_columns(

@@ -20,9 +20,14 @@ once). The stages, each owned by one function:
    which is fitted from it by definition).
 3. **Condition** (:class:`~catgraph.conditions.Condition`): the query in order,
    shuffled, reversed or at another speed; ground truth follows the frames.
-4. **Differences**: the query through the map's own front-end against the map's
-   descriptors (:func:`catgraph.io.query_differences`), normalised per query; the ``¬L``
-   samples that bootstrapped models learn from come from the map too, by sampled pairs
+4. **Differences**: the query through the map's own front-end (described once, in
+   :func:`prepare`) against the map's descriptors, normalised per query. Every method
+   walks them block by block as it reads them (:meth:`Prepared.difference_rows`,
+   :func:`catgraph.io.query_difference_rows`: about 32 MiB of rows at a time), so a run
+   never holds the ``n_query × N`` matrix, whatever the query's length; the matrix
+   (:attr:`Prepared.differences`, :func:`catgraph.io.query_differences`, the same bits)
+   is made only where it is read, and then kept. The ``¬L`` samples that bootstrapped
+   models learn from come from the map too, by sampled pairs
    (:meth:`Prepared.bootstrap_samples`), computed once and only when needed.
 5. **Method** (:mod:`catgraph.methods`): by name, with its checked parameters.
 6. **Result**: a :class:`~catgraph.results.RunResult`, its evaluation where there is
@@ -58,6 +63,7 @@ from .results import RunResult
 from .traverse import FrameTolerance, GroundTruth, MetricTolerance, Traverse
 
 if TYPE_CHECKING:  # pragma: no cover
+    from .differences import DifferenceRows
     from .graph import PlaceGraph
     from .io import CatgraphMap
     from .metrics import Evaluation
@@ -249,7 +255,10 @@ class Prepared:
     query : Traverse
         The query under the experiment's condition, in processing order.
     differences : ndarray, shape (n_query, n_places)
-        Query × map differences, normalised per query, in processing order.
+        Query × map differences, normalised per query, in processing order: computed on
+        first use and kept (``n_query × N`` float64). The methods read
+        :meth:`difference_rows` instead, which walks them block by block and holds the
+        matrix only where it is already kept.
     ground_truth : GroundTruth or None
     sources : dict
         What the inputs were (recorded in every result).
@@ -258,13 +267,47 @@ class Prepared:
     map: "CatgraphMap"
     reference: Traverse | None
     query: Traverse
-    differences: np.ndarray
     ground_truth: GroundTruth | None
     sources: dict
     junction_radius_m: float | None = None
     _graph: "PlaceGraph | None" = None
     _bootstrap: dict = field(default_factory=dict)
     _hubs: np.ndarray | None = None
+    _differences: np.ndarray | None = None
+    _described: tuple | None = None  # the query through the map's front-end: (descriptors, informative)
+
+    @property
+    def differences(self) -> np.ndarray:
+        """The ``(n_query, N)`` difference matrix (computed once, then kept)."""
+        if self._differences is None:
+            from .io import query_differences
+
+            self._differences = query_differences(self.map, self.query, self._described)
+        return self._differences
+
+    def difference_rows(self) -> "DifferenceRows":
+        """The difference rows block by block (:class:`~catgraph.differences.DifferenceRows`):
+        views of the matrix where it is kept, else computed a block at a time, never the
+        whole matrix."""
+        from .differences import DifferenceRows
+        from .io import query_difference_rows
+
+        if self._differences is not None:
+            return DifferenceRows.of(self._differences)
+        return query_difference_rows(self.map, self.query, self._described)
+
+    def with_differences(self, differences: np.ndarray) -> "Prepared":
+        """The same inputs with this difference matrix kept (rows in processing order, shape
+        ``(n_query, N)``): for benchmarks that edit the rows."""
+        from dataclasses import replace
+
+        d = np.asarray(differences)
+        if d.shape != (len(self.query), self.map.n_places):
+            from .exceptions import ShapeMismatchError
+
+            raise ShapeMismatchError(f"the differences have shape {d.shape}; expected (n_query, n_reference) = "
+                                     f"({len(self.query)}, {self.map.n_places}).")
+        return replace(self, _differences=d)
 
     def graph(self) -> "PlaceGraph":
         """The place graph: the saved map's, or built from the reference (once)."""
@@ -303,8 +346,11 @@ class Prepared:
 
         if self.query.meta.get("traversal") is not None:
             raise InvalidParameterError("apply a condition to inputs whose query is in order as loaded.")
+        # each row depends on its own frame only: the rows (or the described frames) reordered
         order = condition.order(len(self.query))
-        return replace(self, query=condition.apply(self.query), differences=self.differences[order])
+        described = None if self._described is None else tuple(a[order] for a in self._described)
+        kept = None if self._differences is None else self._differences[order]
+        return replace(self, query=condition.apply(self.query), _differences=kept, _described=described)
 
 
 def prepared_from(reference: Traverse, query: Traverse, differences: np.ndarray | None = None,
@@ -325,9 +371,9 @@ def prepared_from(reference: Traverse, query: Traverse, differences: np.ndarray 
 
         raise ShapeMismatchError(f"the differences have shape {d.shape}; expected (n_query, n_reference) = "
                                  f"({len(query)}, {the_map.n_places}).")
-    return Prepared(the_map, reference, query, d, ground_truth,
+    return Prepared(the_map, reference, query, ground_truth,
                     {"reference": _source_name(reference), "query": _source_name(query)},
-                    junction_radius_m=junction_radius_m)
+                    junction_radius_m=junction_radius_m, _differences=d)
 
 
 @dataclass(frozen=True, eq=False)
@@ -349,6 +395,9 @@ class MethodInputs:
     @property
     def differences(self) -> np.ndarray:
         return self.prepared.differences
+
+    def difference_rows(self) -> "DifferenceRows":
+        return self.prepared.difference_rows()
 
     def graph(self) -> "PlaceGraph":
         return self.prepared.graph()
@@ -453,21 +502,22 @@ def _inputs(exp: Experiment) -> tuple:
 
 
 def prepare(exp: Experiment) -> Prepared:
-    """Load and describe an experiment's inputs (stages 1–4 of the module docstring)."""
-    from .io import query_differences
+    """Load and describe an experiment's inputs (stages 1–4 of the module docstring): the
+    query is described through the map's front-end here (a query the map cannot compare
+    is refused here); its difference rows are computed when a method reads them."""
+    from .io import describe_query
 
     the_map, reference, graph, sources, query, ground_truth = _inputs(exp)
     # the condition reorders the frames before they are described: each difference row
-    # depends on its own frame only, so this equals Prepared.under without a second
-    # n_query × N matrix in memory
+    # depends on its own frame only, so this equals Prepared.under
     if exp.condition.kind != "in-order":
         if query.meta.get("traversal") is not None:  # a second condition on a driven query: one would be lost
             raise InvalidParameterError(
                 f"the query is already driven under {query.meta['traversal']}; give the query as loaded with the "
                 f"condition {exp.condition.label!r}, or leave the condition out.")
         query = exp.condition.apply(query)
-    return Prepared(the_map, reference, query, query_differences(the_map, query), ground_truth, sources,
-                    junction_radius_m=exp.junction_radius_m, _graph=graph)
+    return Prepared(the_map, reference, query, ground_truth, sources, junction_radius_m=exp.junction_radius_m,
+                    _graph=graph, _described=describe_query(the_map, query))
 
 
 # ---------------------------------------------------------------------------- running
@@ -574,8 +624,8 @@ def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
     result = RunResult(sequence_run_name(params), dict(params), query.index,
                        res.match, res.confidence, extra={"window_length": res.window_length},
                        seconds=time.perf_counter() - start)
-    prepared = Prepared(the_map, reference, query, np.empty((len(query), 0)), ground_truth, sources,
-                        junction_radius_m=exp.junction_radius_m, _graph=graph)
+    prepared = Prepared(the_map, reference, query, ground_truth, sources, junction_radius_m=exp.junction_radius_m,
+                        _graph=graph)
     out, evaluation = payload(result, prepared, exp)
     return result, out, evaluation
 

@@ -2039,7 +2039,9 @@ class GridLocalizer(TwinReadings):
 
         Parameters
         ----------
-        observations : ndarray, shape (n_query, n_places)
+        observations : ndarray, shape (n_query, n_places), or DifferenceRows
+            The rows, or the rows block by block
+            (:class:`~catgraph.differences.DifferenceRows`: one block in memory at a time).
         odometry : ndarray, shape (n_query,), optional
         query_index : ndarray of int, shape (n_query,), optional
         return_posterior : bool
@@ -2050,31 +2052,23 @@ class GridLocalizer(TwinReadings):
         """
         from .localizer import LocalizationResult
 
-        d = check_array(observations, "difference matrix", ndim=2)
-        n = len(d)
+        from .localizer import check_query_index
+        from .observation import query_rows
+
+        n, rows = query_rows(observations, self.graph.n_places)
         if odometry is not None:
             odometry = check_array(odometry, "odometry", ndim=1)
             if len(odometry) != n:
                 raise ShapeMismatchError(f"odometry has {len(odometry)} entries for {n} query frames; give one per frame.")
-        from .localizer import check_query_index
-
         qi = np.arange(n) if query_index is None else check_query_index(query_index, n)
-        if d.shape[1] != self.graph.n_places:
-            raise ShapeMismatchError(
-                f"the difference matrix has {d.shape[1]} places but the graph has {self.graph.n_places}; "
-                "give every frame's difference to every reference place of the map."
-            )
-        from .observation import CheckedRow
-
-        rows = d.view(CheckedRow)  # checked once, here
         self.reset()
         place = np.empty(n, dtype=np.int64)
         conf, p_new, log_odds, score = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
         pos = None if self.graph.positions is None else np.empty((n, self.graph.positions.shape[1]))
         posterior = np.empty((n, self.graph.n_places), dtype=np.float32) if return_posterior else None
         start = time.perf_counter()
-        for k in range(n):
-            est = self.step(rows[k], None if odometry is None or k == 0 else float(odometry[k]))
+        for k, row in zip(range(n), rows):
+            est = self.step(row, None if odometry is None or k == 0 else float(odometry[k]))
             place[k], conf[k], p_new[k], log_odds[k] = est.place, est.confidence, est.new_place_probability, est.log_odds
             score[k] = est.score
             if pos is not None:

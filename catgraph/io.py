@@ -75,6 +75,7 @@ from ._atomic import atomic_open
 from .exceptions import DataError, DataNotFoundError, MapFileError
 
 if TYPE_CHECKING:  # pragma: no cover
+    from .differences import DifferenceRows
     from .graph import PlaceGraph
     from .pipeline import FrontEnd
     from .traverse import Traverse
@@ -87,6 +88,7 @@ __all__ = [
     "reference_from_map",
     "describe_query",
     "query_differences",
+    "query_difference_rows",
     "place_graph",
     "FORMAT_NAME",
     "FORMAT_VERSION",
@@ -315,23 +317,47 @@ def check_image_shape(meta: dict, frontend, shape, what: str) -> None:
             "(both are then resized to it).")
 
 
-def query_differences(catgraph_map: CatgraphMap, query: "Traverse") -> np.ndarray:
+def query_differences(catgraph_map: CatgraphMap, query: "Traverse", described: tuple | None = None) -> np.ndarray:
     """The ``(n_query, N)`` difference matrix of a query against a map.
 
-    The query goes through the map's front-end (:func:`describe_query`); the stored
-    metric and normalisation are used, so the result equals
-    :func:`catgraph.pipeline.differences` on the original reference.
+    The query goes through the map's front-end (:func:`describe_query`, or ``described``,
+    what it gave for this query); the stored metric and normalisation are used, so the
+    result equals :func:`catgraph.pipeline.differences` on the original reference.
     """
     from ._validation import check_memory
     from .differences import difference_matrix
 
     frontend = catgraph_map.frontend_settings()
-    q, informative = describe_query(catgraph_map, query)
+    q, informative = describe_query(catgraph_map, query) if described is None else described
     n_query, n_places = len(q), len(catgraph_map.descriptors)
     check_memory(8.0 * n_query * n_places, f"the ({n_query}, {n_places}) float64 difference matrix",
                  "use a shorter query or reference")
     d = difference_matrix(q, catgraph_map.descriptors, catgraph_map.metric, normalise=frontend.normalise)
     return no_information_rows(d, informative, frontend.normalise)
+
+
+def query_difference_rows(catgraph_map: CatgraphMap, query: "Traverse",
+                          described: tuple | None = None) -> "DifferenceRows":
+    """The rows of :func:`query_differences`, block by block, never the whole matrix.
+
+    The query goes through the map's front-end once (its descriptors are small; or
+    ``described``, what :func:`describe_query` gave for this query); each pass over the
+    blocks computes the rows again against the map, prepared once (the same kernels: the
+    rows equal :func:`query_differences`'s, bit for bit). Memory: one block of about 32 MiB
+    of float64 at a time, whatever the query's length.
+    """
+    from .differences import DifferenceRows, PreparedReference, iter_difference_blocks
+
+    frontend = catgraph_map.frontend_settings()
+    q, informative = describe_query(catgraph_map, query) if described is None else described
+    reference = PreparedReference(catgraph_map.descriptors, catgraph_map.metric)
+
+    def blocks_of(block_rows):
+        for start, block in iter_difference_blocks(q, reference, catgraph_map.metric, block_rows,
+                                                   normalise=frontend.normalise):
+            yield start, no_information_rows(block, informative[start:start + len(block)], frontend.normalise)
+
+    return DifferenceRows(len(q), catgraph_map.n_places, blocks_of)
 
 
 def check_query_kind(kind: str | None, query: "Traverse") -> None:

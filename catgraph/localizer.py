@@ -1713,8 +1713,10 @@ class Localizer(TwinReadings):
 
         Parameters
         ----------
-        observations : ndarray, shape (n_query, n_places), or Traverse
-            Difference matrix (rows in processing order), or a query
+        observations : ndarray, shape (n_query, n_places), DifferenceRows, or Traverse
+            Difference matrix (rows in processing order), its rows block by block
+            (:class:`~catgraph.differences.DifferenceRows`: one block in memory at a
+            time), or a query
             :class:`~catgraph.traverse.Traverse` — then ``reference`` (a Traverse) is
             needed, the differences come from :func:`catgraph.pipeline.differences`
             (normalised per query), and the query's odometry and index are used unless
@@ -1746,8 +1748,9 @@ class Localizer(TwinReadings):
             observations = differences(reference, query)
             odometry = query.odometry if odometry is None else odometry
             query_index = query.index if query_index is None else query_index
-        d = check_array(observations, "difference matrix", ndim=2)
-        n = len(d)
+        from .observation import query_rows
+
+        n, rows_checked = query_rows(observations, self.graph.n_places)
         if odometry is not None:
             odometry = check_array(odometry, "odometry", ndim=1)
             if len(odometry) != n:
@@ -1758,22 +1761,14 @@ class Localizer(TwinReadings):
         conf, p_new, ess, log_odds, score = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
         pos = None if self.graph.positions is None else np.empty((n, self.graph.positions.shape[1]))
         posterior = np.empty((n, self.graph.n_places), dtype=np.float32) if return_posterior else None
-        from .observation import CheckedRow
-
-        if d.shape[1] != self.graph.n_places:
-            raise ShapeMismatchError(
-                f"the difference matrix has {d.shape[1]} places but the graph has {self.graph.n_places}; "
-                "give every frame's difference to every reference place of the map."
-            )
-        rows_checked = d.view(CheckedRow)  # checked once, here
-        rows = range(n)
+        frames = range(n)
         if progress:
             from tqdm import tqdm
 
-            rows = tqdm(rows, desc="localising", unit="frame", leave=False)
+            frames = tqdm(frames, desc="localising", unit="frame", leave=False)
         start = time.perf_counter()
-        for k in rows:
-            est = self.step(rows_checked[k], None if odometry is None else float(odometry[k]))
+        for k, row in zip(frames, rows_checked):
+            est = self.step(row, None if odometry is None else float(odometry[k]))
             place[k], conf[k], p_new[k], ess[k] = est.place, est.confidence, est.new_place_probability, est.ess
             log_odds[k], score[k] = est.log_odds, est.score
             if pos is not None:

@@ -280,7 +280,11 @@ def _single_frame(params: dict, inputs: "MethodInputs") -> RunResult:
     from .matching import best_matches
 
     start = time.perf_counter()
-    match, confidence = best_matches(inputs.differences, exclusion=params["exclusion"])
+    rows = inputs.difference_rows()
+    match, confidence = np.empty(len(rows), dtype=np.int64), np.empty(len(rows))
+    for first, block in rows.blocks():  # row by row: a block at a time, never the matrix
+        match[first:first + len(block)], confidence[first:first + len(block)] = best_matches(
+            block, exclusion=params["exclusion"])
     return RunResult("single-frame", dict(params), inputs.query.index, match, confidence,
                      seconds=time.perf_counter() - start)
 
@@ -309,10 +313,11 @@ def sequence_run_name(params: dict) -> str:
 def _sequence(params: dict, inputs: "MethodInputs") -> RunResult:
     from .sequence import match_sequences
 
-    check_sequence_length(params, len(inputs.differences))
+    check_sequence_length(params, len(inputs.query))
     start = time.perf_counter()
     hubs = inputs.hub_offsets() if params["hub_correction"] else None
-    res = match_sequences(inputs.differences, radius=params["exclusion"], hub_offsets=hubs, **_sequence_kwargs(params))
+    res = match_sequences(inputs.difference_rows(), radius=params["exclusion"], hub_offsets=hubs,
+                          **_sequence_kwargs(params))
     return RunResult(sequence_run_name(params), dict(params), inputs.query.index, res.match, res.confidence,
                      extra={"window_length": res.window_length}, seconds=time.perf_counter() - start)
 
@@ -390,13 +395,13 @@ def _histogram(params: dict, inputs: "MethodInputs") -> RunResult:  # noqa: C901
               **_same_place(params, inputs)}
     learning = params["learning"]
     if learning == "online":
-        if params["n_init"] >= len(inputs.differences):
+        if params["n_init"] >= len(inputs.query):
             import warnings
 
             from .exceptions import CatgraphWarning
 
             warnings.warn(
-                f"n_init (T_init) = {params['n_init']} frames is not shorter than the query ({len(inputs.differences)} "
+                f"n_init (T_init) = {params['n_init']} frames is not shorter than the query ({len(inputs.query)} "
                 "frames): the online model spends every frame learning and localises none (every confidence 0). "
                 "Choose fewer initialisation frames or learning 'bootstrap'.", CatgraphWarning, stacklevel=2)
         recogniser = HistogramPlaceRecogniser(model, n_init=params["n_init"], **common)
@@ -411,7 +416,7 @@ def _histogram(params: dict, inputs: "MethodInputs") -> RunResult:  # noqa: C901
         model.fit(*labelled_samples(inputs.differences, inputs.ground_truth, inputs.query.index,
                                     max_different=params["max_different"], seed=params["seed"]))
         recogniser = HistogramPlaceRecogniser(model, n_init=0, learn=False, **common)
-    rec = recogniser.run(inputs.differences)
+    rec = recogniser.run(inputs.difference_rows())
     return RunResult(f"histogram-{learning}", dict(params), inputs.query.index, rec.match, rec.confidence,
                      extra={"p_new_place": rec.new_place_probability}, seconds=time.perf_counter() - start)
 
@@ -724,7 +729,7 @@ def check_use_odometry(use: bool | None, has_odometry: bool, unit: str) -> None:
 
 def _filter(params: dict, inputs: "MethodInputs") -> RunResult:
     if params.get("window") is not None:  # a sequence model's window, as the matcher's own run checks it
-        check_sequence_length(params, len(inputs.differences))
+        check_sequence_length(params, len(inputs.query))
     graph = inputs.graph()
     given_graduation = params.get("jump_graduation")
     params = concrete_params(params, graph.n_places)
@@ -748,7 +753,7 @@ def _filter(params: dict, inputs: "MethodInputs") -> RunResult:
     start = time.perf_counter()
     mode = params["mode"]
     kwargs = {"progress": inputs.progress} if mode == "particles" else {}
-    res = loc.run(inputs.differences, odometry=odometry, query_index=inputs.query.index, **kwargs)
+    res = loc.run(inputs.difference_rows(), odometry=odometry, query_index=inputs.query.index, **kwargs)
     seconds = time.perf_counter() - start
     name = "grid-filter" if mode == "grid" else "particle-filter"
     return RunResult(f"{name}/{params['model']}", dict(params), inputs.query.index, res.place, res.score,

@@ -89,6 +89,7 @@ from __future__ import annotations
 import math
 import numbers
 from dataclasses import dataclass
+from collections.abc import Iterator
 from typing import Protocol, Sequence, runtime_checkable
 
 import numpy as np
@@ -245,6 +246,45 @@ class CheckedRow(np.ndarray):
     as this view; a model's own check then only compares its length. Any other array
     is checked in full.
     """
+
+
+def query_rows(observations, n_places: int | None = None) -> tuple[int, Iterator[np.ndarray]]:
+    """A run's difference rows: ``(n_query, rows)``, ``rows`` an iterator of checked rows
+    (:class:`CheckedRow`) in processing order (the filters' and the recogniser's ``run``), of
+    ``n_places`` places each where given.
+
+    ``observations`` is an ``(n_query, n_places)`` matrix, checked whole here, or a
+    :class:`~catgraph.differences.DifferenceRows`, each block checked as it comes: one block
+    in memory at a time, never the matrix.
+    """
+    from .differences import DifferenceRows
+
+    if isinstance(observations, DifferenceRows):
+        n, width = len(observations), observations.n_places
+    else:
+        observations = check_array(observations, "difference matrix", ndim=2)
+        n, width = observations.shape
+    if n_places is not None and width != n_places:
+        raise ShapeMismatchError(
+            f"the difference matrix has {width} places but the graph has {n_places}; "
+            "give every frame's difference to every reference place of the map.")
+    if not isinstance(observations, DifferenceRows):
+        return n, iter(observations.view(CheckedRow))  # checked once, above
+
+    def rows():
+        given = 0
+        for start, block in observations.blocks():
+            block = check_array(block, f"the difference rows of frames {start}–{start + len(block) - 1}", ndim=2)
+            if start != given or block.shape[1] != width:
+                raise ShapeMismatchError(f"the difference rows came as a block of shape {block.shape} from frame "
+                                         f"{start}, after {given} rows of {width} places: blocks must follow "
+                                         "each other, every row of every place.")
+            given += len(block)
+            yield from block.view(CheckedRow)
+        if given != n:
+            raise ShapeMismatchError(f"the difference rows held {given} rows, not the {n} they announced.")
+
+    return n, rows()
 
 
 def _reference_counts() -> tuple[int, int]:

@@ -322,14 +322,18 @@ class HistogramPlaceRecogniser:
 
         Parameters
         ----------
-        differences : array_like, shape (n_query, n_ref)
+        differences : array_like, shape (n_query, n_ref), or DifferenceRows
+            The rows, or the rows block by block
+            (:class:`~catgraph.differences.DifferenceRows`: one block in memory at a time).
 
         Returns
         -------
         Recognitions
         """
-        d = check_array(differences, "differences", ndim=2)
-        out = [self.step(row) for row in d]
+        from .observation import query_rows
+
+        _, rows = query_rows(differences)
+        out = [self.step(row) for row in rows]
         return Recognitions(
             match=np.array([r.match for r in out], dtype=np.int64),
             confidence=np.array([r.confidence for r in out]),

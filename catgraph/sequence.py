@@ -397,7 +397,7 @@ import numpy as np
 
 from ._validation import check_array, check_scalar
 from ._window_rule import SUSTAINED_FRACTION, _decide, _needs_sub, _new_record, _Record, _row_reads, _Stats
-from .exceptions import InvalidParameterError, NotFittedError, ShapeMismatchError
+from .exceptions import DataError, InvalidParameterError, NotFittedError, ShapeMismatchError
 
 __all__ = [
     "SequenceMatch",
@@ -657,6 +657,9 @@ def _prepare_rows(d: np.ndarray, cfg: _Config) -> np.ndarray:
 
 _BLOCK_VALUES = 4_000_000
 _CHUNK_VALUES = 1 << 24
+#: difference values per block of rows of :func:`match_sequences` (float64: 32 MiB, and as
+#: much again for the hub-corrected copy)
+_ROW_VALUES = 1 << 22
 
 
 def _state(cfg: _Config, n: int, chunk: int = 1):
@@ -743,9 +746,11 @@ def match_sequences(
 
     Parameters
     ----------
-    differences : ndarray, shape (n_query, N)
+    differences : ndarray, shape (n_query, N), or DifferenceRows
         Difference matrix (lower = more similar), rows in the order the query frames
-        are processed (e.g. a shuffled query's order). Usually per-query normalised.
+        are processed (e.g. a shuffled query's order). Usually per-query normalised. Or
+        its rows block by block (:class:`~catgraph.differences.DifferenceRows`): the
+        same answers, one block of rows in memory at a time.
     window : int or "adaptive"
         A fixed window length, or ``"adaptive"`` to choose one per frame.
     approximation : {"gaussian", "robust", "gmm2", "gmm3"}
@@ -787,29 +792,43 @@ def match_sequences(
     -------
     SequenceResult
     """
+    from .differences import DifferenceRows
+
     cfg = _config("match_sequences", window, approximation, rule, confidence, l_min, l_max, grid, radius,
                   recent_fraction, velocities, hub_offsets)
-    raw = np.ascontiguousarray(check_array(differences, "difference matrix", ndim=2))
-    d = _prepare_rows(raw, cfg)
-    n_q, n = d.shape
+    if not isinstance(differences, DifferenceRows):
+        differences = DifferenceRows.of(np.ascontiguousarray(check_array(differences, "difference matrix", ndim=2)))
+    n_q, n = differences.shape
+    if n_q == 0 or n == 0:
+        raise DataError(f"difference matrix is empty (shape {differences.shape}); at least one frame is needed.")
     run = _kernels().matcher_kernel(cfg.approx_code)
     g = cfg.grid.shape[0]
     v_count = cfg.velocities.shape[0]
     # the ring holds up to 64 rows more than the longest window: the kernel stores that
     # many rows at a time, then runs the velocities in parallel over those frames
     sums, ring, mring, state, scratch = _state(cfg, n, max(1, min(64, _CHUNK_VALUES // n)))
-    # rows are processed in blocks so that the (block, V, G, G) sub-window scores stay small
-    block = max(1, min(n_q, _BLOCK_VALUES // (v_count * g * g)))
+    # rows are processed in blocks so that the (block, V, G, G) sub-window scores stay small,
+    # and so do the block's rows (the answers do not depend on the blocks: the streaming step
+    # is a block of one row)
+    block = max(1, min(n_q, _BLOCK_VALUES // (v_count * g * g), _ROW_VALUES // n))
     record = _record(cfg)
     parts = []
-    for start in range(0, n_q, block):
-        stop = min(n_q, start + block)
+    done = 0
+    for start, raw in differences.blocks(block):
+        raw = np.ascontiguousarray(check_array(raw, "difference matrix", ndim=2))
+        if start != done or raw.shape[1] != n:
+            raise ShapeMismatchError(f"the difference rows came as a block of shape {raw.shape} from frame {start}, "
+                                     f"after {done} rows of {n} places: blocks must follow each other.")
+        stop = start + len(raw)
+        d = _prepare_rows(raw, cfg)
         st = _Stats(stop - start, v_count, g, cfg.n_components, _needs_sub(cfg))
-        run(d[start:stop], start, sums, ring, mring, state, cfg.velocities, cfg.grid, cfg.approx_code,
+        run(d, start, sums, ring, mring, state, cfg.velocities, cfg.grid, cfg.approx_code,
             EM_ITERATIONS, _em_stride(n), cfg.radius, st.best_j, st.best_s, st.second_s, st.mean, st.std,
             st.weights, st.locs, st.scales, st.sub, *scratch)
-        parts.append(_decide(st, cfg, np.arange(start, stop), return_curves, d[start:stop], record,
-                             raw_rows=raw[start:stop]))
+        parts.append(_decide(st, cfg, np.arange(start, stop), return_curves, d, record, raw_rows=raw))
+        done = stop
+    if done != n_q:
+        raise ShapeMismatchError(f"the difference rows held {done} rows, not the {n_q} they announced.")
     _warn_clipped(state)
     match, score, conf, length, velocity = (np.concatenate([p[c] for p in parts]) for c in range(5))
     log_p = np.concatenate([p[5] for p in parts]) if return_curves else None
