@@ -775,7 +775,10 @@ BATCH_COMMANDS = (
 
 def batch_commands(map_file: str, query_file: str, tree: str | None = None) -> dict:
     """Peak RSS (``getrusage`` of the child) and wall time of each batch command on a
-    saved map, one fresh process each, one after the other."""
+    saved map, one fresh process each, one after the other. The processes start in a
+    scratch folder: ``python -c`` puts its working directory first on the module path, so
+    from a checkout they would import that checkout's package instead of ``tree``'s."""
+    map_file, query_file = str(Path(map_file).resolve()), str(Path(query_file).resolve())
     env = dict(os.environ)
     if tree:
         env["PYTHONPATH"] = tree + os.pathsep + env.get("PYTHONPATH", "")
@@ -785,14 +788,16 @@ def batch_commands(map_file: str, query_file: str, tree: str | None = None) -> d
             script = ("import resource, sys, time; from catgraph.cli.main import main; t = time.perf_counter(); "
                       f"code = main({[args[0], '--map', map_file, query_file, *args[1:], '-q', '-o', folder + '/out.json']!r}); "
                       "print(code, time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)")
-            proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env)
+            proc = subprocess.run([sys.executable, "-c", script + "; import catgraph; print(catgraph.__file__)"],
+                                  capture_output=True, text=True, env=env, cwd=folder)
             if proc.returncode != 0:
                 rows.append({"label": label, "error": proc.stderr.strip().splitlines()[-1]})
                 continue
-            code, seconds, peak = proc.stdout.strip().splitlines()[-1].split()
+            *_, last, package = proc.stdout.strip().splitlines()
+            code, seconds, peak = last.split()
             n_query = len(json.loads(Path(folder, "out.json").read_text())["frames"]["match"])
             rows.append({"label": label, "exit": int(code), "seconds": float(seconds), "peak_rss_mb": float(peak),
-                         "ms_per_frame": 1000.0 * float(seconds) / n_query})
+                         "ms_per_frame": 1000.0 * float(seconds) / n_query, "package": str(Path(package).parent)})
             print(f"  {rows[-1]}", file=sys.stderr, flush=True)
     return {"map": map_file, "query": query_file, "rows": rows}
 
