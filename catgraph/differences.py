@@ -96,7 +96,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from ._validation import check_scalar
+from ._validation import check_array, check_scalar
 from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 
 __all__ = [
@@ -635,6 +635,23 @@ class DifferenceRows:
         if block_rows is not None:
             check_scalar(block_rows, "block_rows", "DifferenceRows.blocks", int, 1)
         return self._blocks_of(block_rows)
+
+    def checked(self, block_rows: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
+        """:meth:`blocks`, each block checked as it comes (2-D, float64, finite: the errors of
+        :func:`~catgraph._validation.check_array`, naming its frames), and the blocks
+        checked to follow each other over every row and place they announced
+        (:class:`~catgraph.exceptions.ShapeMismatchError` where they do not)."""
+        given = 0
+        for start, block in self.blocks(block_rows):
+            block = check_array(block, f"the difference rows of frames {start}–{start + len(block) - 1}", ndim=2)
+            if start != given or block.shape[1] != self.n_places:
+                raise ShapeMismatchError(f"the difference rows came as a block of shape {block.shape} from frame "
+                                         f"{start}, after {given} rows of {self.n_places} places: blocks must follow "
+                                         "each other, every row of every place.")
+            given += len(block)
+            yield start, block
+        if given != self.n_rows:
+            raise ShapeMismatchError(f"the difference rows held {given} rows, not the {self.n_rows} they announced.")
 
     def matrix(self) -> np.ndarray:
         """Every row in one ``(n_query, N)`` float64 matrix (the memory the blocks avoid)."""

@@ -2050,9 +2050,7 @@ class GridLocalizer(TwinReadings):
         -------
         LocalizationResult
         """
-        from .localizer import LocalizationResult
-
-        from .localizer import check_query_index
+        from .localizer import LocalizationResult, check_query_index
         from .observation import query_rows
 
         n, rows = query_rows(observations, self.graph.n_places)

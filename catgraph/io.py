@@ -459,7 +459,7 @@ def _digest(version: int, metadata: bytes, arrays: dict[str, np.ndarray]) -> str
         header = f"{name}\0{a.dtype.str}\0{a.shape}\0".encode()
         h.update(len(header).to_bytes(8, "little") + header)
         h.update(a.nbytes.to_bytes(8, "little"))
-        h.update(a.tobytes())
+        h.update(a)  # the array's own buffer (C-contiguous): its bytes without a copy of them
     return h.hexdigest()
 
 

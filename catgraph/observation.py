@@ -272,17 +272,8 @@ def query_rows(observations, n_places: int | None = None) -> tuple[int, Iterator
         return n, iter(observations.view(CheckedRow))  # checked once, above
 
     def rows():
-        given = 0
-        for start, block in observations.blocks():
-            block = check_array(block, f"the difference rows of frames {start}–{start + len(block) - 1}", ndim=2)
-            if start != given or block.shape[1] != width:
-                raise ShapeMismatchError(f"the difference rows came as a block of shape {block.shape} from frame "
-                                         f"{start}, after {given} rows of {width} places: blocks must follow "
-                                         "each other, every row of every place.")
-            given += len(block)
+        for _, block in observations.checked():
             yield from block.view(CheckedRow)
-        if given != n:
-            raise ShapeMismatchError(f"the difference rows held {given} rows, not the {n} they announced.")
 
     return n, rows()
 

@@ -796,8 +796,8 @@ def match_sequences(
 
     cfg = _config("match_sequences", window, approximation, rule, confidence, l_min, l_max, grid, radius,
                   recent_fraction, velocities, hub_offsets)
-    if not isinstance(differences, DifferenceRows):
-        differences = DifferenceRows.of(np.ascontiguousarray(check_array(differences, "difference matrix", ndim=2)))
+    if not isinstance(differences, DifferenceRows):  # checked block by block below
+        differences = DifferenceRows.of(check_array(differences, "difference matrix", ndim=2, finite=False))
     n_q, n = differences.shape
     if n_q == 0 or n == 0:
         raise DataError(f"difference matrix is empty (shape {differences.shape}); at least one frame is needed.")
@@ -813,12 +813,8 @@ def match_sequences(
     block = max(1, min(n_q, _BLOCK_VALUES // (v_count * g * g), _ROW_VALUES // n))
     record = _record(cfg)
     parts = []
-    done = 0
-    for start, raw in differences.blocks(block):
-        raw = np.ascontiguousarray(check_array(raw, "difference matrix", ndim=2))
-        if start != done or raw.shape[1] != n:
-            raise ShapeMismatchError(f"the difference rows came as a block of shape {raw.shape} from frame {start}, "
-                                     f"after {done} rows of {n} places: blocks must follow each other.")
+    for start, raw in differences.checked(block):
+        raw = np.ascontiguousarray(raw)
         stop = start + len(raw)
         d = _prepare_rows(raw, cfg)
         st = _Stats(stop - start, v_count, g, cfg.n_components, _needs_sub(cfg))
@@ -826,9 +822,6 @@ def match_sequences(
             EM_ITERATIONS, _em_stride(n), cfg.radius, st.best_j, st.best_s, st.second_s, st.mean, st.std,
             st.weights, st.locs, st.scales, st.sub, *scratch)
         parts.append(_decide(st, cfg, np.arange(start, stop), return_curves, d, record, raw_rows=raw))
-        done = stop
-    if done != n_q:
-        raise ShapeMismatchError(f"the difference rows held {done} rows, not the {n_q} they announced.")
     _warn_clipped(state)
     match, score, conf, length, velocity = (np.concatenate([p[c] for p in parts]) for c in range(5))
     log_p = np.concatenate([p[5] for p in parts]) if return_curves else None
