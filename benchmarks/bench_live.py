@@ -1044,6 +1044,10 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
             lines += ["", f"Preparing the live map ({what}: validation, layout, bootstrap from sampled pairs): " +
                       ", ".join(f"N = {r['n']:,}: {r['prepare_s']:.1f} s (anchor rows {r['anchor_rows']})"
                                 for r in live) + "."]
+    # runs written by hand (other machines, alternated trees) live in their own file, which
+    # this report does not rewrite
+    lines += ["", "Runs recorded beside this table (other machines, frozen trees alternated, single cases): "
+              "`live_notes.md`."]
     errors = [r for r in results if "error" in r]
     if errors:
         lines += ["", "Failed cases:", ""] + [f"- `{' '.join(e['args'])}`: {e['error']}" for e in errors]
@@ -1096,13 +1100,23 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
     if cold_compare:
         lines += _compare_lines(cold_compare)
     if batch:
+        # a run of --batch, and (where recorded) the run of another tree it was compared with
+        before = batch.get("before")
         lines += ["", "## The batch commands on a saved map", "",
                   f"`catgraph <command> --map {Path(batch['map']).name} {Path(batch['query']).name}`, one fresh process "
-                  "each, peak RSS of the process (`getrusage`):", "",
-                  "| command | peak RSS | ms / frame (the whole command over the frames) |", "|---|---|---|"]
+                  "each, peak RSS of the process (`getrusage`)" + (f"; {batch['note']}" if batch.get("note") else "")
+                  + ":", "",
+                  "| command | peak RSS | ms / frame (the whole command over the frames) |"
+                  + (f" before (`{before.get('commit', '?')}`): peak RSS, ms / frame |" if before else ""),
+                  "|---|---|---|" + ("---|" if before else "")]
+        cell = (lambda r: f"failed: {r['error']} |" if "error" in r else
+                f"{r['peak_rss_mb']:.0f} MB | {r['ms_per_frame']:.1f} |")
+        earlier = {r["label"]: r for r in before["rows"]} if before else {}
         for r in batch["rows"]:
-            lines.append(f"| `{r['label']}` | " + (f"failed: {r['error']} | |" if "error" in r else
-                                                   f"{r['peak_rss_mb']:.0f} MB | {r['ms_per_frame']:.1f} |"))
+            was = earlier.get(r["label"])
+            lines.append(f"| `{r['label']}` | " + cell(r) + (
+                "" if not before else " — |" if was is None else f" failed: {was['error']} |" if "error" in was
+                else f" {was['peak_rss_mb']:.0f} MB, {was['ms_per_frame']:.1f} |"))
     for s in (shards, shards_uint8):
         if not s:
             continue
