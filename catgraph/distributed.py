@@ -599,6 +599,28 @@ class ShardedReference:
         return probe.prepare_query(descriptors)
 
 
+#: Seconds :func:`shard_reference` waits for a first worker where the cluster has none (one
+#: still starting, or whose workers are reconnecting after a busy spell)
+WORKER_WAIT_S = 30.0
+
+
+def _worker_addresses(client) -> list[str]:
+    """The cluster's worker addresses, sorted; where it has none yet, waits up to
+    :data:`WORKER_WAIT_S` seconds for one before refusing."""
+    addresses = sorted(client.scheduler_info().get("workers", {}))
+    if addresses:
+        return addresses
+    try:
+        client.wait_for_workers(1, timeout=WORKER_WAIT_S)
+        addresses = sorted(client.scheduler_info().get("workers", {}))
+    except TimeoutError:
+        pass
+    if not addresses:
+        raise InvalidParameterError(f"the Dask cluster has no workers (none joined in {WORKER_WAIT_S:g} s); start "
+                                    "some before sharding a reference.")
+    return addresses
+
+
 def shard_reference(descriptors, metric: str, scheduler, shard_places: int | None = None,
                     layout: str = "float32") -> ShardedReference:
     """Cut a reference into shards and prepare each on a worker.
@@ -639,15 +661,12 @@ def shard_reference(descriptors, metric: str, scheduler, shard_places: int | Non
     if ref.ndim != 2 or ref.shape[0] == 0:
         raise InvalidParameterError(f"reference descriptors must have shape (N, d) with N ≥ 1; got {ref.shape}.")
     n = ref.shape[0]
+    addresses = _worker_addresses(client)
     if shard_places is None:
-        workers = max(1, len(client.scheduler_info().get("workers", {})))
-        shard_places = -(-n // workers)
+        shard_places = -(-n // len(addresses))
     check_scalar(shard_places, "shard_places", "shard_reference", int, 1)
     shard_places = -(-int(shard_places) // SUM_CHUNK) * SUM_CHUNK
     bounds = [(lo, min(n, lo + shard_places)) for lo in range(0, n, shard_places)]
-    addresses = sorted(client.scheduler_info().get("workers", {}))
-    if not addresses:
-        raise InvalidParameterError("the Dask cluster has no workers; start some before sharding a reference.")
     workers, shards = [], []
     for s, (lo, hi) in enumerate(bounds):
         where = addresses[s % len(addresses)]

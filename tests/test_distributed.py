@@ -1,5 +1,7 @@
 """Dask-sharded batch evaluation equals the local run (on a LocalCluster)."""
 
+import time
+
 import numpy as np
 import pytest
 
@@ -456,3 +458,20 @@ def test_uint8_shards_equal_the_local_compact_reference(client, data):
         dd.shard_reference(r, "sad", client, layout="int4")
     with pytest.raises(InvalidParameterError, match="step > 0"):
         PreparedReference(r, "sad", layout="uint8", code_scale=(0.0, 0.0))
+
+
+def test_a_cluster_without_workers_is_waited_for_then_refused(monkeypatch):
+    """A cluster with no worker (one still starting) gets WORKER_WAIT_S seconds, then a
+    clear error, not a division by zero or a hang."""
+    distributed = pytest.importorskip("distributed")
+    monkeypatch.setattr(dd, "WORKER_WAIT_S", 0.5)
+    cluster = distributed.LocalCluster(n_workers=0, processes=False, dashboard_address=None)
+    client = distributed.Client(cluster)
+    try:
+        start = time.perf_counter()
+        with pytest.raises(InvalidParameterError, match="no workers .none joined in 0.5 s"):
+            dd.shard_reference(np.ones((10, 4), np.float32), "sad", client)
+        assert time.perf_counter() - start >= 0.5
+    finally:
+        client.close()
+        cluster.close()
