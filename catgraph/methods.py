@@ -413,7 +413,7 @@ def _histogram(params: dict, inputs: "MethodInputs") -> RunResult:  # noqa: C901
         if inputs.ground_truth is None:
             raise InvalidParameterError("the trained histogram model is fitted from ground truth; give --tolerance, "
                                         "--tolerance-m or --ground-truth, or use learning 'online' or 'bootstrap'.")
-        model.fit(*labelled_samples(inputs.differences, inputs.ground_truth, inputs.query.index,
+        model.fit(*labelled_samples(inputs.difference_rows(), inputs.ground_truth, inputs.query.index,
                                     max_different=params["max_different"], seed=params["seed"]))
         recogniser = HistogramPlaceRecogniser(model, n_init=0, learn=False, **common)
     rec = recogniser.run(inputs.difference_rows())

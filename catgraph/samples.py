@@ -85,8 +85,10 @@ def labelled_samples(
 
     Parameters
     ----------
-    differences : array_like, shape (n_query, n_reference)
-        Difference matrix; column ``j`` is reference frame ``j`` as loaded.
+    differences : array_like, shape (n_query, n_reference), or DifferenceRows
+        Difference matrix; column ``j`` is reference frame ``j`` as loaded. Or its rows
+        block by block (:class:`~catgraph.differences.DifferenceRows`): the same samples,
+        one block of rows in memory at a time.
     ground_truth : catgraph.traverse.GroundTruth
         Decides which ``(query, reference)`` pairs show the same place.
     query_index : array_like of int, shape (n_query,), optional
@@ -99,23 +101,46 @@ def labelled_samples(
     Returns
     -------
     d_same, d_different : ndarray, float64
-        Pass to ``HistogramLikelihood.fit``.
+        Pass to ``HistogramLikelihood.fit``. ``d_same`` in row order; ``d_different`` the
+        draws in the order drawn (every different-place value in row order where all are kept).
     """
-    d = check_array(differences, "differences", ndim=2)
-    n_query, n_ref = d.shape
+    from .differences import DifferenceRows
+
+    if not isinstance(differences, DifferenceRows):
+        differences = DifferenceRows.of(check_array(differences, "differences", ndim=2))
+    n_query, n_ref = differences.shape
     q = np.arange(n_query) if query_index is None else np.asarray(query_index)
     if q.shape != (n_query,):
         raise ShapeMismatchError(f"query_index has shape {q.shape} but differences have {n_query} rows.")
     if max_different is not None:
         check_scalar(max_different, "max_different", "labelled_samples", int, 1)
     columns = np.arange(n_ref)
-    same_mask = np.zeros(d.shape, dtype=bool)
-    for row in range(n_query):
-        same_mask[row] = ground_truth.correct(np.full(n_ref, q[row], dtype=np.int64), columns)
-    d_same = d[same_mask]
-    d_diff = d[~same_mask]
-    if max_different is not None and d_diff.size > max_different:
-        d_diff = d_diff[as_generator(seed).choice(d_diff.size, size=max_different, replace=False)]
+    # which pairs show the same place: from the ground truth alone, one row at a time
+    same_rows = [np.flatnonzero(ground_truth.correct(np.full(n_ref, q[row], dtype=np.int64), columns))
+                 for row in range(n_query)]
+    n_different = n_query * n_ref - sum(len(j) for j in same_rows)
+    picks = None  # positions in the row-order sequence of different-place values, as drawn
+    if max_different is not None and n_different > max_different:
+        picks = as_generator(seed).choice(n_different, size=max_different, replace=False)
+        order = np.argsort(picks, kind="stable")
+        wanted, d_diff = picks[order], np.empty(max_different)
+    same_parts, diff_parts, seen, taken = [], [], 0, 0
+    for start, block in differences.checked():
+        mask = np.zeros(block.shape, dtype=bool)
+        for k in range(len(block)):
+            mask[k, same_rows[start + k]] = True
+        same_parts.append(block[mask])
+        values = block[~mask]
+        if picks is None:
+            diff_parts.append(values)
+        else:  # the draws that fall in this block, gathered in position order
+            stop = np.searchsorted(wanted, seen + len(values), side="left")
+            d_diff[order[taken:stop]] = values[wanted[taken:stop] - seen]
+            taken = stop
+        seen += len(values)
+    d_same = np.concatenate(same_parts) if same_parts else np.empty(0)
+    if picks is None:
+        d_diff = np.concatenate(diff_parts) if diff_parts else np.empty(0)
     return d_same, d_diff
 
 

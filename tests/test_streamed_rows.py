@@ -21,8 +21,7 @@ from catgraph.sequence import match_sequences
 
 from .conftest import write_images
 
-#: every batch method of the registry that reads the rows (the trained histogram reads the
-#: labelled matrix: an oracle baseline, not streamed)
+#: the batch methods of the registry (the trained histogram, which needs ground truth, below)
 METHODS = [("single-frame", {}), ("histogram", {}), ("sequence", {"window": 5}),
            ("sequence", {"window": "adaptive", "l_max": 20}),
            ("sequence", {"window": "adaptive", "rule": "challenged", "l_max": 20}),
@@ -159,3 +158,44 @@ def test_sequence_matching_takes_rows_in_any_blocks():
         match_sequences(_blocks(d[:80], [0, 80], n=90), window=10)
     with pytest.raises(DataError, match="empty"):
         match_sequences(DifferenceRows.of(np.zeros((0, 60))), window=10)
+
+
+def _labelled_by_mask(d, gt, q, max_different, seed):
+    """The samples of the whole matrix's masks (the slow form): every same-place value in
+    row order, then the different-place values drawn by index from their row order."""
+    columns = np.arange(d.shape[1])
+    same = np.array([gt.correct(np.full(d.shape[1], q[r]), columns) for r in range(len(d))])
+    diff = d[~same]
+    if max_different is not None and diff.size > max_different:
+        diff = diff[np.random.default_rng(seed).choice(diff.size, size=max_different, replace=False)]
+    return d[same], diff
+
+
+@pytest.mark.parametrize("max_different", [None, 1, 500, 10_000])
+def test_labelled_samples_in_blocks_equal_the_masks(max_different):
+    from catgraph.samples import labelled_samples
+    from catgraph.traverse import FrameTolerance
+
+    rng = np.random.default_rng(4)
+    d = rng.standard_normal((53, 41))
+    gt = FrameTolerance(41, 2)
+    q = rng.permutation(53) % 41
+    want = _labelled_by_mask(d, gt, q, max_different, 7)
+    for source in (d, _blocks(d, [0, 1, 20, 53]), _blocks(d, [0, 53])):
+        got = labelled_samples(source, gt, q, max_different=max_different, seed=7)
+        assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+
+
+def test_the_trained_baseline_walks_the_rows_too(images, monkeypatch):
+    ref, qry = images
+    kept = prepare(Experiment(query=qry, reference=ref, tolerance=2))
+    kept.differences
+    params = {"learning": "trained"}
+    b = run_method("histogram", params, kept)
+
+    def refused(*args, **kwargs):
+        raise AssertionError("the whole difference matrix was computed")
+
+    monkeypatch.setattr(catgraph.io, "query_differences", refused)
+    a = run(Experiment(query=qry, reference=ref, tolerance=2, method="histogram", params=params))[0]
+    assert np.array_equal(a.match, b.match) and np.array_equal(a.confidence, b.confidence)
