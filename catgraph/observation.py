@@ -261,21 +261,16 @@ def query_rows(observations, n_places: int | None = None) -> tuple[int, Iterator
 
     if isinstance(observations, DifferenceRows):
         n, width = len(observations), observations.n_places
+        rows = (row for _, block in observations.checked() for row in block.view(CheckedRow))
     else:
         observations = check_array(observations, "difference matrix", ndim=2)
         n, width = observations.shape
+        rows = iter(observations.view(CheckedRow))  # checked once, here
     if n_places is not None and width != n_places:
         raise ShapeMismatchError(
             f"the difference matrix has {width} places but the graph has {n_places}; "
             "give every frame's difference to every reference place of the map.")
-    if not isinstance(observations, DifferenceRows):
-        return n, iter(observations.view(CheckedRow))  # checked once, above
-
-    def rows():
-        for _, block in observations.checked():
-            yield from block.view(CheckedRow)
-
-    return n, rows()
+    return n, rows
 
 
 def _reference_counts() -> tuple[int, int]:

@@ -118,7 +118,7 @@ def labelled_samples(
     # which pairs show the same place: from the ground truth alone, one row at a time
     same_rows = [np.flatnonzero(ground_truth.correct(np.full(n_ref, q[row], dtype=np.int64), columns))
                  for row in range(n_query)]
-    n_different = n_query * n_ref - sum(len(j) for j in same_rows)
+    n_different = n_query * n_ref - sum(len(cols) for cols in same_rows)
     picks = None  # positions in the row-order sequence of different-place values, as drawn
     if max_different is not None and n_different > max_different:
         picks = as_generator(seed).choice(n_different, size=max_different, replace=False)
