@@ -1718,9 +1718,9 @@ class Localizer(TwinReadings):
             (:class:`~catgraph.differences.DifferenceRows`: one block in memory at a
             time), or a query
             :class:`~catgraph.traverse.Traverse` — then ``reference`` (a Traverse) is
-            needed, the differences come from :func:`catgraph.pipeline.differences`
-            (normalised per query), and the query's odometry and index are used unless
-            given.
+            needed, the differences are those of :func:`catgraph.pipeline.differences`
+            (normalised per query), computed a block at a time, and the query's odometry
+            and index are used unless given.
         odometry : ndarray, shape (n_query,), optional
             Per-frame odometry (``odometry[0]`` is ignored).
         query_index : ndarray of int, shape (n_query,), optional
@@ -1742,10 +1742,11 @@ class Localizer(TwinReadings):
         if isinstance(observations, Traverse):
             if reference is None:
                 raise DataError("Localizer.run(query_traverse) needs reference=<reference Traverse> to compute differences.")
-            from .pipeline import differences
+            from .io import build_map, query_difference_rows
+            from .pipeline import FrontEnd
 
-            query = observations
-            observations = differences(reference, query)
+            query = observations  # its rows block by block, as catgraph.pipeline.differences computes them
+            observations = query_difference_rows(build_map(reference, FrontEnd(), graph=False), query)
             odometry = query.odometry if odometry is None else odometry
             query_index = query.index if query_index is None else query_index
         from .observation import query_rows

@@ -199,3 +199,25 @@ def test_the_trained_baseline_walks_the_rows_too(images, monkeypatch):
     monkeypatch.setattr(catgraph.io, "query_differences", refused)
     a = run(Experiment(query=qry, reference=ref, tolerance=2, method="histogram", params=params))[0]
     assert np.array_equal(a.match, b.match) and np.array_equal(a.confidence, b.confidence)
+
+
+def test_particle_filter_run_on_a_query_traverse_walks_its_rows(monkeypatch):
+    """``Localizer.run(query, reference=...)``: the answers of the run on
+    ``catgraph.pipeline.differences``'s matrix, without that matrix being made."""
+    from catgraph.datasets.synthetic import make_world
+    from catgraph.pipeline import differences
+
+    world = make_world(seed=2)
+    graph = PlaceGraph.chain(len(world.reference))
+    make = lambda: Localizer(graph, TemperedObservation(), n_particles=300, seed=3)  # noqa: E731
+    whole = make().run(differences(world.reference, world.query), odometry=world.query.odometry,
+                       query_index=world.query.index)
+
+    def refused(*args, **kwargs):
+        raise AssertionError("the whole difference matrix was computed")
+
+    monkeypatch.setattr(catgraph.io, "query_differences", refused)
+    rows = make().run(world.query, reference=world.reference)
+    assert np.array_equal(rows.place, whole.place) and np.array_equal(rows.score, whole.score)
+    with pytest.raises(DataError, match="needs reference"):
+        make().run(world.query)
