@@ -19,10 +19,27 @@ if TYPE_CHECKING:  # pragma: no cover
     from .results import RunResult
     from .traverse import GroundTruth, Traverse
 
-__all__ = ["compare_plan", "compare_models", "localize", "format_table"]
+__all__ = ["COMPARE_WINDOW", "compare_window", "compare_plan", "compare_models", "localize", "format_table"]
+
+#: The fixed window (frames) of a comparison's standalone matcher and of its filter's
+#: ``sequence`` model where none is given (:func:`compare_window`).
+COMPARE_WINDOW = 50
 
 
-def compare_plan(window: int = 50, filter_params: dict[str, Any] | None = None,
+def compare_window(n_query: int, window: int | None = None) -> int:
+    """The fixed window a comparison runs: ``window`` where given, else
+    :data:`COMPARE_WINDOW` or the query's ``n_query`` frames, whichever is shorter (a
+    window longer than the query is refused, and a default should not be).
+
+    Examples
+    --------
+    >>> compare_window(3576), compare_window(30), compare_window(30, 10)
+    (50, 30, 10)
+    """
+    return min(COMPARE_WINDOW, max(int(n_query), 1)) if window is None else window
+
+
+def compare_plan(window: int = COMPARE_WINDOW, filter_params: dict[str, Any] | None = None,
                  models: Sequence[str] = FILTER_MODELS) -> list[tuple[str, dict]]:
     """``(method, params)`` pairs that ``catgraph compare`` runs.
 
@@ -56,15 +73,15 @@ def localize(reference: "Traverse", query: "Traverse", model: str = "histogram",
 
 
 def compare_models(reference: "Traverse", query: "Traverse", ground_truth: "GroundTruth",
-                   models: Sequence[str] = FILTER_MODELS, window: int = 50, progress=None,
+                   models: Sequence[str] = FILTER_MODELS, window: int | None = None, progress=None,
                    junction_radius_m: float | None = None, **filter_params: Any) -> list[dict]:
     """Run :func:`compare_plan` on one traverse pair; one evaluated row per method (see
-    :func:`format_table`)."""
+    :func:`format_table`). ``window``: the fixed window, by default :func:`compare_window`'s."""
     from .experiment import prepared_from, run_method
 
     prepared = prepared_from(reference, query, ground_truth=ground_truth, junction_radius_m=junction_radius_m)
     rows = []
-    for method, params in compare_plan(window, filter_params, models):
+    for method, params in compare_plan(compare_window(len(prepared.query), window), filter_params, models):
         if progress:
             progress(method if method != "filter" else f"filter + {params['model']}")
         result = run_method(method, params, prepared)

@@ -230,3 +230,29 @@ def test_closed_or_narrow_standard_streams_are_not_a_traceback(tmp_path):
                          text=True, env=env, timeout=120)
     assert bad.returncode == 1 and bad.stderr.splitlines() == [
         "catgraph: error: --window must be an int \\u2265 1 or 'adaptive'. Got 0 instead."]
+
+
+def test_compare_runs_a_query_shorter_than_its_default_window(tmp_path, capsys):
+    """A 30-frame query: the default fixed window becomes the query's length (said on
+    stderr), and the runs are those of --window 30; a window the user sets longer than the
+    query is refused."""
+    from catgraph.compare import COMPARE_WINDOW, compare_window
+
+    rng = np.random.default_rng(3)
+    ref = rng.random((60, 16)).astype(np.float32)
+    qry = (ref[10:40] + rng.normal(0, 0.05, (30, 16))).astype(np.float32)
+    np.save(tmp_path / "ref.npy", ref)
+    np.save(tmp_path / "qry.npy", qry)
+    assert 30 < COMPARE_WINDOW and compare_window(30) == 30 and compare_window(30, 7) == 7
+    assert compare_window(10 * COMPARE_WINDOW) == COMPARE_WINDOW
+    given = ["compare", str(tmp_path / "ref.npy"), str(tmp_path / "qry.npy")]
+    assert main([*given, "-o", str(tmp_path / "default.json")]) == 0
+    assert "the fixed window is 30 frames" in capsys.readouterr().err
+    assert main([*given, "--window", "30", "-q", "-o", str(tmp_path / "set.json")]) == 0
+    default, chosen = (json.loads((tmp_path / f"{n}.json").read_text())["runs"] for n in ("default", "set"))
+    assert "sequence-L30" in [r["method"] for r in default]
+    for a, b in zip(default, chosen):
+        assert a["method"] == b["method"] and a["frames"]["match"] == b["frames"]["match"]
+    capsys.readouterr()
+    assert main([*given, "--window", "31", "-q"]) == 1
+    assert "--window 31 frames is longer than the query (30 frames)" in capsys.readouterr().err

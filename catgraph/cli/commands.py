@@ -437,8 +437,11 @@ def register_compare(sub) -> None:
                                    "histogram recogniser and the particle filter with every observation model on one "
                                    "reference/query pair and one difference matrix; print one table.")
     add_common_inputs(p, graph_options=True)
-    p.add_argument("--window", type=_number(int), default=50, metavar="FRAMES",
-                   help="the fixed window of the matcher and of the filter's sequence model (default 50)")
+    from ..compare import COMPARE_WINDOW
+
+    p.add_argument("--window", type=_number(int), default=None, metavar="FRAMES",
+                   help="the fixed window of the matcher and of the filter's sequence model (default "
+                        f"{COMPARE_WINDOW}, or the query's length where it is shorter)")
     from ..methods import METHODS
 
     skip = tuple(p.name for p in METHODS["filter"].params if p.name not in _COMPARE_FILTER)
@@ -447,17 +450,24 @@ def register_compare(sub) -> None:
 
 
 def cmd_compare(args) -> int:
-    from ..compare import compare_plan
+    from ..compare import COMPARE_WINDOW, compare_plan, compare_window
     from ..experiment import payload, prepare, run_method
     from ..methods import concrete_params, resolve_params
     from ..results import write_json_atomic
 
-    if args.window < 1:
+    if args.window is not None and args.window < 1:
         raise InvalidParameterError(f"--window must be ≥ 1 frame; got {args.window}.")
     filter_params = method_params(args, "filter")
     exp = experiment_from(args, "single-frame", {})
     prepared = prepare(exp)
-    plan = compare_plan(args.window, filter_params)
+    window = compare_window(len(prepared.query), args.window)
+    if window > len(prepared.query):
+        raise InvalidParameterError(f"--window {window} frames is longer than the query ({len(prepared.query)} "
+                                    f"frames); choose at most {len(prepared.query)}, or leave --window out.")
+    if args.window is None and window < COMPARE_WINDOW and not args.quiet:
+        print(f"catgraph: the query has {window} frames: the fixed window is {window} frames, not "
+              f"{COMPARE_WINDOW} (set it with --window)", file=sys.stderr)
+    plan = compare_plan(window, filter_params)
     for name, params in plan:  # every filter's options checked on this map before the first run, not after
         if name == "filter":
             concrete_params(resolve_params(name, params), prepared.map.n_places)
