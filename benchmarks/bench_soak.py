@@ -1,38 +1,60 @@
-"""Soak test: a million steps of the particle filter and of the sequence matcher, memory sampled.
+"""Soak test: a million steps of each streaming loop, memory sampled.
 
 A navigation stack calls ``step()`` once per sensor frame for hours. Whatever a step
 allocates must be released (or live in fixed-size buffers), so memory must stay flat
-however long the run. This benchmark drives
+however long the run. This benchmark drives (``--only`` picks one)
 
-* :meth:`catgraph.localizer.Localizer.step` with the online histogram observation model
-  (it learns from every frame, so its state is exercised too), and
-* :meth:`catgraph.sequence.SequenceMatcher.step` with the adaptive window,
+* ``matcher``: :meth:`catgraph.sequence.SequenceMatcher.step` with the adaptive window and
+  its default rule (which runs a tracking filter of its own),
+* ``filter``: :meth:`catgraph.localizer.Localizer.step`, the particle filter, with the
+  online histogram observation model (it learns from every frame, so its state is
+  exercised too),
+* ``grid``: the registry's ``filter`` method as ``catgraph localize`` builds it, defaults
+  unchanged (the exact grid filter, the tempered whole-image model), and
+* ``live``: :meth:`catgraph.live.LiveLocalizer.step` with its defaults (the combined model)
+  on raw descriptors, front-end and difference row included — what a navigation stack
+  embeds,
 
 for ``--steps`` frames each (default 10⁶) along a synthetic route that loops over a
 chain of places, with occasional kidnaps (a jump to a random place) and frames with no
-information (constant rows). The resident set size (``VmRSS``) and the Python heap
+information (constant rows; for ``live``, zero descriptors). The resident set size (``VmRSS``) and the Python heap
 (``tracemalloc`` would slow the steps tenfold, so the heap is counted with
 ``gc.get_objects`` instead) are sampled every ``--sample-every`` steps. After a warm-up
 (the first 5 % of the steps: JIT compilation, buffers reaching their size) the largest
 sample must stay within 1 % of the warm-up level.
 
+Each loop's row is kept in ``results/soak.json`` (with the commit and command that measured
+it) and ``results/soak.md`` is written from every row there, so one loop can be run again
+alone.
+
 Run::
 
-    python benchmarks/bench_soak.py                       # 10^6 + 10^6 steps, writes results/soak.md
-    python benchmarks/bench_soak.py --steps 20000 --no-write   # a quick check
+    python benchmarks/bench_soak.py                       # every loop, 10^6 steps each
+    python benchmarks/bench_soak.py --only live --steps 20000 --no-write   # a quick check
 """
 
 from __future__ import annotations
 
 import argparse
 import gc
+import json
 import platform
+import shlex
+import subprocess
 import time
 from pathlib import Path
 
 import numpy as np
 
 RESULTS = Path(__file__).resolve().parent / "results" / "soak.md"
+STORE = RESULTS.with_suffix(".json")
+#: The loops, in the table's order: ``--only`` name, row name.
+LOOPS = {
+    "matcher": "SequenceMatcher.step (adaptive, default rule)",
+    "filter": "Localizer.step (particles, histogram)",
+    "grid": "registry filter step (grid, tempered: `catgraph localize` defaults)",
+    "live": "LiveLocalizer.step (combined, raw descriptors in)",
+}
 
 
 def rss_bytes() -> int:
@@ -112,27 +134,79 @@ def matcher_step(l_max: int):
     return lambda row: matcher.step(row).match
 
 
-def markdown(results: list[dict], args) -> str:
+def grid_step(n_places: int):
+    """The registry's ``filter`` method with its defaults, on a chain of ``n_places``."""
+    from catgraph.graph import PlaceGraph
+    from catgraph.methods import concrete_params, make_filter, observation_model, resolve_params
+
+    params = concrete_params(resolve_params("filter", {}), n_places)
+    loc = make_filter(params, PlaceGraph.chain(n_places), observation_model(params, n_places, None))
+    loc.reset()
+    return lambda row: loc.step(row).place
+
+
+def route_frames(n_places: int, n_frames: int, seed: int, dims: int = 64):
+    """Raw descriptors for the live loop: a random reference of ``n_places`` × ``dims``
+    and query frames along the same looping route as :func:`route_rows` (each its place's
+    descriptor plus noise; every 97th a kidnap, every 89th a zero descriptor)."""
+    rng = np.random.default_rng(seed)
+    reference = rng.random((n_places, dims)).astype(np.float32)
+    frames = np.empty((n_frames, dims), dtype=np.float32)
+    truth = np.empty(n_frames, dtype=np.int64)
+    place = 0
+    for k in range(n_frames):
+        place = int(rng.integers(n_places)) if k % 97 == 96 else (place + 1) % n_places
+        truth[k] = place
+        frames[k] = 0.0 if k % 89 == 88 else reference[place] + rng.normal(0.0, 0.15, dims)
+    return reference, frames, truth
+
+
+def live_step(reference: np.ndarray):
+    from catgraph.live import LiveLocalizer, LiveMap
+    from catgraph.traverse import Traverse
+
+    live = LiveLocalizer(LiveMap(Traverse(reference, name="soak reference")))
+    return lambda frame: live.step(frame).place
+
+
+def _commit() -> str:
+    """The commit of the checkout the imported catgraph comes from (``+`` if its files differ)."""
+    import catgraph
+
+    folder = Path(catgraph.__file__).resolve().parent
+    try:
+        rev = subprocess.run(["git", "-C", str(folder), "rev-parse", "--short", "HEAD"], capture_output=True,
+                             text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(folder), "status", "--porcelain", "--", "."], capture_output=True,
+                               text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return rev + ("+" if dirty else "")
+
+
+def markdown(rows: dict[str, dict]) -> str:
+    """The table of every stored loop (``rows``: :data:`STORE`'s content), in :data:`LOOPS` order."""
     lines = [
         "# Soak: a long run of `step()` with memory sampled",
         "",
-        "Generated by `python benchmarks/bench_soak.py"
-        + "".join(f" --{k.replace('_', '-')} {getattr(args, k)}" for k in ("filter_steps", "matcher_steps", "places",
-                                                                         "particles", "l_max", "sample_every")) + "`"
-        f" on {platform.machine()} / Python {platform.python_version()} (2 shared cores).",
-        f"Route: a loop over {args.places} places, normalised difference rows (dip at the true place over noise), "
-        "a kidnap every 97 frames and a frame with no information every 89. "
-        f"Filter: online histogram model, {args.particles} particles. Matcher: adaptive window, l_min 5, "
-        f"l_max {args.l_max}. Memory sampled every {args.sample_every} steps; the warm-up is the first 5 %.",
+        f"Generated by `benchmarks/bench_soak.py` ({platform.machine()}, Python {platform.python_version()}, 2 cores "
+        "shared with other work). Route: a loop over a chain of places with a kidnap every 97 frames and a frame "
+        "with no information every 89; the matcher and the filters read normalised difference rows (a dip at the "
+        "true place over noise), the live loop raw 64-value descriptors (its reference random, each frame its "
+        "place's descriptor plus noise, the frames with no information zero). Memory sampled every "
+        "`--sample-every` steps; the warm-up is the first 5 % of the steps. Each row's commit and command below "
+        "the table.",
         "",
-        "| loop | steps | µs/step | RSS after warm-up (MiB) | max RSS (MiB) | RSS at end (MiB) | RSS growth | "
-        "Python objects after warm-up | max objects | object growth | flat within 1 % |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|:---:|",
+        "| loop | steps | µs/step | top-1 right | RSS after warm-up (MiB) | max RSS (MiB) | RSS at end (MiB) | "
+        "RSS growth | Python objects after warm-up | max objects | object growth | flat within 1 % |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|:---:|",
     ]
-    for r in results:
+    ordered = [rows[k] for k in LOOPS if k in rows]
+    for r in ordered:
         flat = r["rss_growth"] <= 0.01 and r["objects_growth"] <= 0.01
+        top1 = "" if r.get("top1") is None else f"{r['top1']:.3f}"
         lines.append(
-            f"| {r['name']} | {r['steps']:,} | {r['us_per_step']:.1f} | {r['rss_warm_mib']:.1f} | "
+            f"| {r['name']} | {r['steps']:,} | {r['us_per_step']:.1f} | {top1} | {r['rss_warm_mib']:.1f} | "
             f"{r['rss_max_mib']:.1f} | {r['rss_end_mib']:.1f} | {100 * r['rss_growth']:+.2f} % | "
             f"{r['objects_warm']:,} | {r['objects_max']:,} | {100 * r['objects_growth']:+.2f} % | "
             f"{'yes' if flat else '**no**'} |"
@@ -140,7 +214,9 @@ def markdown(results: list[dict], args) -> str:
     lines += ["", "Growth = (largest sample after the warm-up − first sample after it) / first sample. "
               "The RSS counts the whole process (numpy, numba, the row pool), so the bound is on what the "
               "steps add.", ""]
-    return "\n".join(lines)
+    lines += [f"- {r['name']}: commit `{r.get('commit', 'unknown')}`, load {r.get('load', '?')}, "
+              f"`{r.get('command', '')}`" for r in ordered]
+    return "\n".join(lines) + "\n"
 
 
 def main(argv=None) -> int:
@@ -152,28 +228,42 @@ def main(argv=None) -> int:
     parser.add_argument("--particles", type=int, default=500, help="particles in the filter (default 500)")
     parser.add_argument("--l-max", type=int, default=100, help="longest window of the matcher (default 100)")
     parser.add_argument("--sample-every", type=int, default=10_000, help="steps between memory samples")
-    parser.add_argument("--only", choices=("filter", "matcher"), help="run one loop only")
-    parser.add_argument("--no-write", action="store_true", help="print the table, do not write results/soak.md")
+    parser.add_argument("--only", choices=tuple(LOOPS), help="run one loop only")
+    parser.add_argument("--no-write", action="store_true", help="print the table, do not write results/soak.*")
     args = parser.parse_args(argv)
-    args.filter_steps = args.filter_steps or args.steps
-    args.matcher_steps = args.matcher_steps or args.steps
-    if min(args.filter_steps, args.matcher_steps) < 2 * args.sample_every or args.sample_every < 1:
+    steps = {k: args.steps for k in LOOPS}
+    steps["filter"] = args.filter_steps or args.steps
+    steps["matcher"] = args.matcher_steps or args.steps
+    chosen = [args.only] if args.only else list(LOOPS)
+    if min(steps[k] for k in chosen) < 2 * args.sample_every or args.sample_every < 1:
         parser.error("every loop needs at least twice --sample-every steps")
     rows, truth = route_rows(args.places, 2000, seed=0)
+    stored = json.loads(STORE.read_text()) if STORE.exists() and not args.no_write else {}
     results = []
-    if args.only in (None, "matcher"):
-        results.append(soak("SequenceMatcher.step (adaptive)", matcher_step(args.l_max), rows, truth,
-                            args.matcher_steps, args.sample_every))
-        print(results[-1], flush=True)
-    if args.only in (None, "filter"):
-        results.append(soak("Localizer.step (histogram)", filter_step(args.places, args.particles, 0), rows, truth,
-                            args.filter_steps, args.sample_every))
-        print(results[-1], flush=True)
-    text = markdown(results, args)
-    print(text)
-    if not args.no_write:
-        RESULTS.parent.mkdir(parents=True, exist_ok=True)
-        RESULTS.write_text(text)
+    for key in chosen:
+        if key == "matcher":
+            step, data, want = matcher_step(args.l_max), rows, truth
+        elif key == "filter":
+            step, data, want = filter_step(args.places, args.particles, 0), rows, truth
+        elif key == "grid":
+            step, data, want = grid_step(args.places), rows, truth
+        else:
+            reference, data, want = route_frames(args.places, 2000, seed=0)
+            step = live_step(reference)
+        load = f"{__import__('os').getloadavg()[0]:.2f}"
+        r = soak(LOOPS[key], step, data, want, steps[key], args.sample_every)
+        r.update(commit=_commit(), load=f"{load}–{__import__('os').getloadavg()[0]:.2f}",
+                 command="python benchmarks/bench_soak.py " + shlex.join(
+                     ["--only", key, "--steps", str(steps[key]), "--places", str(args.places), "--particles",
+                      str(args.particles), "--l-max", str(args.l_max), "--sample-every", str(args.sample_every)]))
+        print(r, flush=True)
+        results.append(r)
+        stored[key] = r
+        if not args.no_write:  # each loop kept as soon as it ends
+            STORE.parent.mkdir(parents=True, exist_ok=True)
+            STORE.write_text(json.dumps(stored, indent=1) + "\n")
+            RESULTS.write_text(markdown(stored))
+    print(markdown(stored if not args.no_write else {k: r for k, r in zip(chosen, results)}))
     return 0 if all(r["rss_growth"] <= 0.01 and r["objects_growth"] <= 0.01 for r in results) else 1
 
 
