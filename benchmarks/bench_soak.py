@@ -17,9 +17,9 @@ however long the run. This benchmark drives (``--only`` picks one)
 
 for ``--steps`` frames each (default 10⁶) along a synthetic route that loops over a
 chain of places, with occasional kidnaps (a jump to a random place) and frames with no
-information (constant rows; for ``live``, zero descriptors). The resident set size (``VmRSS``) and the Python heap
-(``tracemalloc`` would slow the steps tenfold, so the heap is counted with
-``gc.get_objects`` instead) are sampled every ``--sample-every`` steps. After a warm-up
+information (constant rows; for ``live``, zero descriptors). The resident set size
+(``VmRSS``) and the Python heap (``tracemalloc`` would slow the steps tenfold, so the heap
+is counted with ``gc.get_objects`` instead) are sampled every ``--sample-every`` steps. After a warm-up
 (the first 5 % of the steps: JIT compilation, buffers reaching their size) the largest
 sample must stay within 1 % of the warm-up level.
 
@@ -38,13 +38,15 @@ from __future__ import annotations
 import argparse
 import gc
 import json
+import os
 import platform
 import shlex
-import subprocess
 import time
 from pathlib import Path
 
 import numpy as np
+
+from bench_live import _commit as package_commit  # the commit of the catgraph imported
 
 RESULTS = Path(__file__).resolve().parent / "results" / "soak.md"
 STORE = RESULTS.with_suffix(".json")
@@ -169,21 +171,6 @@ def live_step(reference: np.ndarray):
     return lambda frame: live.step(frame).place
 
 
-def _commit() -> str:
-    """The commit of the checkout the imported catgraph comes from (``+`` if its files differ)."""
-    import catgraph
-
-    folder = Path(catgraph.__file__).resolve().parent
-    try:
-        rev = subprocess.run(["git", "-C", str(folder), "rev-parse", "--short", "HEAD"], capture_output=True,
-                             text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(folder), "status", "--porcelain", "--", "."], capture_output=True,
-                               text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-    return rev + ("+" if dirty else "")
-
-
 def markdown(rows: dict[str, dict]) -> str:
     """The table of every stored loop (``rows``: :data:`STORE`'s content), in :data:`LOOPS` order."""
     lines = [
@@ -250,9 +237,9 @@ def main(argv=None) -> int:
         else:
             reference, data, want = route_frames(args.places, 2000, seed=0)
             step = live_step(reference)
-        load = f"{__import__('os').getloadavg()[0]:.2f}"
+        load = f"{os.getloadavg()[0]:.2f}"
         r = soak(LOOPS[key], step, data, want, steps[key], args.sample_every)
-        r.update(commit=_commit(), load=f"{load}–{__import__('os').getloadavg()[0]:.2f}",
+        r.update(commit=package_commit(), load=f"{load}–{os.getloadavg()[0]:.2f}",
                  command="python benchmarks/bench_soak.py " + shlex.join(
                      ["--only", key, "--steps", str(steps[key]), "--places", str(args.places), "--particles",
                       str(args.particles), "--l-max", str(args.l_max), "--sample-every", str(args.sample_every)]))
