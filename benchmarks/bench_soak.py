@@ -182,7 +182,9 @@ def markdown(rows: dict[str, dict]) -> str:
         "true place over noise), the live loop raw 64-value descriptors (its reference random, each frame its "
         "place's descriptor plus noise, the frames with no information zero). Memory sampled every "
         "`--sample-every` steps; the warm-up is the first 5 % of the steps. Each row's commit and command below "
-        "the table.",
+        "the table. *Top-1 right*: the share of steps whose answer is exactly the frame's place, a check that the "
+        "loop keeps localising rather than a measure of accuracy (the rows' dip spans the neighbouring places too, "
+        "so the filters often answer one place off).",
         "",
         "| loop | steps | µs/step | top-1 right | RSS after warm-up (MiB) | max RSS (MiB) | RSS at end (MiB) | "
         "RSS growth | Python objects after warm-up | max objects | object growth | flat within 1 % |",
