@@ -65,7 +65,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from datasets import DATA, NORDLAND_FRAMES, WIFI_METRES, benchmark_conditions, prepare_kept, prepared_datasets  # noqa: E402
+from datasets import (DATA, NORDLAND_FRAMES, WIFI_METRES, benchmark_conditions, prepare_kept,  # noqa: E402
+                      prepared_datasets)
 
 from catgraph.experiment import Experiment, run_method  # noqa: E402
 
@@ -198,7 +199,7 @@ def uji_walks(labels, conditions, full) -> None:
     for walk in UJI_WALKS:
         for month in UJI_MONTHS:
             case = prepare_kept(Experiment(query=db / f"{month:02d}" / walk, reference=db / "01" / "trn01",
-                                      tolerance_m=WIFI_METRES))
+                                           tolerance_m=WIFI_METRES))
             for condition in conditions:
                 prepared = case.under(condition) if condition.kind != "in-order" else case
                 for label in labels:
@@ -244,8 +245,8 @@ def nordland_sections(labels, conditions, full) -> None:
         name = f"frames {a}–{b - 1}"
         worlds.append(name)
         case = prepare_kept(Experiment(query=Traverse(whole.query.frames[a:b], name=f"winter {name}"),
-                                  reference=Traverse(whole.reference.frames[a:b], name=f"summer {name}"),
-                                  tolerance=NORDLAND_FRAMES))
+                                       reference=Traverse(whole.reference.frames[a:b], name=f"summer {name}"),
+                                       tolerance=NORDLAND_FRAMES))
         for condition in conditions:
             prepared = case.under(condition) if condition.kind != "in-order" else case
             for label in labels:

@@ -99,11 +99,12 @@ def prepared_datasets(names) -> dict:
     out = {}
     if "nordland" in names and (DATA / "nordland").is_dir():
         d = DATA / "nordland" / "32x16"
-        out["Nordland"] = [prepare_kept(Experiment(query=d / "winter", reference=d / "summer", tolerance=NORDLAND_FRAMES))]
+        out["Nordland"] = [prepare_kept(Experiment(query=d / "winter", reference=d / "summer",
+                                                   tolerance=NORDLAND_FRAMES))]
     if "uji" in names and (DATA / "uji-lib").is_dir():
         db = DATA / "uji-lib" / "db"
         out["UJI 02-06"] = [prepare_kept(Experiment(query=db / f"{m:02d}" / "tst01", reference=db / "01" / "trn01",
-                                               tolerance_m=WIFI_METRES)) for m in range(2, 7)]
+                                                    tolerance_m=WIFI_METRES)) for m in range(2, 7)]
     if "synthetic" in names:
         out["synthetic"] = [prepare_kept(Experiment(query="synthetic:0", reference="synthetic:0"))]
     return out

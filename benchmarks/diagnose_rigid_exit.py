@@ -161,7 +161,7 @@ def _prepared(size: str):
     d = DATA / "nordland" / size
     patch = 8 if size == "64x32" else 4
     return prepare_kept(Experiment(query=d / "winter", reference=d / "summer", tolerance=NORDLAND_FRAMES,
-                              frontend={"size": size, "patch": patch}))
+                                   frontend={"size": size, "patch": patch}))
 
 
 def measure(names) -> dict:
