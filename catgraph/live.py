@@ -415,8 +415,9 @@ class LiveMap:
                 f"LiveMap needs a CatgraphMap (catgraph.io.load_map) or a reference Traverse; got {type(source).__name__}."
             )
         if source.graph is None:
-            raise DataError("this map was saved without a place graph (build-map --no-graph); live localisation "
-                            "needs one: build the map again without --no-graph.")
+            raise DataError("this map holds no place graph (saved with build-map --no-graph, or built with "
+                            "build_map(..., graph=False), as catgraph.experiment.prepare builds its map); live "
+                            "localisation needs one: give LiveMap the reference traverse, or a map built with its graph.")
         self.frontend = source.frontend_settings()
         self.kind = str(source.meta.get("kind", "descriptors"))
         self._meta = dict(source.meta)
