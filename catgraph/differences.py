@@ -214,7 +214,7 @@ def _check_finite(x: np.ndarray, name: str, rows: int = 8192) -> None:
             where = np.argwhere(bad)[0]
             value = part[tuple(where)]
             raise DataError(
-                f"{name} contain {int(bad.sum())}{'+' if x.shape[0] > rows else ''} NaN or infinite values "
+                f"{name}: {int(bad.sum())}{'+' if x.shape[0] > rows else ''} NaN or infinite values "
                 f"(first {value} at row {start + int(where[0])}); clean or drop those frames before localising."
             )
 

@@ -161,8 +161,12 @@ def test_graphs_and_maps(tmp_path):
         build_map(np.zeros((5, 4)))
     with pytest.raises(InvalidParameterError, match="save_map writes a CatgraphMap"):
         save_map(tmp_path / "x.npz", {"descriptors": 1})
-    with pytest.raises(DataError, match="NaN or infinite"):
+    with pytest.raises(DataError, match=r"^map descriptors: 6 NaN or infinite values \(first nan at row 0\)"):
         CatgraphMap(np.full((3, 2), np.nan, dtype=np.float32), "sad", {})
+    from catgraph.experiment import run_method
+
+    with pytest.raises(InvalidParameterError, match=r"run_method needs .* \(a Prepared\); got dict"):
+        run_method("single-frame", {}, {"map": None})
     with pytest.raises(DataError, match="metric 'l7'"):
         CatgraphMap(np.zeros((3, 2), dtype=np.float32), "l7", {})
     (tmp_path / "afile").write_text("")
