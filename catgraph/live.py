@@ -140,7 +140,11 @@ def describe_frame(frame, kind: str, frontend=None, not_detected: float = 100.0)
             raise DataError(f"a live descriptor must be numeric or boolean; got dtype {flat.dtype}.")
         if flat.dtype == bool or (flat.dtype == np.uint8 and frontend.metric == "hamming"):
             return flat  # bits, or bits packed in bytes (compared as bits)
-        return flat.astype(np.float32)
+        with np.errstate(over="ignore"):
+            out = flat.astype(np.float32)
+        if flat.dtype.kind == "f" and flat.dtype.itemsize > 4 and np.isfinite(flat).all() and not np.isfinite(out).all():
+            raise DataError("a live descriptor holds values too large for float32 (|x| > 3.4e38); rescale them.")
+        return out
     raise InvalidParameterError(f"unknown data kind {kind!r}; a map holds 'images', 'wifi' or 'descriptors'.")
 
 

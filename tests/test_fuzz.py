@@ -2,7 +2,7 @@
 
 Every public entry point that takes user data — the loaders, the front-ends,
 ``difference_matrix``, ``difference_row``, ``normalise_rows``, ``best_matches``, the
-metrics, ``SequenceMatcher.step`` and ``Localizer.step`` — is fed arrays of random
+metrics, ``SequenceMatcher.step``, ``Localizer.step`` and ``LiveLocalizer.step`` — is fed arrays of random
 shape (0-d, empty, 1- to 3-d), dtype (bool, int, unsigned, float16/32/64, complex,
 Python objects, strings) and NaN/infinity placements. The only acceptable outcomes:
 
@@ -113,6 +113,19 @@ def test_localizer_refuses_string_object_or_complex_rows(row):
     with only_typed_outcomes():
         loc.step(row)
         pytest.fail("a string or complex row was accepted")
+
+
+def test_a_live_descriptor_too_large_for_float32_is_refused_in_one_line():
+    from catgraph.exceptions import DataError
+    from catgraph.live import LiveLocalizer, LiveMap
+    from catgraph.traverse import Traverse
+
+    live = LiveLocalizer(LiveMap(Traverse(np.random.default_rng(0).standard_normal((12, 5)))), model="tempered")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(DataError, match="too large for float32"):
+            live.step(np.full(5, 3.40282357e38))
+    assert np.isfinite(live.step(np.arange(5.0)).score)
 
 
 def _no_nan(*values):
@@ -282,6 +295,53 @@ def test_localizer_refuses_non_finite_odometry_on_the_first_step(odometry):
     loc = Localizer(PlaceGraph.chain(8), model, n_particles=50, seed=0)
     with pytest.raises(CatgraphError):
         loc.step(np.linspace(0, 1, 8), odometry=odometry)
+
+
+def _live_maps():
+    """One small live map of each data kind: images (8 × 8, 4 × 4 patches), Wi-Fi scans (dBm,
+    +100 = not seen) and descriptors (cosine)."""
+    from catgraph.live import LiveMap
+    from catgraph.pipeline import FrontEnd
+    from catgraph.traverse import Traverse
+
+    rng = np.random.default_rng(0)
+    images = Traverse(rng.uniform(0, 255, (12, 8, 8)), name="images")
+    scans = rng.uniform(-100, -40, (12, 6))
+    scans[rng.random(scans.shape) < 0.3] = 100.0
+    wifi = Traverse(scans, name="wifi", meta={"kind": "wifi"})
+    descriptors = Traverse(rng.standard_normal((12, 5)), name="descriptors")
+    return {"images": LiveMap(images, FrontEnd(patch=4)), "wifi": LiveMap(wifi), "descriptors": LiveMap(descriptors)}
+
+
+_LIVE_MAPS: dict = {}
+
+
+@FUZZ
+@given(st.sampled_from(["images", "wifi", "descriptors"]), st.sampled_from(["combined", "tempered", "matcher"]),
+       st.lists(st.tuples(any_array(min_dims=0, max_dims=3, max_side=8),
+                          st.one_of(st.none(), st.floats(), st.integers(-5, 5))), min_size=1, max_size=3))
+def test_live_step_typed_or_valid(kind, model, steps):
+    """A camera or scanner callback hands ``LiveLocalizer.step`` whatever arrived: a typed
+    refusal or a valid estimate, and a refused frame leaves the localiser usable."""
+    from catgraph.live import LiveLocalizer
+
+    if not _LIVE_MAPS:
+        _LIVE_MAPS.update(_live_maps())
+    live_map = _LIVE_MAPS[kind]
+    options = {"combined": {"l_max": 6, "seed": 0}, "tempered": {"seed": 0}, "matcher": {"l_max": 6}}[model]
+    live = LiveLocalizer(live_map, model=model, **options)
+    for frame, odometry in steps:
+        with only_typed_outcomes():
+            est = live.step(frame, odometry)
+            _no_nan(est.score, est.confidence)
+            assert -1 <= est.place < live_map.n_places
+            if model != "matcher":
+                assert 0 <= est.place and 0.0 <= est.new_place_probability <= 1.0
+    # after whatever was refused, a good frame still gets an answer
+    good = {"images": np.full((8, 8), 128.0) + np.eye(8), "wifi": np.full(6, -60.0) + np.arange(6),
+            "descriptors": np.arange(5.0)}[kind]
+    est = live.step(good)
+    assert -1 <= est.place < live_map.n_places and np.isfinite(est.score)
 
 
 # ---------------------------------------------------------------------------- front-ends
