@@ -142,7 +142,8 @@ def describe_frame(frame, kind: str, frontend=None, not_detected: float = 100.0)
             return flat  # bits, or bits packed in bytes (compared as bits)
         with np.errstate(over="ignore"):
             out = flat.astype(np.float32)
-        if flat.dtype.kind == "f" and flat.dtype.itemsize > 4 and np.isfinite(flat).all() and not np.isfinite(out).all():
+        overflowed = flat.dtype.kind == "f" and flat.dtype.itemsize > 4 and not np.isfinite(out).all()
+        if overflowed and np.isfinite(flat).all():
             raise DataError("a live descriptor holds values too large for float32 (|x| > 3.4e38); rescale them.")
         return out
     raise InvalidParameterError(f"unknown data kind {kind!r}; a map holds 'images', 'wifi' or 'descriptors'.")
@@ -420,8 +421,9 @@ class LiveMap:
             )
         if source.graph is None:
             raise DataError("this map holds no place graph (saved with build-map --no-graph, or built with "
-                            "build_map(..., graph=False), as catgraph.experiment.prepare builds its map); live "
-                            "localisation needs one: give LiveMap the reference traverse, or a map built with its graph.")
+                            "build_map(..., graph=False), as catgraph.experiment.prepare builds its map); "
+                            "live localisation needs one: give LiveMap the reference traverse, or a map built "
+                            "with its graph.")
         self.frontend = source.frontend_settings()
         self.kind = str(source.meta.get("kind", "descriptors"))
         self._meta = dict(source.meta)
