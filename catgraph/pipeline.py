@@ -26,6 +26,10 @@ from .traverse import Traverse
 
 __all__ = ["FrontEnd", "describe", "differences", "METRICS"]
 
+#: Image frames of more pixels than this (after the crop) described at their own size draw
+#: a note (:func:`note_large_images`): the SeqSLAM pipeline works on small images.
+LARGE_IMAGE_PIXELS = 128 * 128
+
 
 @dataclass(frozen=True)
 class FrontEnd:
@@ -137,6 +141,31 @@ def check_image_options(traverse: Traverse, given: set[str]) -> None:
                                 f"{traverse.name or 'this traverse'} holds {kind}. Leave {'them' if both else 'it'} out.")
 
 
+def note_large_images(traverse: Traverse, frontend: FrontEnd) -> None:
+    """A :class:`~catgraph.exceptions.CatgraphWarning` where image frames of more than
+    :data:`LARGE_IMAGE_PIXELS` pixels (after the crop) are described at their own size (no
+    ``size`` given): every difference then reads every pixel, while the SeqSLAM pipeline
+    (paper 1) is run on small images, 32 × 16 or 64 × 32, at a fraction of the time and
+    memory. Nothing changes; a ``size`` equal to the frames' own silences the note."""
+    if frontend.size is not None or traverse.frames.ndim < 3:
+        return
+    height, width = traverse.frames.shape[1:3]
+    if frontend.crop is not None:
+        top, bottom, left, right = frontend.crop
+        height, width = height - top - bottom, width - left - right
+    if height * width <= LARGE_IMAGE_PIXELS:
+        return
+    import warnings
+
+    from .exceptions import CatgraphWarning
+
+    warnings.warn(
+        f"{traverse.name or 'the traverse'}: its {width}×{height} frames are compared at full size, "
+        f"{width * height:,} values each (no size given). The SeqSLAM pipeline works on small images, 32×16 or "
+        f"64×32 (at 64×32, {width * height // 2048}× fewer values). Give --size 64x32 (FrontEnd(size=(64, 32))), "
+        f"or --size {width}x{height} to keep this size without this note.", CatgraphWarning, stacklevel=4)
+
+
 def _describe(traverse: Traverse, frontend: FrontEnd) -> tuple[np.ndarray, str]:
     kind = _kind(traverse)
     # a value other than the default was given (the experiment layer also knows a default given explicitly)
@@ -144,6 +173,7 @@ def _describe(traverse: Traverse, frontend: FrontEnd) -> tuple[np.ndarray, str]:
                                                    ("patch", frontend.patch not in (0, FrontEnd.patch)),
                                                    ("crop", frontend.crop is not None)) if on})
     if kind == "images":
+        note_large_images(traverse, frontend)
         return seqslam_preprocess(traverse.frames, size=frontend.size, patch=frontend.patch, crop=frontend.crop), \
             frontend.metric or "sad"
     if kind == "wifi":

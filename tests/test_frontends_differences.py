@@ -204,3 +204,28 @@ def test_black_query_frames_get_no_match_with_normalised_rows():
     diff[1] = normalise_rows(np.full(30, 7.0))
     match, conf = best_matches(diff)
     assert match[1] == -1 and conf[1] == 0.0 and np.all(match[[0, 2, 3]] >= 0)
+
+
+def test_large_images_at_their_own_size_draw_a_note_that_names_the_fix():
+    import warnings
+
+    from catgraph.exceptions import CatgraphWarning
+    from catgraph.pipeline import LARGE_IMAGE_PIXELS, FrontEnd, describe
+    from catgraph.traverse import Traverse
+
+    rng = np.random.default_rng(0)
+    big = Traverse(rng.uniform(0, 255, (3, 150, 200)), name="camera")
+    with pytest.warns(CatgraphWarning, match=r"camera: its 200×150 frames are compared at full size, 30,000 values "
+                                             r"each .* --size 64x32 .* --size 200x150 to keep this size"):
+        d, _ = describe(big)
+    assert d.shape == (3, 200 * 150)  # nothing changes but the note
+    small = Traverse(rng.uniform(0, 255, (3, 32, 64)), name="nordland-like")
+    side = int(np.sqrt(LARGE_IMAGE_PIXELS))
+    at_the_limit = Traverse(rng.uniform(0, 255, (3, side, side)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        describe(small)
+        describe(at_the_limit)
+        describe(big, FrontEnd(size=(200, 150)))  # its own size, given: no note
+        describe(big, FrontEnd(size=(64, 32)))
+        describe(big, FrontEnd(crop=(30, 40, 40, 60)))  # 100 × 80 pixels left after the crop
