@@ -524,8 +524,8 @@ def prepare(exp: Experiment) -> Prepared:
 def run_method(method: str, params: dict | None, prepared: Prepared, progress: bool = False) -> RunResult:
     """Run method ``method`` with ``params`` on prepared inputs (stage 5)."""
     if not isinstance(prepared, Prepared):
-        raise InvalidParameterError(f"run_method needs the inputs as catgraph.experiment.prepare gives them (a Prepared); "
-                                    f"got {type(prepared).__name__}.")
+        raise InvalidParameterError("run_method needs the inputs as catgraph.experiment.prepare gives them "
+                                    f"(a Prepared); got {type(prepared).__name__}.")
     m = get_method(method)
     resolved = m.resolve(params)
     trained = method == "histogram" and resolved.get("learning") == "trained"
