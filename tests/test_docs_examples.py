@@ -168,3 +168,41 @@ def test_example_runs(key, world, image_world, tmp_path, monkeypatch):
     exec(compile(BLOCKS[key], f"{key[0]} (example {key[1]})", "exec"), ns)
     if check is not None:
         check(ns, tmp_path)
+
+
+def test_the_defaults_docs_readme_lists_are_the_codes():
+    """docs/README.md lists today's defaults; each value it states is read here from the
+    constant that holds it, so a default changed without the list fails."""
+    import inspect
+
+    from catgraph import methods, sequence
+    from catgraph.grid import DEFAULT_VELOCITIES as GRID_VELOCITIES
+    from catgraph.localizer import Localizer
+
+    text = " ".join((ROOT / "docs" / "README.md").read_text(encoding="utf-8").split())
+    params = methods.resolve_params("filter", {})
+    lengths = inspect.signature(sequence.match_sequences).parameters
+    owned = [
+        (methods.GRID_MAX_PLACES == 100_000, "up to `GRID_MAX_PLACES` = 10⁵ places"),
+        (inspect.signature(Localizer).parameters["n_particles"].default == 2000 and params["n_particles"] is None,
+         "particle filter (2,000 particles)"),
+        (params["model"] == "tempered" and params["mode"] == "auto", "`tempered`: per-query normalised differences"),
+        (methods.DENSE_VELOCITY_MAX_PLACES == 10_000, "on maps of at most 10⁴ places every tenth from 0.9 to 4"),
+        (sorted({abs(v) for v in GRID_VELOCITIES}) == [0.5, 1.0, 2.0, 3.0], "else ±0.5, 1, 2, 3"),
+        (methods.HOME_SPEED_ODDS == 3.0, "three times as likely as each other"),
+        (methods.RIGID_PRIOR == 0.05 and methods.RIGID_MAX_PLACES == 10_000,
+         "a rigid line (one speed, no jump, prior 0.05) and a varying speed, on maps of at most 10⁴ places"),
+        (methods.JUMP_GRID_MAX_PLACES == 5_000, "jump grid on maps of at most 5,000 places"),
+        (methods.OUTLIER_PROBABILITY == 0.01, "outlier frames at 1 %"),
+        (methods.REPEAT_PRIOR == 0.1, "`REPEAT_PRIOR` = 0.1"),
+        (params["confidence_radius"] == 2, "(±2 mean spacings along the route"),
+        (sorted(abs(v) for v in sequence.DEFAULT_VELOCITIES) == [0.5, 0.5, 1, 1, 2, 2, 3, 3],
+         "velocities ±0.5, 1, 2, 3 places per frame (`DEFAULT_VELOCITIES`)"),
+        (sequence.DEFAULT_GRID == 13 and (lengths["l_min"].default, lengths["l_max"].default) == (5, 500),
+         "13 window lengths from 5 to 500 frames"),
+        (sequence.DEFAULT_RULE == "tracked", "| the window rule | `tracked`"),
+        (sequence.DEFAULT_LINE_RULE == "challenged", "`challenged` (`DEFAULT_LINE_RULE`)"),
+    ]
+    for holds, phrase in owned:
+        assert phrase in text, f"docs/README.md no longer says {phrase!r}"
+        assert holds, f"the code's default is no longer what docs/README.md says: {phrase!r}"
