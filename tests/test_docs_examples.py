@@ -4,7 +4,8 @@ Each fenced ``python`` block is executed in a fresh namespace that holds what th
 around it assumes (``reference``, ``query``, a saved ``route.npz`` …, built from the
 synthetic world), in a temporary folder. A block that needs what a test cannot have (a
 Dask scheduler at an address) is listed with the reason; a new block must be added to
-one of the two tables, so that no example is left unchecked by oversight.
+one of the two tables, so that no example is left unchecked by oversight. The defaults
+that docs/README.md lists are read from the constants that hold them.
 """
 
 import os
