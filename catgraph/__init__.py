@@ -32,7 +32,8 @@ from .traverse import (
     shuffle_segments,
 )
 
-__version__ = "0.1.0"
+#: the package's version (PEP 440), written here only: pyproject.toml reads it
+__version__ = "0.2.0.dev0"
 
 _LAZY = {
     "load_traverse": "datasets.loaders",
