@@ -632,7 +632,7 @@ class SequenceObservation:
             self._start()
         row = _check_row(difference_row, getattr(self.matcher_, "n_reference_", None))
         self._settle_support()
-        self.last_match_ = self.matcher_.step(row)
+        self.last_match_ = self.matcher_.step(row.view(CheckedRow))  # checked above: the matcher does not scan it again
         s = self.window_scores()
         if self.temperature == "window":
             tau = 1.0 / max(int(self.last_match_.window_length), 1)

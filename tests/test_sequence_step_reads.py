@@ -147,3 +147,29 @@ def test_a_checked_row_is_not_scanned_again(monkeypatch):
     assert scanned == []
     m.step(d[1])
     assert scanned == [1]
+
+
+def test_the_sequence_model_hands_its_checked_row_on(monkeypatch):
+    """The filter's sequence model checks the row once (or takes the filter's check) and its
+    matcher does not scan it again; a row that fails the check is still refused."""
+    from catgraph.observation import SequenceObservation
+
+    scanned = []
+    original = sequence.check_array
+
+    def counting(*args, **kwargs):
+        scanned.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(sequence, "check_array", counting)
+    d = _rows(n_q=6, n=300)
+    model = SequenceObservation(matcher_params={"l_max": 20})
+    for r in d[:3]:
+        model.observe(r)  # a plain row: the model checks it
+    for r in d[3:]:
+        model.observe(r.view(CheckedRow))  # a filter's row: nobody checks it again
+    assert scanned == []
+    bad = d[0].copy()
+    bad[5] = np.nan
+    with pytest.raises(DataError):
+        model.observe(bad)
