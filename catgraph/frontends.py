@@ -124,6 +124,12 @@ def _normalise_blocks(block: np.ndarray, axes: tuple[int, int], out: np.ndarray)
     np.divide(centred, safe, out=out)
 
 
+#: Bytes of greyscale float32 frames :func:`seqslam_preprocess` works on at once: a traverse
+#: of camera-size colour frames is described a block of frames at a time, so its float
+#: temporaries (float32 colour, float64 patches) stay this size, not a multiple of the frames'.
+_FRONTEND_BLOCK_BYTES = 32 << 20
+
+
 def seqslam_preprocess(
     images: np.ndarray,
     size: tuple[int, int] | None = None,
@@ -131,6 +137,10 @@ def seqslam_preprocess(
     crop: tuple[int, int, int, int] | None = None,
 ) -> np.ndarray:
     """The SeqSLAM image front-end: greyscale, crop, resize, patch-normalise, flatten.
+
+    Each frame is described on its own, a block of frames at a time (about
+    :data:`_FRONTEND_BLOCK_BYTES` of greyscale floats), so the memory is the frames' and
+    the descriptors', whatever the frames' size.
 
     Parameters
     ----------
@@ -146,22 +156,37 @@ def seqslam_preprocess(
     -------
     ndarray, shape (n, height*width), float32
     """
-    x = to_greyscale(check_array(images, "images", ndim=(3, 4), dtype=None))
+    x = check_array(images, "images", ndim=(3, 4), dtype=None)
+    if x.ndim == 4 and x.shape[-1] not in (1, 2, 3, 4):
+        raise DataError(f"images must have shape (n, h, w) or (n, h, w, channels); got {x.shape}.")
+    h, w = x.shape[1:3]
+    top = bottom = left = right = 0
     if crop is not None:
         values = tuple(crop) if isinstance(crop, (tuple, list, np.ndarray)) else ()
         if len(values) != 4 or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in values):
             raise InvalidParameterError(f"crop must be (top, bottom, left, right): four whole numbers of pixels to cut; "
                                         f"got {crop!r}.")
         top, bottom, left, right = (int(v) for v in values)
-        h, w = x.shape[1:]
         if min(top, bottom, left, right) < 0 or top + bottom >= h or left + right >= w:
             raise DataError(f"crop {crop} does not fit images of size {w}×{h}; give (top, bottom, left, right) pixels.")
-        x = x[:, top : h - bottom, left : w - right]
+    out_h, out_w = h - top - bottom, w - left - right
     if size is not None:
-        x = resize_images(x, size)
-    if patch:
-        x = patch_normalise(x, patch)
-    return x.reshape(x.shape[0], -1).astype(np.float32)
+        out_w, out_h = int(size[0]), int(size[1])
+        if out_w < 1 or out_h < 1:
+            raise DataError(f"resize size must be two positive ints (width, height); got {size}.")
+    n = x.shape[0]
+    check_memory(4.0 * n * out_h * out_w, f"the descriptors of {n} images of {out_w}×{out_h}",
+                 "choose a smaller size (--size)")
+    out = np.empty((n, out_h * out_w), dtype=np.float32)
+    block = max(1, _FRONTEND_BLOCK_BYTES // (4 * h * w))
+    for i in range(0, n, block):
+        part = to_greyscale(x[i : i + block])[:, top : h - bottom, left : w - right]
+        if size is not None:
+            part = resize_images(part, size)
+        if patch:
+            part = patch_normalise(part, patch)
+        out[i : i + block] = part.reshape(part.shape[0], -1)
+    return out
 
 
 def wifi_vectors(rss: np.ndarray, not_detected: float = 100.0, floor_dbm: float = -105.0) -> np.ndarray:

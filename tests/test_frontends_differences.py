@@ -30,6 +30,59 @@ def test_seqslam_preprocess_shapes_and_constant_images():
     assert d.shape == (3, 128) and d.dtype == np.float32 and np.all(d == 0)
 
 
+def _whole_at_once(images, size=None, patch=4, crop=None):
+    """The front-end on every frame at once, step by step: the reference for the blocks."""
+    from catgraph.frontends import resize_images, to_greyscale
+
+    x = to_greyscale(images)
+    if crop is not None:
+        top, bottom, left, right = crop
+        x = x[:, top : x.shape[1] - bottom, left : x.shape[2] - right]
+    if size is not None:
+        x = resize_images(x, size)
+    if patch:
+        x = patch_normalise(x, patch)
+    return x.reshape(len(x), -1).astype(np.float32)
+
+
+@pytest.mark.parametrize("shape", [(7, 30, 45, 3), (7, 30, 45), (5, 18, 22, 4), (6, 17, 23, 1)])
+@pytest.mark.parametrize("size, patch, crop", [(None, 4, None), ((16, 8), 4, None), ((9, 7), 3, (2, 3, 4, 1)),
+                                               (None, 0, (1, 0, 0, 5)), ((12, 6), 0, None)])
+def test_seqslam_preprocess_in_blocks_is_the_whole_at_once(monkeypatch, shape, size, patch, crop):
+    """Frames described a block at a time give the floats of every frame at once, for any block."""
+    from catgraph import frontends
+
+    images = np.random.default_rng(sum(shape)).integers(0, 256, shape, dtype=np.uint8)
+    expected = _whole_at_once(images, size, patch, crop)
+    for block_frames in (1, 2, 3, 100):
+        monkeypatch.setattr(frontends, "_FRONTEND_BLOCK_BYTES", 4 * shape[1] * shape[2] * block_frames)
+        out = seqslam_preprocess(images, size=size, patch=patch, crop=crop)
+        assert out.dtype == np.float32 and out.shape == expected.shape
+        np.testing.assert_array_equal(out, expected)
+
+
+def test_seqslam_preprocess_bounds_its_temporaries():
+    """Colour frames are described a block at a time: the float temporaries stay about one
+    block's size, not a multiple of all the frames' (measured with tracemalloc)."""
+    import tracemalloc
+
+    from catgraph import frontends
+
+    images = np.random.default_rng(0).integers(0, 256, (64, 120, 160, 3), dtype=np.uint8)  # 3.7 MB
+    block = frontends._FRONTEND_BLOCK_BYTES
+    try:
+        frontends._FRONTEND_BLOCK_BYTES = 4 * 120 * 160 * 4  # four frames a block
+        tracemalloc.start()
+        out = seqslam_preprocess(images, size=(32, 16))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+        frontends._FRONTEND_BLOCK_BYTES = block
+    np.testing.assert_array_equal(out, _whole_at_once(images, (32, 16)))
+    # the whole traverse at once holds float32 colour (14.7 MB) and greyscale (4.9 MB)
+    assert peak < images.nbytes, peak
+
+
 def test_wifi_not_detected_is_weak_not_strong():
     v = wifi_vectors(np.array([[100, -40, -104, -110]]))
     np.testing.assert_allclose(v, [[0, 65, 1, 0]])
