@@ -25,6 +25,33 @@ def test_rgb_images_kept_and_grey_rgb_collapsed(tmp_path, rng):
     assert load_traverse(tmp_path / "grey").frames.ndim in (3, 4)
 
 
+@pytest.mark.parametrize("colour_at", [0, 2, 4])
+def test_grey_and_colour_frames_in_one_folder(tmp_path, rng, colour_at):
+    """Grey frames (8-bit, 16-bit, a grey palette) beside a colour one become RGB, each grey
+    value in all three channels, wherever the colour frame stands."""
+    from PIL import Image
+
+    grey = rng.integers(0, 256, (5, 6, 7), dtype=np.uint8)
+    colour = rng.integers(0, 256, (6, 7, 3), dtype=np.uint8)
+    folder = tmp_path / "f"
+    folder.mkdir()
+    for k in range(5):
+        name = folder / f"img-{k:03d}.png"
+        if k == colour_at:
+            Image.fromarray(colour).save(name)
+        elif k == 1:
+            Image.fromarray(grey[k].astype(np.uint16) * 257).save(name)  # 16-bit
+        elif k == 3:
+            Image.fromarray(grey[k]).convert("P").save(name)  # a palette of greys
+        else:
+            Image.fromarray(grey[k]).save(name)
+    frames = load_image_folder(folder).frames
+    expected = np.repeat(grey[..., None], 3, axis=3)
+    expected[colour_at] = colour
+    assert frames.shape == (5, 6, 7, 3) and frames.dtype == np.uint8
+    np.testing.assert_array_equal(frames, expected)
+
+
 def test_missing_and_empty_folder(tmp_path):
     with pytest.raises(DataNotFoundError, match="does not exist"):
         load_traverse(tmp_path / "nope")

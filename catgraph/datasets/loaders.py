@@ -90,29 +90,31 @@ def load_image_folder(path: str | Path, progress: bool = False) -> Traverse:
         from tqdm.auto import tqdm
 
         iterator = tqdm(files, desc=f"loading {folder.name}", unit="img", leave=False)
-    arrays = []
-    for file in iterator:
+    frames = None  # filled in place: the traverse's memory is its frames', never twice theirs
+    for k, file in enumerate(iterator):
         try:
             with Image.open(file) as img:
                 img.load()
                 if img.mode == "I" or img.mode.startswith("I;16"):
-                    arrays.append(_eight_bits(np.asarray(img)))
-                    continue
-                mode = "L" if img.mode in ("L", "1", "P") and _is_grey(img) else "RGB"
-                arrays.append(np.asarray(img.convert(mode)))
+                    array = _eight_bits(np.asarray(img))
+                else:
+                    mode = "L" if img.mode in ("L", "1", "P") and _is_grey(img) else "RGB"
+                    array = np.asarray(img.convert(mode))
         except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
             raise DataError(f"cannot read image {file}: {exc}. Remove or replace the corrupt file.") from None
-    shapes = {a.shape for a in arrays}
-    if len({s[:2] for s in shapes}) > 1:
-        first = arrays[0].shape
-        odd = next(f for f, a in zip(files, arrays) if a.shape[:2] != first[:2])
-        raise DataError(
-            f"images in {folder} differ in size ({files[0].name}: {first[1]}×{first[0]}, {odd.name}: "
-            f"{arrays[files.index(odd)].shape[1]}×{arrays[files.index(odd)].shape[0]}); resize them to one size first."
-        )
-    if len(shapes) > 1:  # mixed grey and colour: promote grey to RGB
-        arrays = [a if a.ndim == 3 else np.repeat(a[..., None], 3, axis=2) for a in arrays]
-    frames = np.stack(arrays)
+        if frames is None:
+            frames = np.empty((len(files), *array.shape), dtype=np.uint8)
+        elif array.shape[:2] != frames.shape[1:3]:
+            raise DataError(
+                f"images in {folder} differ in size ({files[0].name}: {frames.shape[2]}×{frames.shape[1]}, "
+                f"{file.name}: {array.shape[1]}×{array.shape[0]}); resize them to one size first."
+            )
+        if array.ndim != frames.ndim - 1:  # mixed grey and colour: grey becomes RGB
+            if array.ndim == 3:
+                frames = np.repeat(frames[..., None], 3, axis=3)
+            else:
+                array = np.repeat(array[..., None], 3, axis=2)
+        frames[k] = array
     if frames.ndim == 4 and np.array_equal(frames[..., 0], frames[..., 1]) and np.array_equal(frames[..., 1], frames[..., 2]):
         frames = np.ascontiguousarray(frames[..., 0])  # grey stored as RGB
     numbers = [_NUMBER.findall(f.stem) for f in files]
