@@ -131,16 +131,22 @@ def test_the_streaming_step_imports_no_filter_module():
     assert out.strip() == "[]"
 
 
-def test_a_checked_row_is_not_scanned_again(monkeypatch):
-    """A row a filter has checked is handed to the kernels as it is; any other row is checked."""
-    scanned = []
+@pytest.fixture
+def scanned(monkeypatch):
+    """One entry per row the matcher scans (its ``check_array``)."""
+    calls = []
     original = sequence.check_array
 
     def counting(*args, **kwargs):
-        scanned.append(1)
+        calls.append(1)
         return original(*args, **kwargs)
 
     monkeypatch.setattr(sequence, "check_array", counting)
+    return calls
+
+
+def test_a_checked_row_is_not_scanned_again(scanned):
+    """A row a filter has checked is handed to the kernels as it is; any other row is checked."""
     d = _rows(n_q=4, n=300)
     m = sequence.SequenceMatcher(l_max=20)
     m.step(d[0].view(CheckedRow))
@@ -149,19 +155,11 @@ def test_a_checked_row_is_not_scanned_again(monkeypatch):
     assert scanned == [1]
 
 
-def test_the_sequence_model_hands_its_checked_row_on(monkeypatch):
+def test_the_sequence_model_hands_its_checked_row_on(scanned):
     """The filter's sequence model checks the row once (or takes the filter's check) and its
     matcher does not scan it again; a row that fails the check is still refused."""
     from catgraph.observation import SequenceObservation
 
-    scanned = []
-    original = sequence.check_array
-
-    def counting(*args, **kwargs):
-        scanned.append(1)
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(sequence, "check_array", counting)
     d = _rows(n_q=6, n=300)
     model = SequenceObservation(matcher_params={"l_max": 20})
     for r in d[:3]:
