@@ -102,8 +102,13 @@ def _synthetic_seed(text: str) -> int | None:
     return int(seed or 0)
 
 
-def load_input(source: str | Path | Traverse, role: str) -> Traverse:
-    """A traverse from a path, from ``"synthetic[:SEED]"`` (the built-in world), or as given."""
+def load_input(source: str | Path | Traverse, role: str, fps: float | None = None) -> Traverse:
+    """A traverse from a path, from ``"synthetic[:SEED]"`` (the built-in world), or as given.
+    ``fps``: a video's frames kept per second, for a video file only (others are refused)."""
+    from .datasets.video import is_video
+
+    if fps is not None and not is_video(source):
+        raise InvalidParameterError(f"fps (--fps) picks the frames of a video; the {role} is not one. Leave it out.")
     if isinstance(source, Traverse):
         return source
     text = str(source)
@@ -113,7 +118,19 @@ def load_input(source: str | Path | Traverse, role: str) -> Traverse:
         return world.reference if role == "reference" else world.query
     from .datasets import load_traverse
 
-    return load_traverse(source)
+    return load_traverse(source, fps=fps)
+
+
+def _video_fps(exp: Experiment, map_fps: float | None) -> float | None:
+    """The frames per second the experiment's video inputs are read at: the front-end's (a
+    map's own where the map is saved); refused where it was given and no input is a video."""
+    from .datasets.video import is_video
+
+    given = (exp.frontend or {}).get("fps")
+    if given is not None and not any(is_video(s) for s in (exp.reference, exp.query)):
+        raise InvalidParameterError("fps (--fps) picks the frames of a video, and neither the reference nor the "
+                                    "query is one; leave it out.")
+    return given if exp.map is None else map_fps
 
 
 # ---------------------------------------------------------------------------- the description
@@ -474,18 +491,23 @@ def _ground_truth(exp: Experiment, reference: Traverse, query: Traverse, n_place
 
 def _inputs(exp: Experiment) -> tuple:
     """Stages 1–2: ``(map, reference or None, graph or None, sources, query, ground_truth)``."""
+    from .datasets.video import is_video
     from .io import build_map, load_map, reference_from_map
 
-    query = load_input(exp.query, "query")
     if exp.map is not None:
         the_map = exp.map if hasattr(exp.map, "descriptors") else load_map(exp.map)
+        fps = _video_fps(exp, the_map.frontend_settings().fps)
+    else:
+        fps = _video_fps(exp, None)
+    query = load_input(exp.query, "query", fps if is_video(exp.query) else None)
+    if exp.map is not None:
         reference = None
         graph = the_map.graph
         sources = {"map": _source_name(exp.map)}
     else:
         from .pipeline import check_image_options
 
-        reference = load_input(exp.reference, "reference")
+        reference = load_input(exp.reference, "reference", fps if is_video(exp.reference) else None)
         if exp.junction_radius_m is not None and reference.positions is None:
             raise InvalidParameterError("junction_radius_m joins places by position, but the reference has no "
                                         "positions; leave it out.")

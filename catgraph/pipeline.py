@@ -49,6 +49,10 @@ class FrontEnd:
         vectors: cosine, booleans: Hamming).
     normalise : bool
         Per-query normalisation of the difference matrix (paper 1).
+    fps : float or None
+        Video inputs only: the frames kept per second (by the frames' timestamps;
+        :func:`catgraph.datasets.video.load_video`); ``None`` keeps every frame. A map keeps
+        it, and a video query given to the map is read at the same rate.
     """
 
     size: tuple[int, int] | None = None
@@ -56,9 +60,10 @@ class FrontEnd:
     metric: str | None = None
     normalise: bool = True
     crop: tuple[int, int, int, int] | None = None
+    fps: float | None = None
 
     #: the settings' names, as :meth:`as_dict` writes them and configs and maps give them
-    KEYS: ClassVar[tuple[str, ...]] = ("size", "patch", "crop", "metric", "normalise")
+    KEYS: ClassVar[tuple[str, ...]] = ("size", "patch", "crop", "metric", "normalise", "fps")
     #: the settings that apply to image frames only
     IMAGE_KEYS: ClassVar[tuple[str, ...]] = ("size", "patch", "crop")
 
@@ -83,6 +88,9 @@ class FrontEnd:
             raise InvalidParameterError(f"unknown metric {self.metric!r}; choose one of {', '.join(METRICS)}.")
         if not isinstance(self.normalise, (bool, np.bool_)):
             raise InvalidParameterError(f"normalise must be true or false; got {self.normalise!r}.")
+        from .datasets.video import check_fps
+
+        object.__setattr__(self, "fps", check_fps(self.fps))
 
     @classmethod
     def from_dict(cls, values: dict[str, Any] | None) -> "FrontEnd":
@@ -103,12 +111,13 @@ class FrontEnd:
                 values["size"] = (int(w), int(h))
             except ValueError:
                 raise InvalidParameterError(f"write the size as WIDTHxHEIGHT, e.g. 32x16; got {values['size']!r}.") from None
-        values = {k: v for k, v in values.items() if v is not None or k in ("size", "metric", "crop")}
+        values = {k: v for k, v in values.items() if v is not None or k in ("size", "metric", "crop", "fps")}
         return cls(**values)
 
     def as_dict(self) -> dict:
         return {"size": list(self.size) if self.size else None, "patch": self.patch,
-                "crop": list(self.crop) if self.crop else None, "metric": self.metric, "normalise": self.normalise}
+                "crop": list(self.crop) if self.crop else None, "metric": self.metric, "normalise": self.normalise,
+                "fps": self.fps}
 
 
 def _kind(traverse: Traverse) -> str:

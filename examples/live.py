@@ -4,8 +4,8 @@
                             [--particles 2000] [--seed 0] [--output frames.json] [--every 100]
 
 REFERENCE is a saved map (``catgraph build-map … --out map.npz``) or anything
-``catgraph localize`` reads as a reference (an image folder, a UJI prefix, an array
-file, ``synthetic:SEED``); QUERY is a traverse. The map is prepared once
+``catgraph localize`` reads as a reference (an image folder, a video file, a UJI prefix,
+an array file, ``synthetic:SEED``); QUERY is a traverse. The map is prepared once
 (:class:`catgraph.live.LiveMap`); then every raw query frame (an image, a scan) is handed
 to :meth:`catgraph.live.LiveLocalizer.step` on its own, which applies the map's
 front-end, compares the frame with every place and updates the filter. The answers
@@ -73,6 +73,7 @@ def run(args) -> int:
     from catgraph._atomic import check_writable
     from catgraph.datasets.loaders import source_paths
     from catgraph.exceptions import InvalidParameterError
+    from catgraph.datasets.video import is_video
     from catgraph.experiment import load_input
     from catgraph.live import LiveLocalizer
 
@@ -88,7 +89,8 @@ def run(args) -> int:
         raise InvalidParameterError(f"{' and '.join(given)} {verb} not apply to --model matcher (it runs no filter); "
                                     "leave it out.")
     live_map = load_live_map(args.reference, args.layout)
-    query = load_input(args.query, "query")
+    # a video query is read at the map's frames per second (the map keeps them: build-map --fps)
+    query = load_input(args.query, "query", live_map.frontend.fps if is_video(args.query) else None)
     live_map.check_query(query)
     params = {name: given[flag] for name, flag in (("mode", "--mode"), ("n_particles", "--particles"),
                                                    ("seed", "--seed")) if flag in given}

@@ -57,6 +57,11 @@ def folder(text: str) -> Path:
     return Path(text)
 
 
+#: ``--fps``'s help, one text for every command that reads a video
+FPS_HELP = ("video inputs: frames kept per second, by the frames' timestamps (default: every frame); a map keeps it "
+            "and reads a video query at the same rate")
+
+
 def _size(text: str) -> tuple[int, int]:
     try:
         w, h = text.lower().split("x")
@@ -207,8 +212,8 @@ def add_common_inputs(p: argparse.ArgumentParser, graph_options: bool = False) -
     from ..differences import METRICS
 
     p.add_argument("inputs", nargs="+", metavar="REFERENCE QUERY",
-                   help="reference and query traverses: image folders, UJI prefixes (db/01/trn01), .npy/.npz "
-                        "files or synthetic:SEED; with --map, only QUERY")
+                   help="reference and query traverses: image folders, video files, UJI prefixes (db/01/trn01), "
+                        ".npy/.npz files or synthetic:SEED; with --map, only QUERY")
     p.add_argument("--map", type=Path, metavar="MAP", help="a saved map (catgraph build-map) as the reference")
     gt = p.add_argument_group("ground truth (optional: without it, frames are written and metrics are null)")
     one = gt.add_mutually_exclusive_group()
@@ -243,6 +248,7 @@ def add_common_inputs(p: argparse.ArgumentParser, graph_options: bool = False) -
     fe.add_argument("--crop", type=_crop, metavar="T,B,L,R",
                     help="cut T, B, L and R pixels from the images' top, bottom, left and right before resizing")
     fe.add_argument("--metric", choices=METRICS, help="difference metric (default: by data kind)")
+    fe.add_argument("--fps", type=_number(float), metavar="F", help=FPS_HELP)
     if graph_options:
         fe.add_argument("--junction-radius-m", type=_number(float), metavar="METRES",
                         help="join places of different parts of the route within METRES (needs positions)")
@@ -287,7 +293,7 @@ def experiment_from(args, method: str, params: dict):
             f"with --map give only QUERY (got {len(args.inputs)} paths)." if args.map is not None else
             f"give REFERENCE and QUERY (got {len(args.inputs)} path{'s' if len(args.inputs) != 1 else ''})."
         )
-    frontend = {k: getattr(args, k) for k in ("size", "patch", "crop", "metric") if getattr(args, k) is not None}
+    frontend = {k: getattr(args, k) for k in ("size", "patch", "crop", "metric", "fps") if getattr(args, k) is not None}
     if args.map is not None and frontend:
         flags = ", ".join(f"--{k}" for k in frontend)
         raise InvalidParameterError(f"{flags} do{'es' if len(frontend) == 1 else ''} not apply to a saved map: its "

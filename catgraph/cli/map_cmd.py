@@ -1,9 +1,9 @@
 """``catgraph build-map``: describe a reference once and save it as a map file.
 
     catgraph build-map REFERENCE --out map.npz [--size WxH] [--patch P] [--crop T,B,L,R] [--metric M]
-                       [--junction-radius-m R] [--no-graph] [--quiet]
+                       [--fps F] [--junction-radius-m R] [--no-graph] [--quiet]
 
-REFERENCE is anything the other commands accept (image folder, UJI prefix,
+REFERENCE is anything the other commands accept (image folder, video file, UJI prefix,
 ``.npy``/``.npz``, ``synthetic:SEED``). The map holds the descriptors, the front-end
 settings, the place graph (chain plus junctions within R metres when positions exist)
 and the reference's positions, floors and ids; see :mod:`catgraph.io`.
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .commands import _crop, _number, _size, register
+from .commands import FPS_HELP, _crop, _number, _size, register
 
 
 @register
@@ -23,14 +23,15 @@ def register_build_map(sub) -> None:
     p = sub.add_parser("build-map", help="describe a reference traverse once and save it as a map file (.npz)",
                        description="Describe a reference traverse with the front-end, build its place graph and "
                                    "save everything as one checksummed .npz map file.")
-    p.add_argument("reference", help="reference traverse: image folder, UJI prefix (db/01/trn01), .npy/.npz "
-                                     "or synthetic:SEED")
+    p.add_argument("reference", help="reference traverse: image folder, video file, UJI prefix (db/01/trn01), "
+                                     ".npy/.npz or synthetic:SEED")
     p.add_argument("--out", "-o", type=Path, required=True, metavar="FILE", help="map file to write (map.npz)")
     p.add_argument("--size", type=_size, metavar="WxH", help="resize images to WxH before patch normalisation")
     p.add_argument("--patch", type=_number(int), help="patch-normalisation patch side in pixels (0 = off; default 4)")
     p.add_argument("--crop", type=_crop, metavar="T,B,L,R",
                    help="cut T, B, L and R pixels from the images' top, bottom, left and right before resizing")
     p.add_argument("--metric", choices=METRICS, help="difference metric (default: by data kind)")
+    p.add_argument("--fps", type=_number(float), metavar="F", help=FPS_HELP)
     p.add_argument("--junction-radius-m", type=_number(float), metavar="METRES",
                    help="join places of different parts of the route within METRES (needs positions)")
     p.add_argument("--no-graph", action="store_true", help="store no place graph")
@@ -51,9 +52,10 @@ def cmd_build_map(args) -> int:
         raise InvalidParameterError("--junction-radius-m adds edges to the place graph; drop --no-graph.")
     if args.junction_radius_m is not None and not 0 < args.junction_radius_m < float("inf"):
         raise InvalidParameterError(f"--junction-radius-m must be > 0 metres; got {args.junction_radius_m}.")
-    frontend = FrontEnd.from_dict({"size": args.size, "patch": args.patch, "crop": args.crop, "metric": args.metric})
+    frontend = FrontEnd.from_dict({"size": args.size, "patch": args.patch, "crop": args.crop, "metric": args.metric,
+                                   "fps": args.fps})
     check_writable(args.out, "map file", inputs=source_paths(args.reference))
-    reference = load_input(args.reference, "reference")
+    reference = load_input(args.reference, "reference", frontend.fps)
     check_image_options(reference, {k for k in FrontEnd.IMAGE_KEYS if getattr(args, k) is not None})
     if args.junction_radius_m is not None and reference.positions is None:
         raise InvalidParameterError("--junction-radius-m joins places by position, but the reference has no "

@@ -12,6 +12,8 @@
   are metadata no method needs: a problem with them (a malformed stamp, a wrong row
   count) is a :class:`~catgraph.exceptions.CatgraphWarning` and the field is dropped,
   never a reason to refuse the fingerprints.
+* **Video files** (``.mp4``, ``.mkv``, ``.avi`` …): every frame, or ``fps`` of them per
+  second (:mod:`catgraph.datasets.video`; needs PyAV, ``pip install "catgraph[video]"``).
 * **Descriptor arrays**: ``.npy`` (one ``(n, d)`` array) or ``.npz`` with ``descriptors``
   (or ``frames``) and optional ``positions``, ``floors``, ``timestamps``, ``ids``,
   ``odometry``; both read with ``allow_pickle=False``.
@@ -115,13 +117,20 @@ def load_image_folder(path: str | Path, progress: bool = False) -> Traverse:
             else:
                 array = np.repeat(array[..., None], 3, axis=2)
         frames[k] = array
-    if frames.ndim == 4 and np.array_equal(frames[..., 0], frames[..., 1]) and np.array_equal(frames[..., 1], frames[..., 2]):
-        frames = np.ascontiguousarray(frames[..., 0])  # grey stored as RGB
+    frames = grey_if_equal(frames)
     numbers = [_NUMBER.findall(f.stem) for f in files]
     _warn_ambiguous_order(folder, files, numbers)
     ids = np.array([int(n[-1]) if n else k for k, n in enumerate(numbers)], dtype=np.int64)
     return Traverse(frames, ids=ids, name=folder.name, meta={"kind": "images", "source": str(folder),
                                                               "files": [f.name for f in files]})
+
+
+def grey_if_equal(frames: np.ndarray) -> np.ndarray:
+    """RGB frames ``(n, h, w, 3)`` whose three channels are equal everywhere (grey stored as
+    colour) as ``(n, h, w)``; any other frames as they are."""
+    if frames.ndim == 4 and np.array_equal(frames[..., 0], frames[..., 1]) and np.array_equal(frames[..., 1], frames[..., 2]):
+        return np.ascontiguousarray(frames[..., 0])
+    return frames
 
 
 def _warn_ambiguous_order(folder: Path, files: list[Path], numbers: list[list[str]]) -> None:
@@ -376,9 +385,18 @@ def _read_arrays(fh, path: Path) -> tuple[np.ndarray, dict, str | None]:
     return frames, fields, main
 
 
-def load_traverse(source: str | Path, progress: bool = False) -> Traverse:
-    """Load a traverse from an image folder, a UJI prefix or a ``.npy``/``.npz`` file."""
+def load_traverse(source: str | Path, progress: bool = False, fps: float | None = None) -> Traverse:
+    """Load a traverse from an image folder, a video file, a UJI prefix or a ``.npy``/``.npz``
+    file. ``fps``: a video's frames kept per second (:func:`catgraph.datasets.video.load_video`);
+    refused for every other source."""
+    from .video import VIDEO_SUFFIXES, check_fps, is_video, load_video
+
     path = _as_path(source, "load_traverse")
+    if is_video(path):
+        return load_video(path, fps)
+    if check_fps(fps) is not None:
+        raise InvalidParameterError(f"fps (--fps) picks the frames of a video; {path} is not one ("
+                                    f"{', '.join(VIDEO_SUFFIXES)}). Leave it out.")
     if path.suffix.lower() in (".npy", ".npz"):
         return load_array(path)
     if path.is_dir():
@@ -386,7 +404,8 @@ def load_traverse(source: str | Path, progress: bool = False) -> Traverse:
     if uji_files(path)["rss"].exists():
         return load_uji(path)
     if path.exists():
-        raise DataError(f"{path} is not a folder of images, a UJI prefix or a .npy/.npz file.")
+        raise DataError(f"{path} is not a folder of images, a video, a UJI prefix or a .npy/.npz file.")
     raise DataNotFoundError(
-        f"{path} does not exist: give a folder of images, a UJI prefix (e.g. db/01/trn01) or a .npy/.npz file."
+        f"{path} does not exist: give a folder of images, a video file, a UJI prefix (e.g. db/01/trn01) or a "
+        ".npy/.npz file."
     )
