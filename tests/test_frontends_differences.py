@@ -6,7 +6,7 @@ from hypothesis.extra.numpy import arrays
 from scipy.spatial.distance import cdist
 
 from catgraph.differences import difference_matrix, difference_row, iter_difference_blocks, normalise_rows
-from catgraph.exceptions import DataError, InvalidParameterError, ShapeMismatchError
+from catgraph.exceptions import DataError, InsufficientMemoryError, InvalidParameterError, ShapeMismatchError
 from catgraph.frontends import patch_normalise, seqslam_preprocess, wifi_vectors
 
 
@@ -282,3 +282,17 @@ def test_large_images_at_their_own_size_draw_a_note_that_names_the_fix():
         describe(big, FrontEnd(size=(200, 150)))  # its own size, given: no note
         describe(big, FrontEnd(size=(64, 32)))
         describe(big, FrontEnd(crop=(30, 40, 40, 60)))  # 100 × 80 pixels left after the crop
+
+
+def test_a_live_frame_reads_no_memory_figure(monkeypatch):
+    """One frame's descriptor is far below any memory limit: describing it does not read the
+    machine's memory figure (a file read per frame on the live path)."""
+    import catgraph._validation as validation
+
+    reads = []
+    monkeypatch.setattr(validation, "available_memory", lambda: reads.append(1) or 2**40)
+    seqslam_preprocess(np.random.default_rng(0).integers(0, 256, (1, 480, 640, 3), dtype=np.uint8), patch=4)
+    assert reads == []
+    with pytest.raises(InsufficientMemoryError, match="smaller size"):  # a traverse's descriptors are checked
+        monkeypatch.setattr(validation, "available_memory", lambda: 2**20)
+        seqslam_preprocess(np.zeros((40, 480, 640), dtype=np.uint8), patch=0)
