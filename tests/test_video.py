@@ -126,3 +126,22 @@ def test_a_map_keeps_its_fps_and_reads_a_video_query_at_it(route, tmp_path, caps
     assert "does not apply to a saved map" in capsys.readouterr().err
     assert main(["build-map", "synthetic:0", "--fps", "2", "-o", str(tmp_path / "s.npz"), "-q"]) == 1
     assert "not one" in capsys.readouterr().err
+
+
+def test_a_sweep_reads_its_videos_at_the_configured_fps(route, tmp_path):
+    config = tmp_path / "videos.toml"
+    config.write_text(f'''
+[[dataset]]
+name = "drive"
+reference = "{route['ref_video'].name}"
+query = "{route['qry_video'].name}"
+tolerance = 1
+frontend = {{ fps = 5 }}
+
+[[method]]
+method = "single-frame"
+''')
+    out = tmp_path / "out"
+    assert main(["bench", str(config), "--out", str(out), "--processes", "1", "--quiet"]) == 0
+    (run,) = [json.loads(p.read_text()) for p in out.glob("*.json") if p.name != "summary.json"]
+    assert run["spec"]["frontend"] == {"fps": 5} and run["metrics"]["n_queries"] == 18
