@@ -86,6 +86,18 @@ def check_scalar(
     return value
 
 
+def check_fps(fps) -> float | None:
+    """A video's frames kept per second (:attr:`catgraph.pipeline.FrontEnd.fps`,
+    :func:`catgraph.datasets.video.load_video`) as a float > 0; ``None`` stays ``None``
+    (every frame)."""
+    if fps is None:
+        return None
+    if isinstance(fps, bool) or not isinstance(fps, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(float(fps)) or float(fps) <= 0:
+        raise InvalidParameterError(f"fps (video frames kept per second) must be a number > 0; got {fps!r}.")
+    return float(fps)
+
+
 def check_array(
     array: Any,
     name: str,

@@ -20,6 +20,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from .differences import METRICS
+from ._validation import check_fps
 from .exceptions import InvalidParameterError
 from .frontends import seqslam_preprocess, wifi_vectors
 from .traverse import Traverse
@@ -88,8 +89,6 @@ class FrontEnd:
             raise InvalidParameterError(f"unknown metric {self.metric!r}; choose one of {', '.join(METRICS)}.")
         if not isinstance(self.normalise, (bool, np.bool_)):
             raise InvalidParameterError(f"normalise must be true or false; got {self.normalise!r}.")
-        from .datasets.video import check_fps
-
         object.__setattr__(self, "fps", check_fps(self.fps))
 
     @classmethod

@@ -6,7 +6,8 @@ the streaming peak at ``N = 10^5``). ``import catgraph.live`` loads no compiled 
 (numba loads with the first step), and neither the import nor a live step loads
 ``scipy.spatial`` or ``scipy.sparse`` (about 7 MB resident; only metric ground truth,
 explicit ground-truth matrices and graphs built from positions need them, and import
-them where they are used).
+them where they are used), nor ``catgraph.datasets`` (the loaders and the synthetic
+world: 300 modules and about 12 MB resident).
 """
 
 from __future__ import annotations
@@ -33,3 +34,5 @@ def test_live_path_leaves_scipy_spatial_and_sparse_unloaded():
     for when in ("import", "step"):
         heavy = [m for m in loaded[when] if m.split(".")[:2] in (["scipy", "spatial"], ["scipy", "sparse"])]
         assert heavy == [], f"{when}: {heavy[:5]}"
+        # nor the loaders and the synthetic world (a live process is handed frames, not files)
+        assert [m for m in loaded[when] if m.startswith("catgraph.datasets")] == [], when

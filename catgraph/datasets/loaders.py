@@ -389,7 +389,8 @@ def load_traverse(source: str | Path, progress: bool = False, fps: float | None 
     """Load a traverse from an image folder, a video file, a UJI prefix or a ``.npy``/``.npz``
     file. ``fps``: a video's frames kept per second (:func:`catgraph.datasets.video.load_video`);
     refused for every other source."""
-    from .video import VIDEO_SUFFIXES, check_fps, is_video, load_video
+    from .._validation import check_fps
+    from .video import VIDEO_SUFFIXES, is_video, load_video
 
     path = _as_path(source, "load_traverse")
     if is_video(path):

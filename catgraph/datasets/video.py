@@ -20,10 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..exceptions import DataError, DataNotFoundError, InvalidParameterError, MissingDependencyError
+from .._validation import check_fps
+from ..exceptions import DataError, DataNotFoundError, MissingDependencyError
 from ..traverse import Traverse
 
-__all__ = ["VIDEO_SUFFIXES", "load_video", "check_fps", "is_video"]
+__all__ = ["VIDEO_SUFFIXES", "load_video", "is_video"]
 
 #: File suffixes read as videos (:func:`catgraph.datasets.load_traverse`).
 VIDEO_SUFFIXES = (".mp4", ".m4v", ".mov", ".mkv", ".avi", ".webm", ".mpg", ".mpeg", ".wmv", ".flv", ".ts")
@@ -32,16 +33,6 @@ VIDEO_SUFFIXES = (".mp4", ".m4v", ".mov", ".mkv", ".avi", ".webm", ".mpg", ".mpe
 def is_video(source) -> bool:
     """Whether ``source`` (a path) names a video file, by its suffix (:data:`VIDEO_SUFFIXES`)."""
     return isinstance(source, (str, Path)) and Path(source).suffix.lower() in VIDEO_SUFFIXES
-
-
-def check_fps(fps) -> float | None:
-    """``fps`` as a float > 0 (``None`` stays ``None``: every frame)."""
-    if fps is None:
-        return None
-    if isinstance(fps, bool) or not isinstance(fps, (int, float, np.integer, np.floating)) \
-            or not math.isfinite(float(fps)) or float(fps) <= 0:
-        raise InvalidParameterError(f"fps (video frames kept per second) must be a number > 0; got {fps!r}.")
-    return float(fps)
 
 
 def _open(path: Path):
