@@ -322,6 +322,26 @@ def pairwise_sum(a):  # pragma: no cover - compiled
 
 
 @njit(nogil=True)
+def product_sum(x, y):  # pragma: no cover - compiled
+    """numpy's ``(x * y).sum()`` of two contiguous float64 arrays, the same float, without
+    the products stored and on the calling thread: where ``np.dot`` would hand a long
+    product to BLAS, whose threads then spin on the cores the step's own threads need."""
+    n = x.shape[0]
+    starts = block_starts(n)
+    nb = len(starts) - 1
+    sp = np.empty(nb)
+    bp = np.empty(_BLOCK)
+    for b in range(nb):
+        lo = starts[b]
+        w = starts[b + 1] - lo
+        xs, ys = x[lo:lo + w], y[lo:lo + w]
+        for t in range(np.uint64(w)):
+            bp[t] = xs[t] * ys[t]
+        sp[b] = _block_sum(bp, w)
+    return 0.0 + _combine(sp, n)
+
+
+@njit(nogil=True)
 def centred_sums(x, mean, other, out):  # pragma: no cover - compiled
     """``out = x − mean`` and numpy's ``(out * out).sum()`` and, where ``other`` is not
     empty, ``(out * other).sum()`` (0 otherwise), in one pass; an empty ``out``: the

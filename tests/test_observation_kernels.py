@@ -144,6 +144,33 @@ def test_pairwise_sum_is_numpys_sum_on_every_length():
         assert _same(kernels.pairwise_sum(zeros), zeros.sum())
 
 
+def test_product_sum_is_numpys_sum_of_the_products_on_every_length():
+    """product_sum: numpy's ``(x * y).sum()``, every bit, on every length (the jump
+    evidence's correlation with its kept frame, taken on the calling thread)."""
+    rng = np.random.default_rng(13)
+    for n in _lengths():
+        x = rng.standard_normal(n) * 10.0 ** rng.uniform(-6, 6, n)
+        y = rng.standard_normal(n)
+        assert _same(kernels.product_sum(x, y), np.multiply(x, y).sum()), n
+
+
+def test_the_jump_evidence_takes_no_blas_product(monkeypatch):
+    """The jump evidence's correlation with its kept frame is numpy's sum of the products,
+    taken without ``np.dot`` (whose BLAS threads spin on the live step's cores after a long
+    product), on contiguous and on strided rows alike."""
+    from catgraph import jumps
+
+    monkeypatch.setattr(jumps.np, "dot", None)  # any np.dot in the module would fail
+    rng = np.random.default_rng(14)
+    rows = rng.standard_normal((120, 2 * 501))
+    for view in (lambda r: r[:501].copy(), lambda r: r[::2]):  # contiguous; strided
+        ev = jumps.JumpEvidence(apart=5)
+        for r in rows:
+            c = view(r) - view(r).mean()
+            ev.observe(0.5, c, float((c * c).sum()))
+        assert ev.jump_counts_.sum() > ev.prior_frames  # the kept frame was compared
+
+
 def test_fused_sums_are_the_numpy_formulas_they_replace():
     """centred_sums: ``x − m`` with numpy's ``((x − m)²).sum()`` and ``((x − m) · o).sum()``;
     mean_std: ``(x.mean(), x.std())``: every bit, on every length."""
