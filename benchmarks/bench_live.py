@@ -8,7 +8,7 @@ with every core (a parallel sum over its bytes) — the least any difference row
 cost — so ratios survive a busy machine. Writes ``benchmarks/results/live.md`` (and
 ``live.json``).
 
-    python benchmarks/bench_live.py [--sizes 10000 100000 1000000] [--frames 60]
+    python benchmarks/bench_live.py [--sizes 10000 100000 1000000] [--frames 200]
     python benchmarks/bench_live.py --cold-start
     python benchmarks/bench_live.py --profile --sizes 10000 100000   # the step's pieces (live_profile.md)
     python benchmarks/bench_live.py --profile-rest --sizes 100000    # the rest's pieces (live_profile_rest.md)
@@ -1143,7 +1143,10 @@ def main() -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000, 1_000_000])
     parser.add_argument("--cases", nargs="+", default=["row", "row-u8", "row-1t", "cosine-raw", "cosine", "matcher", "live",
                                                           "live-u8"])
-    parser.add_argument("--frames", type=int, default=60)
+    parser.add_argument("--frames", type=int, default=200,
+                        help="timed frames per case (default 200: the jump evidence compares each frame with a kept "
+                             "one in 50 of every 100 frames, catgraph.jumps.APART_FRAMES; fewer frames time one "
+                             "phase of that cycle)")
     parser.add_argument("--l-max", type=int, default=500)
     parser.add_argument("--cold-start", action="store_true", help="measure only the cold start")
     parser.add_argument("--tree", help="with --cold-start: import catgraph from this checkout (a frozen copy)")
