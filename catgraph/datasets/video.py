@@ -79,7 +79,7 @@ def load_video(path: str | Path, fps: float | None = None) -> Traverse:
     InsufficientMemoryError
         The frames kept would not fit in memory (the message gives an ``fps`` that would).
     """
-    from ..datasets.loaders import _as_path, grey_if_equal
+    from .loaders import _as_path, grey_if_equal
 
     path = _as_path(path, "load_video")
     fps = check_fps(fps)
