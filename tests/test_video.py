@@ -3,6 +3,7 @@ frames gives, frames kept by time, the answers of the folder, and every refusal 
 
 import json
 import sys
+import warnings
 from fractions import Fraction
 
 import numpy as np
@@ -11,8 +12,8 @@ import pytest
 from catgraph.cli.main import main
 from catgraph.datasets import load_traverse
 from catgraph.datasets.video import load_video
-from catgraph.exceptions import (DataError, DataNotFoundError, InsufficientMemoryError, InvalidParameterError,
-                                 MissingDependencyError)
+from catgraph.exceptions import (CatgraphWarning, DataError, DataNotFoundError, InsufficientMemoryError,
+                                 InvalidParameterError, MissingDependencyError)
 
 from .conftest import write_images
 
@@ -145,3 +146,28 @@ method = "single-frame"
     assert main(["bench", str(config), "--out", str(out), "--processes", "1", "--quiet"]) == 0
     (run,) = [json.loads(p.read_text()) for p in out.glob("*.json") if p.name != "summary.json"]
     assert run["spec"]["frontend"] == {"fps": 5} and run["metrics"]["n_queries"] == 18
+
+
+def test_a_video_cut_short_warns_and_keeps_its_frames(tmp_path):
+    """A Matroska file cut in half decodes up to the cut without an FFmpeg error; the loader
+    says so (the file declares 10 s) and returns the frames before the cut, unchanged."""
+    frames = np.random.default_rng(0).integers(0, 256, (100, 12, 20, 3), dtype=np.uint8)
+    whole = write_video(tmp_path / "whole.mkv", frames, rate=10)
+    data = whole.read_bytes()
+    cut = tmp_path / "cut.mkv"
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.warns(CatgraphWarning, match=r"declares 10\.00 s; it may be cut short"):
+        t = load_video(cut)
+    assert 0 < len(t.frames) < 100
+    np.testing.assert_array_equal(t.frames, frames[: len(t.frames)])
+    with pytest.warns(CatgraphWarning, match="cut short"):  # also when fps keeps fewer of them
+        assert len(load_video(cut, fps=2).frames) < len(t.frames)
+
+
+def test_a_whole_video_does_not_warn(tmp_path):
+    frames = np.random.default_rng(1).integers(0, 256, (30, 12, 20, 3), dtype=np.uint8)
+    for rate in (10, Fraction(30000, 1001)):
+        path = write_video(tmp_path / f"v{float(rate):.0f}.mkv", frames, rate=rate)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", CatgraphWarning)
+            assert len(load_video(path).frames) == 30 and len(load_video(path, fps=3).frames) > 0

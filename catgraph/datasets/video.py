@@ -16,12 +16,13 @@ memory is refused before it is read, with the ``fps`` that would fit.
 from __future__ import annotations
 
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from .._validation import check_fps
-from ..exceptions import DataError, DataNotFoundError, MissingDependencyError
+from ..exceptions import CatgraphWarning, DataError, DataNotFoundError, MissingDependencyError
 from ..traverse import Traverse
 
 __all__ = ["VIDEO_SUFFIXES", "load_video", "is_video"]
@@ -78,6 +79,13 @@ def load_video(path: str | Path, fps: float | None = None) -> Traverse:
         No such file; not a video, a damaged one, or one without frames.
     InsufficientMemoryError
         The frames kept would not fit in memory (the message gives an ``fps`` that would).
+
+    Warns
+    -----
+    CatgraphWarning
+        The frames end more than two frame intervals before the length the file declares: a
+        file cut short (an interrupted copy or recording), which FFmpeg decodes up to the cut
+        without an error. The frames that decode are returned.
     """
     from .loaders import _as_path, grey_if_equal
 
@@ -90,17 +98,18 @@ def load_video(path: str | Path, fps: float | None = None) -> Traverse:
         stream = container.streams.video[0]
         stream.thread_type = "AUTO"  # FFmpeg's own frame and slice threads
         rate = float(stream.average_rate) if stream.average_rate else None
-        _check_memory(path, stream, container, rate, fps)
+        declared = _declared_seconds(stream, container)
+        _check_memory(path, stream, declared, rate, fps)
         frames: list[np.ndarray] = []
         numbers, times = [], []
-        first, next_bucket, read = None, 0, 0
+        first, last, next_bucket, read = None, None, 0, 0
         try:
             for k, frame in enumerate(container.decode(stream)):
                 t = frame.time if frame.time is not None else (k / rate if rate else None)
                 if t is None:
                     raise DataError(f"{path}: its frames carry no timestamps and the stream no frame rate, so fps "
                                     "cannot pick frames by time; leave fps out (every frame).")
-                first, read = (t if first is None else first), k + 1
+                first, last, read = (t if first is None else first), t, k + 1
                 if fps is not None:
                     bucket = math.floor((t - first) * fps + 1e-9)
                     if bucket < next_bucket:
@@ -118,6 +127,7 @@ def load_video(path: str | Path, fps: float | None = None) -> Traverse:
                             "damaged or cut short.") from None
     if not frames:
         raise DataError(f"{path} holds no frames that decode; give a video with at least one frame.")
+    _warn_if_cut_short(path, declared, rate, last - first, read)
     out = np.empty((len(frames), *frames[0].shape), dtype=np.uint8)
     for k in range(len(frames)):  # each frame freed as it is copied: never twice the frames in memory
         out[k], frames[k] = frames[k], None
@@ -127,16 +137,34 @@ def load_video(path: str | Path, fps: float | None = None) -> Traverse:
                           "video": {"fps": fps, "rate": rate, "frames_read": read}})
 
 
-def _check_memory(path: Path, stream, container, rate: float | None, fps: float | None) -> None:
+def _declared_seconds(stream, container) -> float | None:
+    """The video stream's length as the file declares it (its own duration, else the
+    container's), in seconds; ``None`` where the file does not say."""
+    if stream.duration is not None and stream.time_base is not None:
+        return float(stream.duration * stream.time_base)
+    if container.duration is not None:
+        return container.duration / 1_000_000  # microseconds (FFmpeg's AV_TIME_BASE)
+    return None
+
+
+def _warn_if_cut_short(path: Path, declared: float | None, rate: float | None, span: float, read: int) -> None:
+    """Warn where the decoded frames end well before the length the file declares: a file cut
+    short (an interrupted copy or recording) whose container still decodes up to the cut, which
+    FFmpeg does not report as an error. More than two frame intervals missing counts."""
+    if not declared or not rate:
+        return
+    covered = span + 1.0 / rate  # the last frame lasts one interval
+    if covered < declared - 2.0 / rate:
+        warnings.warn(f"{path}: the frames decoded end at {covered:.2f} s ({read} frames) but the file declares "
+                      f"{declared:.2f} s; it may be cut short (an interrupted copy or recording). The frames read are "
+                      "used; copy or record the video again for the rest.", CatgraphWarning, stacklevel=3)
+
+
+def _check_memory(path: Path, stream, seconds: float | None, rate: float | None, fps: float | None) -> None:
     """Refuse, before reading, a video whose kept frames would not fit in memory (where its
     length is known), naming an ``fps`` that would fit."""
     from .._validation import available_memory, check_memory
 
-    seconds = None
-    if stream.duration is not None and stream.time_base is not None:
-        seconds = float(stream.duration * stream.time_base)
-    elif container.duration is not None:
-        seconds = container.duration / 1_000_000  # microseconds (FFmpeg's AV_TIME_BASE)
     width, height = stream.codec_context.width, stream.codec_context.height
     if not seconds or not rate or not width or not height:
         return
