@@ -31,7 +31,6 @@ never asserted.
 from __future__ import annotations
 
 import json
-import platform
 import statistics
 import sys
 import time
@@ -42,6 +41,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 sys.path.insert(0, str(ROOT / "benchmarks"))
+from machine_info import describe_machine  # noqa: E402
 
 
 class _FixedModel:
@@ -97,7 +97,7 @@ def speed() -> str:
 
     rng = np.random.default_rng(0)
     nb = len(DEFAULT_VELOCITIES)
-    lines = ["# Filter step time", "", f"`python benchmarks/bench_filter.py speed`. {platform.processor() or platform.machine()}, "
+    lines = ["# Filter step time", "", f"`python benchmarks/bench_filter.py speed`. {describe_machine()}, "
              f"numpy {np.__version__}; medians of 5 runs (the grid filter's configurations interleaved); observation precomputed (a fixed log-ratio vector). The "
              "machine is shared, so each row also gives, measured in the same run, one `np.add` over an array of the "
              f"grid's size ({nb} × places float64) and the step as a multiple of it.", "",

@@ -31,7 +31,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -46,6 +45,8 @@ L_MAX = 500
 from catgraph._window_rule import _Horizon  # noqa: E402
 
 sys.path.insert(0, str(ROOT))
+from machine_info import describe_machine  # noqa: E402
+
 #: the reference clock (the clock as first written), kept beside its test
 from tests.test_live_horizon import _PartitionHorizon as PartitionHorizon  # noqa: E402
 
@@ -217,8 +218,7 @@ def main(argv=None) -> None:
     ap.add_argument("--out", default="matcher_horizon")
     args = ap.parse_args(argv)
     skip = set(filter(None, args.skip.split(",")))
-    res = {"commit": _commit(), "machine": f"{platform.machine()}, Python {platform.python_version()}, "
-                                           f"{os.cpu_count()} cores shared with other work"}
+    res = {"commit": _commit(), "machine": f"{describe_machine()}, shared with other work"}
     if "timing" not in skip:
         res["timing"] = []
         for n in args.sizes:

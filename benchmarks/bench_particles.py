@@ -53,7 +53,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import statistics
 import sys
 import time
@@ -62,6 +61,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine_info import describe_machine  # noqa: E402
 from bench_filter import _FixedModel, _time_steps  # noqa: E402
 from datasets import benchmark_conditions, prepare_kept, prepared_datasets  # noqa: E402
 
@@ -275,7 +275,7 @@ def _jump_timing_markdown(t: dict, flag: str = "--jump-timing",
              f"`VelocityMotion`; each timing the mean of {t['steps']} steps in a fresh process (after 12 warm steps), "
              f"the configurations alternated over {t['rounds']} rounds; median of the rounds, the one-minute load "
              "average over them beside it. Code: " + "; ".join(f"{k} {v}" for k, v in codes.items()) + ". "
-             f"{platform.machine()}, numpy {np.__version__}.\n\n",
+             f"{describe_machine()}, numpy {np.__version__}.\n\n",
              "| places | code | without (`jump_graduation` 1) | with (0.2) | with ÷ without | load |\n"
              "|---|---|---|---|---|---|\n"]
     rows = t["rows"]
@@ -394,7 +394,7 @@ def _markdown(rows, times, conv, params, seeds, quick) -> str:
     if times:
         parts.append("\n## Step time, observation excluded\n\n3,576-place chain, a fixed log-ratio vector; medians "
                      "of 7 runs of 100 steps, particle filter (`VelocityMotion`) and grid filter alternating in the "
-                     f"same run. {platform.machine()}, numpy {np.__version__}.\n\n| filter | step (ms) | ÷ grid |\n"
+                     f"same run. {describe_machine()}, numpy {np.__version__}.\n\n| filter | step (ms) | ÷ grid |\n"
                      "|---|---|---|\n")
         for t in times:
             parts.append(f"| {t['filter']} | {t['ms']:.3f} | {t['ratio_to_grid']:.2f} |\n")
@@ -461,14 +461,14 @@ def main(argv=None) -> None:
     if args.jump_timing:
         t = jump_timing(args.before)
         RESULTS.mkdir(parents=True, exist_ok=True)
-        (RESULTS / "particles_jump_grid_speed.json").write_text(json.dumps({"machine": platform.platform(), **t},
+        (RESULTS / "particles_jump_grid_speed.json").write_text(json.dumps({"machine": describe_machine(), **t},
                                                                            indent=1))
         (RESULTS / "particles_jump_grid_speed.md").write_text(_jump_timing_markdown(t))
         return
     if args.large_timing:
         t = jump_timing(args.before, places=(3_576, 100_000, 1_000_000), steps=30, compile_time=False)
         RESULTS.mkdir(parents=True, exist_ok=True)
-        (RESULTS / "particles_step_speed.json").write_text(json.dumps({"machine": platform.platform(), **t}, indent=1))
+        (RESULTS / "particles_step_speed.json").write_text(json.dumps({"machine": describe_machine(), **t}, indent=1))
         (RESULTS / "particles_step_speed.md").write_text(_jump_timing_markdown(
             t, "--large-timing", "The particle filter's step on large maps, with and without its jump grid"))
         return
@@ -488,7 +488,7 @@ def main(argv=None) -> None:
     times = None if args.no_timing else step_times()
     conv = None if args.no_timing else convergence()
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / f"{args.out}.json").write_text(json.dumps({"machine": platform.platform(), "params": params,
+    (RESULTS / f"{args.out}.json").write_text(json.dumps({"machine": describe_machine(), "params": params,
                                                           "seeds": seeds, "rows": rows, "step_times": times,
                                                           "convergence": conv}, indent=1))
     (RESULTS / f"{args.out}.md").write_text(_markdown(rows, times, conv, params, seeds, args.quick))

@@ -76,7 +76,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 from dataclasses import replace
@@ -86,6 +85,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from machine_info import describe_machine  # noqa: E402
 
 from benchmarks.datasets import DATA, conditioned, nordland, synthetic, uji_months  # noqa: E402
 from catgraph.conditions import condition_table  # noqa: E402
@@ -283,7 +283,7 @@ def timing(repeats: int = 3) -> dict:
             "threads": numba.get_num_threads(), "velocities": len(DEFAULT_VELOCITIES),
             **_matcher_memory(d),
             "load_average": os.getloadavg()[0],
-            "machine": f"{platform.machine()}, Python {platform.python_version()}, {os.cpu_count()} cpu"}
+            "machine": describe_machine()}
 
 
 def _fmt(r, wifi):
