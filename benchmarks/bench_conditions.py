@@ -21,17 +21,17 @@ method can be re-measured after its defaults change without re-running the other
 
 ``--check [--tolerance T]``: run the methods, datasets and conditions asked for and compare
 every cell with the committed ``conditions.json`` (AUC, R@100P and MTL; float for float,
-or within ``T``: the compiled kernels that sum with ``fastmath`` round per processor, so on
-another machine a cell may differ in its last digits); writes nothing, prints the cells
-that differ or are missing, exits 1 if any does — the table reproduced on another checkout
-or machine with one command.
+or within ``T``: the compiled kernels that sum with ``fastmath`` round per target CPU, so on
+another processor a cell may differ in its last digits, unless ``NUMBA_CPU_NAME`` names the
+CPU the table was compiled for, its ``compiled_for``: ``docs/evaluation.md``); writes
+nothing, prints the cells that differ or are missing, exits 1 if any does — the table
+reproduced on another checkout or machine with one command.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import platform
 import sys
 import time
 from pathlib import Path
@@ -40,6 +40,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from datasets import benchmark_conditions, prepared_datasets  # noqa: E402
+from machine_info import compiled_for, describe_machine  # noqa: E402
 
 from catgraph.experiment import run_method  # noqa: E402
 
@@ -119,7 +120,8 @@ def main(argv=None) -> None:
         labels = [m for m in METHODS if m in present]
         rows.sort(key=lambda r: ("Nordland", "UJI 02-06", "synthetic").index(r["dataset"]))
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "conditions.json").write_text(json.dumps({"machine": platform.platform(), "rows": rows}, indent=1))
+    table = {"machine": describe_machine(), "compiled_for": compiled_for(), "rows": rows}
+    (RESULTS / "conditions.json").write_text(json.dumps(table, indent=1))
     (RESULTS / "conditions.md").write_text(_markdown(rows, labels, conditions, args.quick))
 
 
@@ -133,8 +135,10 @@ def _check(rows: list[dict], committed_path: Path, tolerance: float = 0.0) -> in
     if not committed_path.is_file():
         print(f"no committed table at {committed_path}: nothing to check against")
         return 1
-    committed = {(r["dataset"], r["condition"], r["method"]): r
-                 for r in json.loads(committed_path.read_text())["rows"]}
+    table = json.loads(committed_path.read_text())
+    committed = {(r["dataset"], r["condition"], r["method"]): r for r in table["rows"]}
+    # the compiled sums round per processor: say where the table was made and where it is checked
+    print(f"committed table measured on: {table.get('machine', 'not recorded')}\nchecked on: {describe_machine()}")
     differ = 0
     for row in rows:
         key = (row["dataset"], row["condition"], row["method"])
@@ -149,6 +153,10 @@ def _check(rows: list[dict], committed_path: Path, tolerance: float = 0.0) -> in
             print(f"differs: {' / '.join(key)}: " + "; ".join(changed))
             differ += 1
     print(f"{len(rows) - differ} of {len(rows)} cells as committed" + ("" if differ else ": the table reproduces"))
+    made_for, here = table.get("compiled_for"), compiled_for()
+    if differ and made_for and made_for != here:
+        print(f"the table's kernels were compiled for {made_for}, these for {here}: the kernels that sum with "
+              f"fastmath round per target CPU; NUMBA_CPU_NAME={made_for} compiles for the table's (docs/evaluation.md)")
     return 1 if differ else 0
 
 

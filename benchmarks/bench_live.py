@@ -282,6 +282,7 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
         warm_up(models=("combined",), layouts=("uint8" if case == "live-u8" else "float32",), steps=2)
         gc.collect()
         out["baseline_mb"] = _status_mb("VmRSS")
+        out["baseline_file_mb"] = _status_mb("RssFile")  # of it, pages of files: the shared libraries' code
     reference = _reference(n)
     if case != "live-u8":  # the compact live step's floors are measured after its streaming window
         out["floor_ms"] = _floor_ms(reference)
@@ -353,6 +354,8 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
                 parts[key].append(est.seconds[key])
         ms = 1000.0 * np.asarray(times)
         out["streaming_peak_rss_mb"] = _status_mb("VmHWM")
+        out["streaming_rss_file_mb"] = _status_mb("RssFile")  # at the window's end: pages of files (libraries)
+        out["streaming_rss_anon_mb"] = _status_mb("RssAnon")  # and the process's own memory
         observation._observe_and_prepare = beside
         out["frames_two_threads"] = len(on_second_thread)
         del matcher.step
@@ -1027,10 +1030,15 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
             continue
         mem_row(f"**streaming peak, full live step, {what}** (after preparing; ring filled, frames stepped)", case,
                 lambda r: f"{r['streaming_peak_rss_mb']:.0f} MB, ×{r['streaming_peak_rss_mb'] / floor_mb(r):.2f} floor")
+        mem_row("… at the window's end: the process's own memory (`RssAnon`) + pages of files, the shared "
+                "libraries' code most (`RssFile`: reclaimable, shared with other processes)", case,
+                lambda r: (f"{r['streaming_rss_anon_mb']:.0f} + {r['streaming_rss_file_mb']:.0f} MB"
+                           if "streaming_rss_file_mb" in r else "not recorded"))
         mem_row("… floor: the process before the map + the map + the matcher's ring and sums", case,
                 lambda r: f"{floor_mb(r):.0f} MB")
-        mem_row("… … the process before the map (Python, numpy, numba, live kernels loaded)", case,
-                lambda r: f"{r['baseline_mb']:.0f} MB")
+        mem_row("… … the process before the map (Python, numpy, numba, live kernels loaded; of it, pages of files)",
+                case, lambda r: f"{r['baseline_mb']:.0f} MB" + (f" ({r['baseline_file_mb']:.0f} MB)"
+                                                               if "baseline_file_mb" in r else ""))
         mem_row("… … the map as the kernels read it", case, lambda r: f"{r['map_mb']:.0f} MB")
         mem_row("… … the matcher's ring of the last l_max + 1 rows", case,
                 lambda r: f"{r['ring_mb']:.0f} MB ({r['ring_dtype']})")

@@ -4,7 +4,7 @@ A timing is the machine's: the same code measured 12.3 ms on one 2-core machine 
 another whose memory reads faster (``benchmarks/results/live_notes.md``). ``x86_64`` does not
 tell them apart, so the tables name the processor (``/proc/cpuinfo``'s model name, which a
 virtual machine may shorten to its vendor and family) and the CPU that numba compiles for
-(llvmlite's host CPU name: ``znver4``, ``rocketlake`` …).
+(llvmlite's name for it, ``znver4``, ``rocketlake`` …, or ``NUMBA_CPU_NAME``).
 """
 
 from __future__ import annotations
@@ -27,7 +27,16 @@ def cpu_model() -> str:
 
 
 def compiled_for() -> str | None:
-    """The CPU numba compiles for (llvmlite's host CPU name); ``None`` where llvmlite is absent."""
+    """The CPU numba compiles for: ``NUMBA_CPU_NAME`` where set, else llvmlite's name for this
+    processor; ``None`` where llvmlite is absent.
+
+    The kernels that sum with ``fastmath`` are vectorised as the compiler's model of that CPU
+    chooses, so their last bits (and a table's cells) follow it: a table compiled for one CPU
+    reproduces float for float on another processor with ``NUMBA_CPU_NAME`` set to it
+    (``docs/evaluation.md``, "Reproducing the tables on another machine").
+    """
+    if os.environ.get("NUMBA_CPU_NAME"):
+        return os.environ["NUMBA_CPU_NAME"]
     try:
         import llvmlite.binding as llvm
     except ImportError:
@@ -36,7 +45,8 @@ def compiled_for() -> str | None:
 
 
 def describe_machine() -> str:
-    """``"AMD EPYC (llvmlite znver4), x86_64, 2 cores, Python 3.11.7"``."""
+    """``"AMD EPYC (numba compiles for znver4), x86_64, 2 cores, Python 3.11.7"``."""
     target = compiled_for()
-    cpu = cpu_model() + (f" (llvmlite {target})" if target else "")
+    chosen = " by NUMBA_CPU_NAME" if os.environ.get("NUMBA_CPU_NAME") else ""
+    cpu = cpu_model() + (f" (numba compiles for {target}{chosen})" if target else "")
     return f"{cpu}, {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"

@@ -11,8 +11,10 @@ matrix, of any block of it, and of any shard of the reference on another machine
     SIMD lane, which is also more accurate than one running sum), the result stored
     as float64. The loop over ``k`` is the same machine code for every pair, so the
     value of ``out[i, j]`` depends on ``q_i`` and ``r_j`` only — never on which other
-    rows are in the block, how the reference is cut or how many threads run. (Across
-    machines with different SIMD widths, the last bits can differ.) It releases the
+    rows are in the block, how the reference is cut or how many threads run. (The
+    compiler vectorises the sum as its model of the target CPU chooses: compiled for
+    another CPU, the last bits can differ; ``NUMBA_CPU_NAME`` fixes the target,
+    ``docs/evaluation.md``.) It releases the
     GIL and works on a range of places, so :mod:`catgraph.differences` runs it from a
     small thread pool on disjoint ranges — one query row (a live frame) uses every
     core — and within a range it walks blocks of :data:`PLACE_BLOCK` references
