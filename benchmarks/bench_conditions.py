@@ -40,8 +40,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from datasets import benchmark_conditions, prepared_datasets  # noqa: E402
-from machine_info import compiled_for, describe_machine  # noqa: E402
+from machine_info import describe_machine  # noqa: E402
 
+from catgraph.environment import compile_target  # noqa: E402
 from catgraph.experiment import run_method  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -120,7 +121,7 @@ def main(argv=None) -> None:
         labels = [m for m in METHODS if m in present]
         rows.sort(key=lambda r: ("Nordland", "UJI 02-06", "synthetic").index(r["dataset"]))
     RESULTS.mkdir(parents=True, exist_ok=True)
-    table = {"machine": describe_machine(), "compiled_for": compiled_for(), "rows": rows}
+    table = {"machine": describe_machine(), "compiled_for": compile_target(), "rows": rows}
     (RESULTS / "conditions.json").write_text(json.dumps(table, indent=1))
     (RESULTS / "conditions.md").write_text(_markdown(rows, labels, conditions, args.quick))
 
@@ -153,7 +154,7 @@ def _check(rows: list[dict], committed_path: Path, tolerance: float = 0.0) -> in
             print(f"differs: {' / '.join(key)}: " + "; ".join(changed))
             differ += 1
     print(f"{len(rows) - differ} of {len(rows)} cells as committed" + ("" if differ else ": the table reproduces"))
-    made_for, here = table.get("compiled_for"), compiled_for()
+    made_for, here = table.get("compiled_for"), compile_target()
     if differ and made_for and made_for != here:
         print(f"the table's kernels were compiled for {made_for}, these for {here}: the kernels that sum with "
               f"fastmath round per target CPU; NUMBA_CPU_NAME={made_for} compiles for the table's (docs/evaluation.md)")

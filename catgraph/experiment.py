@@ -56,6 +56,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .conditions import Condition
+from .environment import environment
 from .exceptions import ConfigError, InvalidParameterError
 from .methods import get_method
 from .pipeline import FrontEnd
@@ -569,6 +570,7 @@ def payload(result: RunResult, prepared: Prepared, exp: Experiment | None = None
     out = result.to_dict(evaluation)
     if exp is not None and exp.name:
         out["name"] = exp.name
+    out["environment"] = environment()  # the versions and the compile target behind the numbers
     return out, evaluation
 
 

@@ -5,14 +5,17 @@ Every command that evaluates writes::
     {"method": str, "params": {...},
      "metrics": {"auc", "recall_at_100p", "recall_at_99p", "recall_at_90p", "mtl", "accuracy", "n_queries"},
      "frames": {"query_index": [...], "match": [int or null], "confidence": [float or null],
-                "correct": [bool], ...extra per-frame fields...}}
+                "correct": [bool], ...extra per-frame fields...},
+     "environment": {"catgraph", "python", "numpy", ..., "processor", "compiled_for"}}
 
 ``frames`` lists the query frames in the order they were processed (after any
 shuffle); ``query_index`` is the frame's index in the query as loaded and ``match`` an
 index into the reference as loaded, so anyone can recheck correctness. Frames with no
 output have ``match`` and ``confidence`` null. Extra per-frame arrays (e.g.
 ``window_length``, ``p_new_place``) appear beside them. Files are written atomically
-(temporary file, then rename) so a crash never leaves half a result.
+(temporary file, then rename) so a crash never leaves half a result. ``environment``
+(:func:`catgraph.environment.environment`) names the versions and the CPU the kernels
+were compiled for, which decides the last bits of their sums (``docs/evaluation.md``).
 """
 
 from __future__ import annotations

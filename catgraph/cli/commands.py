@@ -19,7 +19,7 @@ from ..exceptions import InvalidParameterError
 REGISTRY = []
 
 # modules that add sub-commands with ``@register`` when imported
-COMMAND_MODULES = ("report_cmd", "map_cmd", "bench_cmd", "warmup_cmd")
+COMMAND_MODULES = ("report_cmd", "map_cmd", "bench_cmd", "warmup_cmd", "info_cmd")
 
 
 def register(fn):
