@@ -44,7 +44,8 @@ from typing import Any
 from ._atomic import write_text_atomic
 from .exceptions import DataError, InvalidParameterError
 
-__all__ = ["COLUMNS", "initialisation_frames", "load_results", "run_labels", "markdown_table", "write_report"]
+__all__ = ["COLUMNS", "environment_note", "initialisation_frames", "load_results", "run_labels", "markdown_table",
+           "write_report"]
 
 #: (metrics key, column title, format, better) of the metric columns, in table order.
 COLUMNS: tuple[tuple[str, str, str, str], ...] = (
@@ -127,8 +128,9 @@ def _check_payload(payload: dict, source: str) -> None:
     if not isinstance(payload.get("frames"), Mapping):
         raise DataError(f"{source}: 'frames' must be an object of per-frame lists.")
     _check_frames(payload["frames"], source)
-    if payload.get("params") is not None and not isinstance(payload["params"], Mapping):
-        raise DataError(f"{source}: 'params' must be an object.")
+    for key in ("params", "environment"):
+        if payload.get(key) is not None and not isinstance(payload[key], Mapping):
+            raise DataError(f"{source}: '{key}' must be an object.")
     metrics = payload.get("metrics")
     if metrics is None:
         return
@@ -237,6 +239,32 @@ def run_labels(payloads: Sequence[Mapping[str, Any]]) -> list[str]:
     return labels
 
 
+#: What of a run's environment decides its numbers (:mod:`catgraph.environment`): the code's
+#: versions, and the CPU the kernels were compiled for (the last bits of their sums).
+_DECISIVE = ("catgraph", "numpy", "scipy", "numba", "llvmlite", "compiled_for")
+
+
+def environment_note(payloads: Sequence[Mapping[str, Any]]) -> str | None:
+    """One sentence on the environments the runs were made in (``None`` where no run records
+    one): shared by all, or what differs (versions, the compile target), which alone can move
+    a metric's last digits (``docs/evaluation.md``, "Reproducing the tables on another machine")."""
+    envs = [p.get("environment") for p in payloads]
+    known = [env for env in envs if isinstance(env, Mapping)]
+    if not known:
+        return None
+    unrecorded = len(envs) - len(known)
+    tail = f" {unrecorded} of the {len(envs)} runs do not record theirs." if unrecorded else ""
+    differ = {key: sorted({str(env.get(key)) for env in known}) for key in _DECISIVE}
+    differ = {key: values for key, values in differ.items() if len(values) > 1}
+    if differ:
+        what = "; ".join(f"{key} {' / '.join(values)}" for key, values in differ.items())
+        return (f"The runs were made in different environments ({what}): their metrics can differ in the last "
+                f"digits for that alone.{tail}")
+    env = known[0]
+    return (f"Environment of the runs: catgraph {env.get('catgraph')}, numba {env.get('numba')}, kernels compiled "
+            f"for {env.get('compiled_for')} ({env.get('processor')}).{tail}")
+
+
 def _shorten(text: str, limit: int = _MAX_PARAM_CHARS) -> str:
     return text if len(text) <= limit else text[: limit - 1] + "…"
 
@@ -291,6 +319,9 @@ def markdown_table(results: Sequence[Mapping[str, Any] | str | os.PathLike], tit
         lines.append("| " + " | ".join([esc(label), esc(_summary(f, keys)) or "–"] + metric_text) + " |")
     if shared:
         lines += ["", "Shared by all runs: " + esc(_summary(shared, list(shared))) + "."]
+    environment = environment_note(payloads)
+    if environment:
+        lines += ["", esc(environment)]
     lines += ["", "AUC: area under the precision–recall curve; R@xP: largest recall at precision ≥ x %; "
               "MTL: longest run of consecutive query frames without a correct match; "
               "accuracy: correct frames / frames with a true match; n: query frames. Best per column in bold."]
@@ -506,6 +537,9 @@ def _html_page(title: str, payloads: Sequence[dict], figures: Sequence[tuple[str
         parts.append(f'<p class="reading">{e(note)}</p>')
     if shared:
         parts.append(f'<p class="note">Shared by all runs: {e(_summary(shared, list(shared)))}.</p>')
+    environment = environment_note(payloads)
+    if environment:
+        parts.append(f'<p class="note">{e(environment)}</p>')
     parts.append('<p class="note">AUC: area under the precision–recall curve. R@xP: largest recall at precision '
                  "≥ x %. MTL: longest run of consecutive query frames without a correct match. Accuracy: correct "
                  "frames / frames with a true match. n: query frames. Best value per column in bold.</p>")
@@ -516,7 +550,8 @@ def _html_page(title: str, payloads: Sequence[dict], figures: Sequence[tuple[str
                          f"<figcaption>{e(caption)}</figcaption></figure>")
     parts.append("<h2>Runs</h2>")
     for label, payload in zip(labels, payloads):
-        detail = {key: payload.get(key) for key in ("method", "name", "params", "metrics", "seconds") if key in payload}
+        detail = {key: payload.get(key) for key in ("method", "name", "params", "metrics", "seconds", "environment")
+                  if key in payload}
         parts.append(f"<details><summary>{e(label)}</summary><pre>"
                      f"{e(json.dumps(detail, indent=2, ensure_ascii=False))}</pre></details>")
     parts.append("</body></html>")

@@ -240,3 +240,28 @@ def test_run_labels_keep_what_tells_runs_apart_within_their_length():
     labels = run_labels(runs)
     assert len(set(labels)) == 4 and not any("#" in label for label in labels)
     assert "seed=1" in labels[2] and "kind=shuffle" in labels[2]
+
+
+def test_the_runs_environments_are_named_and_their_differences_shown(tmp_path, payloads):
+    """A report names the environment its runs share, says what differs where they were made
+    with other versions or for another compile target (which alone moves a metric's last
+    digits), counts the runs that record none, and refuses an environment that is no object."""
+    from catgraph.environment import environment
+    from catgraph.report import environment_note
+
+    assert environment_note(payloads) is None  # made without one (RunResult.to_dict alone)
+    here = environment()
+    same = [dict(p, environment=here) for p in payloads]
+    note = environment_note(same)
+    assert note.startswith("Environment of the runs") and f"compiled for {here['compiled_for']}" in note
+    assert note in markdown_table(same)
+    other = [dict(same[0], environment=dict(here, compiled_for="rocketlake", numba="0.0.1"))] + same[1:]
+    note = environment_note(other)
+    assert note.startswith("The runs were made in different environments")
+    assert "numba " in note and "compiled_for " in note and "rocketlake" in note and "catgraph " not in note
+    page = write_report(other, tmp_path / "r").read_text()
+    assert "different environments" in page and "rocketlake" in page
+    assert "do not record theirs" not in note
+    assert "1 of the 4 runs do not record theirs" in environment_note([payloads[0]] + same[1:])
+    with pytest.raises(DataError, match="'environment' must be an object"):
+        load_results([dict(payloads[0], environment="AMD")])
