@@ -6,8 +6,9 @@ before comparing numbers with another machine.
     catgraph info [--json]
 
 Prints :func:`catgraph.environment.environment` (what every result file records under
-``"environment"``) and the folder the compiled kernels are cached in. Two machines give
-the same numbers, bit for bit, where the versions and ``compiled_for`` agree
+``"environment"``) and the folder the compiled kernels are cached in. The versions and
+``compiled_for`` (the CPU the kernels are compiled for) decide a run's numbers to the last
+bit: the condition table reproduced on a second processor once they agreed
 (``docs/evaluation.md``, "Reproducing the tables on another machine").
 """
 
