@@ -171,3 +171,22 @@ def test_a_whole_video_does_not_warn(tmp_path):
         with warnings.catch_warnings():
             warnings.simplefilter("error", CatgraphWarning)
             assert len(load_video(path).frames) == 30 and len(load_video(path, fps=3).frames) > 0
+
+
+def test_a_folder_of_videos_names_them(tmp_path):
+    """A folder given where a video was meant: the error names the video to give instead."""
+    frames = np.random.default_rng(2).integers(0, 256, (4, 12, 20, 3), dtype=np.uint8)
+    one = tmp_path / "one"
+    one.mkdir()
+    write_video(one / "drive.mkv", frames)
+    with pytest.raises(DataNotFoundError, match=r"holds no PNG or JPG images.*It holds the video drive\.mkv: give "
+                                                r"that file itself"):
+        load_traverse(one)
+    for name in ("a.mp4", "b.mkv", "c.webm", "d.avi"):
+        (one / name).write_bytes(b"")
+    with pytest.raises(DataNotFoundError, match=r"It holds 5 videos \(a\.mp4, b\.mkv, c\.webm …\)"):
+        load_traverse(one)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(DataNotFoundError, match=r"holds no PNG or JPG images; give a folder of frames\.$"):
+        load_traverse(empty)

@@ -86,7 +86,13 @@ def load_image_folder(path: str | Path, progress: bool = False) -> Traverse:
         raise DataError(f"{folder} is not a folder; give a folder of PNG/JPG images.")
     files = sorted(_image_files(folder), key=_sort_key)
     if not files:
-        raise DataNotFoundError(f"{folder} holds no PNG or JPG images; give a folder of frames.")
+        from .video import is_video
+
+        videos = sorted(p.name for p in folder.iterdir() if p.is_file() and is_video(p))
+        hint = f" It holds the video {videos[0]}: give that file itself." if len(videos) == 1 else (
+            f" It holds {len(videos)} videos ({', '.join(videos[:3])}{' …' if len(videos) > 3 else ''}): give one of "
+            "those files itself." if videos else "")
+        raise DataNotFoundError(f"{folder} holds no PNG or JPG images; give a folder of frames.{hint}")
     iterator = files
     if progress:
         from tqdm.auto import tqdm
