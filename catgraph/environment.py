@@ -47,9 +47,10 @@ def compile_target() -> str | None:
         return os.environ["NUMBA_CPU_NAME"]
     try:
         import llvmlite.binding as llvm
-    except ImportError:
+
+        return llvm.get_host_cpu_name()
+    except (ImportError, OSError):  # not installed, or its library does not load
         return None
-    return llvm.get_host_cpu_name()
 
 
 def _version(package: str) -> str | None:
