@@ -1219,12 +1219,13 @@ def main() -> None:
     else:
         keep = [r for r in previous["results"] if (r.get("case"), r.get("n")) not in
                 {(c, n) for c in args.cases for n in args.sizes}]
+        machine = describe_machine()
         for n in args.sizes:
             for case in args.cases:
                 print(f"N = {n}: {case}", file=sys.stderr, flush=True)
                 frames = args.frames if case != "cosine-raw" or n <= 100_000 else 8
                 res = _subprocess(["--case", case, "--n", str(n), "--frames", str(frames), "--l-max", str(args.l_max)])
-                res["machine"] = describe_machine()
+                res["machine"] = machine
                 print(f"  {res}", file=sys.stderr, flush=True)
                 keep.append(res)
         previous["results"] = keep

@@ -21,11 +21,15 @@ from functools import lru_cache
 from importlib import metadata
 from pathlib import Path
 
-__all__ = ["DEPENDENCIES", "environment", "processor", "compile_target"]
+__all__ = ["DECISIVE", "DEPENDENCIES", "environment", "processor", "compile_target"]
 
 #: The packages whose versions a result records (``None`` where one is not installed:
 #: ``av`` reads videos, ``distributed`` runs sweeps and maps on Dask, both optional).
 DEPENDENCIES = ("numpy", "scipy", "numba", "llvmlite", "networkx", "filterpy", "matplotlib", "av", "distributed")
+
+#: The entries of :func:`environment` that decide a run's numbers: the code's versions, and
+#: the CPU the kernels were compiled for (the last bits of their sums).
+DECISIVE = ("catgraph", "numpy", "scipy", "numba", "llvmlite", "compiled_for")
 
 
 def processor() -> str:

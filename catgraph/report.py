@@ -239,22 +239,19 @@ def run_labels(payloads: Sequence[Mapping[str, Any]]) -> list[str]:
     return labels
 
 
-#: What of a run's environment decides its numbers (:mod:`catgraph.environment`): the code's
-#: versions, and the CPU the kernels were compiled for (the last bits of their sums).
-_DECISIVE = ("catgraph", "numpy", "scipy", "numba", "llvmlite", "compiled_for")
-
-
 def environment_note(payloads: Sequence[Mapping[str, Any]]) -> str | None:
     """One sentence on the environments the runs were made in (``None`` where no run records
     one): shared by all, or what differs (versions, the compile target), which alone can move
     a metric's last digits (``docs/evaluation.md``, "Reproducing the tables on another machine")."""
+    from .environment import DECISIVE
+
     envs = [p.get("environment") for p in payloads]
     known = [env for env in envs if isinstance(env, Mapping)]
     if not known:
         return None
     unrecorded = len(envs) - len(known)
     tail = f" {unrecorded} of the {len(envs)} runs do not record theirs." if unrecorded else ""
-    differ = {key: sorted({str(env.get(key)) for env in known}) for key in _DECISIVE}
+    differ = {key: sorted({str(env.get(key)) for env in known}) for key in DECISIVE}
     differ = {key: values for key, values in differ.items() if len(values) > 1}
     if differ:
         what = "; ".join(f"{key} {' / '.join(values)}" for key, values in differ.items())
