@@ -112,6 +112,7 @@ __all__ = [
     "feedback_reads_prior",
     "FramePool",
     "DEFAULT_PART_WEIGHTS",
+    "UNREAD_CONFIDENCE",
 ]
 
 
@@ -500,6 +501,15 @@ class HistogramObservation:
         return Observation(tau * np.asarray(log_ratio, dtype=np.float64), tau * float(new), True)
 
 
+#: The confidence of a :class:`SequenceObservation`'s matcher unless its ``matcher_params``
+#: name one: the model reads the matcher's window, velocity and scores and never its
+#: confidence (``tests/test_combined_confidence.py``), so the matcher forms the cheapest,
+#: ``-log p`` of the chosen window, which keeps nothing. The matcher's own default,
+#: ``"changepoint"``, keeps the latest four rows for it (``32 N`` bytes: 3.2 MB at 10⁵
+#: places, 32 MB at 10⁶) and reads them every frame.
+UNREAD_CONFIDENCE = "neglogp"
+
+
 class SequenceObservation:
     """Sequence-matching scores, calibrated online into log-likelihood ratios.
 
@@ -512,7 +522,9 @@ class SequenceObservation:
         (``approximation``, ``rule``, ``l_min``, ``l_max``, ``grid`` …). The rule, unless
         given, is :data:`~catgraph.sequence.DEFAULT_LINE_RULE` (the filter that reads
         these scores is the tracker; the matcher's default rule "tracked" would run
-        another one inside the model).
+        another one inside the model). The confidence, unless given, is
+        :data:`UNREAD_CONFIDENCE`: the model reads the matcher's window, velocity and
+        scores, never its confidence.
     n_init : int
         Frames of online initialisation of the score histograms (ratios 0 meanwhile).
     exclusion_radius : int
@@ -552,7 +564,8 @@ class SequenceObservation:
     recogniser_ : HistogramPlaceRecogniser
         Online histograms of the standardised scores.
     last_match_ : SequenceMatch
-        The matcher's answer for the latest frame.
+        The matcher's answer for the latest frame (its confidence the matcher's
+        ``confidence``: :data:`UNREAD_CONFIDENCE` unless ``matcher_params`` names one).
     """
 
     def __init__(self, window: int | str = "adaptive", matcher_params: dict | None = None, n_init: int = 20,
@@ -597,6 +610,8 @@ class SequenceObservation:
                                         f"Got {self.calibration!r} instead.")
         check_scalar(self.agreement_scale, "agreement_scale", owner, float, 0.0, low_inclusive=False)
         params = {"rule": DEFAULT_LINE_RULE, **(self.matcher_params or {})}
+        if params["rule"] != "tracked":  # rule "tracked" has its own confidence (refused with any other)
+            params.setdefault("confidence", UNREAD_CONFIDENCE)
         import inspect
 
         allowed = set(inspect.signature(SequenceMatcher).parameters) - {"window"}

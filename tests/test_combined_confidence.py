@@ -66,3 +66,23 @@ def test_the_filters_answers_do_not_depend_on_the_matchers_confidence():
     for r in runs[1:]:
         np.testing.assert_array_equal(r.place, runs[0].place)
         np.testing.assert_array_equal(r.score, runs[0].score)
+
+
+def test_the_sequence_part_asks_its_matcher_for_the_unread_confidence():
+    """Unless ``matcher_params`` name one, the part's matcher forms the cheapest confidence
+    (which keeps no rows), not the matcher's own default; a confidence or rule given is kept."""
+    from catgraph.observation import UNREAD_CONFIDENCE
+    from catgraph.sequence import DEFAULT_CONFIDENCE
+
+    assert UNREAD_CONFIDENCE != DEFAULT_CONFIDENCE  # else the check below could not fail
+    row = _rows(4, 200, 1)[0]
+    plain = SequenceObservation(matcher_params={"l_min": 2, "l_max": 20})
+    plain.observe(row)
+    assert plain.matcher_.confidence == UNREAD_CONFIDENCE
+    assert plain.matcher_._cfg.confidence == UNREAD_CONFIDENCE
+    named = SequenceObservation(matcher_params={"l_min": 2, "l_max": 20, "confidence": "gap"})
+    named.observe(row)
+    assert named.matcher_._cfg.confidence == "gap"
+    tracked = SequenceObservation(matcher_params={"l_min": 2, "l_max": 20, "rule": "tracked"})
+    tracked.observe(row)  # the rule's own confidence: no other is forced on it
+    assert tracked.matcher_._cfg.confidence == "tracked"
