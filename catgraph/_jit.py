@@ -116,14 +116,12 @@ def cache_location() -> Path:
             return chosen
         # numba would refuse every cached kernel ("cannot cache function"): a cache folder
         # that cannot be written is not a reason to stop working
-        import warnings
-
-        from .exceptions import CatgraphWarning
+        from .exceptions import warn
 
         numba.config.CACHE_DIR = ""
         where = cache_location()
-        warnings.warn(f"NUMBA_CACHE_DIR={chosen} cannot be written; compiled kernels are cached in {where} instead "
-                      f"(point NUMBA_CACHE_DIR at a writable folder, or unset it).", CatgraphWarning, stacklevel=2)
+        warn(f"NUMBA_CACHE_DIR={chosen} cannot be written; compiled kernels are cached in {where} instead "
+             f"(point NUMBA_CACHE_DIR at a writable folder, or unset it).")
         return where
     beside = _package_cache()
     if _writable(beside):

@@ -23,6 +23,7 @@ __all__ = [
     "MissingDependencyError",
     "InsufficientMemoryError",
     "CatgraphWarning",
+    "warn",
 ]
 
 
@@ -72,3 +73,32 @@ class CatgraphWarning(UserWarning):
     """Something in the input deserves attention but does not stop the run (a frame
     with no information, a timestamp that cannot be read, an option with no effect on
     this input). The command line prints each as one line on stderr."""
+
+
+def warn(message: str, category: type[Warning] = CatgraphWarning) -> None:
+    """Issue a warning at the line of the caller's own code that led to it.
+
+    The first frame outside the catgraph package (import machinery skipped, as
+    :func:`warnings.warn` skips it) is where the warning is reported, whatever depth the
+    call came from: ``load_traverse`` and ``catgraph.experiment.run`` reach the same loader
+    through different paths, and a fixed ``stacklevel`` would name a line of catgraph for
+    one of them (Python 3.12's ``skip_file_prefixes`` does this; 3.11 is supported).
+    """
+    import os
+    import sys
+    import warnings
+
+    package = os.path.dirname(os.path.abspath(__file__)) + os.sep
+    frame = sys._getframe(1)
+    while frame is not None and (frame.f_code.co_filename.startswith(package)
+                                 or ("importlib" in frame.f_code.co_filename
+                                     and "_bootstrap" in frame.f_code.co_filename)):
+        frame = frame.f_back
+    if frame is None:  # nothing outside catgraph called it
+        warnings.warn(message, category, stacklevel=2)
+        return
+    module_globals = frame.f_globals
+    warnings.warn_explicit(message, category, frame.f_code.co_filename, frame.f_lineno,
+                           module=module_globals.get("__name__", "<string>"),
+                           registry=module_globals.setdefault("__warningregistry__", {}),
+                           module_globals=module_globals)

@@ -452,17 +452,15 @@ def check_frame_pairing(reference: Traverse, query: Traverse) -> int:
     differ = shared & (~inside | (qry_ids != paired))
     n = int(differ.sum())
     if n:
-        import warnings
-
-        from .exceptions import CatgraphWarning
+        from .exceptions import warn
 
         k = int(np.flatnonzero(differ)[0])
         at = f"reference frame {index[k]} is {str(paired[k])!r}" if inside[k] else \
             f"the reference has no frame {index[k]}"
-        warnings.warn(f"the frame tolerance pairs query frame i with reference frame i, but {n} of {len(qry_ids)} "
-                      f"query frames carry the name of another reference frame (query frame {index[k]} is "
-                      f"{str(qry_ids[k])!r}; {at}): a frame missing from one folder shifts every later pair. Check the "
-                      "folders, or give the pairs as a ground-truth file.", CatgraphWarning, stacklevel=3)
+        warn(f"the frame tolerance pairs query frame i with reference frame i, but {n} of {len(qry_ids)} "
+             f"query frames carry the name of another reference frame (query frame {index[k]} is "
+             f"{str(qry_ids[k])!r}; {at}): a frame missing from one folder shifts every later pair. Check the "
+             "folders, or give the pairs as a ground-truth file.")
     return n
 
 

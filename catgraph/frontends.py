@@ -26,12 +26,10 @@ Frames with no information
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 
 from ._validation import check_array, check_memory, check_scalar
-from .exceptions import CatgraphWarning, DataError, InvalidParameterError
+from .exceptions import DataError, InvalidParameterError, warn
 
 __all__ = ["to_greyscale", "resize_images", "patch_normalise", "seqslam_preprocess", "wifi_vectors",
            "informative_frames", "check_information"]
@@ -280,9 +278,8 @@ def check_information(descriptors: np.ndarray, role: str) -> np.ndarray:
         first = int(np.flatnonzero(~mask)[0])
         consequence = ("they get no match from a matcher, and a filter answers them from its prediction"
                        if role == "query" else "matches to them say nothing; check or drop them")
-        warnings.warn(
+        warn(
             f"{bad} of {n} {role} frames carry no information (constant descriptors: black or flat images, "
-            f"no access point detected, zero vectors; first at frame {first}); {consequence}.",
-            CatgraphWarning, stacklevel=2,
+            f"no access point detected, zero vectors; first at frame {first}); {consequence}."
         )
     return mask

@@ -396,14 +396,12 @@ def _histogram(params: dict, inputs: "MethodInputs") -> RunResult:  # noqa: C901
     learning = params["learning"]
     if learning == "online":
         if params["n_init"] >= len(inputs.query):
-            import warnings
+            from .exceptions import warn
 
-            from .exceptions import CatgraphWarning
-
-            warnings.warn(
+            warn(
                 f"n_init (T_init) = {params['n_init']} frames is not shorter than the query ({len(inputs.query)} "
                 "frames): the online model spends every frame learning and localises none (every confidence 0). "
-                "Choose fewer initialisation frames or learning 'bootstrap'.", CatgraphWarning, stacklevel=2)
+                "Choose fewer initialisation frames or learning 'bootstrap'.")
         recogniser = HistogramPlaceRecogniser(model, n_init=params["n_init"], **common)
     elif learning == "bootstrap":
         model.fit(np.empty(0), inputs.bootstrap_samples(_bootstrap_gap(params, inputs.map.n_places),

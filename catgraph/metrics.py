@@ -223,14 +223,11 @@ def evaluate(query_index, match, confidence, ground_truth: GroundTruth) -> Evalu
             "(a frame with no output has match -1)."
         )
     if n_positive == 0 and q.size:
-        import warnings
+        from .exceptions import warn
 
-        from .exceptions import CatgraphWarning
-
-        warnings.warn(f"none of the {q.size} query frames has a true match in the ground truth, so every figure is 0 "
-                      f"and MTL is {q.size}. Check that the ground truth and the traverses number their frames alike "
-                      "(query frames by Traverse.index as loaded, which a slice keeps; reference places by row).",
-                      CatgraphWarning, stacklevel=2)
+        warn(f"none of the {q.size} query frames has a true match in the ground truth, so every figure is 0 "
+             f"and MTL is {q.size}. Check that the ground truth and the traverses number their frames alike "
+             "(query frames by Traverse.index as loaded, which a slice keeps; reference places by row).")
     curve = pr_curve(correct, has_output, conf, n_positive)
     metrics = Metrics(
         auc=auc(curve),

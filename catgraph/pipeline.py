@@ -163,15 +163,13 @@ def note_large_images(traverse: Traverse, frontend: FrontEnd) -> None:
         height, width = height - top - bottom, width - left - right
     if height * width <= LARGE_IMAGE_PIXELS:
         return
-    import warnings
+    from .exceptions import warn
 
-    from .exceptions import CatgraphWarning
-
-    warnings.warn(
+    warn(
         f"{traverse.name or 'the traverse'}: its {width}×{height} frames are compared at full size, "
         f"{width * height:,} values each (no size given). The SeqSLAM pipeline works on small images, 32×16 or "
         f"64×32 (at 64×32, {width * height // 2048}× fewer values). Give --size 64x32 (FrontEnd(size=(64, 32))), "
-        f"or --size {width}x{height} to keep this size without this note.", CatgraphWarning, stacklevel=4)
+        f"or --size {width}x{height} to keep this size without this note.")
 
 
 def _describe(traverse: Traverse, frontend: FrontEnd) -> tuple[np.ndarray, str]:

@@ -689,15 +689,13 @@ def _warn_clipped(state: np.ndarray) -> None:
     policy of the module docstring)."""
     count = int(state[1])
     if count:
-        import warnings
+        from .exceptions import warn
 
-        from .exceptions import CatgraphWarning
-
-        warnings.warn(
+        warn(
             f"{count} differences reached the sequence matcher's largest stored value (8 times the largest |d| of "
             "the query's first row that is not all zeros) and were clipped there: the window scores that hold them "
             "are approximate. Normalise the rows per query (catgraph.differences.normalise_rows, the front-end's "
-            "default), or start the query with a frame of its typical scale.", CatgraphWarning, stacklevel=3)
+            "default), or start the query with a frame of its typical scale.")
 
 
 def _record(cfg: _Config) -> _Record | None:

@@ -26,14 +26,13 @@ from __future__ import annotations
 
 import os
 import re
-import warnings
 import zipfile
 from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 
-from ..exceptions import CatgraphWarning, DataError, DataNotFoundError, InvalidParameterError
+from ..exceptions import DataError, DataNotFoundError, InvalidParameterError, warn
 from ..traverse import Traverse
 
 __all__ = ["IMAGE_SUFFIXES", "load_image_folder", "load_uji", "load_array", "load_traverse", "source_paths",
@@ -148,15 +147,14 @@ def _warn_ambiguous_order(folder: Path, files: list[Path], numbers: list[list[st
             continue
         number = int(found[-1])
         if number in seen:
-            warnings.warn(f"{folder}: {seen[number]} and {file.name} carry the same frame number {number}; their "
-                          "order is by name. Rename one if they are not the same frame.", CatgraphWarning, stacklevel=3)
+            warn(f"{folder}: {seen[number]} and {file.name} carry the same frame number {number}; their "
+                 "order is by name. Rename one if they are not the same frame.")
             break
         seen[number] = file.name
     unnumbered = [file.name for file, found in zip(files, numbers) if not found]
     if unnumbered and len(unnumbered) < len(files):
-        warnings.warn(f"{folder}: {len(unnumbered)} image(s) without a frame number in the name (first: "
-                      f"{unnumbered[0]}) are loaded after the numbered frames; move them out if they are not frames.",
-                      CatgraphWarning, stacklevel=3)
+        warn(f"{folder}: {len(unnumbered)} image(s) without a frame number in the name (first: "
+             f"{unnumbered[0]}) are loaded after the numbered frames; move them out if they are not frames.")
 
 
 def _eight_bits(grey: np.ndarray) -> np.ndarray:
@@ -270,8 +268,7 @@ def _optional_metadata(read, n: int, file: Path) -> np.ndarray | None:
         values = read()
         _check_rows(values, n, file)
     except DataError as exc:
-        warnings.warn(f"{exc} Ignoring {file.name}; the fingerprints are loaded without it.", CatgraphWarning,
-                      stacklevel=3)
+        warn(f"{exc} Ignoring {file.name}; the fingerprints are loaded without it.")
         return None
     return values
 

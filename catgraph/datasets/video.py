@@ -16,13 +16,12 @@ memory is refused before it is read, with the ``fps`` that would fit.
 from __future__ import annotations
 
 import math
-import warnings
 from pathlib import Path
 
 import numpy as np
 
 from .._validation import check_fps
-from ..exceptions import CatgraphWarning, DataError, DataNotFoundError, MissingDependencyError
+from ..exceptions import DataError, DataNotFoundError, MissingDependencyError, warn
 from ..traverse import Traverse
 
 __all__ = ["VIDEO_SUFFIXES", "load_video", "is_video"]
@@ -155,9 +154,9 @@ def _warn_if_cut_short(path: Path, declared: float | None, rate: float | None, s
         return
     covered = span + 1.0 / rate  # the last frame lasts one interval
     if covered < declared - 2.0 / rate:
-        warnings.warn(f"{path}: the frames decoded end at {covered:.2f} s ({read} frames) but the file declares "
-                      f"{declared:.2f} s; it may be cut short (an interrupted copy or recording). The frames read are "
-                      "used; copy or record the video again for the rest.", CatgraphWarning, stacklevel=3)
+        warn(f"{path}: the frames decoded end at {covered:.2f} s ({read} frames) but the file declares "
+             f"{declared:.2f} s; it may be cut short (an interrupted copy or recording). The frames read are "
+             "used; copy or record the video again for the rest.")
 
 
 def _check_memory(path: Path, stream, seconds: float | None, rate: float | None, fps: float | None) -> None:
