@@ -1658,7 +1658,9 @@ class GridLocalizer(TwinReadings):
             self._hazard_step(odometry, ratio)
 
     # ------------------------------------------------------------------ frames that come again
-    _FORK_SHARED = ("_tree", "_route", "_neighbourhoods", "_neighbours", "_t_sparse", "_transition", "_motions")
+    # (``_ones``, the likelihood of a prediction not yet updated, is never written)
+    _FORK_SHARED = ("_tree", "_route", "_neighbourhoods", "_neighbours", "_t_sparse", "_transition", "_motions",
+                    "_ones")
     _OWN_WHEN_SETTLED = (*TwinReadings._OWN_WHEN_SETTLED, "converged_", "_held")
 
     def _agrees(self, twin: "GridLocalizer", weight: float) -> bool:

@@ -200,3 +200,27 @@ def test_off_by_default_and_left_to_odometry():
 def test_repeat_prior_is_checked(bad):
     with pytest.raises(InvalidParameterError, match="repeat_prior"):
         GridLocalizer(PlaceGraph.chain(5), _Ratios(), repeat_prior=bad).reset()
+
+
+@pytest.mark.parametrize("kind", [_Float64, _General])
+def test_the_twin_shares_the_arrays_neither_reading_writes(kind):
+    """The twin shares the filter's read-only arrays (``_FORK_SHARED``: the likelihood of
+    ones among them) instead of copying them, and the ones stay ones through the frames."""
+    n = 60
+    rows = np.full((n, n), 30.0)
+    rows[np.arange(n), np.arange(n)] = 0.0
+    rows[:, 40:] += np.linspace(0.0, 5.0, n)[:, None]  # not beyond doubt everywhere: the twin lives a while
+    runs = np.zeros(n, dtype=int)
+    runs[[3, 20, 41]] = (2, 1, 3)
+    loc = _filter(kind, 0.5, True, rigid=True, n=n)
+    shared = 0
+    for row in _with_repeats(rows, runs):
+        loc.step(row)
+        if loc._twin is not None:
+            shared += 1
+            for name in loc._FORK_SHARED:
+                if loc.__dict__.get(name) is not None:
+                    assert loc._twin.__dict__[name] is loc.__dict__[name], name
+            assert loc._twin._ones is loc._ones
+    assert shared > 0
+    np.testing.assert_array_equal(loc._ones, np.ones(n))
