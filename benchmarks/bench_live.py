@@ -31,6 +31,9 @@ Cases (per N):
                to 10⁵ places, 2000 particles above): front-end +
                difference + matcher + filter, the full per-frame path
 ``live-u8``    the same on a ``LiveMap(..., layout="uint8")``
+``live-u8-repeats`` the same, every query frame stepped twice (a slower query, a sensor that
+               sends a scan again): the grid filter keeps its twin, the reading of a query
+               that stood still, while frames come again
 
 ``--cold-start`` also records which kernels compile in the cold run and for how long
 (numba's compile events; callees are counted inside their callers).
@@ -274,17 +277,18 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
         out.update(median_ms=float(np.median(ms)), p99_ms=float(np.percentile(ms, 99)),
                    floor_ms=float("nan"), peak_rss_mb=_peak_rss_mb(), l_max=l_max)
         return out
-    if case in ("live", "live-u8"):  # the process before any map: Python, numpy, numba, the live kernels loaded
+    compact = case in ("live-u8", "live-u8-repeats")
+    if case in ("live", "live-u8", "live-u8-repeats"):  # the process before any map: Python, numpy, numba, the live kernels loaded
         import gc
 
         from catgraph.live import warm_up
 
-        warm_up(models=("combined",), layouts=("uint8" if case == "live-u8" else "float32",), steps=2)
+        warm_up(models=("combined",), layouts=("uint8" if compact else "float32",), steps=2)
         gc.collect()
         out["baseline_mb"] = _status_mb("VmRSS")
         out["baseline_file_mb"] = _status_mb("RssFile")  # of it, pages of files: the shared libraries' code
     reference = _reference(n)
-    if case != "live-u8":  # the compact live step's floors are measured after its streaming window
+    if not compact:  # the compact live step's floors are measured after its streaming window
         out["floor_ms"] = _floor_ms(reference)
     query = rng.standard_normal((frames, DIM), dtype=np.float32)
     if case == "row-u8":
@@ -311,12 +315,12 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
         out["median_ms"], out["p99_ms"] = _median_ms(lambda: difference_row(query[next(it) % frames], reference,
                                                                             "cosine", normalise=True),
                                                      max(3, frames // 4))
-    elif case in ("live", "live-u8"):
+    elif case in ("live", "live-u8", "live-u8-repeats"):
         from catgraph.graph import PlaceGraph
         from catgraph.io import CatgraphMap
         from catgraph.live import LiveLocalizer, LiveMap
 
-        layout = "uint8" if case == "live-u8" else "float32"
+        layout = "uint8" if compact else "float32"
         the_map = CatgraphMap(reference, "sad", {"size": None, "patch": 4, "metric": None, "normalise": True},
                               PlaceGraph.chain(n), meta={"kind": "images"})
         del reference
@@ -348,7 +352,7 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
         times = []
         for k in range(frames):
             start = time.perf_counter()
-            est = live.step(images[k + 1])
+            est = live.step(images[k // 2 + 1] if case == "live-u8-repeats" else images[k + 1])
             times.append(time.perf_counter() - start)
             for key in parts:
                 parts[key].append(est.seconds[key])
@@ -380,7 +384,7 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
         out["observe_rest_ms"] = 1000.0 * float(np.median(np.asarray(observe_seconds) - np.asarray(matcher_seconds)))
         out["filter_ms"] = 1000.0 * float(np.median(np.asarray(parts["model"]) - np.asarray(observe_seconds)))
         # floors last (their scratch arrays must not count in the streaming peak)
-        if case == "live-u8":
+        if compact:
             out["floor_u8_ms"] = _floor_codes_ms(n)
             out["floor_np_u8_ms"] = _floor_numpy_codes_ms(n)
         out.update(_step_floor_ms(live, matcher))
@@ -1001,6 +1005,8 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
         "observe_rest_ms", ratio=False)
     row("… … … of which the filter (predict, update, estimate, the model's feedback)", "live-u8", "filter_ms",
         ratio=False)
+    row("full live step on the compact map, every frame twice (the filter's twin lives through the repeats)",
+        "live-u8-repeats", floor="floor_u8_ms")
     row("full live step on the compact map, against the plain memory read", "live-u8", floor="floor_np_u8_ms")
     floor_row("live-u8", "floor_map_read_ms", "floor: plain read of the map as the kernels read it (numpy, one thread)")
     floor_row("live-u8", "floor_sums_rw_ms", "floor: plain read + write of the matcher's running sums "
@@ -1032,7 +1038,9 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
     def floor_mb(r):
         return r["baseline_mb"] + r["map_mb"] + r["ring_mb"] + r["sums_mb"]
 
-    for case, what in (("live-u8", "compact map (uint8 codes)"), ("live", "float32 map")):
+    for case, what in (("live-u8", "compact map (uint8 codes)"),
+                       ("live-u8-repeats", "compact map, every frame twice (the filter's twin)"),
+                       ("live", "float32 map")):
         if not any((case, n) in by and "streaming_peak_rss_mb" in by[(case, n)] for n in sizes):
             continue
         mem_row(f"**streaming peak, full live step, {what}** (after preparing; ring filled, frames stepped)", case,
@@ -1159,7 +1167,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000, 1_000_000])
     parser.add_argument("--cases", nargs="+", default=["row", "row-u8", "row-1t", "cosine-raw", "cosine", "matcher", "live",
-                                                          "live-u8"])
+                                                          "live-u8", "live-u8-repeats"])
     parser.add_argument("--frames", type=int, default=200,
                         help="timed frames per case (default 200: the jump evidence compares each frame with a kept "
                              "one in 50 of every 100 frames, catgraph.jumps.APART_FRAMES; fewer frames time one "
