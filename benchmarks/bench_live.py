@@ -32,7 +32,7 @@ Cases (per N):
                difference + matcher + filter, the full per-frame path
 ``live-u8``    the same on a ``LiveMap(..., layout="uint8")``
 ``live-u8-repeats`` the same, every query frame stepped twice (a slower query, a sensor that
-               sends a scan again): the grid filter keeps its twin, the reading of a query
+               sends a scan again): the filter keeps its twin, the reading of a query
                that stood still, while frames come again
 
 ``--cold-start`` also records which kernels compile in the cold run and for how long
@@ -278,7 +278,8 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
                    floor_ms=float("nan"), peak_rss_mb=_peak_rss_mb(), l_max=l_max)
         return out
     compact = case in ("live-u8", "live-u8-repeats")
-    if case in ("live", "live-u8", "live-u8-repeats"):  # the process before any map: Python, numpy, numba, the live kernels loaded
+    if case in ("live", "live-u8", "live-u8-repeats"):
+        # the process before any map: Python, numpy, numba, the live kernels loaded
         import gc
 
         from catgraph.live import warm_up
@@ -668,7 +669,8 @@ def write_profile(results: list[dict], path: Path) -> None:
 #: syntax tree of a script run by path until the script ends (``python bench_live.py``:
 #: 3.4 MB of this 1,200-line file in every worker's memory, measured on the process before
 #: the map, 176.8 against 173.3 MB), a cost of the benchmark, not of what it measures.
-_WORKER = f"import sys; sys.path.insert(0, {str(Path(__file__).resolve().parent)!r}); import bench_live; bench_live.main()"
+_WORKER = (f"import sys; sys.path.insert(0, {str(Path(__file__).resolve().parent)!r}); "
+           "import bench_live; bench_live.main()")
 
 
 def _subprocess(args: list[str], env: dict | None = None) -> dict:
