@@ -619,6 +619,7 @@ class LiveLocalizer:
         self.live_map = live_map
         self.model_name = model
         self._row = np.empty(live_map.n_places)
+        self._last_descriptor = None  # the descriptor whose row ``_row`` holds (read only by the step)
         self.localizer_ = self.matcher_ = None
         if model == "matcher":
             from .methods import _sequence_kwargs
@@ -660,6 +661,10 @@ class LiveLocalizer:
     def step(self, frame, odometry: float | None = None) -> LiveEstimate:
         """Localise one raw frame (image, scan or descriptor, as the map's kind says).
 
+        A frame described exactly as the previous one (a scanner that reports its last scan
+        again, a camera that stood still and sent the same pixels) reuses that frame's
+        difference row instead of reading the map again: the same row, so the same answer.
+
         Parameters
         ----------
         frame : array_like
@@ -674,7 +679,14 @@ class LiveLocalizer:
         t0 = time.perf_counter()
         descriptor = self.live_map.describe(frame)
         t1 = time.perf_counter()
-        row = self.live_map._row_into(descriptor, self._row)
+        row = self._row
+        last = self._last_descriptor
+        if last is None or last.shape != descriptor.shape or not np.array_equal(last, descriptor):
+            # a frame described exactly as the previous one has its row already (a sensor that
+            # sends the same scan again, a camera that stood still): no pass over the map
+            self._last_descriptor = None  # until the row is whole
+            self.live_map._row_into(descriptor, row)
+            self._last_descriptor = np.array(descriptor, copy=True)
         t2 = time.perf_counter()
         if self.localizer_ is None:
             m = self.matcher_.step(row)
