@@ -105,8 +105,10 @@ def _arrays(obj, seen: set, depth: int = 0):
         children = obj
     elif isinstance(obj, dict):
         children = obj.values()
-    else:
-        children = getattr(obj, "__dict__", {}).values()
+    else:  # attributes, those held in slots too (the frame pools)
+        slots = [name for cls in type(obj).__mro__
+                 for name in ((lambda s: (s,) if isinstance(s, str) else s)(getattr(cls, "__slots__", ())))]
+        children = [*getattr(obj, "__dict__", {}).values(), *(getattr(obj, name, None) for name in slots)]
     for child in children:
         yield from _arrays(child, seen, depth + 1)
 
@@ -382,6 +384,9 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
                    **{f"{k}_ms": 1000.0 * float(np.median(v)) for k, v in parts.items()})
         out["model_rest_ms"] = 1000.0 * float(np.median(np.asarray(parts["model"]) - np.asarray(matcher_seconds)))
         out["row_matcher_ms"] = 1000.0 * float(np.median(np.asarray(parts["difference"]) + np.asarray(matcher_seconds)))
+        if case == "live-u8-repeats":  # the new frames (the twin steps too) and their repeats (the row reused)
+            out["new_median_ms"] = float(np.median(ms[0::2]))
+            out["repeat_median_ms"] = float(np.median(ms[1::2]))
         out["observe_rest_ms"] = 1000.0 * float(np.median(np.asarray(observe_seconds) - np.asarray(matcher_seconds)))
         out["filter_ms"] = 1000.0 * float(np.median(np.asarray(parts["model"]) - np.asarray(observe_seconds)))
         # floors last (their scratch arrays must not count in the streaming peak)
@@ -1009,6 +1014,9 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
         ratio=False)
     row("full live step on the compact map, every frame twice (the filter's twin lives through the repeats)",
         "live-u8-repeats", floor="floor_u8_ms")
+    row("… the frames new (the filter and its twin step)", "live-u8-repeats", "new_median_ms", ratio=False)
+    row("… the frames repeated (the previous frame's row, the filter alone steps)", "live-u8-repeats",
+        "repeat_median_ms", ratio=False)
     row("full live step on the compact map, against the plain memory read", "live-u8", floor="floor_np_u8_ms")
     floor_row("live-u8", "floor_map_read_ms", "floor: plain read of the map as the kernels read it (numpy, one thread)")
     floor_row("live-u8", "floor_sums_rw_ms", "floor: plain read + write of the matcher's running sums "

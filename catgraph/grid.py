@@ -1513,7 +1513,6 @@ class GridLocalizer(TwinReadings):
         # the line path keeps the prediction in float32 (half the memory traffic of a step;
         # every sum and the likelihood stay float64); the general path, the reference, float64
         dtype = self._line_dtype if self._line else np.float64
-        self._spare = np.empty((nb, g.n_places), dtype=dtype)
         # the posterior, factored: the prediction (velocity-major, so that shifts are
         # contiguous) times the latest frame's normalised likelihood per place
         self._state = np.empty((nb, g.n_places), dtype=dtype)  # filled row by row: no float64 copy
@@ -1553,11 +1552,15 @@ class GridLocalizer(TwinReadings):
         self._components = None
         if self.jump_rates is not None or self.rigid_prior > 0 or self.varying_prior > 0:
             self._reset_components(FramePool)
+        # the buffers a prediction is written into: each state (the filter's, each
+        # component's, the twin's) takes one nobody holds, and the state it replaces is free
+        # again once replaced, so together they need one buffer beyond their states instead
+        # of one each (the pool keeps as many as the filter and its twin have states, and one)
+        self._state_pool = FramePool(2 * (1 if self._components is None else len(self._components)) + 1)
         return self
 
     #: A component's own arrays (swapped in while the shared step code runs on it).
-    _COMPONENT_FIELDS = ("_state", "_spare", "_like", "prior_", "_mass", "_velocity", "_summed", "_like_buffer",
-                         "_pool")
+    _COMPONENT_FIELDS = ("_state", "_like", "prior_", "_mass", "_velocity", "_summed", "_like_buffer", "_pool")
 
     def _reset_components(self, pool) -> None:
         """One posterior per jump rate (or per motion model, ``rigid_prior`` and
@@ -1580,7 +1583,7 @@ class GridLocalizer(TwinReadings):
         k = len(self._rates)
         self._rate_runs = np.ones(k)  # the rates of ended runs, counted (a uniform Dirichlet prior)
         self.rate_weights_ = self._rate_prior.copy()
-        self._components = [{"_state": self._state.copy(), "_spare": np.empty_like(self._spare), "_like": self._ones,
+        self._components = [{"_state": self._state.copy(), "_like": self._ones,
                              "prior_": self.prior_.copy(), "_mass": self.prior_.copy(),
                              "_velocity": self._velocity.copy(), "_summed": None,
                              "_like_buffer": np.empty(self.graph.n_places), "_pool": pool(6)}
@@ -1660,7 +1663,7 @@ class GridLocalizer(TwinReadings):
     # ------------------------------------------------------------------ frames that come again
     # (``_ones``, the likelihood of a prediction not yet updated, is never written)
     _FORK_SHARED = ("_tree", "_route", "_neighbourhoods", "_neighbours", "_t_sparse", "_transition", "_motions",
-                    "_ones")
+                    "_ones", "_state_pool")
     _OWN_WHEN_SETTLED = (*TwinReadings._OWN_WHEN_SETTLED, "converged_", "_held")
 
     def _agrees(self, twin: "GridLocalizer", weight: float) -> bool:
@@ -1762,7 +1765,7 @@ class GridLocalizer(TwinReadings):
         if self.n_steps_ > 0:
             jump_velocity = self._jump_velocity()
             if self._line and odometry is None:
-                out = self._spare
+                out = self._state_pool.take(self._state.shape, self._state.dtype)  # written before read
                 whole, frac, sign, _ = self._moves
                 mass = self._pool.take(self.graph.n_places)
                 # the next frame's velocity sums formed while the prediction is written
@@ -1772,7 +1775,7 @@ class GridLocalizer(TwinReadings):
                 _line_predict(self._state, self._like, self.prior_, out, mass, *self._t_sparse, whole,
                               frac, sign, float(self.blur), self.recovery_, jump_velocity, _LINE_BLOCK,
                               self._no_e if ratio is None else ratio[0], summed, sums=sums)
-                self._spare, self._state = self._state, out
+                self._state = out  # the state it replaces goes back to the pool once no one holds it
                 self._like = self._ones
                 self.prior_ = mass
                 self._mass = mass
@@ -1786,7 +1789,7 @@ class GridLocalizer(TwinReadings):
             out = _predict_rows(np.multiply(self._state, self._like, dtype=np.float64), self._t_sparse, self._moves,
                                 self._neighbours, self.blur, self.recovery_, jump_velocity, self.junction_probability,
                                 odometry)
-            self._state = out if not self._line else out.astype(self._spare.dtype)
+            self._state = out if not self._line else out.astype(self._state.dtype)
             self._like = self._ones
         self.prior_ = self._state.sum(0, dtype=np.float64)
         self._mass = self.prior_

@@ -316,16 +316,21 @@ class FramePool:
         self._arrays: list[np.ndarray] = []
         self._size = size
 
-    def take(self, n: int) -> np.ndarray:
-        """An uninitialised float64 array of shape ``(n,)`` no one else holds."""
+    def take(self, shape: int | tuple[int, ...], dtype=np.float64) -> np.ndarray:
+        """An uninitialised array of ``shape`` (``(n,)`` for an int) and ``dtype`` (float64
+        unless given) no one else holds."""
         import sys
 
+        shape = (int(shape),) if isinstance(shape, (int, np.integer)) else tuple(shape)
+        dtype = np.dtype(dtype)
         arrays = self._arrays
         for k in range(len(arrays)):
             # the list's reference (and the call's): nobody else's
-            if arrays[k].shape == (n,) and sys.getrefcount(arrays[k]) <= _ONLY_LISTED:
+            # (no local name for it: a name is a reference too)
+            if (arrays[k].shape == shape and arrays[k].dtype == dtype
+                    and sys.getrefcount(arrays[k]) <= _ONLY_LISTED):
                 return arrays[k]
-        out = np.empty(n)
+        out = np.empty(shape, dtype)
         if len(arrays) < self._size:
             arrays.append(out)
         return out

@@ -420,7 +420,6 @@ EXACT = dict(rtol=1e-9, atol=1e-15)
 def _float64_state(loc):
     """The fast path with its state kept in float64 (the kernel is the same)."""
     loc._state = loc._state.astype(np.float64)
-    loc._spare = np.empty_like(loc._state)  # a buffer the kernel writes before reading
     return loc
 
 

@@ -123,7 +123,6 @@ def test_a_point_mass_at_half_speed_stays_a_point(line):
         loc._line = line
         if not line:
             loc._state = loc._state.astype(np.float64)
-            loc._spare = np.empty_like(loc._state)
     half = []
     for k, row in enumerate(rows):
         sharp.step(row)

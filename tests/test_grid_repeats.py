@@ -224,3 +224,37 @@ def test_the_twin_shares_the_arrays_neither_reading_writes(kind):
             assert loc._twin._ones is loc._ones
     assert shared > 0
     np.testing.assert_array_equal(loc._ones, np.ones(n))
+
+
+@pytest.mark.parametrize("kind", [_Float64, _General])
+def test_the_filter_and_its_twin_write_their_predictions_into_one_spare_buffer(kind):
+    """Each reading's states (one per component) are its own arrays, never shared, and the
+    filter, its components and its twin write their predictions into buffers from one pool:
+    while the twin first lives, one buffer beyond the states they hold, not one each."""
+    n = 60
+    rows = np.full((n, n), 30.0)
+    rows[np.arange(n), np.arange(n)] = 0.0
+    rows[:, 40:] += np.linspace(0.0, 5.0, n)[:, None]
+    runs = np.zeros(n, dtype=int)
+    runs[[3, 20, 41]] = (2, 1, 3)
+    loc = _filter(kind, 0.5, True, rigid=True, n=n)
+
+    def states(f):
+        return [f._state] if f._components is None else [c["_state"] for c in f._components]
+
+    lived = settled = 0
+    for row in _with_repeats(rows, runs):
+        twin_before = loc._twin
+        loc.step(row)
+        if twin_before is not None and loc._twin is None:
+            settled += 1
+        held = states(loc) + ([] if loc._twin is None else states(loc._twin))
+        assert len({id(s) for s in held}) == len(held)  # no two states share a buffer
+        if loc._twin is not None:
+            assert loc._twin._state_pool is loc._state_pool
+            if not settled:
+                lived += 1
+                spare = {id(a) for a in loc._state_pool._arrays} - {id(s) for s in held}
+                assert len(spare) <= 1
+        del held  # a reference kept through the next step would keep its buffer from the pool
+    assert lived > 0

@@ -170,7 +170,6 @@ def test_threaded_line_kernel_equals_the_serial_kernel(n, block, velocities, max
                         velocities=velocities, max_phases=max_phases).reset()
     if precision == "float64":
         loc._state = loc._state.astype(np.float64)
-        loc._spare = np.empty_like(loc._state)
     rows = _track(n, rng)
     rows[18:] = _track(n, rng, speed=-2.0, start=n - 10, frames=12)  # a jump and a turn
     for k, row in enumerate(rows):

@@ -220,6 +220,22 @@ def test_frame_pool_never_hands_out_an_array_someone_holds():
     assert pool.take(7).shape == (7,)  # another length: its own array
 
 
+def test_frame_pool_hands_out_arrays_of_the_shape_and_dtype_asked():
+    from catgraph.observation import FramePool
+
+    pool = FramePool(4)
+    s = pool.take((3, 10), np.float32)
+    assert s.shape == (3, 10) and s.dtype == np.float32
+    s_id = id(s)
+    del s
+    assert pool.take(30, np.float32).shape == (30,)  # the same bytes, another shape: not this one
+    f64 = pool.take((3, 10))
+    assert f64.dtype == np.float64 and id(f64) != s_id  # another dtype: not this one
+    again = pool.take((3, 10), np.float32)
+    assert id(again) == s_id  # released, the same shape and dtype: taken again
+    assert pool.take((3, 10), np.float32) is not again  # still held
+
+
 @pytest.mark.parametrize("mode", ["grid", "particles"])
 def test_kept_posteriors_are_never_overwritten(mode):
     """A caller that keeps every frame's posterior (and the ratios of a model it calls
