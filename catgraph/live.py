@@ -70,7 +70,7 @@ from typing import Any
 import numpy as np
 
 from ._validation import as_generator, check_array, check_scalar
-from .differences import PreparedReference
+from .differences import LAYOUTS, PreparedReference
 from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .methods import FILTER_MODELS
 
@@ -417,7 +417,8 @@ class LiveMap:
                                             "frontend nor junction_radius_m with a map.")
         else:
             raise InvalidParameterError(
-                f"LiveMap needs a CatgraphMap (catgraph.io.load_map) or a reference Traverse; got {type(source).__name__}."
+                "LiveMap needs a CatgraphMap (catgraph.io.load_map) or a reference Traverse; got "
+                f"{type(source).__name__}."
             )
         if source.graph is None:
             raise DataError("this map holds no place graph (saved with build-map --no-graph, or built with "
@@ -717,7 +718,7 @@ class LiveLocalizer:
 
 
 def warm_up(models: tuple[str, ...] = ("combined", "tempered", "histogram-bootstrap", "matcher"),
-            layouts: tuple[str, ...] = ("float32", "uint8"), steps: int = 3) -> dict[str, float]:
+            layouts: tuple[str, ...] = LAYOUTS, steps: int = 3) -> dict[str, float]:
     """Compile (and cache on disk) the kernels of the live paths once, on a tiny map.
 
     Parameters

@@ -41,14 +41,19 @@ def load_live_map(source: str, layout: str = "float32"):
 
 
 def main(argv: list[str] | None = None) -> int:
-    from catgraph.live import LIVE_MODELS
+    import inspect
+
+    from catgraph.differences import LAYOUTS
+    from catgraph.live import LIVE_MODELS, LiveLocalizer, LiveMap
     from catgraph.methods import METHODS
 
     mode = METHODS["filter"].param("mode")
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("reference", metavar="REFERENCE")
     parser.add_argument("query", metavar="QUERY")
-    parser.add_argument("--model", choices=LIVE_MODELS, default="combined")
+    defaults = {name: inspect.signature(cls).parameters[name].default  # the live API's own defaults
+                for cls, name in ((LiveLocalizer, "model"), (LiveMap, "layout"))}
+    parser.add_argument("--model", choices=LIVE_MODELS, default=defaults["model"])
     parser.add_argument("--mode", choices=mode.choices,
                         help=f"the filter: {mode.help} (default {mode.default})")
     parser.add_argument("--particles", type=int, help="particles in the particle filter (mode 'particles', or "
@@ -56,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, help="the particle filter's seed (default 0)")
     parser.add_argument("--output", type=Path, help="write the per-frame answers (JSON, 'frames' as localize writes)")
     parser.add_argument("--every", type=int, default=0, help="print every N-th answer (0: none)")
-    parser.add_argument("--layout", choices=("float32", "uint8"), default="float32",
+    parser.add_argument("--layout", choices=LAYOUTS, default=defaults["layout"],
                         help="the map in memory: float32 (the batch commands' numbers) or uint8 codes (a quarter "
                              "of the bytes per frame; see docs/live.md)")
     args = parser.parse_args(argv)
