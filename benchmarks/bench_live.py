@@ -106,8 +106,10 @@ def _arrays(obj, seen: set, depth: int = 0):
     elif isinstance(obj, dict):
         children = obj.values()
     else:  # attributes, those held in slots too (the frame pools)
-        slots = [name for cls in type(obj).__mro__
-                 for name in ((lambda s: (s,) if isinstance(s, str) else s)(getattr(cls, "__slots__", ())))]
+        slots = []
+        for cls in type(obj).__mro__:
+            names = getattr(cls, "__slots__", ())
+            slots += [names] if isinstance(names, str) else list(names)
         children = [*getattr(obj, "__dict__", {}).values(), *(getattr(obj, name, None) for name in slots)]
     for child in children:
         yield from _arrays(child, seen, depth + 1)
