@@ -682,7 +682,7 @@ class LiveLocalizer:
         t1 = time.perf_counter()
         row = self._row
         last = self._last_descriptor
-        if last is None or last.shape != descriptor.shape or not np.array_equal(last, descriptor):
+        if last is None or not np.array_equal(last, descriptor):  # (unequal shapes: not equal)
             # a frame described exactly as the previous one has its row already (a sensor that
             # sends the same scan again, a camera that stood still): no pass over the map
             self._last_descriptor = None  # until the row is whole
