@@ -62,6 +62,46 @@ EDGE_KINDS = ("chain", "reverse", "junction")
 _CHAIN, _REVERSE, _JUNCTION = 0, 1, 2
 
 
+def _kind_codes(kinds: Any) -> np.ndarray:
+    """Edge kinds as int8 codes: integer codes as given, names looked up in :data:`EDGE_KINDS`
+    (a :class:`DataError` naming the first unknown name)."""
+    raw = np.asarray(kinds)
+    if raw.dtype.kind in "iu":  # codes already (the constructors' and a saved map's)
+        if raw.size and (raw.min() < 0 or raw.max() >= len(EDGE_KINDS)):
+            raise DataError(f"edge kinds must be one per edge, each one of {EDGE_KINDS}.")
+        return raw.reshape(-1).astype(np.int8)
+    names = [k for k in kinds if isinstance(k, str) and k not in EDGE_KINDS]
+    if names:
+        raise DataError(f"edge kind {names[0]!r} is not one of {EDGE_KINDS}.")
+    return np.array([EDGE_KINDS.index(k) if isinstance(k, str) else int(k) for k in kinds], dtype=np.int8)
+
+
+def _edge_tables(n_places: int, src: np.ndarray, dst: np.ndarray, kind: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``reverse`` and ``straight`` (see :class:`PlaceGraph`) of distinct edges ``src → dst``.
+
+    Each edge is looked up by its key ``source · N + target`` among the sorted keys
+    (``O(E log E)``, no Python loop over the edges; keys are exact in int64 up to about
+    3·10⁹ places). ``straight`` of a chain or reverse-chain edge ``a → b`` is the edge
+    ``b → 2b − a`` where that is an edge of the same kind (a junction is not the route)."""
+    n = np.int64(n_places)
+    keys = src * n + dst
+    order = np.argsort(keys, kind="stable")
+    sorted_keys = keys[order]
+
+    def find(a: np.ndarray, b: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        """The index of edge ``a → b`` where ``valid`` and it exists, else -1."""
+        wanted = np.where(valid, a * n + b, -1)
+        at = np.minimum(np.searchsorted(sorted_keys, wanted), max(len(keys) - 1, 0))  # (no edges: none wanted)
+        return np.where(valid & (sorted_keys[at] == wanted), order[at], -1)
+
+    reverse = find(dst, src, np.ones(len(src), dtype=bool))
+    ahead = 2 * dst - src
+    route = ((kind == _CHAIN) | (kind == _REVERSE)) & (ahead >= 0) & (ahead < n)
+    nxt = find(dst, ahead, route)
+    straight = np.where((nxt >= 0) & (kind[np.maximum(nxt, 0)] == kind), nxt, -1).astype(np.int64)
+    return reverse, straight
+
+
 @dataclass(frozen=True, eq=False)
 class PlaceGraph:
     """A directed place graph, compiled to CSR arrays.
@@ -158,10 +198,7 @@ class PlaceGraph:
         if kinds is None:
             kd = np.zeros(n_edges, dtype=np.int8)
         else:
-            names = [k for k in kinds if isinstance(k, str) and k not in EDGE_KINDS]
-            if names:
-                raise DataError(f"edge kind {names[0]!r} is not one of {EDGE_KINDS}.")
-            kd = np.array([EDGE_KINDS.index(k) if isinstance(k, str) else int(k) for k in kinds], dtype=np.int8)
+            kd = _kind_codes(kinds)
             if len(kd) != n_edges or (n_edges and (kd.min() < 0 or kd.max() >= len(EDGE_KINDS))):
                 raise DataError(f"edge kinds must be one per edge, each one of {EDGE_KINDS}.")
         if unit not in ("m", "frame"):
@@ -178,16 +215,8 @@ class PlaceGraph:
         e, ln, kd = e[order], ln[order], kd[order]
         src, dst = e[:, 0].copy(), e[:, 1].copy()
         out_ptr = np.zeros(n_places + 1, dtype=np.int64)
-        np.add.at(out_ptr, src + 1, 1)
-        out_ptr = np.cumsum(out_ptr)
-        key = {(int(a), int(b)): k for k, (a, b) in enumerate(zip(src, dst))}
-        reverse = np.array([key.get((int(b), int(a)), -1) for a, b in zip(src, dst)], dtype=np.int64)
-        straight = np.full(len(src), -1, dtype=np.int64)
-        for k, (a, b, c) in enumerate(zip(src, dst, kd)):
-            if c in (_CHAIN, _REVERSE):
-                nxt = key.get((int(b), 2 * int(b) - int(a)), -1)
-                # the route's continuation: an edge of the same kind (a junction edge is not the route)
-                straight[k] = nxt if nxt >= 0 and kd[nxt] == c else -1
+        np.cumsum(np.bincount(src, minlength=n_places), out=out_ptr[1:])
+        reverse, straight = _edge_tables(n_places, src, dst, kd)
         pos = None
         if positions is not None:
             pos = check_array(positions, "place positions", ndim=2)

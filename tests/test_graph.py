@@ -202,3 +202,45 @@ def test_straight_continues_along_the_route_never_onto_a_junction():
     chain = PlaceGraph.chain(6)
     forward = chain.kind == EDGE_KINDS.index("chain")
     assert np.all(chain.straight[forward][:-1] >= 0)
+
+
+def _edge_tables_reference(graph):
+    """Slow, obviously correct ``reverse`` and ``straight``: a dict of the edges."""
+    key = {(int(a), int(b)): k for k, (a, b) in enumerate(zip(graph.source, graph.target))}
+    reverse = [key.get((int(b), int(a)), -1) for a, b in zip(graph.source, graph.target)]
+    straight = []
+    for a, b, c in zip(graph.source, graph.target, graph.kind):
+        nxt = key.get((int(b), 2 * int(b) - int(a)), -1) if c in (0, 1) else -1
+        straight.append(nxt if nxt >= 0 and graph.kind[nxt] == c else -1)
+    return reverse, straight
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_edge_tables_equal_the_dict_reference(seed):
+    """The sorted-key lookup gives the dict's tables: random edges of every kind, with
+    duplicates, edges both ways, continuations ``2b − a`` outside the map (whose keys would
+    alias other places' edges), places without edges."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(2, 40))
+    e = rng.integers(0, n, (int(rng.integers(0, 4 * n)), 2))
+    e = e[e[:, 0] != e[:, 1]]
+    if seed % 2:  # a route as well: chains and continuations in both directions
+        i = np.arange(n - 1)
+        e = np.concatenate([e, np.stack([i, i + 1], 1), np.stack([i + 1, i], 1)])
+    kinds = rng.integers(0, len(EDGE_KINDS), len(e))
+    g = PlaceGraph.from_edges(n, e, kinds=kinds)
+    reverse, straight = _edge_tables_reference(g)
+    assert g.reverse.tolist() == reverse and g.straight.tolist() == straight
+    assert g.reverse.dtype == g.straight.dtype == np.int64
+    assert g.out_ptr.tolist() == [0, *np.cumsum(np.bincount(g.source, minlength=n)).tolist()]
+    named = PlaceGraph.from_edges(n, e, kinds=[EDGE_KINDS[k] for k in kinds])
+    assert named.kind.tolist() == g.kind.tolist() and named.straight.tolist() == straight
+
+
+def test_edge_kind_codes_outside_the_kinds_are_refused():
+    with pytest.raises(DataError, match="edge kinds"):
+        PlaceGraph.from_edges(3, [[0, 1], [1, 2]], kinds=[0, 3])
+    with pytest.raises(DataError, match="edge kinds"):
+        PlaceGraph.from_edges(3, [[0, 1], [1, 2]], kinds=np.array([0, 300]))
+    with pytest.raises(DataError, match="'turn'"):
+        PlaceGraph.from_edges(3, [[0, 1], [1, 2]], kinds=["chain", "turn"])
