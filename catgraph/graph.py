@@ -122,7 +122,8 @@ class PlaceGraph:
     out_ptr : ndarray of int64, shape (N+1,)
         CSR offsets: the out-edges of node ``v`` are ``out_ptr[v]:out_ptr[v+1]``.
     reverse : ndarray of int64, shape (E,)
-        Index of the opposite edge, or ``-1``.
+        Index of the opposite edge, or ``-1`` (formed on first use, as ``straight``:
+        only the particle filter's motion reads them).
     straight : ndarray of int64, shape (E,)
         Index of the route continuation after each edge, or ``-1``.
     positions : ndarray of float64, shape (N, 2|3) or None
@@ -139,8 +140,6 @@ class PlaceGraph:
     length: np.ndarray
     kind: np.ndarray
     out_ptr: np.ndarray
-    reverse: np.ndarray
-    straight: np.ndarray
     positions: np.ndarray | None
     route_distance: np.ndarray
     unit: str = "frame"
@@ -216,7 +215,6 @@ class PlaceGraph:
         src, dst = e[:, 0].copy(), e[:, 1].copy()
         out_ptr = np.zeros(n_places + 1, dtype=np.int64)
         np.cumsum(np.bincount(src, minlength=n_places), out=out_ptr[1:])
-        reverse, straight = _edge_tables(n_places, src, dst, kd)
         pos = None
         if positions is not None:
             pos = check_array(positions, "place positions", ndim=2)
@@ -230,7 +228,7 @@ class PlaceGraph:
             rd = check_array(route_distance, "route distance", ndim=1)
             if len(rd) != n_places:
                 raise DataError(f"{len(rd)} route distances given for {n_places} places; give one per place.")
-        return cls(n_places, src, dst, ln, kd, out_ptr, reverse, straight, pos, rd, unit)
+        return cls(n_places, src, dst, ln, kd, out_ptr, pos, rd, unit)
 
     @classmethod
     def chain(cls, n_places: int, bidirectional: bool = True, spacing: float = 1.0) -> "PlaceGraph":
@@ -348,6 +346,26 @@ class PlaceGraph:
         )
 
     # ------------------------------------------------------------------ queries
+    @property
+    def reverse(self) -> np.ndarray:
+        """``(E,)`` index of the opposite edge, or -1."""
+        return self._edge_tables()[0]
+
+    @property
+    def straight(self) -> np.ndarray:
+        """``(E,)`` index of the route's continuation after each edge, or -1."""
+        return self._edge_tables()[1]
+
+    def _edge_tables(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(reverse, straight)``, formed on first use and kept: only the particle
+        filter's motion reads them, so a graph the grid filter runs on never holds them
+        (``2 E`` int64: 3 MiB at 10⁵ places)."""
+        cached = self.__dict__.get("_tables")
+        if cached is None:
+            cached = _edge_tables(self.n_places, self.source, self.target, self.kind)
+            object.__setattr__(self, "_tables", cached)
+        return cached
+
     @property
     def frame_spacing(self) -> float:
         """Mean length of the chain edges (1 on a frame graph): one frame's travel."""
