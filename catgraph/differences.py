@@ -203,8 +203,9 @@ def _split(m: int, n: int, chunk: int) -> list[tuple[int, int, int, int]]:
     return [(0, 1, lo, hi) for lo, hi in zip(edges[:-1], edges[1:])]
 
 
-def _check_finite(x: np.ndarray, name: str, rows: int = 8192) -> None:
-    """Finiteness of a float array, checked in row chunks (bounded scratch memory)."""
+def _check_finite(x: np.ndarray, name: str, rows: int = 8192, first_row: int = 0) -> None:
+    """Finiteness of a float array, checked in row chunks (bounded scratch memory);
+    ``first_row``: the row number of ``x[0]`` in the message."""
     if x.dtype.kind != "f":
         return
     for start in range(0, max(x.shape[0], 1), rows):
@@ -215,15 +216,42 @@ def _check_finite(x: np.ndarray, name: str, rows: int = 8192) -> None:
             value = part[tuple(where)]
             raise DataError(
                 f"{name}: {int(bad.sum())}{'+' if x.shape[0] > rows else ''} NaN or infinite values "
-                f"(first {value} at row {start + int(where[0])}); clean or drop those frames before localising."
+                f"(first {value} at row {first_row + start + int(where[0])}); clean or drop those frames before "
+                "localising."
             )
+
+
+class RowSource:
+    """Descriptors held outside memory, read a row slice at a time: ``source[a:b]`` is an
+    ndarray of rows ``a … b − 1``, ``numpy.asarray(source)`` reads them whole. The compact
+    layout (:class:`PreparedReference` with ``layout="uint8"``) codes such a source in row
+    chunks and never holds its values whole (:class:`catgraph.io.StoredDescriptors`, a
+    map file's descriptors). Whoever makes one has checked its values finite."""
+
+    ndim = 2
+    shape: tuple[int, int]
+    dtype: np.dtype
+
+    def __len__(self) -> int:
+        return int(self.shape[0])
+
+    def value_range(self) -> tuple[float, float, bool] | None:
+        """``(smallest, largest, every value a whole number)`` where already known without
+        reading the rows again (the compact layout's code scale, :func:`code_scale`), else
+        ``None``."""
+        return None
 
 
 def _as_descriptors(x, name: str, metric: str, single: bool = False, convert: bool = True) -> np.ndarray:
     """``(n, d)`` float32 C-contiguous descriptors (bits as 0/1), validated.
 
     ``convert=False``: validated only, in the caller's dtype (bits still unpacked to
-    ``uint8`` 0/1), for the compact layout, which converts in row chunks."""
+    ``uint8`` 0/1), for the compact layout, which converts in row chunks; a
+    :class:`RowSource` of numbers no wider than float32 is returned as it is (its rows
+    are read there, a chunk at a time)."""
+    if (isinstance(x, RowSource) and not convert and not single and metric != "hamming"
+            and x.dtype.kind in "iuf" and x.dtype.itemsize <= 4 and x.shape[0] and x.shape[1]):
+        return x
     try:
         arr = np.asarray(x)
     except (TypeError, ValueError) as exc:
@@ -521,18 +549,25 @@ def _code_scale(x: np.ndarray, metric: str) -> tuple[float, float]:
     """``(offset, step)`` of the uint8 codes for reference values ``x``."""
     if metric == "hamming":
         return 0.0, 1.0
-    lo = hi = None
-    integral = True
-    for start in range(0, x.shape[0], _CODE_ROWS):
-        part = x[start : start + _CODE_ROWS]
+    known = x.value_range() if isinstance(x, RowSource) else None
+    lo, hi, integral = known if known is not None else value_range(x[start : start + _CODE_ROWS]
+                                                                   for start in range(0, x.shape[0], _CODE_ROWS))
+    if integral and hi - lo <= 255:
+        return lo, 1.0
+    return lo, (hi - lo) / 255.0 if hi > lo else 1.0
+
+
+def value_range(parts, known: tuple[float, float, bool] | None = None) -> tuple[float, float, bool]:
+    """``(smallest, largest, every value a whole number)`` over the arrays ``parts``
+    (extending ``known``, the range of earlier parts)."""
+    lo, hi, integral = known if known is not None else (None, None, True)
+    for part in parts:
         p_lo, p_hi = float(part.min()), float(part.max())
         lo = p_lo if lo is None else min(lo, p_lo)
         hi = p_hi if hi is None else max(hi, p_hi)
         if integral and part.dtype.kind == "f":
             integral = bool(np.all(part == np.round(part)))
-    if integral and hi - lo <= 255:
-        return lo, 1.0
-    return lo, (hi - lo) / 255.0 if hi > lo else 1.0
+    return lo, hi, integral
 
 
 def _encode(x: np.ndarray, offset: float, step: float, out: np.ndarray) -> None:

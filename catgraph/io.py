@@ -52,6 +52,15 @@ Writing is atomic: the archive is written to a temporary file in the destination
 folder, flushed to disk and renamed over the destination (``os.replace``), so a crash
 never leaves a half-written map under the final name.
 
+Descriptors read in blocks
+--------------------------
+``load_map(path, descriptors="stream")`` leaves the descriptors in the file: the
+checksum and their finiteness are checked reading them once in row blocks, and
+``CatgraphMap.descriptors`` is a :class:`StoredDescriptors` that reads row slices from
+the file again where they are used. :class:`catgraph.live.LiveMap` with
+``layout="uint8"`` codes them that way, so a live process never holds the float map
+whole (at 10⁶ places × 512 values, the 1.9 GiB of float32 it never allocates; ``docs/live.md``).
+
 Versions
 --------
 :data:`FORMAT_VERSION` grows by one whenever the layout changes incompatibly. A reader
@@ -72,6 +81,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ._atomic import atomic_open
+from .differences import RowSource
 from .exceptions import DataError, DataNotFoundError, MapFileError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -111,7 +121,8 @@ class CatgraphMap:
     ----------
     descriptors : ndarray, shape (N, D)
         Reference descriptors after the front-end (float32 for images and Wi-Fi,
-        bool for binary descriptors).
+        bool for binary descriptors); a :class:`StoredDescriptors` where
+        :func:`load_map` left them in the file.
     metric : str
         Difference metric the descriptors are compared with (``"sad"``, ``"cosine"`` …).
     frontend : dict
@@ -145,12 +156,14 @@ class CatgraphMap:
     def __post_init__(self) -> None:
         from .differences import METRICS, _check_finite
 
-        d = np.asarray(self.descriptors)
+        stored = isinstance(self.descriptors, RowSource)  # checked by whoever made it (load_map)
+        d = self.descriptors if stored else np.asarray(self.descriptors)
         if d.ndim != 2:
             raise DataError(f"map descriptors must have shape (N, D), one row per place; got shape {d.shape}.")
         if d.dtype.kind not in "biuf":
             raise DataError(f"map descriptors must be numeric or boolean; got dtype {d.dtype}.")
-        _check_finite(d, "map descriptors")
+        if not stored:
+            _check_finite(d, "map descriptors")
         if self.metric not in METRICS:
             raise DataError(f"map metric {self.metric!r} is not one of {METRICS}.")
         object.__setattr__(self, "descriptors", d)
@@ -455,11 +468,16 @@ def _digest(version: int, metadata: bytes, arrays: dict[str, np.ndarray]) -> str
     h.update(FORMAT_NAME.encode() + b"\0" + str(int(version)).encode() + b"\0")
     h.update(len(metadata).to_bytes(8, "little") + metadata)
     for name in sorted(arrays):
-        a = np.require(arrays[name], requirements="C")
+        stored = isinstance(arrays[name], StoredDescriptors)
+        a = arrays[name] if stored else np.require(arrays[name], requirements="C")
         header = f"{name}\0{a.dtype.str}\0{a.shape}\0".encode()
         h.update(len(header).to_bytes(8, "little") + header)
         h.update(a.nbytes.to_bytes(8, "little"))
-        h.update(a)  # the array's own buffer (C-contiguous): its bytes without a copy of them
+        if stored:  # its bytes block by block, in order: the same digest
+            for block in a.blocks():
+                h.update(block)
+        else:
+            h.update(a)  # the array's own buffer (C-contiguous): its bytes without a copy of them
     return h.hexdigest()
 
 
@@ -502,16 +520,164 @@ def save_map(path: str | os.PathLike, catgraph_map: CatgraphMap, compress: bool 
 
 
 # ---------------------------------------------------------------------------- decoding
-def _read_members(path: Path) -> dict[str, np.ndarray]:
+class StoredDescriptors(RowSource):
+    """A map file's descriptors left in the file and read in row blocks.
+
+    What :func:`load_map` with ``descriptors="stream"`` gives as
+    ``CatgraphMap.descriptors``: ``d[a:b]`` reads rows ``a … b − 1`` (consecutive slices
+    from one open stream of the archive member: a deflated member is inflated once per
+    pass), :meth:`blocks` reads every row in order, ``numpy.asarray(d)`` reads them whole.
+    Rows are checked finite when first read (a map file whose checksum holds may still
+    have been written by other code), so no read hands out a NaN; the first pass over
+    them (the checksum's) also takes their range (:meth:`value_range`), so the compact
+    layout's code scale needs no pass of its own. The file stays open
+    while the descriptors live, so a map file replaced on disk after loading does not
+    change what is read; :meth:`close` closes it.
+
+    Attributes
+    ----------
+    shape : (int, int)
+    dtype : numpy.dtype
+    path : Path
+    """
+
+    #: Rows per block of :meth:`blocks` (4 MiB of float32 at 512 values: the reading's
+    #: own scratch stays small beside the map it reads).
+    BLOCK_ROWS = 2048
+
+    def __init__(self, fh, path: Path, member: str = "descriptors.npy") -> None:
+        self.path = path
+        archive = zipfile.ZipFile(fh)
+        with archive.open(member) as f:
+            version = np.lib.format.read_magic(f)
+            if version not in ((1, 0), (2, 0)):
+                raise MapFileError(f"{path}: its descriptors are stored as .npy format {version}, which this reader "
+                                   "does not stream; load the map whole (descriptors='memory').")
+            read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            shape, fortran, dtype = read(f)
+            self._start = f.tell()
+        if len(shape) != 2 or fortran or dtype.hasobject:
+            raise MapFileError(f"{path} holds descriptors of shape {shape} ({'Fortran' if fortran else 'C'} order, "
+                               f"dtype {dtype}), not (N, D) rows in C order as save_map writes them; rebuild it with "
+                               "`catgraph build-map`.")
+        self.shape, self.dtype = (int(shape[0]), int(shape[1])), np.dtype(dtype)
+        self._fh, self._zip, self._member = fh, archive, member  # the file is this reader's from here on
+        self._stream, self._row = None, 0
+        self._read_rows = 0  # rows 0 … this − 1 read once: checked finite, their range taken
+        self._range = None
+
+    @property
+    def nbytes(self) -> int:
+        return self.shape[0] * self.shape[1] * self.dtype.itemsize
+
+    @property
+    def size(self) -> int:
+        return self.shape[0] * self.shape[1]
+
+    def _rows(self, a: int, b: int) -> np.ndarray:
+        out = np.empty((max(b - a, 0), self.shape[1]), dtype=self.dtype)
+        if not out.size:
+            return out
+        if self._stream is None or a != self._row:  # not where the open stream is: open it again, skip to ``a``
+            if self._stream is not None:
+                self._stream.close()
+            self._stream = self._zip.open(self._member)
+            self._stream.seek(self._start + a * self.shape[1] * self.dtype.itemsize)
+        view, got = memoryview(out).cast("B"), 0
+        while got < len(view):
+            n = self._stream.readinto(view[got:])
+            if not n:
+                raise MapFileError(f"{self.path} is truncated: its descriptors end before row {b}; rebuild it with "
+                                   "`catgraph build-map`.")
+            got += n
+        self._row = b
+        if a <= self._read_rows < b:  # rows read for the first time, in order
+            from .differences import _check_finite, value_range
+
+            new = out[self._read_rows - a :]
+            try:
+                _check_finite(new, "map descriptors", first_row=self._read_rows)
+            except DataError as exc:
+                raise MapFileError(f"{self.path} holds an inconsistent map: {exc}") from None
+            self._range = value_range([new], self._range)
+            self._read_rows = b
+        elif b > self._read_rows:  # read ahead of the rows read in order: checked, the range left to that pass
+            from .differences import _check_finite
+
+            try:
+                _check_finite(out, "map descriptors", first_row=a)
+            except DataError as exc:
+                raise MapFileError(f"{self.path} holds an inconsistent map: {exc}") from None
+        return out
+
+    def value_range(self) -> tuple[float, float, bool] | None:
+        """``(smallest, largest, every value a whole number)`` once every row has been read
+        (:func:`load_map` reads them all for the checksum), else ``None``."""
+        return self._range if self._read_rows == self.shape[0] else None
+
+    def __getitem__(self, key):
+        if isinstance(key, slice) and key.step in (None, 1):
+            a, b, _ = key.indices(self.shape[0])
+            return self._rows(a, max(a, b))
+        return np.asarray(self)[key]
+
+    def __array__(self, dtype=None, copy=None):
+        whole = self._rows(0, self.shape[0])
+        return whole if dtype is None else whole.astype(dtype, copy=False)
+
+    def blocks(self, rows: int | None = None):
+        """Every row in order, ``rows`` (default :data:`BLOCK_ROWS`) at a time."""
+        rows = int(rows or self.BLOCK_ROWS)
+        for a in range(0, self.shape[0], rows):
+            yield self._rows(a, min(a + rows, self.shape[0]))
+
+    def __reduce__(self):
+        # a copy or a pickle (a Dask task) carries the values, not the open file
+        return (np.asarray, (np.asarray(self),))
+
+    def close(self) -> None:
+        """Close the map file (a later read raises ``ValueError``); done when the
+        descriptors are garbage-collected too."""
+        if self._stream is not None:
+            self._stream.close()
+        self._zip.close()
+        self._fh.close()
+
+    def __del__(self) -> None:
+        fh = getattr(self, "_fh", None)  # (a reader whose construction failed holds no file)
+        if fh is not None and not fh.closed:
+            self.close()
+
+    def __repr__(self) -> str:
+        return f"StoredDescriptors({str(self.path)!r}, shape={self.shape}, dtype={self.dtype})"
+
+
+def _read_members(path: Path, stream: bool = False) -> dict[str, np.ndarray]:
+    """The archive's members; ``stream``: the descriptors as a :class:`StoredDescriptors`
+    (the file then stays open, held by it)."""
     try:  # the file is opened here so that it is closed even when the archive is unreadable
-        with open(path, "rb") as fh:
-            return _read_open_members(fh, path)
+        fh = open(path, "rb")
     except IsADirectoryError:
         raise MapFileError(f"{path} is a folder, not a map file; give the .npz that `catgraph build-map` wrote.") \
             from None
+    kept = False
+    try:
+        members = _read_open_members(fh, path, skip=("descriptors",) if stream else ())
+        if stream and "descriptors" in members.pop("__names__"):
+            try:
+                members["descriptors"] = StoredDescriptors(fh, path)
+            except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as exc:
+                raise MapFileError(f"{path} is corrupt or truncated ({exc}); rebuild it with `catgraph build-map`.") \
+                    from None
+            kept = True
+        members.pop("__names__", None)
+        return members
+    finally:
+        if not kept:
+            fh.close()
 
 
-def _read_open_members(fh, path: Path) -> dict[str, np.ndarray]:
+def _read_open_members(fh, path: Path, skip: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
     from .datasets.loaders import numpy_file_kind
 
     kind = numpy_file_kind(fh)
@@ -531,7 +697,7 @@ def _read_open_members(fh, path: Path) -> dict[str, np.ndarray]:
             if "__format__" not in names:
                 raise MapFileError(f"{path} is not a catgraph map (it holds arrays {sorted(names)[:8]}); "
                                    "build one with `catgraph build-map`.")
-            return {name: archive[name] for name in names}
+            return {"__names__": names, **{name: archive[name] for name in names if name not in skip}}
     except MapFileError:
         raise
     except ValueError as exc:
@@ -550,8 +716,18 @@ def _scalar(members: dict, name: str, path: Path, kind: str):
     return value.item()
 
 
-def load_map(path: str | os.PathLike) -> CatgraphMap:
+def load_map(path: str | os.PathLike, descriptors: str = "memory") -> CatgraphMap:
     """Read a map written by :func:`save_map`, checking format, version and checksum.
+
+    Parameters
+    ----------
+    path : str or PathLike
+    descriptors : {"memory", "stream"}
+        ``"memory"``: the descriptors are read into memory. ``"stream"``: they stay in the
+        file, read in row blocks where they are used (:class:`StoredDescriptors`; the
+        checksum and their finiteness are checked reading them once on load) — for
+        :class:`catgraph.live.LiveMap` with ``layout="uint8"``, which codes them block by
+        block and so never holds the float map.
 
     Raises
     ------
@@ -561,13 +737,28 @@ def load_map(path: str | os.PathLike) -> CatgraphMap:
         The file is not a map, is corrupt, truncated or modified since it was written,
         or was written by a newer catgraph.
     """
+    from .exceptions import InvalidParameterError
+
+    if descriptors not in ("memory", "stream"):
+        raise InvalidParameterError(f"The 'descriptors' parameter of load_map must be 'memory' or 'stream'. "
+                                    f"Got {descriptors!r} instead.")
     path = Path(path)
     if not path.exists():
         raise DataNotFoundError(f"map file {path} does not exist; build one with `catgraph build-map REFERENCE "
                                 f"--out {path.name}`.")
     if path.is_dir():
         raise MapFileError(f"{path} is a folder, not a map file.")
-    members = _read_members(path)
+    members = _read_members(path, stream=descriptors == "stream")
+    stored = members.get("descriptors")
+    try:
+        return _load_members(members, path)
+    except BaseException:
+        if isinstance(stored, StoredDescriptors):
+            stored.close()
+        raise
+
+
+def _load_members(members: dict, path: Path) -> CatgraphMap:
     fmt = _scalar(members, "__format__", path, "U")
     if fmt != FORMAT_NAME:
         raise MapFileError(f"{path} is a {fmt!r} file, not a catgraph map.")

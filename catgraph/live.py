@@ -63,6 +63,7 @@ histogram models ``O(N)``. Measured figures: ``benchmarks/results/live.md``.
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -362,11 +363,13 @@ class LiveMap:
 
     Parameters
     ----------
-    source : CatgraphMap or Traverse
-        A saved map (:func:`catgraph.io.load_map`), or a reference traverse, which is
-        described with ``frontend`` (its place graph built with
+    source : CatgraphMap, path or Traverse
+        A saved map (:func:`catgraph.io.load_map`) or its file, or a reference
+        traverse, which is described with ``frontend`` (its place graph built with
         :meth:`~catgraph.graph.PlaceGraph.from_traverse`, junctions within
-        ``junction_radius_m``).
+        ``junction_radius_m``). A map file with ``layout="uint8"`` is read in row
+        blocks and coded as it is read (``load_map(path, descriptors="stream")``): the
+        float map is never in memory whole.
     frontend : FrontEnd, optional
         Only with a traverse (a map carries its own).
     junction_radius_m : float, optional
@@ -407,6 +410,10 @@ class LiveMap:
         from .pipeline import FrontEnd
         from .traverse import Traverse
 
+        if isinstance(source, (str, os.PathLike)):
+            from .io import load_map
+
+            source = load_map(source, descriptors="stream" if layout == "uint8" else "memory")
         if isinstance(source, Traverse):
             if isinstance(frontend, dict) or frontend is None:
                 frontend = FrontEnd.from_dict(frontend)
@@ -417,7 +424,7 @@ class LiveMap:
                                             "frontend nor junction_radius_m with a map.")
         else:
             raise InvalidParameterError(
-                "LiveMap needs a CatgraphMap (catgraph.io.load_map) or a reference Traverse; got "
+                "LiveMap needs a CatgraphMap (catgraph.io.load_map), a map file or a reference Traverse; got "
                 f"{type(source).__name__}."
             )
         if source.graph is None:

@@ -33,10 +33,8 @@ def load_live_map(source: str, layout: str = "float32"):
     from catgraph.live import LiveMap
 
     path = Path(source)
-    if path.suffix.lower() == ".npz":
-        from catgraph.io import load_map
-
-        return LiveMap(load_map(path), layout=layout)  # a missing map is reported as one
+    if path.suffix.lower() == ".npz":  # a missing map is reported as one; a compact map is coded as it is read
+        return LiveMap(path, layout=layout)
     return LiveMap(load_input(source, "reference"), layout=layout)
 
 
