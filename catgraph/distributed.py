@@ -236,7 +236,7 @@ from ._sequence_kernels import _NONE, encode, position, unit_of
 from ._validation import check_scalar
 from ._window_rule import (CHANGE_POINT_FRAMES, RECORD_RULES, WEIGHED_CONFIDENCES, _decide, _log_p, _needs_sub,
                            _new_record, _position, _Record, _Stats)
-from .differences import LAYOUTS, METRICS, PreparedReference, _combine, _zero_spread, code_scale
+from .differences import LAYOUTS, METRICS, PreparedReference, RowSource, _combine, _zero_spread, code_scale
 from .exceptions import InvalidParameterError, MissingDependencyError
 from .sequence import DEFAULT_CONFIDENCE, DEFAULT_GRID, DEFAULT_LINE_RULE, DEFAULT_VELOCITIES, _config, _velocity_set
 
@@ -629,8 +629,10 @@ def shard_reference(descriptors, metric: str, scheduler, shard_places: int | Non
     ----------
     descriptors : array_like, shape (N, d)
         Reference descriptors (after the front-end). For a map larger than this
-        machine, pass a memory-mapped array (``numpy.load(..., mmap_mode="r")``): each
-        shard is read and sent on its own.
+        machine, pass a memory-mapped array (``numpy.load(..., mmap_mode="r")``) or a
+        map file's descriptors left in the file
+        (``catgraph.io.load_map(path, descriptors="stream").descriptors``): each shard
+        is read and sent on its own.
     metric : {"sad", "ssd", "cosine", "hamming"}
     scheduler : str or distributed.Client
         Scheduler address (``"tcp://host:8786"``) or a client.
@@ -657,7 +659,7 @@ def shard_reference(descriptors, metric: str, scheduler, shard_places: int | Non
                                     f"Got {layout!r} instead.")
     scale = code_scale(descriptors, metric) if layout == "uint8" else None
     client = _client(scheduler)
-    ref = np.asarray(descriptors) if not isinstance(descriptors, np.memmap) else descriptors
+    ref = descriptors if isinstance(descriptors, (np.memmap, RowSource)) else np.asarray(descriptors)
     if ref.ndim != 2 or ref.shape[0] == 0:
         raise InvalidParameterError(f"reference descriptors must have shape (N, d) with N ≥ 1; got {ref.shape}.")
     n = ref.shape[0]

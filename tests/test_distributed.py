@@ -460,6 +460,26 @@ def test_uint8_shards_equal_the_local_compact_reference(client, data):
         PreparedReference(r, "sad", layout="uint8", code_scale=(0.0, 0.0))
 
 
+@pytest.mark.parametrize("layout", ["float32", "uint8"])
+def test_shards_from_a_map_file_read_it_a_shard_at_a_time(client, data, tmp_path, monkeypatch, layout):
+    """A map file's descriptors left in the file are sharded without being read whole,
+    and give the differences of the array itself."""
+    from catgraph.differences import PreparedReference
+    from catgraph.io import CatgraphMap, StoredDescriptors, load_map, save_map
+
+    q, r = data
+    path = save_map(tmp_path / "map.npz", CatgraphMap(r, "sad", {"size": None, "patch": 0, "metric": "sad",
+                                                                 "normalise": True}))
+    stored = load_map(path, descriptors="stream").descriptors
+    monkeypatch.setattr(StoredDescriptors, "__array__", lambda self, dtype=None, copy=None: 1 / 0)
+    ref = dd.shard_reference(stored, "sad", client, shard_places=4096, layout=layout)
+    monkeypatch.undo()
+    local = PreparedReference(r, "sad", layout=layout)
+    assert ref.code_scale == (None if layout == "float32" else (local.offset, local.step))
+    got = dd.difference_matrix(q, ref, normalise=True, block_rows=50)
+    assert np.array_equal(got, difference_matrix(q, local, "sad", normalise=True))
+
+
 def test_a_cluster_without_workers_is_waited_for_then_refused(monkeypatch):
     """A cluster with no worker (one still starting) gets WORKER_WAIT_S seconds, then a
     clear error, not a division by zero or a hang."""
