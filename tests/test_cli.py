@@ -155,6 +155,22 @@ def test_saved_map_gives_the_same_result_as_the_reference(image_pair, tmp_path):
     assert fa["frames"] == fb["frames"] and fa["metrics"] == fb["metrics"]
 
 
+def test_build_map_no_compress_stores_the_arrays_as_they_are(image_pair, tmp_path):
+    import zipfile
+
+    from catgraph.io import load_map
+
+    ref, _ = image_pair
+    for flags, stored in (([], False), (["--no-compress"], True)):
+        path = tmp_path / f"m{len(flags)}.npz"
+        assert main(["build-map", str(ref), "--out", str(path), "-q", *flags]) == 0
+        with zipfile.ZipFile(path) as z:
+            kinds = {info.compress_type for info in z.infolist()}
+        assert kinds == ({zipfile.ZIP_STORED} if stored else {zipfile.ZIP_DEFLATED})
+    a, b = load_map(tmp_path / "m0.npz"), load_map(tmp_path / "m1.npz")
+    assert np.array_equal(a.descriptors, b.descriptors) and a.frontend == b.frontend
+
+
 def test_map_with_two_inputs_is_a_clear_error(image_pair, tmp_path, capsys):
     ref, qry = image_pair
     assert main(["build-map", str(ref), "--out", str(tmp_path / "m.npz"), "-q"]) == 0
