@@ -63,17 +63,18 @@ _CHAIN, _REVERSE, _JUNCTION = 0, 1, 2
 
 
 def _kind_codes(kinds: Any) -> np.ndarray:
-    """Edge kinds as int8 codes: integer codes as given, names looked up in :data:`EDGE_KINDS`
-    (a :class:`DataError` naming the first unknown name)."""
-    raw = np.asarray(kinds)
-    if raw.dtype.kind in "iu":  # codes already (the constructors' and a saved map's)
-        if raw.size and (raw.min() < 0 or raw.max() >= len(EDGE_KINDS)):
-            raise DataError(f"edge kinds must be one per edge, each one of {EDGE_KINDS}.")
-        return raw.reshape(-1).astype(np.int8)
-    names = [k for k in kinds if isinstance(k, str) and k not in EDGE_KINDS]
-    if names:
-        raise DataError(f"edge kind {names[0]!r} is not one of {EDGE_KINDS}.")
-    return np.array([EDGE_KINDS.index(k) if isinstance(k, str) else int(k) for k in kinds], dtype=np.int8)
+    """Edge kinds as int8 codes: integer codes as given (an array of them without a loop:
+    the constructors' and a saved map's), names looked up in :data:`EDGE_KINDS`; a
+    :class:`DataError` for an unknown name or a code outside them."""
+    codes = np.asarray(kinds)
+    if codes.dtype.kind not in "iu":
+        names = [k for k in kinds if isinstance(k, str) and k not in EDGE_KINDS]
+        if names:
+            raise DataError(f"edge kind {names[0]!r} is not one of {EDGE_KINDS}.")
+        codes = np.array([EDGE_KINDS.index(k) if isinstance(k, str) else int(k) for k in kinds])
+    if codes.size and (codes.min() < 0 or codes.max() >= len(EDGE_KINDS)):
+        raise DataError(f"edge kinds must be one per edge, each one of {EDGE_KINDS}.")
+    return codes.reshape(-1).astype(np.int8)
 
 
 def _edge_tables(n_places: int, src: np.ndarray, dst: np.ndarray, kind: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -198,7 +199,7 @@ class PlaceGraph:
             kd = np.zeros(n_edges, dtype=np.int8)
         else:
             kd = _kind_codes(kinds)
-            if len(kd) != n_edges or (n_edges and (kd.min() < 0 or kd.max() >= len(EDGE_KINDS))):
+            if len(kd) != n_edges:
                 raise DataError(f"edge kinds must be one per edge, each one of {EDGE_KINDS}.")
         if unit not in ("m", "frame"):
             raise InvalidParameterError(f"The 'unit' parameter of PlaceGraph must be 'm' or 'frame'. Got {unit!r} instead.")

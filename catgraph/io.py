@@ -663,14 +663,14 @@ def _read_members(path: Path, stream: bool = False) -> dict[str, np.ndarray]:
     kept = False
     try:
         members = _read_open_members(fh, path, skip=("descriptors",) if stream else ())
-        if stream and "descriptors" in members.pop("__names__"):
+        names = members.pop("__names__")  # (the archive's members, those skipped too)
+        if stream and "descriptors" in names:
             try:
                 members["descriptors"] = StoredDescriptors(fh, path)
             except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as exc:
                 raise MapFileError(f"{path} is corrupt or truncated ({exc}); rebuild it with `catgraph build-map`.") \
                     from None
             kept = True
-        members.pop("__names__", None)
         return members
     finally:
         if not kept:
