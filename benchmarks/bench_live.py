@@ -286,9 +286,11 @@ def run_case(case: str, n: int, frames: int, l_max: int, anchor_rows: int) -> di
         # the process before any map: Python, numpy, numba, the live kernels loaded
         import gc
 
-        from catgraph.live import warm_up
+        from catgraph.live import WARM_UP_PLACES, warm_up
 
-        warm_up(models=("combined",), layouts=("uint8" if compact else "float32",), steps=2)
+        # the kernels of this map's size regime loaded (or compiled) before the streaming window
+        warm_up(models=("combined",), layouts=("uint8" if compact else "float32",), steps=2,
+                places=tuple(p for p in WARM_UP_PLACES if p <= n))
         gc.collect()
         out["baseline_mb"] = _status_mb("VmRSS")
         out["baseline_file_mb"] = _status_mb("RssFile")  # of it, pages of files: the shared libraries' code

@@ -44,8 +44,9 @@ Cold start
 Every compiled kernel is cached on disk the first time a process compiles it
 (:mod:`catgraph._jit`), but that first process pays the compilation — seconds per
 kernel, dominated by the sequence matcher's and the grid filter's. :func:`warm_up` runs
-a tiny map through every live path (both layouts, the filter's models, the matcher)
-so that a deployment can pay it once, at install or image-build time
+small maps through every live path (both layouts, the filter's models, the matcher; a
+map in each size regime of the filter's defaults, :data:`WARM_UP_PLACES`) so that a
+deployment can pay it once, at install or image-build time
 (``python -c "import catgraph.live as l; l.warm_up()"``); the first real run then
 starts as fast as any later one.
 
@@ -724,9 +725,30 @@ class LiveLocalizer:
         return [self.step(f, None if odometry is None or k == 0 else float(odometry[k])) for k, f in enumerate(frames)]
 
 
+def _warm_up_places() -> tuple[int, ...]:
+    """A map size in each regime of the registry's filter, whose defaults change with the
+    map's size (:data:`catgraph.methods.JUMP_GRID_MAX_PLACES`, ``RIGID_MAX_PLACES``,
+    ``DENSE_VELOCITY_MAX_PLACES``, ``GRID_MAX_PLACES``: the jump grid, the rigid line and
+    the varying speed's dense velocities on small maps, the particle filter above the
+    grid's limit): 600 places, and one place beyond each limit."""
+    from . import methods
+
+    limits = (methods.JUMP_GRID_MAX_PLACES, methods.RIGID_MAX_PLACES, methods.DENSE_VELOCITY_MAX_PLACES,
+              methods.GRID_MAX_PLACES)
+    return (600, *sorted({int(limit) + 1 for limit in limits}))
+
+
+#: Map sizes :func:`warm_up` steps by default: one in each size regime of the filter's
+#: defaults, so that the first frames on a map of any size load their kernels instead of
+#: compiling them (on a 10⁵-place map the grid filter's single-rate update, above 10⁵
+#: places the particle filter's motion, which no smaller map runs).
+WARM_UP_PLACES = _warm_up_places()
+
+
 def warm_up(models: tuple[str, ...] = ("combined", "tempered", "histogram-bootstrap", "matcher"),
-            layouts: tuple[str, ...] = LAYOUTS, steps: int = 3) -> dict[str, float]:
-    """Compile (and cache on disk) the kernels of the live paths once, on a tiny map.
+            layouts: tuple[str, ...] = LAYOUTS, steps: int = 40,
+            places: tuple[int, ...] = WARM_UP_PLACES) -> dict[str, float]:
+    """Compile (and cache on disk) the kernels of the live paths once, on small maps.
 
     Parameters
     ----------
@@ -735,12 +757,17 @@ def warm_up(models: tuple[str, ...] = ("combined", "tempered", "histogram-bootst
     layouts : tuple of str
         Map layouts to prepare (:data:`catgraph.differences.LAYOUTS`).
     steps : int
-        Frames stepped per model and layout.
+        Frames stepped per model, layout and map (at most 100; some of the particle
+        filter's passes run only once it has stepped a few dozen frames).
+    places : tuple of int
+        Sizes of the maps stepped (routes of 16 values per place; at least 200 places):
+        :data:`WARM_UP_PLACES`, one in each size regime of the filter's defaults. The
+        largest map costs the process about 150 MB while it is stepped.
 
     Returns
     -------
     dict
-        Seconds spent per ``"model/layout"``.
+        Seconds spent per ``"model/layout"``, all the maps together.
     """
     from .graph import PlaceGraph
     from .io import CatgraphMap
@@ -748,20 +775,33 @@ def warm_up(models: tuple[str, ...] = ("combined", "tempered", "histogram-bootst
     unknown = [m for m in models if m not in LIVE_MODELS]
     if unknown:
         raise InvalidParameterError(f"unknown live models {unknown}; choose from {LIVE_MODELS}.")
+    check_scalar(steps, "steps", "warm_up", int, 1, 100)
+    for n in places:
+        check_scalar(n, "places", "warm_up", int, 200)
     rng = np.random.default_rng(0)
-    n, dim = 600, 16
-    descriptors = np.cumsum(rng.standard_normal((n, dim)), axis=0).astype(np.float32)
-    the_map = CatgraphMap(descriptors, "sad", {"size": None, "patch": 0, "metric": "sad", "normalise": True},
-                          PlaceGraph.chain(n), meta={"kind": "descriptors"})
-    seconds = {}
-    for layout in layouts:
-        live_map = LiveMap(the_map, layout=layout)
-        for model in models:
-            start = time.perf_counter()
-            live = LiveLocalizer(live_map, model=model)  # the default filter: the grid on maps up to 10⁵ places
-            for k in range(steps):
-                live.step(descriptors[100 + k])
-            seconds[f"{model}/{layout}"] = time.perf_counter() - start
+    dim = 16
+    seconds = {f"{model}/{layout}": 0.0 for layout in layouts for model in models}
+    for i, n in enumerate(places):
+        descriptors = np.cumsum(rng.standard_normal((n, dim)), axis=0).astype(np.float32)
+        the_map = CatgraphMap(descriptors, "sad", {"size": None, "patch": 0, "metric": "sad", "normalise": True},
+                              PlaceGraph.chain(n), meta={"kind": "descriptors"})
+        # the layouts differ in the difference row alone, which every size runs alike: the
+        # larger maps (the filter's other regimes) in one layout
+        for layout in layouts if i == 0 else layouts[:1]:
+            live_map = LiveMap(the_map, layout=layout)
+            for model in models:
+                start = time.perf_counter()
+                live = LiveLocalizer(live_map, model=model)  # the registry's filter for a map of this size
+                for k in range(steps):
+                    live.step(descriptors[100 + k])
+                del live
+                seconds[f"{model}/{layout}"] += time.perf_counter() - start
+    if any(n > 2000 for n in places):  # (more than a small map: those too large to step here)
+        # the particle filter's likelihood on maps of 2 · EXP_WORK_PER_THREAD places or more
+        # (131,072) forms its terms on two threads, with kernels of their own, when a core is free
+        from .localizer import likelihood_cumulative
+
+        likelihood_cumulative(np.zeros(64), np.empty(64), 0.0, threads=2)
     return seconds
 
 

@@ -363,11 +363,34 @@ def test_example_refuses_a_users_mistakes_in_one_line(world, tmp_path, capsys, m
 def test_warm_up_steps_every_requested_path():
     from catgraph.live import warm_up
 
-    seconds = warm_up(models=("matcher", "histogram"), layouts=("float32", "uint8"), steps=2)
+    seconds = warm_up(models=("matcher", "histogram"), layouts=("float32", "uint8"), steps=2, places=(600,))
     assert set(seconds) == {"matcher/float32", "histogram/float32", "matcher/uint8", "histogram/uint8"}
     assert all(v >= 0 for v in seconds.values())
     with pytest.raises(InvalidParameterError, match="unknown live models"):
         warm_up(models=("kalman",))
+    with pytest.raises(InvalidParameterError, match="places"):
+        warm_up(places=(100,))
+    with pytest.raises(InvalidParameterError, match="steps"):
+        warm_up(steps=0)
+
+
+def test_warm_up_steps_a_map_in_every_size_regime_of_the_filter():
+    """The filter's defaults change with the map's size (the jump grid, the rigid line,
+    the dense velocities, the particle filter above the grid's limit), and each regime
+    runs kernels of its own: the warm-up maps give every configuration that any map size
+    gives, so that no map compiles in its first frames."""
+    import json
+
+    from catgraph.live import WARM_UP_PLACES
+    from catgraph.methods import concrete_params, resolve_params
+
+    params = resolve_params("filter", {})
+
+    def regime(n):
+        return json.dumps(concrete_params(params, n), sort_keys=True, default=str)
+
+    sizes = {int(v) for v in np.geomspace(200, 10**7, 200)} | {n + d for n in WARM_UP_PLACES for d in (-1, 0, 1)}
+    assert {regime(n) for n in sizes} == {regime(n) for n in WARM_UP_PLACES}
 
 
 def test_batch_warm_up_plan_is_valid_for_the_registry_and_runs_both_inputs():
