@@ -796,12 +796,12 @@ def warm_up(models: tuple[str, ...] = ("combined", "tempered", "histogram-bootst
                     live.step(descriptors[100 + k])
                 del live
                 seconds[f"{model}/{layout}"] += time.perf_counter() - start
-    if any(n > 2000 for n in places):  # (more than a small map: those too large to step here)
-        # the particle filter's likelihood on maps of 2 · EXP_WORK_PER_THREAD places or more
-        # (131,072) forms its terms on two threads, with kernels of their own, when a core is free
-        from .localizer import likelihood_cumulative
+    # the particle filter's likelihood on maps of 2 · EXP_WORK_PER_THREAD places or more
+    # (131,072: larger than the maps stepped here) forms its terms on two threads, with
+    # kernels of their own, when a core is free
+    from .localizer import likelihood_cumulative
 
-        likelihood_cumulative(np.zeros(64), np.empty(64), 0.0, threads=2)
+    likelihood_cumulative(np.zeros(64), np.empty(64), 0.0, threads=2)
     return seconds
 
 
