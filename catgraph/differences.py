@@ -550,14 +550,14 @@ def _code_scale(x: np.ndarray, metric: str) -> tuple[float, float]:
     if metric == "hamming":
         return 0.0, 1.0
     known = x.value_range() if isinstance(x, RowSource) else None
-    lo, hi, integral = known if known is not None else value_range(x[start : start + _CODE_ROWS]
-                                                                   for start in range(0, x.shape[0], _CODE_ROWS))
+    lo, hi, integral = known if known is not None else _value_range(x[start : start + _CODE_ROWS]
+                                                                    for start in range(0, x.shape[0], _CODE_ROWS))
     if integral and hi - lo <= 255:
         return lo, 1.0
     return lo, (hi - lo) / 255.0 if hi > lo else 1.0
 
 
-def value_range(parts, known: tuple[float, float, bool] | None = None) -> tuple[float, float, bool]:
+def _value_range(parts, known: tuple[float, float, bool] | None = None) -> tuple[float, float, bool]:
     """``(smallest, largest, every value a whole number)`` over the arrays ``parts``
     (extending ``known``, the range of earlier parts)."""
     lo, hi, integral = known if known is not None else (None, None, True)

@@ -591,23 +591,17 @@ class StoredDescriptors(RowSource):
                                    "`catgraph build-map`.")
             got += n
         self._row = b
-        if a <= self._read_rows < b:  # rows read for the first time, in order
-            from .differences import _check_finite, value_range
+        if b > self._read_rows:  # rows not read before: checked finite
+            from .differences import _check_finite, _value_range
 
-            new = out[self._read_rows - a :]
+            first = max(a, self._read_rows)
             try:
-                _check_finite(new, "map descriptors", first_row=self._read_rows)
+                _check_finite(out[first - a :], "map descriptors", first_row=first)
             except DataError as exc:
                 raise MapFileError(f"{self.path} holds an inconsistent map: {exc}") from None
-            self._range = value_range([new], self._range)
-            self._read_rows = b
-        elif b > self._read_rows:  # read ahead of the rows read in order: checked, the range left to that pass
-            from .differences import _check_finite
-
-            try:
-                _check_finite(out, "map descriptors", first_row=a)
-            except DataError as exc:
-                raise MapFileError(f"{self.path} holds an inconsistent map: {exc}") from None
+            if a <= self._read_rows:  # the rows that follow those read in order: their range taken too
+                self._range = _value_range([out[first - a :]], self._range)
+                self._read_rows = b
         return out
 
     def value_range(self) -> tuple[float, float, bool] | None:
