@@ -232,8 +232,35 @@ class RowSource:
     shape: tuple[int, int]
     dtype: np.dtype
 
+    #: Rows :meth:`take` reads at most at once.
+    TAKE_ROWS = 2048
+
     def __len__(self) -> int:
         return int(self.shape[0])
+
+    def take(self, rows) -> np.ndarray:
+        """Rows ``rows`` (integers, any order, negative from the end) as an ndarray, read
+        in ascending slices of at most :data:`TAKE_ROWS` rows, each ending at a row asked
+        for: one pass over the rows, never all of them in memory (a sample of a map's
+        frames, :func:`catgraph.hubs.map_hub_offsets`)."""
+        rows = np.asarray(rows)
+        n = self.shape[0]
+        if rows.ndim != 1 or rows.dtype.kind not in "iu":
+            raise IndexError(f"take needs a 1-D array of row numbers; got shape {rows.shape}, dtype {rows.dtype}.")
+        if rows.size and (int(rows.min()) < -n or int(rows.max()) >= n):
+            raise IndexError(f"row numbers must lie in [-{n}, {n}) for {n} rows; got {rows.min()} … {rows.max()}.")
+        rows = np.where(rows < 0, rows + n, rows).astype(np.int64)
+        order = np.argsort(rows, kind="stable")
+        ascending = rows[order]
+        out = np.empty((len(rows), self.shape[1]), dtype=self.dtype)
+        k = 0
+        while k < len(ascending):
+            a = int(ascending[k])
+            m = int(np.searchsorted(ascending, a + self.TAKE_ROWS, side="left"))
+            block = self[a : int(ascending[m - 1]) + 1]
+            out[order[k:m]] = block[ascending[k:m] - a]
+            k = m
+        return out
 
     def value_range(self) -> tuple[float, float, bool] | None:
         """``(smallest, largest, every value a whole number)`` where already known without
@@ -762,38 +789,60 @@ def _iter_columns(ref: "PreparedReference", q: np.ndarray, block_places: int | N
                   caller: str) -> Iterator[tuple[int, np.ndarray]]:
     """Column blocks of prepared query rows ``q`` against ``ref`` (see
     :func:`iter_difference_columns`)."""
+    block_places = _column_block(q.shape[0], block_places, caller)
+    if normalise and ref.n_places <= block_places:  # one block: its rows normalised as a whole (the same floats)
+        block = _raw_columns(ref, q, 0, block_places)
+        yield 0, _normalise_into(block, block)
+        return
+    mean = std = None
+    if normalise:  # the row sums of normalise_rows, chunk by chunk, block by block
+        mean = _combine(_column_chunk_sums(ref, q, block_places, None)) / ref.n_places
+        std = np.sqrt(_combine(_column_chunk_sums(ref, q, block_places, mean)) / ref.n_places)
+        std[_zero_spread(std, mean)] = 0.0
+    yield from _scaled_columns(ref, q, block_places, mean, std)
+
+
+def _column_block(m: int, block_places: int | None, caller: str) -> int:
+    """Places per column block of ``m`` query rows (default about 32 MiB of float64), a
+    whole number of normalisation chunks."""
     k = _kernels()
-    m, n = q.shape[0], ref.n_places
     if block_places is None:
         block_places = max(1, _BLOCK_VALUES // max(m, 1))
     check_scalar(block_places, "block_places", caller, int, 1)
-    block_places = -(-int(block_places) // k.SUM_CHUNK) * k.SUM_CHUNK
-    edges = list(range(0, n, block_places))
+    return -(-int(block_places) // k.SUM_CHUNK) * k.SUM_CHUNK
 
-    def raw(lo: int) -> np.ndarray:
-        part = ref._places(lo, lo + block_places)
-        return part._raw(q, np.empty((m, part.n_places)))
 
-    if normalise and len(edges) == 1:  # one block: its rows normalised as a whole (the same floats)
-        block = raw(0)
-        yield 0, _normalise_into(block, block)
-        return
-    if normalise:  # the row sums of normalise_rows, chunk by chunk, block by block
-        parts = np.empty((m, -(-n // k.SUM_CHUNK)))
-        for power in (1, 2):
-            centre = np.zeros(m) if power == 1 else mean
-            for lo in edges:
-                block = raw(lo)
-                first = lo // k.SUM_CHUNK
-                k.chunk_sums(block, centre, power, parts[:, first : first + -(-block.shape[1] // k.SUM_CHUNK)])
-            if power == 1:
-                mean = _combine(parts) / n
-        std = np.sqrt(_combine(parts) / n)
-        std[_zero_spread(std, mean)] = 0.0
-    for lo in edges:
-        block = raw(lo)
-        if normalise:
-            k.scale_rows(block, mean, std, block)
+def _raw_columns(ref: "PreparedReference", q: np.ndarray, lo: int, block_places: int) -> np.ndarray:
+    """The raw differences of prepared rows ``q`` against places ``lo:lo + block_places``."""
+    part = ref._places(lo, lo + block_places)
+    return part._raw(q, np.empty((q.shape[0], part.n_places)))
+
+
+def _column_chunk_sums(ref: "PreparedReference", q: np.ndarray, block_places: int,
+                       centre: np.ndarray | None) -> np.ndarray:
+    """``(m, ⌈N / SUM_CHUNK⌉)``: the per-chunk partial sums :func:`normalise_rows` adds for
+    rows ``q`` against ``ref`` (``centre`` ``None``: of the values; else of the squared
+    deviations from it), a column block at a time (``block_places`` a multiple of the
+    chunk, so each chunk's sum is the one of the whole row)."""
+    k = _kernels()
+    m = q.shape[0]
+    parts = np.empty((m, -(-ref.n_places // k.SUM_CHUNK)))
+    power, centre = (1, np.zeros(m)) if centre is None else (2, centre)
+    for lo in range(0, ref.n_places, block_places):
+        block = _raw_columns(ref, q, lo, block_places)
+        first = lo // k.SUM_CHUNK
+        k.chunk_sums(block, centre, power, parts[:, first : first + -(-block.shape[1] // k.SUM_CHUNK)])
+    return parts
+
+
+def _scaled_columns(ref: "PreparedReference", q: np.ndarray, block_places: int, mean: np.ndarray | None,
+                    std: np.ndarray | None) -> Iterator[tuple[int, np.ndarray]]:
+    """``(lo, block)`` of rows ``q`` against ``ref``, each block scaled by the rows' whole
+    ``mean`` and ``std`` (``None``: raw)."""
+    for lo in range(0, ref.n_places, block_places):
+        block = _raw_columns(ref, q, lo, block_places)
+        if mean is not None:
+            _kernels().scale_rows(block, mean, std, block)
         yield lo, block
 
 

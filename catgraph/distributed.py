@@ -263,8 +263,8 @@ SHARD_UNIT = 4096
 EXACT_RULES = ("unrivalled", "evident", "consistent", "sustained", "literal", "predictive", "decorrelated",
                "spanning", "punctuated", "gated", "contested", "persistent", "challenged")
 
-__all__ = ["ShardedReference", "ShardedMatches", "shard_reference", "difference_matrix", "window_scores",
-           "match_fixed_window", "match_adaptive_window"]
+__all__ = ["ShardedReference", "ShardedMatches", "shard_reference", "difference_matrix", "map_hub_offsets",
+           "window_scores", "match_fixed_window", "match_adaptive_window"]
 
 
 def _client(scheduler: Any):
@@ -758,6 +758,88 @@ def difference_matrix(query, ref: ShardedReference, normalise: bool = True, bloc
         futs = _normalised_blocks(ref, q[start : start + block_rows], normalise)
         for (lo, hi), block in zip(ref.bounds, ref.client.gather(futs)):
             out[start : start + block.shape[0], lo:hi] = block
+    return out
+
+
+def map_hub_offsets(ref: ShardedReference, descriptors, normalise: bool = True, threshold: float | None = None,
+                    max_rows: int | None = None) -> np.ndarray:
+    """:func:`catgraph.hubs.map_hub_offsets` computed where the shards live.
+
+    The same sampled map frames (:func:`catgraph.hubs.hub_sample`) are sent to every
+    worker as queries; each worker adds its shard's fixed-chunk partial sums of their
+    differences (two rounds: the rows' means, then their spreads, as in
+    :func:`difference_matrix`) and then the median of each of its places' normalised
+    differences to them (:func:`catgraph.hubs.typical_columns`), a column block at a
+    time; only the sums and ``N`` medians travel. The client reads the sampled frames
+    alone (``descriptors[rows]``; a map file's descriptors left in the file,
+    :class:`catgraph.io.StoredDescriptors`, in one pass without holding them whole).
+    With float32 shards the offsets equal :func:`catgraph.hubs.map_hub_offsets` of the
+    map bit for bit; with ``uint8`` shards, :func:`catgraph.live.reference_hub_offsets`
+    of the compact reference (tested).
+
+    Parameters
+    ----------
+    ref : ShardedReference
+        The map's shards (:func:`shard_reference`).
+    descriptors : array_like or RowSource, shape (N, d)
+        The descriptors the shards were cut from.
+    normalise : bool
+        The map's per-query normalisation.
+    threshold : float, optional
+        Default :data:`catgraph.hubs.HUB_THRESHOLD`.
+    max_rows : int, optional
+        Default :data:`catgraph.hubs.HUB_ROWS`.
+
+    Returns
+    -------
+    ndarray of float64, shape (N,)
+    """
+    from .differences import _column_block
+    from .hubs import HUB_ROWS, HUB_THRESHOLD, _outlying, hub_sample
+
+    threshold = HUB_THRESHOLD if threshold is None else threshold
+    check_scalar(threshold, "threshold", "map_hub_offsets", float, 0.0)
+    if len(descriptors) != ref.n_places:
+        raise InvalidParameterError(f"the descriptors hold {len(descriptors)} places but the shards {ref.n_places}; "
+                                    "give the descriptors the shards were cut from.")
+    n = ref.n_places
+    if n < 3:  # as catgraph.hubs.map_hub_offsets
+        return np.zeros(n)
+    rows = hub_sample(n, HUB_ROWS if max_rows is None else max_rows)
+    sample = descriptors.take(rows) if isinstance(descriptors, RowSource) else np.asarray(descriptors[rows])
+    q = ref.prepare_query(sample)
+    block_places = _column_block(q.shape[0], None, "map_hub_offsets")
+    c = ref.client
+    q_fut = c.scatter(q, broadcast=True, direct=False, hash=False)
+    mean = std = None
+    if normalise:
+        parts = c.gather([ref.submit(s, _sample_sums, shard, q_fut, block_places, None)
+                          for s, shard in enumerate(ref.shards)])
+        mean = _combine(np.concatenate(parts, axis=1)) / n
+        parts = c.gather([ref.submit(s, _sample_sums, shard, q_fut, block_places, mean)
+                          for s, shard in enumerate(ref.shards)])
+        std = np.sqrt(_combine(np.concatenate(parts, axis=1)) / n)
+        std[_zero_spread(std, mean)] = 0.0
+    typical = c.gather([ref.submit(s, _sample_typical, shard, q_fut, rows, lo, block_places, mean, std)
+                        for s, (shard, (lo, _)) in enumerate(zip(ref.shards, ref.bounds))])
+    return _outlying(np.concatenate(typical), threshold)
+
+
+def _sample_sums(shard: PreparedReference, q: np.ndarray, block_places: int, centre) -> np.ndarray:
+    from .differences import _column_chunk_sums
+
+    return _column_chunk_sums(shard, q, block_places, centre)
+
+
+def _sample_typical(shard: PreparedReference, q: np.ndarray, rows: np.ndarray, lo: int, block_places: int,
+                    mean, std) -> np.ndarray:
+    """Each of the shard's places' typical difference to the sampled map frames ``rows``."""
+    from .differences import _scaled_columns
+    from .hubs import typical_columns
+
+    out = np.empty(shard.n_places)
+    for a, block in _scaled_columns(shard, q, block_places, mean, std):
+        out[a : a + block.shape[1]] = typical_columns(block, rows, lo + a)
     return out
 
 

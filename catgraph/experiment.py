@@ -464,7 +464,10 @@ def check_frame_pairing(reference: Traverse, query: Traverse) -> int:
     return n
 
 
-def _ground_truth(exp: Experiment, reference: Traverse, query: Traverse, n_places: int) -> GroundTruth | None:
+def _ground_truth(exp: Experiment, reference, query: Traverse, n_places: int) -> GroundTruth | None:
+    """The experiment's ground truth; ``reference``: the reference :class:`Traverse` or the
+    :class:`~catgraph.io.CatgraphMap` (of either, the places' ``positions``, ``floors`` and
+    ``ids`` are read)."""
     if exp.tolerance is not None:
         check_frame_pairing(reference, query)
         return FrameTolerance(n_places, exp.tolerance)
@@ -488,13 +491,14 @@ def _ground_truth(exp: Experiment, reference: Traverse, query: Traverse, n_place
     return load_ground_truth(exp.ground_truth, len(query), n_places)
 
 
-def _inputs(exp: Experiment) -> tuple:
-    """Stages 1–2: ``(map, reference or None, graph or None, sources, query, ground_truth)``."""
+def _inputs(exp: Experiment, descriptors: str = "memory") -> tuple:
+    """Stages 1–2: ``(map, reference or None, graph or None, sources, query, ground_truth)``.
+    ``descriptors``: how a map file's descriptors are loaded (:func:`catgraph.io.load_map`)."""
     from .datasets.video import is_video
-    from .io import build_map, load_map, reference_from_map
+    from .io import build_map, load_map
 
     if exp.map is not None:
-        the_map = exp.map if hasattr(exp.map, "descriptors") else load_map(exp.map)
+        the_map = exp.map if hasattr(exp.map, "descriptors") else load_map(exp.map, descriptors=descriptors)
         fps = _video_fps(exp, the_map.frontend_settings().fps)
     else:
         fps = _video_fps(exp, None)
@@ -517,8 +521,8 @@ def _inputs(exp: Experiment) -> tuple:
         graph = None
         sources = {"reference": _source_name(exp.reference)}
     sources["query"] = _source_name(exp.query)
-    ground_truth = _ground_truth(exp, reference if reference is not None else reference_from_map(the_map), query,
-                                 the_map.n_places)
+    # a map's places: its positions, floors and ids (CatgraphMap carries them), never its descriptors
+    ground_truth = _ground_truth(exp, reference if reference is not None else the_map, query, the_map.n_places)
     return the_map, reference, graph, sources, query, ground_truth
 
 
@@ -598,8 +602,12 @@ def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
     ----------
     exp : Experiment
         Method ``sequence`` (a fixed or the adaptive ``window``, any ``velocities``; the
-        hub offsets, when asked for, are computed here from the map, as locally); a map
-        whose differences are normalised.
+        hub offsets, when asked for, are computed on the cluster from the map's shards,
+        :func:`catgraph.distributed.map_hub_offsets`, the same as locally); a map whose
+        differences are normalised. A map given as its file is never read whole here:
+        its descriptors stay in the file (:func:`catgraph.io.load_map` with
+        ``descriptors="stream"``), each shard is read and sent on its own, and the hub
+        offsets read the sampled frames alone.
     scheduler : str or distributed.Client
         A scheduler address (``"tcp://host:8786"``) or a client.
     shard_places : int, optional
@@ -615,13 +623,14 @@ def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
     """
     import time
 
-    from .distributed import _client, check_cluster_rule, match_adaptive_window, match_fixed_window, shard_reference
-    from .hubs import map_hub_offsets
+    from .distributed import (_client, check_cluster_rule, map_hub_offsets, match_adaptive_window, match_fixed_window,
+                              shard_reference)
     from .methods import _WINDOW_ADAPTIVE, check_sequence_length, sequence_run_name
     from .io import describe_query
 
     params = _cluster_params(exp)
-    the_map, reference, graph, sources, query, ground_truth = _inputs(exp)
+    # a map file's descriptors stay in the file: each shard is read and sent on its own
+    the_map, reference, graph, sources, query, ground_truth = _inputs(exp, descriptors="stream")
     if not the_map.frontend_settings().normalise:
         raise InvalidParameterError("a cluster run normalises every difference row; this map was built with "
                                     "normalise off: build it again with normalisation, or run without --scheduler.")
@@ -638,7 +647,7 @@ def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
         sharded = shard_reference(the_map.descriptors, the_map.metric, client, shard_places)
         common = {"radius": int(params["exclusion"]), "velocities": tuple(params["velocities"]),
                   "block_rows": block_rows, "no_information": ~informative,
-                  "hub_offsets": map_hub_offsets(the_map) if params["hub_correction"] else None}
+                  "hub_offsets": map_hub_offsets(sharded, the_map.descriptors) if params["hub_correction"] else None}
         if adaptive:
             res = match_adaptive_window(q, sharded, **{k: params[k] for k in _WINDOW_ADAPTIVE}, **common)
         else:

@@ -46,7 +46,8 @@ import numpy as np
 from ._validation import check_array, check_scalar
 from .exceptions import DataError, ShapeMismatchError
 
-__all__ = ["hub_offsets", "map_hub_offsets", "apply_hub_offsets", "HUB_THRESHOLD", "HUB_ROWS"]
+__all__ = ["hub_offsets", "map_hub_offsets", "apply_hub_offsets", "hub_sample", "typical_columns", "HUB_THRESHOLD",
+           "HUB_ROWS"]
 
 #: outlying hubs lie more than this many robust standard deviations below the typical frame
 HUB_THRESHOLD = 3.0
@@ -122,20 +123,36 @@ def map_hub_offsets(catgraph_map, threshold: float = HUB_THRESHOLD, max_rows: in
     or, above ``max_rows`` places, a seeded sample of ``max_rows`` of its frames against
     the whole map, read in blocks of places (never an ``N × N`` matrix, nor the whole
     ``max_rows × N`` one)."""
-    from .differences import iter_difference_columns
+    from .differences import RowSource, iter_difference_columns
 
     d, n = catgraph_map.descriptors, catgraph_map.n_places
     check_scalar(threshold, "threshold", "hub_offsets", float, 0.0)
     if n < 3:  # as hub_offsets: no typical difference to stand out from (one place has no other)
         return np.zeros(n)
-    rows = np.arange(n) if n <= max_rows else np.sort(np.random.default_rng(0).choice(n, max_rows, replace=False))
+    rows = hub_sample(n, max_rows)
     typical = np.empty(n)
-    for lo, block in iter_difference_columns(d[rows], d, catgraph_map.metric,
+    sample = d.take(rows) if isinstance(d, RowSource) else d[rows]
+    for lo, block in iter_difference_columns(sample, d, catgraph_map.metric,
                                              normalise=bool(catgraph_map.frontend.get("normalise", True))):
-        own = np.flatnonzero((rows >= lo) & (rows < lo + block.shape[1]))
-        block[own, rows[own] - lo] = np.nan
-        typical[lo : lo + block.shape[1]] = np.nanmedian(block, axis=0)
+        typical[lo : lo + block.shape[1]] = typical_columns(block, rows, lo)
     return _outlying(typical, threshold)
+
+
+def hub_sample(n: int, max_rows: int = HUB_ROWS) -> np.ndarray:
+    """The map frames whose differences give a map's hub offsets (:func:`map_hub_offsets`):
+    every frame up to ``max_rows``, else a seeded sample of ``max_rows`` (sorted), the same
+    for every run on the map and for the cluster's (:func:`catgraph.distributed.map_hub_offsets`)."""
+    check_scalar(max_rows, "max_rows", "map_hub_offsets", int, 1)
+    return np.arange(n) if n <= max_rows else np.sort(np.random.default_rng(0).choice(n, max_rows, replace=False))
+
+
+def typical_columns(block: np.ndarray, rows: np.ndarray, lo: int) -> np.ndarray:
+    """Each column's typical difference ``h_j`` (:func:`hub_offsets`) from the map frames
+    ``rows`` against places ``lo …`` (``block``: their normalised differences, ``(len(rows),
+    width)`` float64, overwritten): the median over the rows, each frame's own place left out."""
+    own = np.flatnonzero((rows >= lo) & (rows < lo + block.shape[1]))
+    block[own, rows[own] - lo] = np.nan
+    return np.nanmedian(block, axis=0)
 
 
 #: Values per block of rows renormalised at once by :func:`apply_hub_offsets`.

@@ -526,7 +526,8 @@ class StoredDescriptors(RowSource):
     What :func:`load_map` with ``descriptors="stream"`` gives as
     ``CatgraphMap.descriptors``: ``d[a:b]`` reads rows ``a … b − 1`` (consecutive slices
     from one open stream of the archive member: a deflated member is inflated once per
-    pass), :meth:`blocks` reads every row in order, ``numpy.asarray(d)`` reads them whole.
+    pass), ``d[rows]`` (row numbers) reads those rows in one pass (:meth:`take`), :meth:`blocks`
+    reads every row in order, ``numpy.asarray(d)`` reads them whole.
     Rows are checked finite when first read (a map file whose checksum holds may still
     have been written by other code), so no read hands out a NaN; the first pass over
     them (the checksum's) also takes their range (:meth:`value_range`), so the compact
@@ -613,6 +614,8 @@ class StoredDescriptors(RowSource):
         if isinstance(key, slice) and key.step in (None, 1):
             a, b, _ = key.indices(self.shape[0])
             return self._rows(a, max(a, b))
+        if isinstance(key, (list, np.ndarray)) and np.asarray(key).dtype.kind in "iu" and np.ndim(key) == 1:
+            return self.take(key)  # rows by number: read in one pass, not whole
         return np.asarray(self)[key]
 
     def __array__(self, dtype=None, copy=None):

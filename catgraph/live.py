@@ -318,19 +318,15 @@ def reference_hub_offsets(reference: PreparedReference, normalise: bool = True, 
     ndarray of float64, shape (N,)
     """
     from .differences import iter_reference_columns
-    from .hubs import HUB_ROWS, HUB_THRESHOLD, _outlying
+    from .hubs import HUB_ROWS, HUB_THRESHOLD, _outlying, hub_sample, typical_columns
 
     threshold = HUB_THRESHOLD if threshold is None else threshold
-    max_rows = HUB_ROWS if max_rows is None else max_rows
     check_scalar(threshold, "threshold", "reference_hub_offsets", float, 0.0)
-    check_scalar(max_rows, "max_rows", "reference_hub_offsets", int, 1)
     n = reference.n_places
-    rows = np.arange(n) if n <= max_rows else np.sort(np.random.default_rng(0).choice(n, max_rows, replace=False))
+    rows = hub_sample(n, HUB_ROWS if max_rows is None else max_rows)
     typical = np.empty(n)
     for lo, block in iter_reference_columns(reference, rows, normalise=normalise):
-        own = np.flatnonzero((rows >= lo) & (rows < lo + block.shape[1]))
-        block[own, rows[own] - lo] = np.nan
-        typical[lo : lo + block.shape[1]] = np.nanmedian(block, axis=0)
+        typical[lo : lo + block.shape[1]] = typical_columns(block, rows, lo)
     return _outlying(typical, threshold)
 
 

@@ -495,3 +495,75 @@ def test_a_cluster_without_workers_is_waited_for_then_refused(monkeypatch):
     finally:
         client.close()
         cluster.close()
+
+
+@pytest.mark.parametrize("max_rows", [None, 200, 3000])
+def test_hub_offsets_on_the_cluster_equal_the_maps(client, max_rows):
+    """The offsets from the shards: every frame, a sample normalised locally as one block
+    (200 rows), and a sample in several column blocks; the same floats as
+    ``hubs.map_hub_offsets``."""
+    from catgraph.hubs import map_hub_offsets
+    from catgraph.io import CatgraphMap
+
+    r, _ = hub_map(np.concatenate([np.arange(3990, 4190), np.arange(8120, 8200)]))
+    the_map = CatgraphMap(r, "sad", {"size": None, "patch": 0, "metric": "sad", "normalise": True})
+    ref = dd.shard_reference(r, "sad", client, shard_places=4096)
+    kw = {} if max_rows is None else {"max_rows": max_rows}
+    local = map_hub_offsets(the_map, **kw)
+    assert np.count_nonzero(local) == 3  # not trivial: the hubs are found
+    assert np.array_equal(dd.map_hub_offsets(ref, r, **kw), local)
+    raw = dd.map_hub_offsets(ref, r, normalise=False, **kw)
+    plain = CatgraphMap(r, "sad", {"size": None, "patch": 0, "metric": "sad", "normalise": False})
+    assert np.array_equal(raw, map_hub_offsets(plain, **kw))
+
+
+def test_hub_offsets_of_uint8_shards_and_of_a_map_file(client, tmp_path, monkeypatch):
+    from catgraph.differences import PreparedReference
+    from catgraph.hubs import map_hub_offsets
+    from catgraph.io import CatgraphMap, StoredDescriptors, load_map, save_map
+    from catgraph.live import reference_hub_offsets
+
+    r, _ = hub_map(np.concatenate([np.arange(3990, 4190), np.arange(8120, 8200)]))
+    coded_ref = dd.shard_reference(r, "sad", client, shard_places=4096, layout="uint8")
+    compact = reference_hub_offsets(PreparedReference(r, "sad", layout="uint8"), max_rows=500)
+    assert np.count_nonzero(compact) == 3
+    assert np.array_equal(dd.map_hub_offsets(coded_ref, r, max_rows=500), compact)
+    the_map = CatgraphMap(r, "sad", {"size": None, "patch": 0, "metric": "sad", "normalise": True})
+    stored = load_map(save_map(tmp_path / "map.npz", the_map), descriptors="stream").descriptors
+    monkeypatch.setattr(StoredDescriptors, "__array__", lambda self, dtype=None, copy=None: 1 / 0)
+    ref = dd.shard_reference(stored, "sad", client, shard_places=4096)
+    assert np.array_equal(dd.map_hub_offsets(ref, stored, max_rows=500), map_hub_offsets(the_map, max_rows=500))
+    with pytest.raises(InvalidParameterError, match="descriptors hold 8199 places but the shards 8200"):
+        dd.map_hub_offsets(ref, r[:-1])
+    with pytest.raises(InvalidParameterError, match="max_rows"):
+        dd.map_hub_offsets(ref, stored, max_rows=0)
+    stored.close()
+
+
+def test_a_cluster_run_on_a_map_file_never_reads_it_whole(client, tmp_path, monkeypatch):
+    """``run_on_cluster`` (``catgraph match --map FILE --scheduler``) leaves the map's
+    descriptors in the file (shards and hub offsets read what they need) and gives the
+    local run's answers."""
+    from catgraph.experiment import Experiment, run, run_on_cluster
+    from catgraph.io import StoredDescriptors, build_map, save_map
+    from catgraph.pipeline import FrontEnd
+    from catgraph.traverse import Traverse
+
+    r, q = hub_map(np.concatenate([np.arange(3990, 4190), np.arange(8120, 8200)]))
+    positions = np.stack([np.arange(len(r), dtype=float), np.zeros(len(r))], axis=1)
+    reference = Traverse(r, positions=positions, meta={"kind": "descriptors"}, name="ref")
+    path = save_map(tmp_path / "map.npz", build_map(reference, FrontEnd(metric="sad")))
+    query = Traverse(q, positions=positions[np.concatenate([np.arange(3990, 4190), np.arange(8120, 8200)])],
+                     meta={"kind": "descriptors"}, name="query")
+    exp = Experiment(query=query, map=path, method="sequence", params={"window": 20, "hub_correction": True},
+                     tolerance_m=2.0)
+    local, local_out, _ = run(exp)
+    monkeypatch.setattr(StoredDescriptors, "__array__", lambda self, dtype=None, copy=None: 1 / 0)
+    opened = []
+    init = StoredDescriptors.__init__
+    monkeypatch.setattr(StoredDescriptors, "__init__", lambda self, *a, **k: (opened.append(1), init(self, *a, **k))[1])
+    remote, remote_out, _ = run_on_cluster(exp, client, shard_places=4096, block_rows=64)
+    assert opened == [1]  # the map's descriptors were left in the file
+    assert np.array_equal(remote.match, local.match)
+    assert np.array_equal(remote.confidence, local.confidence)
+    assert remote_out["metrics"] == local_out["metrics"] and local_out["metrics"]["auc"] > 0.5

@@ -48,11 +48,33 @@ def test_row_slices_and_blocks_read_the_file(route):
         got = stored[a:b]
         assert got.dtype == values.dtype and np.array_equal(got, values[a:b]), (a, b)
     assert np.array_equal(np.concatenate(list(stored.blocks(rows=37))), values)
-    assert np.array_equal(stored[[3, 1]], values[[3, 1]])  # anything else: read whole, then indexed
+    assert np.array_equal(stored[[3, 1]], values[[3, 1]])  # row numbers: read in one pass (take)
+    assert np.array_equal(stored[np.array([True] * 700)], values)  # anything else: read whole, then indexed
     assert np.array_equal(np.asarray(stored, dtype=np.float64), values.astype(np.float64))
     stored.close()
     with pytest.raises(ValueError):
         stored[0:3]
+
+
+def test_rows_by_number_are_read_in_one_ascending_pass(route, monkeypatch):
+    the_map, path = route
+    stored = load_map(path, descriptors="stream").descriptors
+    values = the_map.descriptors
+    monkeypatch.setattr(StoredDescriptors, "TAKE_ROWS", 50)
+    monkeypatch.setattr(StoredDescriptors, "__array__", lambda self, dtype=None, copy=None: 1 / 0)
+    reads = []
+    rows_of = StoredDescriptors._rows
+    monkeypatch.setattr(StoredDescriptors, "_rows", lambda self, a, b: (reads.append((a, b)), rows_of(self, a, b))[1])
+    rows = np.array([640, 3, 3, 699, 0, 41, -1, 120, 121, 400])  # any order, repeated, from the end
+    got = stored[rows]
+    assert got.dtype == values.dtype and np.array_equal(got, values[rows])
+    # ascending slices of at most TAKE_ROWS rows, each from a row asked for to one asked for
+    assert reads == [(0, 42), (120, 122), (400, 401), (640, 641), (699, 700)]
+    assert np.array_equal(stored.take(np.array([], dtype=np.int64)), values[:0])
+    for bad in (np.array([700]), np.array([-701]), np.array([1.0]), np.array([[1]])):
+        with pytest.raises(IndexError, match="row numbers|1-D array"):
+            stored.take(bad)
+    stored.close()
 
 
 def test_the_compact_live_map_codes_the_file_block_by_block(route, monkeypatch):
