@@ -33,14 +33,14 @@ import json, resource, sys, time
 sys.path.insert(0, sys.argv[1])
 start = time.perf_counter()
 from catgraph.cli.main import main
-rc = main(["match", "--map", sys.argv[2], sys.argv[3], "--window", "20", "--tolerance", "2", "--scheduler",
-           sys.argv[4], "-q", "-o", sys.argv[5]])
+rc = main(["match", "--map", sys.argv[2], sys.argv[3], "--window", "20", "--ground-truth", sys.argv[6],
+           "--scheduler", sys.argv[4], "-q", "-o", sys.argv[5]])
 print(json.dumps({"rc": rc, "wall_s": time.perf_counter() - start,
                   "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
 """
 
 
-def _write_inputs(folder: Path, n: int, n_query: int) -> tuple[Path, Path]:
+def _write_inputs(folder: Path, n: int, n_query: int) -> tuple[Path, Path, Path]:
     from catgraph.io import build_map, save_map
     from catgraph.pipeline import FrontEnd
     from catgraph.traverse import Traverse
@@ -55,7 +55,10 @@ def _write_inputs(folder: Path, n: int, n_query: int) -> tuple[Path, Path]:
     first = n // 3
     query = values[first : first + n_query] + 0.5 * rng.standard_normal((n_query, DIM), dtype=np.float32)
     np.save(folder / "query.npy", query)
-    return map_path, folder / "query.npy"
+    # query frame i is place first + i (±2 places)
+    pairs = [f"{i},{first + i + k}" for i in range(n_query) for k in range(-2, 3)]
+    (folder / "truth.csv").write_text("query,reference\n" + "\n".join(pairs) + "\n")
+    return map_path, folder / "query.npy", folder / "truth.csv"
 
 
 def main() -> None:
@@ -75,7 +78,7 @@ def main() -> None:
     runs = []
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        map_path, query_path = _write_inputs(folder, args.places, args.query)
+        map_path, query_path, truth_path = _write_inputs(folder, args.places, args.query)
         cluster = distributed.LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
                                            memory_limit=0, dashboard_address=None)
         try:
@@ -85,7 +88,7 @@ def main() -> None:
                     out = folder / f"out_{r}_{Path(tree).name}.json"
                     load = os.getloadavg()[0]
                     proc = subprocess.run([sys.executable, "-c", _CLIENT, str(Path(tree).resolve()), str(map_path),
-                                           str(query_path), cluster.scheduler_address, str(out)],
+                                           str(query_path), cluster.scheduler_address, str(out), str(truth_path)],
                                           capture_output=True, text=True, cwd=tmp)
                     if proc.returncode != 0:
                         raise SystemExit(f"{tree}: {proc.stderr[-3000:]}")

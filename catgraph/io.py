@@ -579,10 +579,13 @@ class StoredDescriptors(RowSource):
         out = np.empty((max(b - a, 0), self.shape[1]), dtype=self.dtype)
         if not out.size:
             return out
-        if self._stream is None or a != self._row:  # not where the open stream is: open it again, skip to ``a``
+        if self._stream is None or a < self._row:  # behind the open stream: open it again, skip to ``a``
             if self._stream is not None:
                 self._stream.close()
             self._stream = self._zip.open(self._member)
+            self._stream.seek(self._start + a * self.shape[1] * self.dtype.itemsize)
+        elif a > self._row:  # ahead of it: the open stream skips the rows between (an archive member is
+            # read from its start on every seek of a stream opened again)
             self._stream.seek(self._start + a * self.shape[1] * self.dtype.itemsize)
         view, got = memoryview(out).cast("B"), 0
         while got < len(view):

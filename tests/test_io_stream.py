@@ -65,9 +65,14 @@ def test_rows_by_number_are_read_in_one_ascending_pass(route, monkeypatch):
     reads = []
     rows_of = StoredDescriptors._rows
     monkeypatch.setattr(StoredDescriptors, "_rows", lambda self, a, b: (reads.append((a, b)), rows_of(self, a, b))[1])
+    opened = []
+    open_member = stored._zip.open
+    stored._zip.open = lambda *a, **k: (opened.append(a), open_member(*a, **k))[1]
     rows = np.array([640, 3, 3, 699, 0, 41, -1, 120, 121, 400])  # any order, repeated, from the end
     got = stored[rows]
     assert got.dtype == values.dtype and np.array_equal(got, values[rows])
+    # one stream, skipping forward (a stream opened again reads the member from its start)
+    assert len(opened) == 1
     # ascending slices of at most TAKE_ROWS rows, each from a row asked for to one asked for
     assert reads == [(0, 42), (120, 122), (400, 401), (640, 641), (699, 700)]
     assert np.array_equal(stored.take(np.array([], dtype=np.int64)), values[:0])
