@@ -226,6 +226,7 @@ last bits of the raw differences can differ (see :mod:`catgraph._diff_kernels`).
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from typing import Any
 
@@ -285,6 +286,61 @@ def _client(scheduler: Any):
 
 # ---------------------------------------------------------------------------------------
 # worker-side functions (module level: they travel by reference)
+
+
+#: Bytes of descriptors :func:`shard_reference` reads and sends at once: a larger shard
+#: goes in pieces, so the client holds one piece, not one shard, and a worker the shard's
+#: rows and at most two pieces in flight.
+SHARD_PIECE_BYTES = 64 << 20
+
+#: Shards being assembled on this worker from their pieces, by key (:func:`_send_in_pieces`).
+_ASSEMBLING: dict = {}
+_ASSEMBLING_LOCK = threading.Lock()
+
+
+def _send_in_pieces(client, ref, lo: int, hi: int, piece_rows: int, where: str, pin: dict):
+    """Rows ``lo:hi`` of ``ref`` sent to worker ``where`` a piece at a time: each piece is
+    scattered, copied into the shard's rows there (:func:`_receive_piece`) and released;
+    the next piece but one is read only once that copy is done. Returns the future of the
+    assembled rows (:func:`_assembled`)."""
+    import uuid
+
+    key = uuid.uuid4().hex
+    received = []
+    try:
+        for a in range(lo, hi, piece_rows):
+            piece = client.scatter(np.ascontiguousarray(ref[a : min(hi, a + piece_rows)]), workers=[where],
+                                   direct=False, hash=False)
+            received.append(client.submit(_receive_piece, key, piece, a - lo, hi - lo, **pin))
+            del piece  # the worker keeps it until its copy is done, then frees it
+            if len(received) >= 2:
+                received[-2].result()  # at most two pieces in flight
+        return client.submit(_assembled, key, *received, **pin)
+    except BaseException:
+        client.run(_drop_assembling, key, workers=[where])
+        raise
+
+
+def _receive_piece(key: str, piece: np.ndarray, offset: int, rows: int) -> int:
+    with _ASSEMBLING_LOCK:
+        if key not in _ASSEMBLING:
+            _ASSEMBLING[key] = np.empty((rows, piece.shape[1]), dtype=piece.dtype)
+        out = _ASSEMBLING[key]
+    out[offset : offset + piece.shape[0]] = piece
+    return piece.shape[0]
+
+
+def _assembled(key: str, *received: int) -> np.ndarray:
+    with _ASSEMBLING_LOCK:
+        out = _ASSEMBLING.pop(key)
+    if sum(received) != out.shape[0]:  # pragma: no cover - every piece is awaited as an argument
+        raise RuntimeError(f"a shard received {sum(received)} of its {out.shape[0]} rows")
+    return out
+
+
+def _drop_assembling(key: str) -> None:
+    with _ASSEMBLING_LOCK:
+        _ASSEMBLING.pop(key, None)
 
 
 def _prepare_shard(block: np.ndarray, metric: str, layout: str = "float32",
@@ -670,11 +726,15 @@ def shard_reference(descriptors, metric: str, scheduler, shard_places: int | Non
     shard_places = -(-int(shard_places) // SUM_CHUNK) * SUM_CHUNK
     bounds = [(lo, min(n, lo + shard_places)) for lo in range(0, n, shard_places)]
     workers, shards = [], []
+    piece_rows = max(1, SHARD_PIECE_BYTES // (ref.shape[1] * ref.dtype.itemsize))
     for s, (lo, hi) in enumerate(bounds):
         where = addresses[s % len(addresses)]
-        block = client.scatter(np.ascontiguousarray(ref[lo:hi]), workers=[where], direct=False, hash=False)
-        shards.append(client.submit(_prepare_shard, block, metric, layout, scale, workers=[where],
-                                    allow_other_workers=False, pure=False))
+        pin = {"workers": [where], "allow_other_workers": False, "pure": False}
+        if hi - lo <= piece_rows:
+            block = client.scatter(np.ascontiguousarray(ref[lo:hi]), workers=[where], direct=False, hash=False)
+        else:  # in pieces, each written into the shard's rows on its worker as it arrives
+            block = _send_in_pieces(client, ref, lo, hi, piece_rows, where, pin)
+        shards.append(client.submit(_prepare_shard, block, metric, layout, scale, **pin))
         workers.append(where)
     dim = ref.shape[1] * (8 if metric == "hamming" and ref.dtype == np.uint8 else 1)
     return ShardedReference(client, shards, bounds, metric, n, int(dim), workers, layout, scale)

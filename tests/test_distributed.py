@@ -567,3 +567,29 @@ def test_a_cluster_run_on_a_map_file_never_reads_it_whole(client, tmp_path, monk
     assert np.array_equal(remote.match, local.match)
     assert np.array_equal(remote.confidence, local.confidence)
     assert remote_out["metrics"] == local_out["metrics"] and local_out["metrics"]["auc"] > 0.5
+
+
+@pytest.mark.parametrize("layout", ["float32", "uint8"])
+def test_a_shard_larger_than_a_piece_is_sent_in_pieces(client, data, tmp_path, monkeypatch, layout):
+    """Shards sent a piece at a time (the client reads no more than a piece of a map file at
+    once) hold the array's own rows: the same differences, nothing left behind on the workers."""
+    from catgraph.differences import PreparedReference
+    from catgraph.io import CatgraphMap, StoredDescriptors, load_map, save_map
+
+    q, r = data
+    path = save_map(tmp_path / "map.npz", CatgraphMap(r, "sad", {"size": None, "patch": 0, "metric": "sad",
+                                                                 "normalise": True}))
+    stored = load_map(path, descriptors="stream").descriptors
+    piece_rows = 1000  # 9 pieces or parts of them per 4096-place shard
+    monkeypatch.setattr(dd, "SHARD_PIECE_BYTES", piece_rows * r.shape[1] * r.itemsize)
+    reads = []
+    rows_of = StoredDescriptors._rows
+    monkeypatch.setattr(StoredDescriptors, "_rows", lambda self, a, b: (reads.append(b - a), rows_of(self, a, b))[1])
+    ref = dd.shard_reference(stored, "sad", client, shard_places=4096, layout=layout)
+    distributed.wait(ref.shards)
+    assert max(reads) == piece_rows and sum(reads) == len(r)
+    assert client.run(lambda: len(dd._ASSEMBLING)) == {w: 0 for w in client.scheduler_info()["workers"]}
+    local = PreparedReference(r, "sad", layout=layout)
+    got = dd.difference_matrix(q, ref, normalise=True, block_rows=50)
+    assert np.array_equal(got, difference_matrix(q, local, "sad", normalise=True))
+    stored.close()
