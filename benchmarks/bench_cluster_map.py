@@ -5,7 +5,7 @@ A map file of random-walk float32 descriptors (stored uncompressed, as `catgraph
 worker processes started here. Each run is a fresh client process of the command
 (`catgraph.cli.main.main`, fixed window, the hub correction on, as by default), from each
 given checkout in turn, alternated over the rounds; per run the client's peak resident
-memory (`getrusage`, the client process alone: the workers are other processes) and its wall
+memory (`VmHWM`, the client process alone: the workers are other processes) and its wall
 time. The answers of every run are compared with the first run's.
 
     python benchmarks/bench_cluster_map.py --trees OLD NEW [--places 200000] [--rounds 2]
@@ -29,14 +29,16 @@ DIM = 512
 RESULTS = Path(__file__).parent / "results"
 
 _CLIENT = """
-import json, resource, sys, time
+import json, sys, time
 sys.path.insert(0, sys.argv[1])
 start = time.perf_counter()
 from catgraph.cli.main import main
 rc = main(["match", "--map", sys.argv[2], sys.argv[3], "--window", "20", "--ground-truth", sys.argv[6],
            "--scheduler", sys.argv[4], "-q", "-o", sys.argv[5]])
-print(json.dumps({"rc": rc, "wall_s": time.perf_counter() - start,
-                  "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+status = {line.split(":")[0]: line.split()[1] for line in open("/proc/self/status")}
+# VmHWM, not getrusage's ru_maxrss: that keeps the peak of the process before its exec, i.e. of the
+# benchmark process it was forked from
+print(json.dumps({"rc": rc, "wall_s": time.perf_counter() - start, "peak_rss_mb": int(status["VmHWM"]) / 1024}))
 """
 
 
@@ -115,7 +117,7 @@ def main() -> None:
         f"a map of {args.places:,} places × {DIM} float32 ({info['map_file_mb']:.0f} MiB of descriptors, stored "
         f"uncompressed), a query of {args.query} frames, a `LocalCluster` of {args.workers} one-thread worker "
         f"processes; `benchmarks/bench_cluster_map.py`, each checkout's client in a fresh process, alternated over "
-        f"{args.rounds} rounds. Peak RSS: the client process alone (`getrusage`). Machine: {info['machine']}.",
+        f"{args.rounds} rounds. Peak RSS: the client process alone (`VmHWM`). Machine: {info['machine']}.",
         "",
         "| checkout | round | client peak RSS | wall s | same answers as the first run | AUC | load (1 min) |",
         "|---|---|---|---|---|---|---|",
