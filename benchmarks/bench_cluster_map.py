@@ -35,10 +35,10 @@ start = time.perf_counter()
 from catgraph.cli.main import main
 rc = main(["match", "--map", sys.argv[2], sys.argv[3], "--window", "20", "--ground-truth", sys.argv[6],
            "--scheduler", sys.argv[4], "-q", "-o", sys.argv[5]])
-status = {line.split(":")[0]: line.split()[1] for line in open("/proc/self/status")}
+status = dict(line.split(":", 1) for line in open("/proc/self/status"))
 # VmHWM, not getrusage's ru_maxrss: that keeps the peak of the process before its exec, i.e. of the
 # benchmark process it was forked from
-print(json.dumps({"rc": rc, "wall_s": time.perf_counter() - start, "peak_rss_mb": int(status["VmHWM"]) / 1024}))
+print(json.dumps({"rc": rc, "wall_s": time.perf_counter() - start, "peak_rss_mb": int(status["VmHWM"].split()[0]) / 1024}))
 """
 
 
