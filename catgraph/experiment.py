@@ -491,14 +491,14 @@ def _ground_truth(exp: Experiment, reference, query: Traverse, n_places: int) ->
     return load_ground_truth(exp.ground_truth, len(query), n_places)
 
 
-def _inputs(exp: Experiment, descriptors: str = "memory") -> tuple:
+def _inputs(exp: Experiment, descriptors: str = "memory", graph: bool = True) -> tuple:
     """Stages 1–2: ``(map, reference or None, graph or None, sources, query, ground_truth)``.
-    ``descriptors``: how a map file's descriptors are loaded (:func:`catgraph.io.load_map`)."""
+    ``descriptors``, ``graph``: how a map file is loaded (:func:`catgraph.io.load_map`)."""
     from .datasets.video import is_video
     from .io import build_map, load_map
 
     if exp.map is not None:
-        the_map = exp.map if hasattr(exp.map, "descriptors") else load_map(exp.map, descriptors=descriptors)
+        the_map = exp.map if hasattr(exp.map, "descriptors") else load_map(exp.map, descriptors=descriptors, graph=graph)
         fps = _video_fps(exp, the_map.frontend_settings().fps)
     else:
         fps = _video_fps(exp, None)
@@ -606,8 +606,8 @@ def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
         :func:`catgraph.distributed.map_hub_offsets`, the same as locally); a map whose
         differences are normalised. A map given as its file is never read whole here:
         its descriptors stay in the file (:func:`catgraph.io.load_map` with
-        ``descriptors="stream"``), each shard is read and sent on its own, and the hub
-        offsets read the sampled frames alone.
+        ``descriptors="stream"``; its place graph is checked, not built), each shard is
+        read and sent on its own, and the hub offsets read the sampled frames alone.
     scheduler : str or distributed.Client
         A scheduler address (``"tcp://host:8786"``) or a client.
     shard_places : int, optional
@@ -629,8 +629,9 @@ def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
     from .io import describe_query
 
     params = _cluster_params(exp)
-    # a map file's descriptors stay in the file: each shard is read and sent on its own
-    the_map, reference, graph, sources, query, ground_truth = _inputs(exp, descriptors="stream")
+    # a map file's descriptors stay in the file (each shard is read and sent on its own), and its
+    # place graph, which matching never reads, is not built
+    the_map, reference, graph, sources, query, ground_truth = _inputs(exp, descriptors="stream", graph=False)
     if not the_map.frontend_settings().normalise:
         raise InvalidParameterError("a cluster run normalises every difference row; this map was built with "
                                     "normalise off: build it again with normalisation, or run without --scheduler.")

@@ -716,7 +716,7 @@ def _scalar(members: dict, name: str, path: Path, kind: str):
     return value.item()
 
 
-def load_map(path: str | os.PathLike, descriptors: str = "memory") -> CatgraphMap:
+def load_map(path: str | os.PathLike, descriptors: str = "memory", graph: bool = True) -> CatgraphMap:
     """Read a map written by :func:`save_map`, checking format, version and checksum.
 
     Parameters
@@ -728,6 +728,11 @@ def load_map(path: str | os.PathLike, descriptors: str = "memory") -> CatgraphMa
         checksum and their finiteness are checked reading them once on load) — for
         :class:`catgraph.live.LiveMap` with ``layout="uint8"``, which codes them block by
         block and so never holds the float map.
+    graph : bool
+        ``False``: the place graph's arrays are checked (the checksum) but no graph is
+        built (``CatgraphMap.graph`` is ``None``, as for a map built with ``--no-graph``):
+        for matching alone, which never reads it (a cluster run's client,
+        :func:`catgraph.experiment.run_on_cluster`). Saved again, such a map has no graph.
 
     Raises
     ------
@@ -751,14 +756,14 @@ def load_map(path: str | os.PathLike, descriptors: str = "memory") -> CatgraphMa
     members = _read_members(path, stream=descriptors == "stream")
     stored = members.get("descriptors")
     try:
-        return _load_members(members, path)
+        return _load_members(members, path, graph=bool(graph))
     except BaseException:
         if isinstance(stored, StoredDescriptors):
             stored.close()
         raise
 
 
-def _load_members(members: dict, path: Path) -> CatgraphMap:
+def _load_members(members: dict, path: Path, graph: bool = True) -> CatgraphMap:
     fmt = _scalar(members, "__format__", path, "U")
     if fmt != FORMAT_NAME:
         raise MapFileError(f"{path} is a {fmt!r} file, not a catgraph map.")
@@ -781,6 +786,9 @@ def _load_members(members: dict, path: Path) -> CatgraphMap:
         metadata = json.loads(meta_bytes.decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise MapFileError(f"{path} has unreadable metadata ({exc}).") from None
+    if not graph:  # checked with the rest, then dropped
+        arrays = {k: v for k, v in arrays.items() if not k.startswith("graph.")}
+        metadata = {**metadata, "graph": None}
     return _decode(metadata, arrays, path)
 
 

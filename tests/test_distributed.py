@@ -562,6 +562,9 @@ def test_a_cluster_run_on_a_map_file_never_reads_it_whole(client, tmp_path, monk
     opened = []
     init = StoredDescriptors.__init__
     monkeypatch.setattr(StoredDescriptors, "__init__", lambda self, *a, **k: (opened.append(1), init(self, *a, **k))[1])
+    from catgraph.graph import PlaceGraph
+
+    monkeypatch.setattr(PlaceGraph, "from_edges", lambda *a, **k: 1 / 0)  # nor its graph built
     remote, remote_out, _ = run_on_cluster(exp, client, shard_places=4096, block_rows=64)
     assert opened == [1]  # the map's descriptors were left in the file
     assert np.array_equal(remote.match, local.match)

@@ -178,6 +178,27 @@ def test_a_stream_without_descriptors_is_an_incomplete_map(route):
         load_map(path, descriptors="stream")
 
 
+def test_a_map_loaded_without_its_graph_checks_it_and_builds_none(route, monkeypatch):
+    from catgraph.graph import PlaceGraph
+
+    the_map, path = route
+    whole = load_map(path)
+    assert whole.graph is not None and whole.graph.n_places == 700
+    monkeypatch.setattr(PlaceGraph, "from_edges", lambda *a, **k: 1 / 0)
+    bare = load_map(path, descriptors="stream", graph=False)
+    assert bare.graph is None and bare.n_places == 700
+    assert np.array_equal(np.asarray(bare.descriptors), the_map.descriptors) and bare.frontend == whole.frontend
+    bare.descriptors.close()
+    monkeypatch.undo()
+
+    def edit(members):  # the graph's arrays still count in the checksum
+        members["graph.length"] = members["graph.length"] * 2
+
+    _rewrite(path, edit)
+    with pytest.raises(MapFileError, match="checksum"):
+        load_map(path, graph=False)
+
+
 def test_a_live_map_from_a_file_streams_the_compact_layout(route, monkeypatch):
     the_map, path = route
     for layout in ("uint8", "float32"):
