@@ -10,7 +10,7 @@ time. The answers of every run are compared with the first run's.
 
     python benchmarks/bench_cluster_map.py --trees OLD NEW [--places 200000] [--rounds 2]
 
-Writes `benchmarks/results/cluster_map.{json,md}`.
+Writes `benchmarks/results/cluster_map.{json,md}` (`--out` another name).
 """
 
 from __future__ import annotations
@@ -70,6 +70,7 @@ def main() -> None:
     parser.add_argument("--query", type=int, default=200)
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--out", default="cluster_map", help="results file stem in benchmarks/results/")
     args = parser.parse_args()
 
     import distributed
@@ -109,7 +110,7 @@ def main() -> None:
     info = {"places": args.places, "query": args.query, "workers": args.workers, "dim": DIM,
             "map_file_mb": args.places * DIM * 4 / 2**20, "machine": describe_machine(), "runs": runs}
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "cluster_map.json").write_text(json.dumps(info, indent=1))
+    (RESULTS / f"{args.out}.json").write_text(json.dumps(info, indent=1))
     lines = [
         "# The client of a cluster run on a map file",
         "",
@@ -130,7 +131,7 @@ def main() -> None:
         lines.append("")
         lines.append(f"`{tree}`: median client peak {np.median([r['peak_rss_mb'] for r in mine]):.0f} MB, "
                      f"median wall {np.median([r['wall_s'] for r in mine]):.1f} s.")
-    (RESULTS / "cluster_map.md").write_text("\n".join(lines) + "\n")
+    (RESULTS / f"{args.out}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
