@@ -226,7 +226,6 @@ last bits of the raw differences can differ (see :mod:`catgraph._diff_kernels`).
 
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass
 from typing import Any
 
@@ -293,54 +292,41 @@ def _client(scheduler: Any):
 #: rows and at most two pieces in flight.
 SHARD_PIECE_BYTES = 64 << 20
 
-#: Shards being assembled on this worker from their pieces, by key (:func:`_send_in_pieces`).
-_ASSEMBLING: dict = {}
-_ASSEMBLING_LOCK = threading.Lock()
+
+def _send_in_pieces(client, ref, lo: int, hi: int, piece_rows: int, pin: dict):
+    """Rows ``lo:hi`` of ``ref`` sent to the worker of ``pin`` a piece at a time: the
+    shard's rows are made there (:func:`_empty_rows`), each piece is scattered, copied
+    into them (:func:`_write_rows`) and released, and the next piece but one is read only
+    once that copy is done. Returns the future of the filled rows (:func:`_filled`): a
+    task's result like any other, so the rows go when the client lets go of them (a client
+    that stops half way leaves nothing behind)."""
+    rows = client.submit(_empty_rows, hi - lo, ref.shape[1], ref.dtype, **pin)
+    written = []
+    for a in range(lo, hi, piece_rows):
+        piece = client.scatter(np.ascontiguousarray(ref[a : min(hi, a + piece_rows)]), workers=pin["workers"],
+                               direct=False, hash=False)
+        written.append(client.submit(_write_rows, rows, piece, a - lo, **pin))
+        del piece  # the worker keeps it until its copy is done, then frees it
+        if len(written) >= 2:
+            written[-2].result()  # at most two pieces in flight
+    return client.submit(_filled, rows, *written, **pin)
 
 
-def _send_in_pieces(client, ref, lo: int, hi: int, piece_rows: int, where: str, pin: dict):
-    """Rows ``lo:hi`` of ``ref`` sent to worker ``where`` a piece at a time: each piece is
-    scattered, copied into the shard's rows there (:func:`_receive_piece`) and released;
-    the next piece but one is read only once that copy is done. Returns the future of the
-    assembled rows (:func:`_assembled`)."""
-    import uuid
-
-    key = uuid.uuid4().hex
-    received = []
-    try:
-        for a in range(lo, hi, piece_rows):
-            piece = client.scatter(np.ascontiguousarray(ref[a : min(hi, a + piece_rows)]), workers=[where],
-                                   direct=False, hash=False)
-            received.append(client.submit(_receive_piece, key, piece, a - lo, hi - lo, **pin))
-            del piece  # the worker keeps it until its copy is done, then frees it
-            if len(received) >= 2:
-                received[-2].result()  # at most two pieces in flight
-        return client.submit(_assembled, key, *received, **pin)
-    except BaseException:
-        client.run(_drop_assembling, key, workers=[where])
-        raise
+def _empty_rows(n: int, dim: int, dtype) -> np.ndarray:
+    return np.empty((n, dim), dtype=dtype)
 
 
-def _receive_piece(key: str, piece: np.ndarray, offset: int, rows: int) -> int:
-    with _ASSEMBLING_LOCK:
-        if key not in _ASSEMBLING:
-            _ASSEMBLING[key] = np.empty((rows, piece.shape[1]), dtype=piece.dtype)
-        out = _ASSEMBLING[key]
-    out[offset : offset + piece.shape[0]] = piece
+def _write_rows(rows: np.ndarray, piece: np.ndarray, offset: int) -> int:
+    """Copy ``piece`` into ``rows`` (the worker's own array, the result of
+    :func:`_empty_rows`, which tasks on the same worker receive as it is, not a copy)."""
+    rows[offset : offset + piece.shape[0]] = piece
     return piece.shape[0]
 
 
-def _assembled(key: str, *received: int) -> np.ndarray:
-    with _ASSEMBLING_LOCK:
-        out = _ASSEMBLING.pop(key)
-    if sum(received) != out.shape[0]:  # pragma: no cover - every piece is awaited as an argument
-        raise RuntimeError(f"a shard received {sum(received)} of its {out.shape[0]} rows")
-    return out
-
-
-def _drop_assembling(key: str) -> None:
-    with _ASSEMBLING_LOCK:
-        _ASSEMBLING.pop(key, None)
+def _filled(rows: np.ndarray, *written: int) -> np.ndarray:
+    if sum(written) != rows.shape[0]:  # pragma: no cover - every piece is awaited as an argument
+        raise RuntimeError(f"a shard received {sum(written)} of its {rows.shape[0]} rows")
+    return rows
 
 
 def _prepare_shard(block: np.ndarray, metric: str, layout: str = "float32",
@@ -733,7 +719,7 @@ def shard_reference(descriptors, metric: str, scheduler, shard_places: int | Non
         if hi - lo <= piece_rows:
             block = client.scatter(np.ascontiguousarray(ref[lo:hi]), workers=[where], direct=False, hash=False)
         else:  # in pieces, each written into the shard's rows on its worker as it arrives
-            block = _send_in_pieces(client, ref, lo, hi, piece_rows, where, pin)
+            block = _send_in_pieces(client, ref, lo, hi, piece_rows, pin)
         shards.append(client.submit(_prepare_shard, block, metric, layout, scale, **pin))
         workers.append(where)
     dim = ref.shape[1] * (8 if metric == "hamming" and ref.dtype == np.uint8 else 1)

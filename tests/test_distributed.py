@@ -591,7 +591,14 @@ def test_a_shard_larger_than_a_piece_is_sent_in_pieces(client, data, tmp_path, m
     ref = dd.shard_reference(stored, "sad", client, shard_places=4096, layout=layout)
     distributed.wait(ref.shards)
     assert max(reads) == piece_rows and sum(reads) == len(r)
-    assert client.run(lambda: len(dd._ASSEMBLING)) == {w: 0 for w in client.scheduler_info()["workers"]}
+    def left():  # the pieces and the rows they were written into, once the shards are prepared
+        return [k for keys in client.has_what().values() for k in keys
+                if str(k).startswith(("_empty_rows", "_write_rows", "_filled"))]
+
+    deadline = time.monotonic() + 10.0
+    while left() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert left() == []
     local = PreparedReference(r, "sad", layout=layout)
     got = dd.difference_matrix(q, ref, normalise=True, block_rows=50)
     assert np.array_equal(got, difference_matrix(q, local, "sad", normalise=True))
