@@ -595,7 +595,7 @@ def _cluster_params(exp: Experiment) -> dict:
 
 
 def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
-                   block_rows: int = 256) -> tuple[RunResult, dict, "Evaluation | None"]:
+                   block_rows: int = 256, layout: str = "float32") -> tuple[RunResult, dict, "Evaluation | None"]:
     """Run a ``sequence`` experiment with the map sharded over a Dask cluster.
 
     Parameters
@@ -614,6 +614,11 @@ def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
         Places per shard (default: the map split evenly over the workers).
     block_rows : int
         Query frames per round trip.
+    layout : {"float32", "uint8"}
+        How workers hold their shards (:func:`catgraph.distributed.shard_reference`):
+        ``"uint8"`` in a quarter of the memory, with the differences of the compact layout
+        (then the answers are those of the local matcher on
+        ``PreparedReference(descriptors, metric, "uint8")``, not of the float run).
 
     Returns
     -------
@@ -645,7 +650,7 @@ def run_on_cluster(exp: Experiment, scheduler, shard_places: int | None = None,
     start = time.perf_counter()
     client = _client(scheduler)
     try:
-        sharded = shard_reference(the_map.descriptors, the_map.metric, client, shard_places)
+        sharded = shard_reference(the_map.descriptors, the_map.metric, client, shard_places, layout=layout)
         common = {"radius": int(params["exclusion"]), "velocities": tuple(params["velocities"]),
                   "block_rows": block_rows, "no_information": ~informative,
                   "hub_offsets": map_hub_offsets(sharded, the_map.descriptors) if params["hub_correction"] else None}

@@ -603,3 +603,32 @@ def test_a_shard_larger_than_a_piece_is_sent_in_pieces(client, data, tmp_path, m
     got = dd.difference_matrix(q, ref, normalise=True, block_rows=50)
     assert np.array_equal(got, difference_matrix(q, local, "sad", normalise=True))
     stored.close()
+
+
+def test_match_command_shards_as_asked(client, data, tmp_path, monkeypatch, capsys):
+    """``--shard-places`` and ``--layout`` reach the sharding; without ``--scheduler`` they
+    are refused with the fix named."""
+    import json
+
+    from catgraph.cli.main import main
+
+    q, r = data
+    np.save(tmp_path / "ref.npy", r)
+    np.save(tmp_path / "query.npy", q)
+    common = [str(tmp_path / "ref.npy"), str(tmp_path / "query.npy"), "--metric", "sad", "--window", "12",
+              "--tolerance", "2", "-q"]
+    asked = []
+    shard = dd.shard_reference
+    monkeypatch.setattr(dd, "shard_reference", lambda *a, **k: (asked.append((a[3], k["layout"])), shard(*a, **k))[1])
+    address = client.scheduler.address
+    assert main(["match", *common, "--scheduler", address, "-o", str(tmp_path / "f32.json")]) == 0
+    assert main(["match", *common, "--scheduler", address, "--shard-places", "4096", "--layout", "uint8",
+                 "-o", str(tmp_path / "u8.json")]) == 0
+    assert asked == [(None, "float32"), (4096, "uint8")]
+    f32, u8 = (json.loads((tmp_path / f"{k}.json").read_text()) for k in ("f32", "u8"))
+    assert u8["frames"]["confidence"] != f32["frames"]["confidence"]  # the compact layout's differences
+    assert np.mean(np.equal(u8["frames"]["match"], f32["frames"]["match"])) > 0.9  # nearly the same places
+    capsys.readouterr()
+    for flags in (["--shard-places", "4096"], ["--layout", "uint8"]):
+        assert main(["match", *common, *flags]) == 1
+        assert f"{flags[0]} sets how a cluster run shards the map; add --scheduler" in capsys.readouterr().err

@@ -372,6 +372,8 @@ def print_metrics_table(rows, per_frame: int | None = None) -> None:
 # ---------------------------------------------------------------------------- match
 @register
 def register_match(sub) -> None:
+    from ..differences import LAYOUTS
+
     p = sub.add_parser("match", help="match every query frame to the reference (single frame, sequences, histogram)",
                        usage=_USAGE,
                        description="Match each query frame to a reference place; evaluate where ground truth is "
@@ -384,6 +386,13 @@ def register_match(sub) -> None:
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="run on a Dask cluster (tcp://host:8786), the map sharded over its workers: sequence matching; "
                         "needs pip install \"catgraph[dask]\"")
+    p.add_argument("--shard-places", type=int, metavar="N",
+                   help="with --scheduler: places per shard, rounded up to a multiple of 4096 (default: the map split "
+                        "evenly over the workers)")
+    p.add_argument("--layout", choices=LAYOUTS,
+                   help="with --scheduler: how workers hold their shards; 'uint8': one byte per value, a quarter of "
+                        "the memory, the differences of the compact layout (docs/live.md) (default float32: the local "
+                        "run's answers bit for bit)")
     p.set_defaults(func=cmd_match)
 
 
@@ -397,11 +406,17 @@ def cmd_match(args) -> int:
             vars(args).pop("param_window", None)
     exp = experiment_from(args, method, method_params(args, method))
     if args.scheduler is None:
+        given_cluster = [flag for flag, value in (("--shard-places", args.shard_places), ("--layout", args.layout))
+                         if value is not None]
+        if given_cluster:
+            raise InvalidParameterError(f"{given_cluster[0]} sets how a cluster run shards the map; add --scheduler "
+                                        "ADDRESS, or leave it out.")
         return run_and_report(args, exp)
     from ..experiment import run_on_cluster
     from ..results import write_json_atomic
 
-    result, out, _ = run_on_cluster(exp, args.scheduler)
+    result, out, _ = run_on_cluster(exp, args.scheduler, shard_places=args.shard_places,
+                                    layout=args.layout or "float32")
     if args.output is not None:
         write_json_atomic(args.output, out)
     print_results([(result.method, out["metrics"], result.seconds)], per_frame=len(result.match))
