@@ -269,6 +269,12 @@ class RowSource:
         return None
 
 
+def take_rows(descriptors, rows: np.ndarray) -> np.ndarray:
+    """Rows ``rows`` of descriptors in memory or of a :class:`RowSource` (read in one pass,
+    :meth:`RowSource.take`), as an ndarray."""
+    return descriptors.take(rows) if isinstance(descriptors, RowSource) else np.asarray(descriptors[rows])
+
+
 def _as_descriptors(x, name: str, metric: str, single: bool = False, convert: bool = True) -> np.ndarray:
     """``(n, d)`` float32 C-contiguous descriptors (bits as 0/1), validated.
 

@@ -840,7 +840,7 @@ def map_hub_offsets(ref: ShardedReference, descriptors, normalise: bool = True, 
     -------
     ndarray of float64, shape (N,)
     """
-    from .differences import _column_block
+    from .differences import _column_block, take_rows
     from .hubs import HUB_ROWS, HUB_THRESHOLD, _outlying, hub_sample
 
     threshold = HUB_THRESHOLD if threshold is None else threshold
@@ -852,8 +852,7 @@ def map_hub_offsets(ref: ShardedReference, descriptors, normalise: bool = True, 
     if n < 3:  # as catgraph.hubs.map_hub_offsets
         return np.zeros(n)
     rows = hub_sample(n, HUB_ROWS if max_rows is None else max_rows)
-    sample = descriptors.take(rows) if isinstance(descriptors, RowSource) else np.asarray(descriptors[rows])
-    q = ref.prepare_query(sample)
+    q = ref.prepare_query(take_rows(descriptors, rows))
     block_places = _column_block(q.shape[0], None, "map_hub_offsets")
     c = ref.client
     q_fut = c.scatter(q, broadcast=True, direct=False, hash=False)

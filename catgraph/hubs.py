@@ -123,7 +123,7 @@ def map_hub_offsets(catgraph_map, threshold: float = HUB_THRESHOLD, max_rows: in
     or, above ``max_rows`` places, a seeded sample of ``max_rows`` of its frames against
     the whole map, read in blocks of places (never an ``N × N`` matrix, nor the whole
     ``max_rows × N`` one)."""
-    from .differences import RowSource, iter_difference_columns
+    from .differences import iter_difference_columns, take_rows
 
     d, n = catgraph_map.descriptors, catgraph_map.n_places
     check_scalar(threshold, "threshold", "hub_offsets", float, 0.0)
@@ -131,8 +131,7 @@ def map_hub_offsets(catgraph_map, threshold: float = HUB_THRESHOLD, max_rows: in
         return np.zeros(n)
     rows = hub_sample(n, max_rows)
     typical = np.empty(n)
-    sample = d.take(rows) if isinstance(d, RowSource) else d[rows]
-    for lo, block in iter_difference_columns(sample, d, catgraph_map.metric,
+    for lo, block in iter_difference_columns(take_rows(d, rows), d, catgraph_map.metric,
                                              normalise=bool(catgraph_map.frontend.get("normalise", True))):
         typical[lo : lo + block.shape[1]] = typical_columns(block, rows, lo)
     return _outlying(typical, threshold)
