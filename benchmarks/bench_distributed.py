@@ -47,12 +47,11 @@ def _reference(n: int) -> np.ndarray:
 
 
 def _counters(dask_worker):
-    import resource
-
     import psutil
+    from process_memory import peak_rss_mb  # the worker's own peak, not the benchmark's at its spawn
 
     return {"rss": psutil.Process().memory_info().rss,
-            "peak": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+            "peak": peak_rss_mb() * 2**20,
             "out": getattr(dask_worker, "transfer_outgoing_bytes_total", 0)}
 
 
@@ -349,8 +348,8 @@ def write(results: list[dict], path: Path, commit: str) -> None:
              "shard edge. Settings alternated; time: median over the runs, and the median of each run's ratio to "
              "the one-velocity run of the same window and round. Bytes: what each worker served per frame "
              "(halos to its neighbour, summaries to the client; median over runs). Memory: largest resident and "
-             "peak RSS over the runs (a process's peak never falls: the peaks include preparing the shard and "
-             "every run before, so the adaptive run comes last).", "",
+             "peak RSS over the runs (the worker's own `VmHWM`; a process's peak never falls: the peaks include "
+             "preparing the shard and every run before, so the adaptive run comes last).", "",
              "| window | velocities | frames (block) | runs | ms per frame | × one velocity "
              "| bytes served per frame and worker | worker RSS (MB) | worker peak RSS (MB) | matches within ±1 |",
              "|---|---|---|---|---|---|---|---|---|---|"]
@@ -365,7 +364,9 @@ def write(results: list[dict], path: Path, commit: str) -> None:
                      + " / ".join(f"{m:.0f}" for m in r["rss_mb"]) + " | "
                      + " / ".join(f"{m:.0f}" for m in r["peak_mb"]) + f" | {r['correct_after']:.2f} after "
                      f"frame {settle} |")
-    path.write_text("\n".join(lines) + "\n")
+    text = path.read_text() if path.exists() else ""
+    rest = text[text.index(RULES_HEADING):] if RULES_HEADING in text else ""  # the rules' section stays
+    path.write_text("\n".join(lines) + "\n" + ("\n" + rest if rest else ""))
 
 
 RULES_HEADING = "## Window rules that read the rows"

@@ -2,7 +2,7 @@
 
 Random 512-value float32 reference descriptors (a 32×16 image map), N = 10⁴, 10⁵, 10⁶
 places; query frames are random 16×32 images through the map's front-end. Every
-case runs in its own process (peak RSS from ``getrusage``), one after another, and
+case runs in its own process (peak RSS: its own ``VmHWM``), one after another, and
 measures its own *floor* in the same process: the time to read the reference once
 with every core (a parallel sum over its bytes) — the least any difference row can
 cost — so ratios survive a busy machine. Writes ``benchmarks/results/live.md`` (and
@@ -49,7 +49,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import subprocess
 import sys
 import tempfile
@@ -59,32 +58,12 @@ from pathlib import Path
 import numpy as np
 
 from machine_info import describe_machine
+from process_memory import peak_rss_mb as _peak_rss_mb
+from process_memory import reset_peak as _reset_peak
+from process_memory import status_mb as _status_mb
 
 RESULTS = Path(__file__).resolve().parent / "results"
 DIM = 512
-
-
-def _peak_rss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
-def _status_mb(key: str) -> float:
-    """``VmRSS`` (now) or ``VmHWM`` (peak since the last reset) of this process, MB."""
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith(key + ":"):
-                return int(line.split()[1]) / 1024.0
-    return float("nan")
-
-
-def _reset_peak() -> bool:
-    """Start a new peak-RSS window (Linux: ``/proc/self/clear_refs`` ← 5 resets ``VmHWM``)."""
-    try:
-        with open("/proc/self/clear_refs", "w") as f:
-            f.write("5")
-        return True
-    except OSError:
-        return False
 
 
 def _arrays(obj, seen: set, depth: int = 0):
@@ -800,7 +779,7 @@ BATCH_COMMANDS = (
 
 
 def batch_commands(map_file: str, query_file: str, tree: str | None = None) -> dict:
-    """Peak RSS (``getrusage`` of the child) and wall time of each batch command on a
+    """Peak RSS (``VmHWM`` of the child) and wall time of each batch command on a
     saved map, one fresh process each, one after the other. The processes start in a
     scratch folder: ``python -c`` puts its working directory first on the module path, so
     from a checkout they would import that checkout's package instead of ``tree``'s."""
@@ -811,9 +790,10 @@ def batch_commands(map_file: str, query_file: str, tree: str | None = None) -> d
     rows = []
     with tempfile.TemporaryDirectory() as folder:
         for label, args in BATCH_COMMANDS:
-            script = ("import resource, sys, time; from catgraph.cli.main import main; t = time.perf_counter(); "
+            script = ("import sys, time; from catgraph.cli.main import main; t = time.perf_counter(); "
                       f"code = main({[args[0], '--map', map_file, query_file, *args[1:], '-q', '-o', folder + '/out.json']!r}); "
-                      "print(code, time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)")
+                      "hwm = next(l for l in open('/proc/self/status') if l.startswith('VmHWM:')); "
+                      "print(code, time.perf_counter() - t, int(hwm.split()[1]) / 1024)")
             proc = subprocess.run([sys.executable, "-c", script + "; import catgraph; print(catgraph.__file__)"],
                                   capture_output=True, text=True, env=env, cwd=folder)
             if proc.returncode != 0:
@@ -825,7 +805,7 @@ def batch_commands(map_file: str, query_file: str, tree: str | None = None) -> d
             rows.append({"label": label, "exit": int(code), "seconds": float(seconds), "peak_rss_mb": float(peak),
                          "ms_per_frame": 1000.0 * float(seconds) / n_query, "package": str(Path(package).parent)})
             print(f"  {rows[-1]}", file=sys.stderr, flush=True)
-    return {"map": map_file, "query": query_file, "rows": rows}
+    return {"map": map_file, "query": query_file, "rows": rows, "peak": "VmHWM"}
 
 
 # ---------------------------------------------------------------------------------------
@@ -1143,7 +1123,8 @@ def write_report(results: list[dict], cold: dict | None, path: Path, shards: dic
         before = batch.get("before")
         lines += ["", "## The batch commands on a saved map", "",
                   f"`catgraph <command> --map {Path(batch['map']).name} {Path(batch['query']).name}`, one fresh process "
-                  "each, peak RSS of the process (`getrusage`)" + (f"; {batch['note']}" if batch.get("note") else "")
+                  f"each, peak RSS of the process (`{batch.get('peak', 'getrusage')}`)"
+                  + (f"; {batch['note']}" if batch.get("note") else "")
                   + ":", "",
                   "| command | peak RSS | ms / frame (the whole command over the frames) |"
                   + (f" before (`{before.get('commit', '?')}`): peak RSS, ms / frame |" if before else ""),

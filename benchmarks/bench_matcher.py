@@ -37,7 +37,6 @@ import argparse
 import json
 import os
 import platform
-import resource
 import subprocess
 import sys
 import tempfile
@@ -52,7 +51,9 @@ L_MAX = 500
 
 
 def _rss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
+    from process_memory import peak_rss_mb  # the case's own peak (VmHWM), not its parent's
+
+    return peak_rss_mb()
 
 
 def _pkg(name: str):

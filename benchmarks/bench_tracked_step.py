@@ -33,10 +33,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _one(n_places: int, rule: str, steps: int) -> dict:
-    """Child process: warm up, then time ``steps`` steps; peak RSS in MiB."""
-    import resource
-
+    """Child process: warm up, then time ``steps`` steps; peak RSS in MiB (its own ``VmHWM``)."""
     sys.path.insert(0, str(ROOT))
+    from benchmarks.process_memory import peak_rss_mb
     from catgraph.sequence import SequenceMatcher
 
     rng = np.random.default_rng(0)
@@ -51,7 +50,7 @@ def _one(n_places: int, rule: str, steps: int) -> dict:
         matcher.step(row)
         times.append(time.perf_counter() - start)
     return {"ms": 1e3 * float(np.median(times)),
-            "rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+            "rss_mib": peak_rss_mb()}
 
 
 def main(argv=None) -> None:
