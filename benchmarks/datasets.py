@@ -90,12 +90,19 @@ def prepare_kept(exp):
     return prepared
 
 
+#: the names :func:`prepared_datasets` knows (the benchmarks' ``--datasets``)
+DATASET_NAMES = ("nordland", "uji", "synthetic")
+
+
 def prepared_datasets(names) -> dict:
     """Experiment-layer inputs (:func:`catgraph.experiment.prepare`) per dataset name:
     ``"nordland"`` (±2 frames), ``"uji"`` (months 02–06 against 01, 3 m), ``"synthetic"``
     (seed 0); those whose data are absent are left out."""
     from catgraph.experiment import Experiment
 
+    unknown = sorted(set(names) - set(DATASET_NAMES))
+    if unknown:  # a misspelt name would otherwise measure nothing and say nothing
+        raise SystemExit(f"unknown dataset name(s) {', '.join(unknown)}; choose from {', '.join(DATASET_NAMES)}.")
     out = {}
     if "nordland" in names and (DATA / "nordland").is_dir():
         d = DATA / "nordland" / "32x16"
