@@ -238,6 +238,7 @@ from ._window_rule import (CHANGE_POINT_FRAMES, RECORD_RULES, WEIGHED_CONFIDENCE
                            _new_record, _position, _Record, _Stats)
 from .differences import LAYOUTS, METRICS, PreparedReference, RowSource, _combine, _zero_spread, code_scale
 from .exceptions import InvalidParameterError, MissingDependencyError
+from .hubs import HUB_ROWS, HUB_THRESHOLD
 from .sequence import DEFAULT_CONFIDENCE, DEFAULT_GRID, DEFAULT_LINE_RULE, DEFAULT_VELOCITIES, _config, _velocity_set
 
 #: Shards hold a whole multiple of this many places (the normalisation's sum chunk);
@@ -807,8 +808,8 @@ def difference_matrix(query, ref: ShardedReference, normalise: bool = True, bloc
     return out
 
 
-def map_hub_offsets(ref: ShardedReference, descriptors, normalise: bool = True, threshold: float | None = None,
-                    max_rows: int | None = None) -> np.ndarray:
+def map_hub_offsets(ref: ShardedReference, descriptors, normalise: bool = True, threshold: float = HUB_THRESHOLD,
+                    max_rows: int = HUB_ROWS) -> np.ndarray:
     """:func:`catgraph.hubs.map_hub_offsets` computed where the shards live.
 
     The same sampled map frames (:func:`catgraph.hubs.hub_sample`) are sent to every
@@ -831,19 +832,16 @@ def map_hub_offsets(ref: ShardedReference, descriptors, normalise: bool = True, 
         The descriptors the shards were cut from.
     normalise : bool
         The map's per-query normalisation.
-    threshold : float, optional
-        Default :data:`catgraph.hubs.HUB_THRESHOLD`.
-    max_rows : int, optional
-        Default :data:`catgraph.hubs.HUB_ROWS`.
+    threshold, max_rows
+        As in :func:`catgraph.hubs.map_hub_offsets`.
 
     Returns
     -------
     ndarray of float64, shape (N,)
     """
     from .differences import _column_block, take_rows
-    from .hubs import HUB_ROWS, HUB_THRESHOLD, _outlying, hub_sample
+    from .hubs import _outlying, hub_sample
 
-    threshold = HUB_THRESHOLD if threshold is None else threshold
     check_scalar(threshold, "threshold", "map_hub_offsets", float, 0.0)
     if len(descriptors) != ref.n_places:
         raise InvalidParameterError(f"the descriptors hold {len(descriptors)} places but the shards {ref.n_places}; "
@@ -851,7 +849,7 @@ def map_hub_offsets(ref: ShardedReference, descriptors, normalise: bool = True, 
     n = ref.n_places
     if n < 3:  # as catgraph.hubs.map_hub_offsets
         return np.zeros(n)
-    rows = hub_sample(n, HUB_ROWS if max_rows is None else max_rows)
+    rows = hub_sample(n, max_rows)
     q = ref.prepare_query(take_rows(descriptors, rows))
     block_places = _column_block(q.shape[0], None, "map_hub_offsets")
     c = ref.client

@@ -73,6 +73,7 @@ import numpy as np
 
 from ._validation import as_generator, check_array, check_scalar
 from .differences import LAYOUTS, PreparedReference
+from .hubs import HUB_ROWS, HUB_THRESHOLD
 from .exceptions import DataError, InvalidParameterError, ShapeMismatchError
 from .methods import FILTER_MODELS
 
@@ -293,8 +294,8 @@ def reference_bootstrap_samples(reference: PreparedReference, normalise: bool = 
     return values, hub
 
 
-def reference_hub_offsets(reference: PreparedReference, normalise: bool = True, threshold: float | None = None,
-                          max_rows: int | None = None) -> np.ndarray:
+def reference_hub_offsets(reference: PreparedReference, normalise: bool = True, threshold: float = HUB_THRESHOLD,
+                          max_rows: int = HUB_ROWS) -> np.ndarray:
     """:func:`catgraph.hubs.map_hub_offsets` from a prepared reference alone.
 
     The same sampled rows (all places up to ``max_rows``, else a sample drawn with
@@ -308,22 +309,19 @@ def reference_hub_offsets(reference: PreparedReference, normalise: bool = True, 
     reference : PreparedReference
     normalise : bool
         The map's per-query normalisation.
-    threshold : float, optional
-        Default :data:`catgraph.hubs.HUB_THRESHOLD`.
-    max_rows : int, optional
-        Default :data:`catgraph.hubs.HUB_ROWS`.
+    threshold, max_rows
+        As in :func:`catgraph.hubs.map_hub_offsets`.
 
     Returns
     -------
     ndarray of float64, shape (N,)
     """
     from .differences import iter_reference_columns
-    from .hubs import HUB_ROWS, HUB_THRESHOLD, _outlying, hub_sample, typical_columns
+    from .hubs import _outlying, hub_sample, typical_columns
 
-    threshold = HUB_THRESHOLD if threshold is None else threshold
     check_scalar(threshold, "threshold", "reference_hub_offsets", float, 0.0)
     n = reference.n_places
-    rows = hub_sample(n, HUB_ROWS if max_rows is None else max_rows)
+    rows = hub_sample(n, max_rows)
     typical = np.empty(n)
     for lo, block in iter_reference_columns(reference, rows, normalise=normalise):
         typical[lo : lo + block.shape[1]] = typical_columns(block, rows, lo)
