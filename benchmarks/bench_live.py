@@ -12,6 +12,8 @@ cost — so ratios survive a busy machine. Writes ``benchmarks/results/live.md``
     python benchmarks/bench_live.py --cold-start
     python benchmarks/bench_live.py --profile --sizes 10000 100000   # the step's pieces (live_profile.md)
     python benchmarks/bench_live.py --profile-rest --sizes 100000    # the rest's pieces (live_profile_rest.md)
+    python benchmarks/bench_live.py --write-batch-inputs DIR && \
+        python benchmarks/bench_live.py --batch DIR/map.npz DIR/query.npy     # every batch command's peak
 
 Cases (per N):
 
@@ -769,13 +771,38 @@ def cold_start(layout: str = "uint8", tree: str | None = None, warm_up: bool = F
 # ---------------------------------------------------------------------------------------
 # batch commands on a large saved map
 
-#: ``(label, arguments after the map and query)`` of :func:`batch_commands`.
-BATCH_COMMANDS = (
-    ("match --window 50", ["match", "--window", "50"]),
-    ("match --window adaptive", ["match", "--window", "adaptive"]),
-    ("localize --model combined", ["localize", "--model", "combined"]),
-    ("localize --model adaptive", ["localize", "--model", "adaptive"]),
-)
+def _batch_commands() -> tuple:
+    """``(label, arguments after the map and query)`` of :func:`batch_commands`: the
+    matcher's fixed and adaptive windows, then ``localize`` with every observation model
+    the filter takes (``catgraph.methods.FILTER_MODELS``, the names the CLI offers)."""
+    from catgraph.methods import FILTER_MODELS
+
+    return (("match --window 50", ["match", "--window", "50"]),
+            ("match --window adaptive", ["match", "--window", "adaptive"]),
+            *((f"localize --model {m}", ["localize", "--model", m]) for m in FILTER_MODELS))
+
+
+def write_batch_inputs(folder: str, n: int = 100_000, n_query: int = 1000) -> tuple[Path, Path]:
+    """A saved map of ``n`` places × :data:`DIM` float32 values (a random walk: places near
+    each other alike; cosine) and a query of ``n_query`` frames along it with noise
+    (``query.npy``), in ``folder``: the inputs of ``--batch``."""
+    from catgraph.io import build_map, save_map
+    from catgraph.pipeline import FrontEnd
+    from catgraph.traverse import Traverse
+
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(0)
+    values = np.empty((n, DIM), dtype=np.float32)
+    for a in range(0, n, 50_000):  # written in place: no second copy of the map
+        rng.standard_normal(dtype=np.float32, out=values[a : a + 50_000])
+    np.cumsum(values, axis=0, out=values)
+    the_map = build_map(Traverse(values, meta={"kind": "descriptors"}, name="walk"), FrontEnd(metric="cosine"))
+    map_path = save_map(out / "map.npz", the_map, compress=False)
+    first = n // 3
+    query = values[first : first + n_query] + 0.5 * rng.standard_normal((n_query, DIM), dtype=np.float32)
+    np.save(out / "query.npy", query)
+    return map_path, out / "query.npy"
 
 
 def batch_commands(map_file: str, query_file: str, tree: str | None = None) -> dict:
@@ -788,8 +815,9 @@ def batch_commands(map_file: str, query_file: str, tree: str | None = None) -> d
     if tree:
         env["PYTHONPATH"] = tree + os.pathsep + env.get("PYTHONPATH", "")
     rows = []
+    load = os.getloadavg()
     with tempfile.TemporaryDirectory() as folder:
-        for label, args in BATCH_COMMANDS:
+        for label, args in _batch_commands():
             script = ("import sys, time; from catgraph.cli.main import main; t = time.perf_counter(); "
                       f"code = main({[args[0], '--map', map_file, query_file, *args[1:], '-q', '-o', folder + '/out.json']!r}); "
                       "hwm = next(l for l in open('/proc/self/status') if l.startswith('VmHWM:')); "
@@ -805,7 +833,13 @@ def batch_commands(map_file: str, query_file: str, tree: str | None = None) -> d
             rows.append({"label": label, "exit": int(code), "seconds": float(seconds), "peak_rss_mb": float(peak),
                          "ms_per_frame": 1000.0 * float(seconds) / n_query, "package": str(Path(package).parent)})
             print(f"  {rows[-1]}", file=sys.stderr, flush=True)
-    return {"map": map_file, "query": query_file, "rows": rows, "peak": "VmHWM"}
+    from catgraph.io import load_map
+
+    places, dim = load_map(map_file, descriptors="stream", graph=False).descriptors.shape
+    frames = np.load(query_file, mmap_mode="r").shape[0]
+    note = (f"a map of {places:,} places × {dim} values and a query of {frames:,} frames, at `{_commit()}`"
+            + (f" (`{tree}`)" if tree else "") + f", load {load[0]:.1f}–{os.getloadavg()[0]:.1f}")
+    return {"map": map_file, "query": query_file, "rows": rows, "peak": "VmHWM", "note": note}
 
 
 # ---------------------------------------------------------------------------------------
@@ -1176,6 +1210,8 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3, help="with --trees: rounds of each tree")
     parser.add_argument("--batch", nargs=2, metavar=("MAP", "QUERY"),
                         help="measure only the batch commands on this saved map and query (.npy)")
+    parser.add_argument("--write-batch-inputs", metavar="FOLDER",
+                        help="write a 10^5-place map (map.npz) and a 1000-frame query (query.npy) for --batch, then stop")
     parser.add_argument("--dask", action="store_true", help="measure only the Dask shards")
     parser.add_argument("--layout", default="float32", help="with --dask: the shards' layout (float32 or uint8)")
     parser.add_argument("--profile", action="store_true",
@@ -1195,6 +1231,10 @@ def main() -> None:
             return
         anchor = args.anchor_rows or (256 if args.n >= 1_000_000 else 1024)
         print(json.dumps(run_case(args.case, args.n, args.frames, args.l_max, anchor)))
+        return
+    if args.write_batch_inputs:
+        for path in write_batch_inputs(args.write_batch_inputs):
+            print(path)
         return
     if args.profile:
         sizes = [n for n in args.sizes if n <= 1_000_000]
