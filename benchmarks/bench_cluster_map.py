@@ -42,7 +42,12 @@ print(json.dumps({"rc": rc, "wall_s": time.perf_counter() - start, "peak_rss_mb"
 """
 
 
-def _write_inputs(folder: Path, n: int, n_query: int) -> tuple[Path, Path, Path]:
+def write_inputs(folder: Path, n: int, n_query: int, metric: str = "sad",
+                 map_name: str = "walk.npz") -> tuple[Path, Path, Path]:
+    """A map of ``n`` random-walk places × :data:`DIM` float32 values (places near each
+    other alike; ``metric``), stored uncompressed as ``folder/map_name``, a query of
+    ``n_query`` frames along a third of the way in with noise (``query.npy``) and its
+    ground truth, ±2 places (``truth.csv``); written in place, no second copy of the map."""
     from catgraph.io import build_map, save_map
     from catgraph.pipeline import FrontEnd
     from catgraph.traverse import Traverse
@@ -52,8 +57,8 @@ def _write_inputs(folder: Path, n: int, n_query: int) -> tuple[Path, Path, Path]
     for a in range(0, n, 50_000):  # a random walk, written in place
         rng.standard_normal(dtype=np.float32, out=values[a : a + 50_000])
     np.cumsum(values, axis=0, out=values)
-    the_map = build_map(Traverse(values, meta={"kind": "descriptors"}, name="walk"), FrontEnd(metric="sad"))
-    map_path = save_map(folder / "walk.npz", the_map, compress=False)
+    the_map = build_map(Traverse(values, meta={"kind": "descriptors"}, name="walk"), FrontEnd(metric=metric))
+    map_path = save_map(folder / map_name, the_map, compress=False)
     first = n // 3
     query = values[first : first + n_query] + 0.5 * rng.standard_normal((n_query, DIM), dtype=np.float32)
     np.save(folder / "query.npy", query)
@@ -81,7 +86,7 @@ def main() -> None:
     runs = []
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        map_path, query_path, truth_path = _write_inputs(folder, args.places, args.query)
+        map_path, query_path, truth_path = write_inputs(folder, args.places, args.query)
         cluster = distributed.LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
                                            memory_limit=0, dashboard_address=None)
         try:

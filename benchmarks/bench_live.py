@@ -783,26 +783,15 @@ def _batch_commands() -> tuple:
 
 
 def write_batch_inputs(folder: str, n: int = 100_000, n_query: int = 1000) -> tuple[Path, Path]:
-    """A saved map of ``n`` places × :data:`DIM` float32 values (a random walk: places near
-    each other alike; cosine) and a query of ``n_query`` frames along it with noise
-    (``query.npy``), in ``folder``: the inputs of ``--batch``."""
-    from catgraph.io import build_map, save_map
-    from catgraph.pipeline import FrontEnd
-    from catgraph.traverse import Traverse
+    """The inputs of ``--batch`` in ``folder``: a saved map of ``n`` places (a random walk,
+    cosine; ``map.npz``) and a query of ``n_query`` frames along it (``query.npy``), as
+    ``bench_cluster_map.py`` writes its own."""
+    from bench_cluster_map import write_inputs
 
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
-    rng = np.random.default_rng(0)
-    values = np.empty((n, DIM), dtype=np.float32)
-    for a in range(0, n, 50_000):  # written in place: no second copy of the map
-        rng.standard_normal(dtype=np.float32, out=values[a : a + 50_000])
-    np.cumsum(values, axis=0, out=values)
-    the_map = build_map(Traverse(values, meta={"kind": "descriptors"}, name="walk"), FrontEnd(metric="cosine"))
-    map_path = save_map(out / "map.npz", the_map, compress=False)
-    first = n // 3
-    query = values[first : first + n_query] + 0.5 * rng.standard_normal((n_query, DIM), dtype=np.float32)
-    np.save(out / "query.npy", query)
-    return map_path, out / "query.npy"
+    map_path, query_path, _ = write_inputs(out, n, n_query, metric="cosine", map_name="map.npz")
+    return map_path, query_path
 
 
 def batch_commands(map_file: str, query_file: str, tree: str | None = None) -> dict:
