@@ -826,8 +826,9 @@ def batch_commands(map_file: str, query_file: str, tree: str | None = None) -> d
 
     places, dim = load_map(map_file, descriptors="stream", graph=False).descriptors.shape
     frames = np.load(query_file, mmap_mode="r").shape[0]
-    note = (f"a map of {places:,} places × {dim} values and a query of {frames:,} frames, at `{_commit()}`"
-            + (f" (`{tree}`)" if tree else "") + f", load {load[0]:.1f}–{os.getloadavg()[0]:.1f}")
+    source = f"catgraph from `{tree}`" if tree else f"at `{_commit()}`"  # _commit: this process's catgraph
+    note = (f"a map of {places:,} places × {dim} values and a query of {frames:,} frames, {source}, "
+            f"load {load[0]:.1f}–{os.getloadavg()[0]:.1f}")
     return {"map": map_file, "query": query_file, "rows": rows, "peak": "VmHWM", "note": note}
 
 
